@@ -1,0 +1,63 @@
+"""The headless command-line interface: ``python -m blender_mrvm <command> ...``.
+
+Each command lives in ``commands/<name>.py`` with ``add_arguments(parser)`` and ``run(args) -> int``;
+those modules import nothing heavy at module level, so ``--help`` is instant and a command that
+needs torch does not make another one need it. User errors (:class:`MRVMError`) print one line,
+``error: ...``, and exit non-zero.
+
+Inside Blender the same CLI runs as::
+
+    blender --background --python-expr "import bl_ext.user_default.blender_mrvm.cli as c; c.main_blender()" -- render-dataset ...
+    blender --background -P scripts/mrvm_blender.py -- render-dataset ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import MRVMError
+
+# command name -> (module in commands/, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "render-dataset": ("render_dataset", "render a ShapeNet-style multi-view dataset from objects or mesh files"),
+    "build-extension": ("build_extension", "build the installable Blender extension zip"),
+    "bench": ("bench", "run a benchmark and write its figures to CSV/PNG"),
+    "contact-sheet": ("contact_sheet", "write a PNG contact sheet of a rendered dataset"),
+    "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m blender_mrvm", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (module, help_text) in COMMANDS.items():
+        mod = importlib.import_module(f".commands.{module}", __package__)
+        p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip())
+        mod.add_arguments(p)
+        p.set_defaults(_module=mod)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._module.run(args) or 0)
+    except MRVMError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("error: interrupted; finished work is kept", file=sys.stderr)
+        return 130
+
+
+def main_blender() -> int:
+    """Entry point for ``blender --background ... -- <command> ...``: arguments after ``--``."""
+    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    code = main(argv)
+    if code:
+        sys.exit(code)
+    return code

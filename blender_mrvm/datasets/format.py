@@ -1,0 +1,317 @@
+"""Our on-disk dataset format: writers and a reader, bpy-free. See ``shared/DESIGN.md``.
+
+::
+
+    <root>/mrvm_dataset.json                 what produced the set (guards against mixing sets)
+    <root>/<category>/<object_id>/
+      rgb/000000.png        8-bit sRGB, composited on white (or RGBA, flag in meta.json)
+      depth/000000.exr      float32 planar z-depth, channel "Y"; 0 where the ray hits nothing
+      normal/000000.exr     float32 world-space unit normals, channels "R", "G", "B"; 0 on background
+      mask/000000.png       uint8 part ids, 0 = background (labels in meta.json)
+      pose/000000.txt       4x4 camera-to-world, OpenCV axes, one line of 16 numbers (SRN)
+      intrinsics.txt        SRN: "f cx cy 0", "0. 0. 0.", "1.", "H W"
+      transforms.json       nerfstudio / NeRF format, OpenGL camera axes
+      meta.json             category, source, normalization, bounds, labels, render settings
+    <root>/splits/{train,val,test}.lst
+
+A view counts as finished only when all five of its files exist; each file is written to a
+temporary name and renamed, and the pose (written last) is the view's commit point.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry.cameras import Intrinsics, as_pose, opencv_from_opengl, opengl_from_opencv
+
+FORMAT_VERSION = 1
+ROOT_MANIFEST = "mrvm_dataset.json"
+VIEW_DIRS = ("rgb", "depth", "normal", "mask", "pose")
+VIEW_EXT = {"rgb": ".png", "depth": ".exr", "normal": ".exr", "mask": ".png", "pose": ".txt"}
+SPLITS = ("train", "val", "test")
+
+
+def view_name(index: int) -> str:
+    return f"{index:06d}"
+
+
+def view_paths(obj_dir: Path, index: int) -> dict[str, Path]:
+    """The files of view ``index`` of an object folder."""
+    n = view_name(index)
+    return {k: Path(obj_dir) / k / f"{n}{VIEW_EXT[k]}" for k in VIEW_DIRS}
+
+
+def view_complete(obj_dir: Path, index: int) -> bool:
+    return all(p.is_file() and p.stat().st_size > 0 for p in view_paths(obj_dir, index).values())
+
+
+# --------------------------------------------------------------------------------------------
+# Atomic file writing
+# --------------------------------------------------------------------------------------------
+
+def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = None) -> None:
+    """Write a file through ``write(tmp_path)`` then rename it into place (never half-written)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    def w(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+    atomic_write(path, w)
+
+
+def atomic_write_json(path: Path, obj: Any) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=False) + "\n")
+
+
+# --------------------------------------------------------------------------------------------
+# Images
+# --------------------------------------------------------------------------------------------
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB transfer function (what Blender's 'Standard' view transform applies)."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
+
+
+def to_uint8(x: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(np.asarray(x) * 255.0), 0, 255).astype(np.uint8)
+
+
+def write_png(path: Path, arr: np.ndarray) -> None:
+    """Write a uint8 (H, W), (H, W, 3) or (H, W, 4) array as PNG, atomically."""
+    from PIL import Image
+
+    arr = np.ascontiguousarray(arr)
+    if arr.dtype != np.uint8:
+        raise TypeError(f"write_png expects uint8, got {arr.dtype}")
+    atomic_write(path, lambda tmp: Image.fromarray(arr).save(tmp, format="PNG"))
+
+
+def read_png(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return np.asarray(im).copy()
+
+
+def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    """Write float32 channels (each (H, W)) to a single-part scanline EXR, ZIP-compressed, atomically."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    chans = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+
+    def w(tmp: str) -> None:
+        with OpenEXR.File(header, chans) as f:
+            f.write(tmp)
+    atomic_write(path, w)
+
+
+def read_exr(path: Path) -> dict[str, np.ndarray]:
+    """Channels of the first part of an EXR file, by name, as float32 (H, W) arrays."""
+    import OpenEXR
+
+    try:
+        f = OpenEXR.File(str(path), separate_channels=True)
+    except Exception as e:  # OpenEXR raises plain exceptions for unreadable files
+        raise InputError(f"cannot read EXR file {path}: {e}") from e
+    return {k: np.asarray(v.pixels, dtype=np.float32) for k, v in f.channels().items()}
+
+
+def read_exr_parts(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """All parts of a (multi-part) EXR: ``{part name: {channel name: (H, W) array}}``."""
+    import OpenEXR
+
+    f = OpenEXR.File(str(path), separate_channels=True)
+    return {p.name(): {k: np.asarray(v.pixels) for k, v in p.channels.items()} for p in f.parts}
+
+
+def write_depth(path: Path, depth: np.ndarray) -> None:
+    write_exr(path, {"Y": depth})
+
+
+def read_depth(path: Path) -> np.ndarray:
+    ch = read_exr(path)
+    for name in ("Y", "Z", "R", "V"):
+        if name in ch:
+            return ch[name]
+    raise InputError(f"no depth channel (Y, Z, R or V) in {path}")
+
+
+def write_normals(path: Path, normals: np.ndarray) -> None:
+    write_exr(path, {"R": normals[..., 0], "G": normals[..., 1], "B": normals[..., 2]})
+
+
+def read_normals(path: Path) -> np.ndarray:
+    ch = read_exr(path)
+    return np.stack([ch["R"], ch["G"], ch["B"]], axis=-1)
+
+
+# --------------------------------------------------------------------------------------------
+# Cameras: SRN and transforms.json
+# --------------------------------------------------------------------------------------------
+
+def format_pose(c2w_opencv: np.ndarray) -> str:
+    return " ".join(f"{v:.9g}" for v in as_pose(c2w_opencv).reshape(-1)) + "\n"
+
+
+def write_srn_pose(path: Path, c2w_opencv: np.ndarray) -> None:
+    atomic_write_text(path, format_pose(c2w_opencv))
+
+
+def read_srn_pose(path: Path) -> np.ndarray:
+    """SRN pose file (one line of 16 numbers, or 4 lines of 4) -> OpenCV camera-to-world."""
+    vals = np.array(Path(path).read_text().split(), dtype=np.float64)
+    if vals.size != 16:
+        raise InputError(f"{path}: a pose file holds 16 numbers, found {vals.size}")
+    return vals.reshape(4, 4)
+
+
+def format_srn_intrinsics(intr: Intrinsics) -> str:
+    # SRN stores one focal length; fx is authoritative (our renders use square pixels).
+    return (f"{intr.fx:.9g} {intr.cx:.9g} {intr.cy:.9g} 0.\n0. 0. 0.\n1.\n{intr.height} {intr.width}\n")
+
+
+def read_srn_intrinsics(path: Path) -> Intrinsics:
+    """SRN ``intrinsics.txt``: 'f cx cy 0', grid barycenter, scale, 'H W'."""
+    lines = [ln for ln in Path(path).read_text().splitlines() if ln.strip()]
+    try:
+        f, cx, cy = map(float, lines[0].split()[:3])
+        h, w = (int(float(v)) for v in lines[-1].split()[:2])
+    except (ValueError, IndexError) as e:
+        raise InputError(f"{path}: not an SRN intrinsics file ({e})") from e
+    return Intrinsics(f, f, cx, cy, w, h)
+
+
+def transforms_dict(intr: Intrinsics, frames: list[dict[str, Any]], extra: dict[str, Any] | None = None) -> dict:
+    """nerfstudio ``transforms.json`` content; each frame has ``file_path`` and ``c2w_opencv``."""
+    out: dict[str, Any] = {
+        "camera_model": "OPENCV",
+        "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx, "cy": intr.cy,
+        "w": intr.width, "h": intr.height,
+        "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+        "camera_angle_x": intr.fov_x,
+    }
+    if extra:
+        out.update(extra)
+    fr = []
+    for f in frames:
+        f = dict(f)
+        c2w = f.pop("c2w_opencv")
+        f["transform_matrix"] = opengl_from_opencv(c2w).tolist()
+        fr.append(f)
+    out["frames"] = fr
+    return out
+
+
+@dataclass
+class TransformsFrame:
+    file_path: str
+    c2w_opencv: np.ndarray
+    intrinsics: Intrinsics
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def read_transforms(path: Path) -> list[TransformsFrame]:
+    """Read a nerfstudio / NeRF-synthetic ``transforms.json`` into OpenCV poses + intrinsics.
+
+    Per-frame intrinsics override global ones (nerfstudio); ``camera_angle_x`` alone (NeRF-synthetic)
+    gives a centred square-pixel camera once the image size is known from ``w``/``h``.
+    """
+    d = json.loads(Path(path).read_text())
+    frames = []
+    for fr in d.get("frames", []):
+        g = {**d, **fr}
+        w, h = g.get("w"), g.get("h")
+        if "fl_x" in g:
+            fx = float(g["fl_x"])
+            fy = float(g.get("fl_y", fx))
+        elif "camera_angle_x" in g and w:
+            fx = fy = 0.5 * float(w) / np.tan(0.5 * float(g["camera_angle_x"]))
+        else:
+            raise InputError(f"{path}: no focal length (fl_x or camera_angle_x with w)")
+        if not (w and h):
+            raise InputError(f"{path}: image size (w, h) missing")
+        intr = Intrinsics(fx, fy, float(g.get("cx", w / 2.0)), float(g.get("cy", h / 2.0)), int(w), int(h))
+        c2w = opencv_from_opengl(np.asarray(fr["transform_matrix"], dtype=np.float64))
+        extra = {k: v for k, v in fr.items() if k not in ("file_path", "transform_matrix")}
+        frames.append(TransformsFrame(fr["file_path"], c2w, intr, extra))
+    return frames
+
+
+# --------------------------------------------------------------------------------------------
+# Splits and the object reader
+# --------------------------------------------------------------------------------------------
+
+def write_split(root: Path, split: str, entries: list[str]) -> None:
+    atomic_write_text(Path(root) / "splits" / f"{split}.lst", "".join(e + "\n" for e in entries))
+
+
+def read_split(root: Path, split: str) -> list[str]:
+    p = Path(root) / "splits" / f"{split}.lst"
+    return [ln.strip() for ln in p.read_text().splitlines() if ln.strip()] if p.exists() else []
+
+
+@dataclass
+class ObjectViews:
+    """One object folder of our format, read back."""
+
+    path: Path
+    meta: dict[str, Any]
+    intrinsics: Intrinsics
+    c2w_opencv: list[np.ndarray]
+    indices: list[int]
+
+    def rgb(self, i: int) -> np.ndarray:
+        return read_png(view_paths(self.path, self.indices[i])["rgb"])
+
+    def depth(self, i: int) -> np.ndarray:
+        return read_depth(view_paths(self.path, self.indices[i])["depth"])
+
+    def normals(self, i: int) -> np.ndarray:
+        return read_normals(view_paths(self.path, self.indices[i])["normal"])
+
+    def mask(self, i: int) -> np.ndarray:
+        return read_png(view_paths(self.path, self.indices[i])["mask"])
+
+
+def read_object(obj_dir: Path) -> ObjectViews:
+    """Read an object folder (finished views only) written by ``render-dataset``."""
+    obj_dir = Path(obj_dir)
+    meta_path = obj_dir / "meta.json"
+    if not meta_path.is_file():
+        raise InputError(f"{obj_dir} is not an object folder (no meta.json)")
+    meta = json.loads(meta_path.read_text())
+    intr = read_srn_intrinsics(obj_dir / "intrinsics.txt")
+    if "fl_y" in meta.get("intrinsics", {}):
+        m = meta["intrinsics"]
+        intr = Intrinsics(m["fl_x"], m["fl_y"], m["cx"], m["cy"], m["w"], m["h"])
+    idx = sorted(int(p.stem) for p in (obj_dir / "pose").glob("*.txt") if p.stem.isdigit())
+    idx = [i for i in idx if view_complete(obj_dir, i)]
+    poses = [read_srn_pose(view_paths(obj_dir, i)["pose"]) for i in idx]
+    return ObjectViews(obj_dir, meta, intr, poses, idx)

@@ -1,0 +1,79 @@
+"""Progress and cancellation for long work.
+
+Long-running core functions are generators that yield :class:`Progress` events after each unit of
+work. Callers choose how to drive them:
+
+- the CLI iterates to the end with a ``tqdm`` bar (:func:`run_with_tqdm`);
+- a Blender modal operator advances the generator one step per timer tick, so the UI stays
+  responsive, and cancels by calling ``gen.close()``; the generator's ``finally`` blocks then
+  restore whatever it changed.
+
+The generator's return value (``StopIteration.value``) is the result of the work.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from typing import Any, Generator, Iterator
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One step of long work."""
+
+    done: int
+    """Units finished so far (views, iterations, images)."""
+    total: int
+    """Units in all; 0 when unknown."""
+    message: str = ""
+    """What is being worked on, for a status line."""
+    skipped: int = 0
+    """Units found already finished (resume) and not redone."""
+
+    @property
+    def fraction(self) -> float:
+        return self.done / self.total if self.total else 0.0
+
+
+ProgressGen = Generator[Progress, None, Any]
+
+
+def run_to_end(gen: ProgressGen) -> Any:
+    """Drive a progress generator without reporting; return its result."""
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value
+
+
+def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: bool | None = None) -> Any:
+    """Drive a progress generator with a tqdm bar on stderr; return its result."""
+    from tqdm import tqdm
+
+    bar = None
+    try:
+        while True:
+            try:
+                event = next(gen)
+            except StopIteration as stop:
+                return stop.value
+            if bar is None:
+                bar = tqdm(total=event.total or None, desc=desc, unit=unit, file=sys.stderr,
+                           disable=disable, dynamic_ncols=True)
+            bar.n = event.done
+            if event.message:
+                bar.set_postfix_str(event.message, refresh=False)
+            bar.refresh()
+    except KeyboardInterrupt:
+        gen.close()
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def iter_events(gen: ProgressGen) -> Iterator[Progress]:
+    """Iterate over the events only (tests)."""
+    yield from gen

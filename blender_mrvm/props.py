@@ -1,0 +1,75 @@
+"""Scene-level settings the panels draw and the operators read (one PropertyGroup per feature).
+
+Each group is attached to ``bpy.types.Scene`` under the name in ``SCENE_PROPERTIES``; operators turn
+a group into the frozen dataclass config of the core function with a ``to_config`` helper.
+"""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+ENGINES = [
+    ("CYCLES", "Cycles", "Path tracing on the CPU (default; all passes in one render)"),
+    ("BLENDER_EEVEE", "EEVEE", "Rasterizer (slow on software GL); data passes from a 1-sample Cycles render"),
+    ("BLENDER_WORKBENCH", "Workbench", "Flat viewport shading, fastest; data passes from a 1-sample Cycles render"),
+]
+RIGS = [
+    ("sphere", "Sphere", "Uniform random directions on a sphere (seeded)"),
+    ("hemisphere", "Hemisphere", "Uniform random directions on the upper hemisphere (seeded)"),
+    ("spiral", "Spiral", "Archimedean spiral over the upper hemisphere (the SRN test layout)"),
+    ("turntable", "Turntable", "Evenly spaced azimuths at a fixed elevation"),
+    ("scene", "Scene cameras", "The cameras already in the scene"),
+]
+
+
+class MRVM_PG_dataset(bpy.types.PropertyGroup):
+    """Settings of the Render dataset operator."""
+
+    source: EnumProperty(name="Objects", items=[
+        ("SELECTED", "Selected objects", "Each selected mesh object becomes one dataset object"),
+        ("PATH", "Mesh files / ShapeNet", "A mesh file, a folder of mesh files, or a ShapeNetCore folder"),
+    ], default="SELECTED")
+    source_path: StringProperty(name="Path", subtype="FILE_PATH",
+                                description="Mesh file (OBJ, PLY, STL, glTF/GLB, OFF), folder of them, or ShapeNetCore folder")
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_dataset",
+                               description="Dataset root folder (// is relative to the .blend)")
+    rig: EnumProperty(name="Rig", items=RIGS, default="sphere")
+    views: IntProperty(name="Views", default=24, min=1, soft_max=250, description="Views per object")
+    resolution: IntProperty(name="Resolution", default=128, min=1, max=8192, description="Image width and height, pixels")
+    engine: EnumProperty(name="Engine", items=ENGINES, default="CYCLES")
+    samples: IntProperty(name="Samples", default=32, min=1, soft_max=1024, description="Cycles / EEVEE samples per pixel")
+    rgba: BoolProperty(name="Transparent background", default=False,
+                       description="Write RGBA images instead of compositing on white")
+    fov: FloatProperty(name="Field of view", default=0.6981317, min=0.01745, max=2.967, subtype="ANGLE",
+                       description="Horizontal field of view of generated cameras (the distance adapts so the object fills the frame)")
+    elevation: FloatProperty(name="Elevation", default=0.3490659, min=-1.5707963, max=1.5707963, subtype="ANGLE",
+                             description="Camera elevation of the turntable rig")
+    seed: IntProperty(name="Seed", default=0, min=0, description="Seed of random rigs and splits")
+    force: BoolProperty(name="Overwrite", default=False,
+                        description="Overwrite an output folder that holds another dataset")
+    # Status of a running job (drawn by the panel).
+    running: BoolProperty(default=False, options={"SKIP_SAVE"})
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
+    status: StringProperty(default="", options={"SKIP_SAVE"})
+
+
+SCENE_PROPERTIES = {
+    "mrvm_dataset": MRVM_PG_dataset,
+}
+classes = tuple(SCENE_PROPERTIES.values())
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    for name, cls in SCENE_PROPERTIES.items():
+        setattr(bpy.types.Scene, name, PointerProperty(type=cls))
+
+
+def unregister() -> None:
+    for name in SCENE_PROPERTIES:
+        if hasattr(bpy.types.Scene, name):
+            delattr(bpy.types.Scene, name)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,51 @@
+"""Shared fixtures.
+
+Blender tests run under the pip ``bpy`` module: the ``addon`` session fixture enables the add-on
+once (``read_factory_settings`` would unregister it), and ``empty_scene`` resets the file with
+``read_homefile(use_empty=True)`` before each test. Tests that need no Blender never import bpy.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+os.environ.setdefault("TQDM_DISABLE", "1")
+
+
+@pytest.fixture(scope="session")
+def addon():
+    """Enable the add-on once per session, as Blender does for an installed extension."""
+    import addon_utils
+    import bpy
+
+    mod = addon_utils.enable("blender_mrvm", default_set=True, handle_error=None)
+    assert mod is not None, "add-on failed to enable"
+    assert hasattr(bpy.types, "MRVM_OT_render_dataset")
+    yield mod
+
+
+@pytest.fixture
+def empty_scene(addon):
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    yield bpy.context.scene
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+@pytest.fixture
+def bpy_empty():
+    """An empty Blender file without the add-on (pure scene-layer tests)."""
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    yield bpy.context.scene
+    bpy.ops.wm.read_homefile(use_empty=True)
