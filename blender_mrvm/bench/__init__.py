@@ -1,0 +1,1 @@
+"""Benchmarks (``python -m blender_mrvm bench <name>``); each module writes CSV figures."""

@@ -1,0 +1,33 @@
+"""Benchmarks: ``python -m blender_mrvm bench <name> ...`` writes its figures to CSV (+ PNG).
+
+Each benchmark is a module ``blender_mrvm/bench/<name>.py`` with ``add_arguments(parser)`` and
+``run(args) -> int``. They are measurements, not tests: run them on a quiet machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+from pathlib import Path
+
+BENCH_DIR = Path(__file__).resolve().parents[1] / "bench"
+
+
+def available() -> list[str]:
+    return sorted(m.name for m in pkgutil.iter_modules([str(BENCH_DIR)]) if not m.name.startswith("_"))
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="bench", metavar="NAME")
+    sub.required = True
+    for name in available():
+        mod = importlib.import_module(f"..bench.{name}", __package__)
+        bp = sub.add_parser(name, help=(mod.__doc__ or name).strip().splitlines()[0],
+                            description=(mod.__doc__ or "").strip())
+        mod.add_arguments(bp)
+        bp.set_defaults(_bench=mod)
+
+
+def run(args) -> int:
+    return int(args._bench.run(args) or 0)

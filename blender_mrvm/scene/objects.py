@@ -1,0 +1,326 @@
+"""Dataset objects: where they come from, how they are loaded into a render scene, normalization.
+
+A *source* string names what to render:
+
+- ``selected``: each selected mesh object of the current file (copies are rendered; the user's
+  objects are never modified);
+- a mesh file (OBJ, PLY, STL, glTF/GLB, OFF);
+- a folder: a ShapeNetCore folder (``<synset>/<model>/models/model_normalized.obj``, one synset
+  folder or the whole tree) or a folder of mesh files;
+- ``procedural:<category>:<seed>``: a generated object of the procedural library.
+
+Objects are normalized as ShapeNetCore v2 is: centred on their bounding-box centre and scaled so
+the bounding-box diagonal is 1. The 4x4 normalization matrix is recorded in ``meta.json``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from ..errors import InputError
+
+MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+
+# ShapeNetCore v2 synset ids of the 13 categories used by SRN / NMR / pixelNeRF.
+SHAPENET_SYNSETS = {
+    "02691156": "airplane", "02828884": "bench", "02933112": "cabinet", "02958343": "car",
+    "03001627": "chair", "03211117": "display", "03636649": "lamp", "03691459": "loudspeaker",
+    "04090263": "rifle", "04256520": "sofa", "04379243": "table", "04401088": "telephone",
+    "04530566": "watercraft",
+}
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One dataset object to render."""
+
+    kind: str
+    """'selected', 'file' or 'procedural'."""
+    category: str
+    """Category folder name."""
+    object_id: str
+    """Object folder name (unique within the category)."""
+    path: str = ""
+    """Mesh file (kind 'file')."""
+    names: tuple[str, ...] = ()
+    """Blender object names (kind 'selected')."""
+    seed: int = 0
+    """Seed (kind 'procedural')."""
+    params: tuple[tuple[str, str], ...] = field(default_factory=tuple)
+    """Generator parameters (kind 'procedural')."""
+
+    @property
+    def key(self) -> str:
+        return f"{self.category}/{self.object_id}"
+
+    def describe(self) -> str:
+        if self.kind == "file":
+            return self.path
+        if self.kind == "procedural":
+            return f"procedural:{self.category}:{self.seed}"
+        return "selected:" + ",".join(self.names)
+
+
+def safe_id(name: str) -> str:
+    """A folder-safe object id."""
+    s = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._")
+    return s or "object"
+
+
+def _shapenet_models(root: Path) -> list[tuple[str, Path]]:
+    """(category, model file) pairs under a ShapeNetCore root or synset folder."""
+    out = []
+    for f in sorted(root.glob("*/models/model_normalized.obj")) + sorted(root.glob("*/*/models/model_normalized.obj")):
+        synset = f.parents[2].name
+        cat = SHAPENET_SYNSETS.get(synset, synset) if f.parents[2] != root.parent else synset
+        out.append((cat, f))
+    return out
+
+
+def resolve_sources(sources: tuple[str, ...], category: str | None = None) -> list[ObjectSpec]:
+    """Turn source strings into object specs; raises InputError for anything unusable."""
+    if not sources:
+        raise InputError("no source given: name mesh files, a folder, 'selected' or 'procedural:<category>:<seed>'")
+    specs: list[ObjectSpec] = []
+    for src in sources:
+        if src == "selected":
+            objs = [o for o in bpy.context.selected_objects if o.type == "MESH"] if bpy.context.view_layer else []
+            if not objs:
+                raise InputError("no mesh objects are selected")
+            for o in sorted(objs, key=lambda o: o.name):
+                cat = category or str(o.get("mrvm_category", "custom"))
+                specs.append(ObjectSpec("selected", safe_id(cat), safe_id(o.name), names=(o.name,)))
+        elif src.startswith("procedural:"):
+            parts = src.split(":")
+            if len(parts) != 3 or not parts[1]:
+                raise InputError(f"procedural source must be 'procedural:<category>:<seed>', got {src!r}")
+            try:
+                seed = int(parts[2])
+            except ValueError:
+                raise InputError(f"seed must be an integer in {src!r}") from None
+            if seed < 0:
+                raise InputError(f"seed must be non-negative in {src!r}")
+            specs.append(ObjectSpec("procedural", parts[1], f"{parts[1]}_{seed:06d}", seed=seed))
+        else:
+            p = Path(src).expanduser()
+            if not p.exists():
+                raise InputError(f"mesh file or folder not found: {src}")
+            if p.is_dir():
+                models = _shapenet_models(p)
+                if models:
+                    for cat, f in models:
+                        specs.append(ObjectSpec("file", safe_id(category or cat), safe_id(f.parents[1].name), path=str(f)))
+                    continue
+                files = sorted(f for f in p.iterdir() if f.suffix.lower() in MESH_EXTS and f.is_file())
+                if not files:
+                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) or ShapeNet models in folder {src}")
+                for f in files:
+                    specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(f.stem), path=str(f)))
+            else:
+                if p.suffix.lower() not in MESH_EXTS:
+                    raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}; "
+                                     f"supported: {', '.join(MESH_EXTS)}")
+                specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(p.stem), path=str(p)))
+    keys = [s.key for s in specs]
+    dup = sorted({k for k in keys if keys.count(k) > 1})
+    if dup:
+        raise InputError(f"two sources map to the same object folder: {dup[0]} (rename one)")
+    return specs
+
+
+# --------------------------------------------------------------------------------------------
+# Loading into a scene
+# --------------------------------------------------------------------------------------------
+
+_DATA_COLLECTIONS = ("objects", "meshes", "materials", "images", "textures", "node_groups", "cameras",
+                     "lights", "worlds", "collections", "curves", "armatures", "actions")
+
+
+def snapshot_data() -> dict[str, set[int]]:
+    """Pointers of every datablock that may be created while loading or rendering."""
+    return {name: {d.as_pointer() for d in getattr(bpy.data, name)} for name in _DATA_COLLECTIONS}
+
+
+def remove_new_data(before: dict[str, set[int]]) -> None:
+    """Remove datablocks created since ``before`` (the user's own data is untouched)."""
+    for name in ("objects", "collections", "meshes", "curves", "armatures", "cameras", "lights", "materials",
+                 "node_groups", "textures", "images", "worlds", "actions"):
+        coll = getattr(bpy.data, name)
+        new = [d for d in coll if d.as_pointer() not in before[name]]
+        if new:
+            bpy.data.batch_remove(new)
+
+
+@contextlib.contextmanager
+def quiet_stdout():
+    """Silence Blender's C-level progress prints (render 'Fra:' lines, importer timings) on fd 1."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+def _import_file(path: Path) -> list[bpy.types.Object]:
+    """Import a mesh file with Blender's importers (trimesh for OFF); return the new objects."""
+    ext = path.suffix.lower()
+    before = {o.as_pointer() for o in bpy.data.objects}
+    try:
+        with quiet_stdout():
+            _run_importer(path, ext)
+    except RuntimeError as e:
+        raise InputError(f"cannot read mesh file {path}: {str(e).strip().splitlines()[-1]}") from None
+    new = [o for o in bpy.data.objects if o.as_pointer() not in before]
+    meshes = [o for o in new if o.type == "MESH" and len(o.data.polygons) > 0]
+    if not meshes:
+        for o in new:
+            bpy.data.objects.remove(o)
+        raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
+    return new
+
+
+def _run_importer(path: Path, ext: str) -> None:
+    """Run the Blender importer for ``ext`` (OBJ is read as Y-up, like ShapeNet; trimesh for OFF)."""
+    if ext == ".obj":
+        bpy.ops.wm.obj_import(filepath=str(path), use_split_objects=False, use_split_groups=False,
+                              forward_axis="NEGATIVE_Z", up_axis="Y")
+    elif ext == ".ply":
+        bpy.ops.wm.ply_import(filepath=str(path))
+    elif ext == ".stl":
+        bpy.ops.wm.stl_import(filepath=str(path))
+    elif ext in (".glb", ".gltf"):
+        import addon_utils
+
+        addon_utils.enable("io_scene_gltf2", default_set=False)
+        bpy.ops.import_scene.gltf(filepath=str(path))
+    elif ext == ".off":
+        _import_with_trimesh(path)
+
+
+def _import_with_trimesh(path: Path) -> None:
+    import trimesh
+
+    try:
+        tm = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as e:  # trimesh raises many types for corrupt files
+        raise InputError(f"cannot read mesh file {path}: {e}") from None
+    if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
+        raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
+    mesh = bpy.data.meshes.new(path.stem)
+    mesh.from_pydata(np.asarray(tm.vertices, dtype=np.float64).tolist(), [], np.asarray(tm.faces).tolist())
+    mesh.validate()
+    obj = bpy.data.objects.new(path.stem, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+
+
+def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
+    ids = {o.as_pointer() for o in objs}
+    return [o for o in objs if o.parent is None or o.parent.as_pointer() not in ids]
+
+
+def load_into(spec: ObjectSpec, collection: bpy.types.Collection) -> list[bpy.types.Object]:
+    """Load a dataset object into ``collection`` (objects only live there); return its objects."""
+    if spec.kind == "file":
+        new = _import_file(Path(spec.path))
+        default = None
+        for o in new:
+            for c in list(o.users_collection):
+                c.objects.unlink(o)
+            collection.objects.link(o)
+            if o.type == "MESH" and not any(o.data.materials):
+                # Imported geometry without materials: a neutral grey reads against the white background.
+                if default is None:
+                    default = bpy.data.materials.new("MRVM_default_grey")
+                    default.diffuse_color = (0.45, 0.45, 0.45, 1.0)
+                    bsdf = next((n for n in default.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None) \
+                        if default.node_tree else None
+                    if bsdf is not None:
+                        bsdf.inputs["Base Color"].default_value = (0.45, 0.45, 0.45, 1.0)
+                        bsdf.inputs["Roughness"].default_value = 0.6
+                o.data.materials.clear()
+                o.data.materials.append(default)
+        return new
+    if spec.kind == "selected":
+        out = []
+        for name in spec.names:
+            src = bpy.data.objects.get(name)
+            if src is None:
+                raise InputError(f"object {name!r} no longer exists")
+            ob = src.copy()  # shares mesh/material data: nothing of the user's is modified
+            ob.parent = None
+            ob.matrix_world = src.matrix_world.copy()
+            ob.animation_data_clear()
+            collection.objects.link(ob)
+            out.append(ob)
+        return out
+    if spec.kind == "procedural":
+        try:
+            from . import procedural
+        except ImportError:
+            raise InputError("the procedural object library is not available in this build") from None
+        params = dict(spec.params)
+        ob = procedural.build(spec.category, spec.seed, collection, **params)
+        return [ob]
+    raise InputError(f"unknown source kind {spec.kind!r}")
+
+
+def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
+    """World-space vertices of the evaluated meshes (modifiers applied) in ``view_layer``, (N, 3)."""
+    view_layer.update()
+    depsgraph = view_layer.depsgraph
+    pts = []
+    for o in objs:
+        if o.type != "MESH":
+            continue
+        ev = o.evaluated_get(depsgraph)
+        me = ev.to_mesh()
+        try:
+            co = np.empty(len(me.vertices) * 3, dtype=np.float64)
+            me.vertices.foreach_get("co", co)
+            co = co.reshape(-1, 3)
+            m = np.array(ev.matrix_world, dtype=np.float64)
+            pts.append(co @ m[:3, :3].T + m[:3, 3])
+        finally:
+            ev.to_mesh_clear()
+    if not pts or sum(len(p) for p in pts) == 0:
+        raise InputError("the object has no vertices")
+    return np.concatenate(pts)
+
+
+def normalization_matrix(verts: np.ndarray) -> np.ndarray:
+    """ShapeNetCore v2 normalization: bbox centre to the origin, bbox diagonal to 1."""
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    if not np.isfinite(diag) or diag <= 0:
+        raise InputError("the object is degenerate (zero-size bounding box)")
+    s = 1.0 / diag
+    n = np.eye(4)
+    n[:3, :3] *= s
+    n[:3, 3] = -s * (lo + hi) / 2.0
+    return n
+
+
+def apply_world_transform(objs: list[bpy.types.Object], m: np.ndarray, view_layer: bpy.types.ViewLayer) -> None:
+    """Left-multiply ``m`` onto the world matrix of the top-level objects (children follow)."""
+    mm = Matrix(m.tolist())
+    for o in _top_level(objs):
+        o.matrix_world = mm @ o.matrix_world
+    view_layer.update()

@@ -1,0 +1,543 @@
+"""Render a ShapeNet-style multi-view dataset: the one core function behind the operator and the CLI.
+
+``render_dataset(cfg)`` is a generator (see ``progress.py``): it yields a :class:`Progress` after
+every view and returns a :class:`RenderSummary`. The CLI drives it with a tqdm bar; the modal
+operator steps it on a timer and cancels with ``close()``.
+
+How a view is made: every dataset object is loaded into a private scene (the user's scenes and
+objects are never modified), normalized like ShapeNet, and rendered once per camera into a
+multi-layer EXR holding Combined, Depth, Normal, Object Index and Material Index. numpy turns that
+into the dataset files: RGB composited on white (or RGBA) with the sRGB transfer function (what
+Blender's "Standard" view transform applies), planar z-depth and world normals as float32 EXR, and
+the part-id mask. Cycles gives all passes in one render. EEVEE and Workbench render the colour, and a
+1-sample Cycles render of the same objects gives the data passes (those engines have no index
+passes). With Cycles, ``use_persistent_data`` keeps the scene's BVH between views.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from .. import __version__
+from ..datasets import format as F
+from ..errors import InputError, OutputError
+from ..geometry import cameras as C
+from ..geometry import rigs
+from ..progress import Progress, ProgressGen
+from . import objects as O
+from .camera import apply_intrinsics, apply_pose, new_camera, read_camera, set_clip
+
+ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
+MAX_RESOLUTION = 8192
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """What ``render-dataset`` renders, and how."""
+
+    out: Path
+    """Dataset root folder."""
+    sources: tuple[str, ...]
+    """Source strings: mesh files, folders (ShapeNetCore or mesh files), 'selected', 'procedural:<cat>:<seed>'."""
+    rig: str = "sphere"
+    """Camera rig: sphere, hemisphere, spiral, turntable or scene."""
+    views: int = 24
+    """Views per object (the scene rig uses every camera of the scene)."""
+    resolution: tuple[int, int] = (128, 128)
+    """Image width and height in pixels."""
+    engine: str = "CYCLES"
+    """Render engine for colour: CYCLES, BLENDER_EEVEE or BLENDER_WORKBENCH."""
+    samples: int = 32
+    """Samples per pixel (Cycles, EEVEE)."""
+    rgba: bool = False
+    """Write RGBA images instead of compositing on white."""
+    fov_deg: float = 40.0
+    """Horizontal field of view of generated cameras; the distance adapts so the object fills the frame."""
+    elevation_deg: float = 20.0
+    """Elevation of the turntable rig."""
+    seed: int = 0
+    """Seed of random rigs and of the train/val/test assignment."""
+    category: str | None = None
+    """Category folder for sources that have none (mesh files, selected objects)."""
+    shard: tuple[int, int] = (0, 1)
+    """(i, n): render only objects whose index modulo n is i (deterministic split of the work)."""
+    force: bool = False
+    """Overwrite an output folder that holds another dataset or other files."""
+    split: str | None = None
+    """Put every object of this run into this split (train/val/test); None = seeded by the fractions."""
+    split_fractions: tuple[float, float, float] = (0.8, 0.1, 0.1)
+    """Train/val/test shares for the seeded assignment."""
+
+    def validate(self) -> None:
+        w, h = self.resolution
+        if not (isinstance(w, int) and isinstance(h, int)) or w < 1 or h < 1:
+            raise InputError(f"resolution must be at least 1x1, got {w}x{h}")
+        if w > MAX_RESOLUTION or h > MAX_RESOLUTION:
+            raise InputError(f"resolution {w}x{h} exceeds the maximum of {MAX_RESOLUTION}")
+        if self.rig not in rigs.RIGS:
+            raise InputError(f"unknown rig {self.rig!r}; choose one of {', '.join(rigs.RIGS)}")
+        if self.rig != "scene" and self.views < 1:
+            raise InputError(f"number of views must be at least 1, got {self.views}")
+        if self.engine not in ENGINES:
+            raise InputError(f"unknown engine {self.engine!r}; choose one of {', '.join(ENGINES)}")
+        if self.samples < 1:
+            raise InputError(f"samples must be at least 1, got {self.samples}")
+        if not 0.0 < self.fov_deg < 180.0:
+            raise InputError(f"field of view must be between 0 and 180 degrees, got {self.fov_deg:g}")
+        i, n = self.shard
+        if n < 1 or not 0 <= i < n:
+            raise InputError(f"shard must be i/n with 0 <= i < n, got {i}/{n}")
+        if self.split is not None and self.split not in F.SPLITS:
+            raise InputError(f"split must be one of {', '.join(F.SPLITS)}, got {self.split!r}")
+        fr = self.split_fractions
+        if len(fr) != 3 or min(fr) < 0 or not math.isclose(sum(fr), 1.0, abs_tol=1e-6):
+            raise InputError(f"split fractions must be three non-negative numbers summing to 1, got {fr}")
+
+    def settings(self) -> dict:
+        """What makes two renders of the same object the same dataset (resume / overwrite checks)."""
+        return {"rig": self.rig, "views": self.views if self.rig != "scene" else None,
+                "resolution": list(self.resolution), "engine": self.engine, "samples": self.samples,
+                "rgba": self.rgba, "fov_deg": self.fov_deg,
+                "elevation_deg": self.elevation_deg if self.rig == "turntable" else None,
+                "seed": self.seed}
+
+
+@dataclass
+class RenderSummary:
+    out: Path
+    objects: list[str] = field(default_factory=list)
+    views_rendered: int = 0
+    views_skipped: int = 0
+    seconds: float = 0.0
+
+    @property
+    def views_per_second(self) -> float:
+        return self.views_rendered / self.seconds if self.seconds > 0 else 0.0
+
+
+# --------------------------------------------------------------------------------------------
+# Output folder
+# --------------------------------------------------------------------------------------------
+
+def _settings_diff(a: dict, b: dict) -> str:
+    keys = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    return ", ".join(f"{k} {a.get(k)} != {b.get(k)}" for k in keys[:3])
+
+
+def prepare_output(cfg: RenderConfig) -> None:
+    """Create/check the dataset root; refuse to mix with another dataset unless ``force``."""
+    out = Path(cfg.out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output path {out} exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise OutputError(f"output folder {out} is not writable ({e.strerror or e})") from None
+    manifest = out / F.ROOT_MANIFEST
+    settings = cfg.settings()
+    if manifest.exists():
+        try:
+            old = json.loads(manifest.read_text())
+        except (OSError, ValueError):
+            old = {}
+        if old.get("settings") != settings and not cfg.force:
+            raise OutputError(f"{out} holds a dataset rendered with other settings "
+                              f"({_settings_diff(old.get('settings', {}), settings)}); "
+                              "use --force to overwrite it or choose another folder")
+    elif any(p.name != F.ROOT_MANIFEST for p in out.iterdir()) and not cfg.force:
+        raise OutputError(f"{out} is not empty and holds no blender_mrvm dataset; "
+                          "use --force to write into it or choose an empty folder")
+    F.atomic_write_json(manifest, {"format": "blender_mrvm dataset", "format_version": F.FORMAT_VERSION,
+                                   "generator": f"blender_mrvm {__version__}", "settings": settings})
+
+
+def assign_split(cfg: RenderConfig, key: str) -> str:
+    if cfg.split:
+        return cfg.split
+    u = int(hashlib.sha1(f"{cfg.seed}:{key}".encode()).hexdigest()[:8], 16) / 2**32
+    tr, va, _ = cfg.split_fractions
+    return "train" if u < tr else ("val" if u < tr + va else "test")
+
+
+def write_splits(root: Path) -> dict[str, list[str]]:
+    """Rewrite ``splits/*.lst`` from the finished objects on disk that match the root's settings."""
+    root = Path(root)
+    settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
+    splits: dict[str, list[str]] = {s: [] for s in F.SPLITS}
+    for meta_path in sorted(root.glob("*/*/meta.json")):
+        try:
+            meta = json.loads(meta_path.read_text())
+        except ValueError:
+            continue
+        if meta.get("complete") and meta.get("settings") == settings and meta.get("split") in splits:
+            splits[meta["split"]].append(f"{meta['category']}/{meta['object_id']}")
+    for s, entries in splits.items():
+        F.write_split(root, s, entries)
+    return splits
+
+
+# --------------------------------------------------------------------------------------------
+# The private render scene
+# --------------------------------------------------------------------------------------------
+
+class RenderSession:
+    """Private scene(s) holding one dataset object, a camera, a light and a world.
+
+    Everything it creates is removed by :meth:`close`, also after an error or a cancel.
+    """
+
+    def __init__(self, cfg: RenderConfig, tmpdir: Path):
+        self.cfg = cfg
+        self.tmpdir = tmpdir
+        self._before = O.snapshot_data()
+        self._scenes_before = {s.as_pointer() for s in bpy.data.scenes}
+        self.scene = bpy.data.scenes.new("MRVM_render")
+        self.coll = bpy.data.collections.new("MRVM_objects")
+        self.scene.collection.children.link(self.coll)
+        self._setup_world_and_light()
+        self.camera = new_camera("MRVM_camera", self.coll)
+        self.scene.camera = self.camera
+        self._setup_cycles(self.scene, cfg.samples if cfg.engine == "CYCLES" else 1)
+        if cfg.engine == "CYCLES":
+            self.data_scene = self.scene
+        else:
+            # Colour from the chosen engine; data passes from a 1-sample Cycles scene sharing the objects.
+            self.data_scene = self.scene
+            self.scene = bpy.data.scenes.new("MRVM_render_colour")
+            self.scene.collection.children.link(self.coll)
+            self.scene.world = self.data_scene.world
+            self.scene.camera = self.camera
+            self.scene.render.engine = cfg.engine
+            self._setup_common(self.scene)
+            if cfg.engine == "BLENDER_EEVEE":
+                self.scene.eevee.taa_render_samples = cfg.samples
+            else:
+                self.scene.display.shading.light = "STUDIO"
+                self.scene.display.shading.color_type = "MATERIAL"
+                self.scene.display.render_aa = "8"
+        for sc in {self.scene, self.data_scene}:
+            sc.render.filepath = str(tmpdir / f"{sc.name}.exr")
+
+    def _setup_common(self, sc: bpy.types.Scene) -> None:
+        w, h = self.cfg.resolution
+        r = sc.render
+        r.resolution_x, r.resolution_y, r.resolution_percentage = w, h, 100
+        r.pixel_aspect_x = r.pixel_aspect_y = 1.0
+        r.film_transparent = True
+        r.use_file_extension = False
+        s = r.image_settings
+        s.media_type = "MULTI_LAYER_IMAGE"
+        s.file_format = "OPEN_EXR_MULTILAYER"
+        s.color_depth = "32"
+        s.exr_codec = "NONE"
+        sc.view_settings.view_transform = "Standard"
+
+    def _setup_cycles(self, sc: bpy.types.Scene, samples: int) -> None:
+        sc.render.engine = "CYCLES"
+        self._setup_common(sc)
+        cy = sc.cycles
+        cy.device = "CPU"
+        cy.samples = samples
+        cy.use_denoising = False
+        cy.use_adaptive_sampling = samples > 1
+        cy.seed = 0
+        cy.use_animated_seed = False
+        cy.max_bounces, cy.diffuse_bounces, cy.glossy_bounces = 4, 2, 2
+        cy.transmission_bounces, cy.transparent_max_bounces, cy.volume_bounces = 4, 8, 0
+        sc.render.use_persistent_data = True
+        vl = sc.view_layers[0]
+        vl.use_pass_z = vl.use_pass_normal = True
+        vl.use_pass_object_index = vl.use_pass_material_index = True
+
+    def _setup_world_and_light(self) -> None:
+        world = bpy.data.worlds.new("MRVM_world")
+        if world.node_tree is None:
+            world.use_nodes = True
+        bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+        bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        bg.inputs["Strength"].default_value = 0.6
+        self.scene.world = world
+        sun = bpy.data.lights.new("MRVM_sun", "SUN")
+        sun.energy = 2.5
+        sun.angle = math.radians(10)
+        ob = bpy.data.objects.new("MRVM_sun", sun)
+        ob.rotation_euler = (math.radians(40), math.radians(10), math.radians(30))
+        self.coll.objects.link(ob)
+
+    def close(self) -> None:
+        for sc in [s for s in bpy.data.scenes if s.as_pointer() not in self._scenes_before]:
+            bpy.data.scenes.remove(sc)
+        O.remove_new_data(self._before)
+
+    # ------------------------------------------------------------------
+    def render_passes(self, scene: bpy.types.Scene) -> dict[str, dict[str, np.ndarray]]:
+        """Render ``scene`` and return ``{pass name: {channel: (H, W) array}}``."""
+        with O.quiet_stdout():
+            bpy.ops.render.render(write_still=True, scene=scene.name)
+        parts = F.read_exr_parts(Path(scene.render.filepath))
+        out: dict[str, dict[str, np.ndarray]] = {}
+        for name, chans in parts.items():
+            pass_name = name.split(".", 1)[1] if "." in name else name
+            out[pass_name] = {k.rsplit(".", 1)[-1]: v for k, v in chans.items()}
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Per-view outputs
+# --------------------------------------------------------------------------------------------
+
+def _combined_rgba(passes: dict) -> np.ndarray:
+    c = passes["Combined"]
+    return np.stack([c["R"], c["G"], c["B"], c["A"]], axis=-1).astype(np.float64)
+
+
+def rgb_image(rgba_premult: np.ndarray, rgba_out: bool) -> np.ndarray:
+    """Linear premultiplied RGBA -> uint8 sRGB on white (H, W, 3) or straight RGBA (H, W, 4)."""
+    rgb, a = rgba_premult[..., :3], np.clip(rgba_premult[..., 3:4], 0.0, 1.0)
+    if not rgba_out:
+        return F.to_uint8(F.linear_to_srgb(rgb + (1.0 - a)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        straight = np.where(a > 0, rgb / np.maximum(a, 1e-12), 0.0)
+    return np.concatenate([F.to_uint8(F.linear_to_srgb(straight)), F.to_uint8(a)], axis=-1)
+
+
+def part_mask(passes: dict, labelled_ids: np.ndarray) -> np.ndarray:
+    """Part ids: the material pass index for part-labelled objects, else the object pass index."""
+    ob = np.rint(passes["Object Index"]["X"]).astype(np.int64)
+    ma = np.rint(passes["Material Index"]["X"]).astype(np.int64)
+    is_labelled = labelled_ids[np.clip(ob, 0, len(labelled_ids) - 1)]
+    return np.where(ob == 0, 0, np.where(is_labelled, ma, ob)).astype(np.uint8)
+
+
+def write_view(obj_dir: Path, index: int, colour: dict, data: dict, labelled_ids: np.ndarray,
+               rgba_out: bool, c2w_opencv: np.ndarray) -> None:
+    paths = F.view_paths(obj_dir, index)
+    mask = part_mask(data, labelled_ids)
+    bg = np.rint(data["Object Index"]["X"]) == 0
+    depth = np.where(bg, 0.0, data["Depth"]["Z"]).astype(np.float32)
+    n = data["Normal"]
+    normals = np.stack([n["X"], n["Y"], n["Z"]], axis=-1).astype(np.float64)
+    norm = np.linalg.norm(normals, axis=-1, keepdims=True)
+    normals = np.where(bg[..., None] | (norm == 0), 0.0, normals / np.maximum(norm, 1e-12)).astype(np.float32)
+    F.write_png(paths["rgb"], rgb_image(_combined_rgba(colour), rgba_out))
+    F.write_depth(paths["depth"], depth)
+    F.write_normals(paths["normal"], normals)
+    F.write_png(paths["mask"], mask)
+    F.write_srn_pose(paths["pose"], c2w_opencv)  # last: the view's commit point
+
+
+# --------------------------------------------------------------------------------------------
+# Cameras of an object
+# --------------------------------------------------------------------------------------------
+
+def _scene_cameras(user_scene: bpy.types.Scene, cfg: RenderConfig) -> list[tuple[C.Intrinsics, np.ndarray, str]]:
+    cams = sorted((o for o in user_scene.objects if o.type == "CAMERA"), key=lambda o: o.name)
+    if not cams:
+        raise InputError("the 'scene' rig needs cameras in the scene; none found")
+    w, h = cfg.resolution
+    out = []
+    for cam in cams:
+        # The camera's lens, sensor and shift at the dataset's resolution.
+        with _temporary_resolution(user_scene, w, h):
+            intr, c2w = read_camera(cam, user_scene)
+        out.append((intr, c2w, cam.name))
+    return out
+
+
+class _temporary_resolution:
+    def __init__(self, scene, w, h):
+        self.r, self.new = scene.render, (w, h, 100, 1.0, 1.0)
+
+    def __enter__(self):
+        r = self.r
+        self.old = (r.resolution_x, r.resolution_y, r.resolution_percentage, r.pixel_aspect_x, r.pixel_aspect_y)
+        r.resolution_x, r.resolution_y, r.resolution_percentage, r.pixel_aspect_x, r.pixel_aspect_y = self.new
+
+    def __exit__(self, *exc):
+        r = self.r
+        r.resolution_x, r.resolution_y, r.resolution_percentage, r.pixel_aspect_x, r.pixel_aspect_y = self.old
+
+
+def _normalize_pose(c2w: np.ndarray, norm: np.ndarray) -> np.ndarray:
+    """A camera pose in the normalized object frame (uniform scale: rotation kept, centre moved)."""
+    out = c2w.copy()
+    out[:3, 3] = norm[:3, :3] @ c2w[:3, 3] + norm[:3, 3]
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The core function
+# --------------------------------------------------------------------------------------------
+
+def shard_specs(specs: list[O.ObjectSpec], shard: tuple[int, int]) -> list[O.ObjectSpec]:
+    i, n = shard
+    ordered = sorted(specs, key=lambda s: s.key)
+    return [s for k, s in enumerate(ordered) if k % n == i]
+
+
+def render_dataset(cfg: RenderConfig) -> ProgressGen:
+    """Render every object of ``cfg.sources`` (this shard's share); yields Progress, returns RenderSummary."""
+    cfg.validate()
+    user_scene = bpy.context.scene
+    specs = shard_specs(O.resolve_sources(tuple(cfg.sources), cfg.category), cfg.shard)
+    scene_cams = _scene_cameras(user_scene, cfg) if cfg.rig == "scene" else None
+    prepare_output(cfg)
+    n_views = len(scene_cams) if scene_cams else cfg.views
+    total = len(specs) * n_views
+    summary = RenderSummary(Path(cfg.out))
+    t0 = time.perf_counter()
+    done = 0
+    yield Progress(0, total, "starting")
+    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp:
+        for spec in specs:
+            for event in _render_object(cfg, spec, scene_cams, Path(tmp), summary):
+                done += 1
+                summary.seconds = time.perf_counter() - t0
+                yield Progress(done, total, event, skipped=summary.views_skipped)
+            summary.objects.append(spec.key)
+    write_splits(Path(cfg.out))
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Path, summary: RenderSummary):
+    """Render one object; yields a message per view (rendered or skipped)."""
+    obj_dir = Path(cfg.out) / spec.category / spec.object_id
+    settings = cfg.settings()
+    meta_path = obj_dir / "meta.json"
+    if meta_path.exists():
+        try:
+            old = json.loads(meta_path.read_text())
+        except ValueError:
+            old = {}
+        if old.get("settings") != settings or old.get("source") != spec.describe():
+            if not cfg.force:
+                raise OutputError(f"{obj_dir} holds another render of {spec.key} "
+                                  f"({old.get('source')}); use --force to overwrite it")
+            shutil.rmtree(obj_dir)
+        elif old.get("complete") and all(F.view_complete(obj_dir, i) for i in range(old.get("n_views", -1))):
+            for i in range(old["n_views"]):
+                summary.views_skipped += 1
+                yield f"{spec.key}: view {i + 1}/{old['n_views']} (done before)"
+            return
+
+    session = RenderSession(cfg, tmpdir)
+    try:
+        objs = O.load_into(spec, session.coll)
+        vl = session.data_scene.view_layers[0]
+        norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl))
+        O.apply_world_transform(objs, norm, vl)
+        radius = float(np.linalg.norm(O.mesh_vertices_world(objs, vl), axis=1).max())
+
+        # Object / part ids for the mask pass.
+        meshes = sorted((o for o in objs if o.type == "MESH"), key=lambda o: o.name)
+        labelled = np.zeros(len(meshes) + 1, dtype=bool)
+        labels: dict[int, str] = {0: "background"}
+        for k, o in enumerate(meshes, start=1):
+            o.pass_index = k
+            if o.get("mrvm_part_labels"):
+                from . import procedural
+
+                labelled[k] = True
+                labels.update(procedural.labels_of(o))
+            else:
+                labels[k] = spec.category if len(meshes) == 1 else o.name
+        if len(labels) > 256:
+            raise InputError(f"{spec.key} has more than 255 parts; the uint8 mask cannot hold them")
+
+        # Cameras.
+        w, h = cfg.resolution
+        if scene_cams is not None:
+            intrs = [c[0] for c in scene_cams]
+            poses = [_normalize_pose(c[1], norm) for c in scene_cams]
+            cam_names = [c[2] for c in scene_cams]
+        else:
+            intr = C.intrinsics_from_fov(math.radians(cfg.fov_deg), w, h)
+            fov_min = min(intr.fov_x, intr.fov_y)
+            dist = rigs.framing_distance(radius, fov_min)
+            poses = rigs.rig_poses(cfg.rig, cfg.views, dist, seed=cfg.seed, elevation_deg=cfg.elevation_deg)
+            intrs = [intr] * len(poses)
+            cam_names = []
+        near, far = rigs.near_far(poses, radius)
+        set_clip(session.camera, near, far)
+
+        split = assign_split(cfg, spec.key)
+        lo = O.mesh_vertices_world(objs, vl).min(axis=0)
+        hi = O.mesh_vertices_world(objs, vl).max(axis=0)
+        meta = {
+            "format_version": F.FORMAT_VERSION, "generator": f"blender_mrvm {__version__}",
+            "category": spec.category, "object_id": spec.object_id, "source": spec.describe(),
+            "split": split, "settings": settings, "n_views": len(poses), "complete": False,
+            "normalization": {"matrix": norm.tolist(), "scale": float(norm[0, 0]),
+                              "note": "x_normalized = matrix @ x_source (ShapeNetCore v2: bbox centre 0, diagonal 1)"},
+            "bbox": [lo.tolist(), hi.tolist()], "bound_radius": radius, "near": near, "far": far,
+            "labels": {str(k): v for k, v in sorted(labels.items())},
+            "background": "transparent (RGBA, straight alpha)" if cfg.rgba else "white",
+            "rgb": "8-bit sRGB (IEC 61966-2-1 transfer of linear render)",
+            "depth": "planar z-depth along the camera axis, scene units, channel Y; 0 = background",
+            "normal": "world-space unit normals, channels R G B = x y z; 0 = background",
+            "intrinsics": {"fl_x": intrs[0].fx, "fl_y": intrs[0].fy, "cx": intrs[0].cx, "cy": intrs[0].cy,
+                           "w": w, "h": h},
+            "per_view_intrinsics": len({(i.fx, i.fy, i.cx, i.cy) for i in intrs}) > 1,
+            "render": {"engine": cfg.engine, "samples": cfg.samples, "rig": cfg.rig, "seed": cfg.seed,
+                       "fov_deg": cfg.fov_deg, "blender": bpy.app.version_string},
+        }
+        if cam_names:
+            meta["scene_cameras"] = cam_names
+        F.atomic_write_json(meta_path, meta)
+
+        current_intr = None
+        for i, (intr, c2w) in enumerate(zip(intrs, poses)):
+            msg = f"{spec.key}: view {i + 1}/{len(poses)}"
+            if F.view_complete(obj_dir, i):
+                summary.views_skipped += 1
+                yield msg + " (done before)"
+                continue
+            if intr != current_intr:
+                for sc in {session.scene, session.data_scene}:
+                    apply_intrinsics(session.camera, sc, intr)
+                current_intr = intr
+            apply_pose(session.camera, c2w)
+            data = session.render_passes(session.data_scene)
+            colour = data if session.scene is session.data_scene else session.render_passes(session.scene)
+            write_view(obj_dir, i, colour, data, labelled, cfg.rgba, c2w)
+            summary.views_rendered += 1
+            yield msg
+
+        # Per-object camera files (from the poses, so they are exact whatever was resumed).
+        F.atomic_write_text(obj_dir / "intrinsics.txt", F.format_srn_intrinsics(intrs[0]))
+        frames = []
+        for i, (intr, c2w) in enumerate(zip(intrs, poses)):
+            n = F.view_name(i)
+            fr = {"file_path": f"rgb/{n}.png", "depth_exr_path": f"depth/{n}.exr",
+                  "normal_exr_path": f"normal/{n}.exr", "part_mask_path": f"mask/{n}.png", "c2w_opencv": c2w}
+            if meta["per_view_intrinsics"]:
+                fr.update({"fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx, "cy": intr.cy})
+            frames.append(fr)
+        F.atomic_write_json(obj_dir / "transforms.json",
+                            F.transforms_dict(intrs[0], frames, {"near": near, "far": far,
+                                                                 "aabb": [lo.tolist(), hi.tolist()]}))
+        meta["complete"] = True
+        F.atomic_write_json(meta_path, meta)
+    finally:
+        session.close()
+
+
+def config_dict(cfg: RenderConfig) -> dict:
+    d = asdict(cfg)
+    d["out"] = str(cfg.out)
+    return d
