@@ -5,13 +5,14 @@ every view and returns a :class:`RenderSummary`. The CLI drives it with a tqdm b
 operator steps it on a timer and cancels with ``close()``.
 
 How a view is made: every dataset object is loaded into a private scene (the user's scenes and
-objects are never modified), normalized like ShapeNet, and rendered once per camera into a
-multi-layer EXR holding Combined, Depth, Normal, Object Index and Material Index. numpy turns that
-into the dataset files: RGB composited on white (or RGBA) with the sRGB transfer function (what
-Blender's "Standard" view transform applies), planar z-depth and world normals as float32 EXR, and
-the part-id mask. Cycles gives all passes in one render. EEVEE and Workbench render the colour, and a
-1-sample Cycles render of the same objects gives the data passes (those engines have no index
-passes). With Cycles, ``use_persistent_data`` keeps the scene's BVH between views.
+objects are never modified), normalized like ShapeNet, and rendered twice per camera into
+multi-layer EXRs: the colour with the chosen engine (Cycles by default, anti-aliased), and the data
+passes (Depth, Normal, Object Index, Material Index) with a 1-sample Cycles render whose pixel
+filter is near zero, so every depth, normal and id belongs exactly to the ray through the pixel
+centre (the convention of ``geometry/cameras.py``). numpy turns them into the dataset files: RGB
+composited on white (or RGBA) with the sRGB transfer function (what Blender's "Standard" view
+transform applies), planar z-depth and world normals as float32 EXR, and the part-id mask. With
+Cycles, ``use_persistent_data`` keeps each scene's BVH between views.
 """
 
 from __future__ import annotations
@@ -211,16 +212,22 @@ class RenderSession:
         self._setup_world_and_light()
         self.camera = new_camera("MRVM_camera", self.coll)
         self.scene.camera = self.camera
-        self._setup_cycles(self.scene, cfg.samples if cfg.engine == "CYCLES" else 1)
+        # Data passes (depth, normals, ids) from a 1-sample Cycles render with a near-zero pixel
+        # filter, so each value belongs exactly to the ray through the pixel centre; colour from the
+        # chosen engine with full anti-aliasing, in a second scene sharing the objects.
+        self.data_scene = self.scene
+        self._setup_cycles(self.data_scene, 1)
+        self.data_scene.cycles.filter_width = 0.01
+        vl = self.data_scene.view_layers[0]
+        vl.use_pass_z = vl.use_pass_normal = True
+        vl.use_pass_object_index = vl.use_pass_material_index = True
+        self.scene = bpy.data.scenes.new("MRVM_render_colour")
+        self.scene.collection.children.link(self.coll)
+        self.scene.world = self.data_scene.world
+        self.scene.camera = self.camera
         if cfg.engine == "CYCLES":
-            self.data_scene = self.scene
+            self._setup_cycles(self.scene, cfg.samples)
         else:
-            # Colour from the chosen engine; data passes from a 1-sample Cycles scene sharing the objects.
-            self.data_scene = self.scene
-            self.scene = bpy.data.scenes.new("MRVM_render_colour")
-            self.scene.collection.children.link(self.coll)
-            self.scene.world = self.data_scene.world
-            self.scene.camera = self.camera
             self.scene.render.engine = cfg.engine
             self._setup_common(self.scene)
             if cfg.engine == "BLENDER_EEVEE":
@@ -259,9 +266,6 @@ class RenderSession:
         cy.max_bounces, cy.diffuse_bounces, cy.glossy_bounces = 4, 2, 2
         cy.transmission_bounces, cy.transparent_max_bounces, cy.volume_bounces = 4, 8, 0
         sc.render.use_persistent_data = True
-        vl = sc.view_layers[0]
-        vl.use_pass_z = vl.use_pass_normal = True
-        vl.use_pass_object_index = vl.use_pass_material_index = True
 
     def _setup_world_and_light(self) -> None:
         world = bpy.data.worlds.new("MRVM_world")
@@ -513,7 +517,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 current_intr = intr
             apply_pose(session.camera, c2w)
             data = session.render_passes(session.data_scene)
-            colour = data if session.scene is session.data_scene else session.render_passes(session.scene)
+            colour = session.render_passes(session.scene)
             write_view(obj_dir, i, colour, data, labelled, cfg.rgba, c2w)
             summary.views_rendered += 1
             yield msg

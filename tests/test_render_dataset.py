@@ -1,0 +1,238 @@
+"""Rendering a dataset end to end: files, formats, multi-view consistency, resume, shards, sources."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blender_mrvm.datasets import format as F
+from blender_mrvm.geometry import cameras as C
+from blender_mrvm.progress import run_to_end
+from tests.helpers import depth_consistency, write_mesh
+
+pytestmark = pytest.mark.slow
+
+
+def _render(**kw):
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+
+    kw.setdefault("resolution", (64, 64))
+    kw.setdefault("samples", 8)
+    return run_to_end(render_dataset(RenderConfig(**kw)))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    tmp = tmp_path_factory.mktemp("ds")
+    mesh = write_mesh(tmp / "meshes" / "widget.ply")
+    summary = _render(out=tmp / "data", sources=(str(mesh),), views=8, rig="sphere", resolution=(96, 80), seed=3)
+    return tmp / "data", summary, mesh
+
+
+def test_layout_and_meta(dataset):
+    root, summary, _ = dataset
+    assert summary.views_rendered == 8 and summary.objects == ["custom/widget"]
+    obj = root / "custom" / "widget"
+    for k in F.VIEW_DIRS:
+        assert len(list((obj / k).iterdir())) == 8, k
+    meta = json.loads((obj / "meta.json").read_text())
+    assert meta["complete"] and meta["n_views"] == 8 and meta["labels"] == {"0": "background", "1": "custom"}
+    assert 0 < meta["near"] < meta["far"]
+    # ShapeNet normalization: bbox centred on the origin with unit diagonal
+    lo, hi = np.array(meta["bbox"])
+    assert np.allclose((lo + hi) / 2, 0, atol=1e-6) and np.isclose(np.linalg.norm(hi - lo), 1.0, atol=1e-6)
+    assert (root / "splits" / "train.lst").exists()
+    entries = sum((F.read_split(root, s) for s in F.SPLITS), [])
+    assert entries == ["custom/widget"]
+    assert json.loads((root / F.ROOT_MANIFEST).read_text())["settings"]["views"] == 8
+
+
+def test_images_masks_depth_agree(dataset):
+    root, _, _ = dataset
+    ov = F.read_object(root / "custom" / "widget")
+    for i in range(len(ov.indices)):
+        rgb, mask, depth, nrm = ov.rgb(i), ov.mask(i), ov.depth(i), ov.normals(i)
+        assert rgb.shape == (80, 96, 3) and rgb.dtype == np.uint8
+        assert mask.shape == (80, 96) and depth.dtype == np.float32
+        fg = mask > 0
+        assert 0.05 < fg.mean() < 0.95, "object should fill a good part of the frame"
+        assert ((depth > 0) == fg).all()
+        from scipy.ndimage import binary_dilation
+
+        far_bg = ~binary_dilation(fg, iterations=2)  # anti-aliased edges aside
+        assert (rgb[far_bg] == 255).all(), "background is white"
+        assert (rgb[fg].mean(axis=-1) < 250).mean() > 0.95, "the grey object is not white"
+        n = np.linalg.norm(nrm[fg], axis=-1)
+        assert np.allclose(n, 1, atol=1e-3) and (nrm[~fg] == 0).all()
+        # the object stays inside near/far
+        assert depth[fg].min() >= ov.meta["near"] - 1e-4 and depth[fg].max() <= ov.meta["far"] + 1e-4
+        # world normals face the camera on visible surfaces
+        o, d = C.rays_opencv(ov.intrinsics, ov.c2w_opencv[i])
+        assert (np.einsum("...k,...k", nrm, d)[fg] < 0.2).mean() > 0.97
+
+
+def test_multiview_depth_consistency(dataset):
+    root, _, _ = dataset
+    ov = F.read_object(root / "custom" / "widget")
+    centres = np.array([p[:3, 3] for p in ov.c2w_opencv])
+    errs = []
+    for a in range(len(centres)):
+        d = np.linalg.norm(centres - centres[a], axis=1)
+        d[a] = np.inf
+        b = int(np.argmin(d))
+        e = depth_consistency(ov, a, b)
+        assert len(e) > 100
+        errs.append(np.median(e))
+    assert max(errs) < 0.005, f"median relative depth error per pair: {np.round(errs, 5)}"
+
+
+def test_srn_and_transforms_give_same_rays(dataset):
+    root, _, _ = dataset
+    obj = root / "custom" / "widget"
+    intr_srn = F.read_srn_intrinsics(obj / "intrinsics.txt")
+    frames = F.read_transforms(obj / "transforms.json")
+    assert len(frames) == 8
+    for i, fr in enumerate(frames):
+        pose = F.read_srn_pose(obj / "pose" / f"{i:06d}.txt")
+        o1, d1 = C.rays_opencv(intr_srn, pose)
+        o2, d2 = C.rays_opencv(fr.intrinsics, fr.c2w_opencv)
+        assert np.allclose(o1, o2, atol=1e-6) and np.allclose(d1, d2, atol=1e-6)
+        assert (obj / fr.file_path).is_file()
+    # transforms.json uses OpenGL camera axes: the camera looks down its -z towards the object
+    raw = json.loads((obj / "transforms.json").read_text())
+    m = np.array(raw["frames"][0]["transform_matrix"])
+    assert np.dot(-m[:3, 2], -m[:3, 3]) > 0.99 * np.linalg.norm(m[:3, 3])
+
+
+def test_resume_skips_finished_views_and_redoes_missing(dataset, tmp_path):
+    root, _, mesh = dataset
+    work = tmp_path / "copy"
+    shutil.copytree(root, work)
+    obj = work / "custom" / "widget"
+    kw = dict(out=work, sources=(str(mesh),), views=8, rig="sphere", resolution=(96, 80), seed=3)
+    s = _render(**kw)
+    assert (s.views_rendered, s.views_skipped) == (0, 8)
+    before = (obj / "rgb" / "000002.png").read_bytes()
+    (obj / "rgb" / "000005.png").unlink()
+    meta = json.loads((obj / "meta.json").read_text())
+    meta["complete"] = False
+    (obj / "meta.json").write_text(json.dumps(meta))
+    s = _render(**kw)
+    assert (s.views_rendered, s.views_skipped) == (1, 7)
+    assert (obj / "rgb" / "000005.png").is_file() and (obj / "rgb" / "000002.png").read_bytes() == before
+
+
+def test_cancel_keeps_finished_views_and_resumes(tmp_path, bpy_empty):
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+
+    import bpy
+
+    mesh = write_mesh(tmp_path / "m.stl")
+    n_obj = len(bpy.data.objects)
+    cfg = RenderConfig(out=tmp_path / "d", sources=(str(mesh),), views=5, resolution=(32, 32), samples=4)
+    gen = render_dataset(cfg)
+    for _ in range(3):  # start + 2 views
+        next(gen)
+    gen.close()
+    obj = tmp_path / "d" / "custom" / "m"
+    assert not json.loads((obj / "meta.json").read_text())["complete"]
+    assert sorted(p.name for p in (obj / "pose").iterdir()) == ["000000.txt", "000001.txt"]
+    assert not list(obj.rglob(".*")), "no temporary files left behind"
+    assert len(bpy.data.objects) == n_obj and len(bpy.data.scenes) == 1, "private scene cleaned up"
+    s = run_to_end(render_dataset(cfg))
+    assert (s.views_rendered, s.views_skipped) == (3, 2)
+    assert json.loads((obj / "meta.json").read_text())["complete"]
+
+
+def test_shards_partition_objects(tmp_path, bpy_empty):
+    meshes = [write_mesh(tmp_path / "m" / f"o{i}.ply") for i in range(3)]
+    done = []
+    for i in range(2):
+        s = _render(out=tmp_path / "d", sources=(str(tmp_path / "m"),), views=1, resolution=(16, 16),
+                    samples=1, shard=(i, 2))
+        done.append(s.objects)
+    assert sorted(done[0] + done[1]) == [f"custom/o{i}" for i in range(3)]
+    assert not set(done[0]) & set(done[1]) and len(meshes) == 3
+    assert sorted(sum((F.read_split(tmp_path / "d", s) for s in F.SPLITS), [])) == sorted(done[0] + done[1])
+
+
+@pytest.mark.parametrize("ext", [".obj", ".ply", ".stl", ".glb", ".off"])
+def test_every_mesh_format_loads_and_normalizes(tmp_path, bpy_empty, ext):
+    mesh = write_mesh(tmp_path / f"thing{ext}")
+    _render(out=tmp_path / "d", sources=(str(mesh),), views=1, resolution=(24, 24), samples=1)
+    meta = json.loads((tmp_path / "d" / "custom" / "thing" / "meta.json").read_text())
+    lo, hi = np.array(meta["bbox"])
+    assert np.isclose(np.linalg.norm(hi - lo), 1.0, atol=1e-5)
+    assert F.read_png(tmp_path / "d" / "custom" / "thing" / "mask" / "000000.png").max() == 1
+
+
+def test_shapenet_folder_layout(tmp_path, bpy_empty):
+    for synset, model in (("03001627", "abc123"), ("04379243", "def456")):
+        write_mesh(tmp_path / "ShapeNetCore.v2" / synset / model / "models" / "model_normalized.obj")
+    s = _render(out=tmp_path / "d", sources=(str(tmp_path / "ShapeNetCore.v2"),), views=1, resolution=(16, 16),
+                samples=1)
+    assert sorted(s.objects) == ["chair/abc123", "table/def456"]
+    s = _render(out=tmp_path / "d2", sources=(str(tmp_path / "ShapeNetCore.v2" / "03001627"),), views=1,
+                resolution=(16, 16), samples=1)
+    assert s.objects == ["chair/abc123"]
+
+
+def test_selected_objects_and_scene_rig_leave_user_scene_untouched(tmp_path, bpy_empty):
+    import bpy
+    from mathutils import Matrix
+
+    from blender_mrvm.scene.camera import apply_pose, new_camera
+
+    scene = bpy_empty
+    bpy.ops.mesh.primitive_monkey_add(location=(2.0, 1.0, 0.5), rotation=(0.3, 0.2, 0.1))
+    monkey = bpy.context.active_object
+    monkey.scale = (2.0, 2.0, 2.0)
+    bpy.ops.mesh.primitive_cube_add(location=(-3, 0, 0))
+    cube = bpy.context.active_object
+    cube.select_set(False)
+    monkey.select_set(True)
+    cams = []
+    for k, eye in enumerate([(8, 1, 3), (2, 9, 1), (-5, 5, 4)]):
+        cam = new_camera(f"Cam{k}", scene.collection)
+        cam.data.lens = 35 + 10 * k
+        apply_pose(cam, C.look_at_opencv(eye, target=(2.0, 1.0, 0.5)))
+        cams.append(cam)
+    before = [Matrix(o.matrix_world) for o in (monkey, cube)]
+    n_data = (len(bpy.data.objects), len(bpy.data.meshes), len(bpy.data.materials), len(bpy.data.scenes))
+    _render(out=tmp_path / "d", sources=("selected",), rig="scene", resolution=(48, 40), samples=2)
+    assert [Matrix(o.matrix_world) for o in (monkey, cube)] == before
+    assert (len(bpy.data.objects), len(bpy.data.meshes), len(bpy.data.materials), len(bpy.data.scenes)) == n_data
+    ov = F.read_object(tmp_path / "d" / "custom" / "Suzanne")
+    assert len(ov.indices) == 3 and ov.meta["scene_cameras"] == ["Cam0", "Cam1", "Cam2"]
+    assert ov.meta["per_view_intrinsics"]
+    norm = np.array(ov.meta["normalization"]["matrix"])
+    frames = F.read_transforms(tmp_path / "d" / "custom" / "Suzanne" / "transforms.json")
+    for k, cam in enumerate(cams):
+        # the written pose is the scene camera mapped into the normalized frame
+        c2w = C.opencv_from_blender(np.array(cam.matrix_world))
+        assert np.allclose(ov.c2w_opencv[k][:3, :3], c2w[:3, :3], atol=1e-6)
+        assert np.allclose(ov.c2w_opencv[k][:3, 3], norm[:3, :3] @ c2w[:3, 3] + norm[:3, 3], atol=1e-5)
+        assert np.isclose(frames[k].intrinsics.fx, cam.data.lens / 36 * 48)
+        assert ov.mask(k).any(), "the monkey is in view of every camera"
+
+
+def test_rgba_and_workbench(tmp_path, bpy_empty):
+    mesh = write_mesh(tmp_path / "w.ply")
+    _render(out=tmp_path / "d", sources=(str(mesh),), views=2, resolution=(48, 48), samples=2, rgba=True,
+            engine="BLENDER_WORKBENCH")
+    obj = tmp_path / "d" / "custom" / "w"
+    rgba = F.read_png(obj / "rgb" / "000000.png")
+    mask = F.read_png(obj / "mask" / "000000.png")
+    assert rgba.shape == (48, 48, 4)
+    from scipy.ndimage import binary_erosion
+
+    inner, outer = binary_erosion(mask > 0, iterations=2), binary_erosion(mask == 0, iterations=2)  # AA edges aside
+    assert inner.sum() > 20 and (rgba[..., 3][outer] == 0).all() and (rgba[..., 3][inner] == 255).all()
+    assert (F.read_depth(obj / "depth" / "000000.exr") > 0).sum() == (mask > 0).sum()
