@@ -1,0 +1,229 @@
+"""Typed, frozen model configs and the named presets ``fast`` / ``balanced`` / ``accurate``.
+
+Every field has a one-line docstring. Presets are whole named configs (:data:`PRESETS`), not
+defaults scattered through the code; :func:`model_config` builds one and applies overrides.
+Configs round-trip through plain dicts (:func:`to_dict` / :func:`from_dict`) so a checkpoint can
+carry the exact config it was trained with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from typing import Any, get_type_hints
+
+from ..errors import InputError
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Image encoder giving pixel-aligned multi-scale features."""
+
+    backbone: str = "resnet"
+    """'resnet' (small ResNet-like, trained from scratch) or 'vgg16' (ImageNet VGG16 blocks 1-3, offline weights)."""
+    widths: tuple[int, ...] = (32, 48, 64)
+    """Channels of each scale (strides 2, 4, 8) for the resnet backbone."""
+    blocks_per_stage: int = 1
+    """Residual blocks per scale for the resnet backbone."""
+    out_dim: int = 64
+    """Channels of the fused per-point feature after concatenating the sampled scales."""
+    pretrained: bool = False
+    """For 'vgg16': initialise from the cached ImageNet weights (``fetch-weights``); ignored for 'resnet'."""
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """Point sampling along rays clipped to the object's box."""
+
+    n_coarse: int = 16
+    """Stratified samples per ray inside the box (coarse branch)."""
+    n_fine: int = 16
+    """Importance (inverse-CDF) samples per ray (fine branch)."""
+    fine_includes_coarse: bool = True
+    """Fine branch evaluates coarse + fine samples (NeRF); False evaluates the fine samples only."""
+    perturb: bool = True
+    """Jitter stratified samples during training (evaluation is always deterministic)."""
+    box_padding: float = 0.05
+    """Box grown by this fraction of its half-size on each side before clipping rays."""
+    pdf_eps: float = 1e-5
+    """Weight added to every bin before inverse-CDF sampling (all-zero weights give uniform samples)."""
+
+
+@dataclass(frozen=True)
+class NeRFormerConfig:
+    """NeRFormer-style implicit function: attention across views, then along the ray."""
+
+    d_model: int = 32
+    """Token width."""
+    n_heads: int = 2
+    """Attention heads (d_model must be divisible by it)."""
+    n_layers: int = 1
+    """(view attention, ray attention) layer pairs per branch."""
+    ffn_mult: int = 2
+    """Feed-forward hidden width as a multiple of d_model."""
+    dir_freqs: int = 2
+    """Harmonic frequencies of the target/reference view-direction difference."""
+    depth_freqs: int = 4
+    """Harmonic frequencies of the normalised sample depth (ray-attention position code)."""
+    share_coarse_fine: bool = False
+    """Use one network for both branches (MRVM needs separate ones; kept for ablations)."""
+
+
+@dataclass(frozen=True)
+class MRVMConfig:
+    """Masked ray-and-view modeling: an auxiliary latent-reconstruction loss on the fine branch."""
+
+    enabled: bool = True
+    """Apply masking + the MRVM loss during the pretraining phase."""
+    point_mask_ratio: float = 0.5
+    """Share of the points of each ray whose features are masked."""
+    view_mask_prob: float = 0.5
+    """Each view of a masked point is masked with this probability (at least one view always is)."""
+    lambda_max: float = 0.1
+    """Final weight of the MRVM loss."""
+    warmup_frac: float = 0.1
+    """Share of pretraining iterations with the MRVM loss off."""
+    ramp_end_frac: float = 1.0
+    """Share of pretraining iterations at which the weight reaches lambda_max (linear ramp from warmup)."""
+    ema_momentum: float = 0.99
+    """Momentum of the target projector (EMA of the online projector)."""
+    proj_dim: int = 32
+    """Width of the projector / predictor output."""
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Volume rendering."""
+
+    white_background: bool = True
+    """Composite on white (the datasets' background)."""
+    chunk_rays: int = 512
+    """Rays per forward pass at inference (bounds memory for large renders)."""
+    density_activation: str = "softplus"
+    """'softplus' or 'relu' on the raw density."""
+    density_bias: float = -1.0
+    """Added to the raw density before the activation (starts training mostly empty)."""
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The whole generalizable NeRF."""
+
+    name: str = "balanced"
+    """Preset this config came from (informational)."""
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    """Image encoder."""
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    """Ray sampling."""
+    nerformer: NeRFormerConfig = field(default_factory=NeRFormerConfig)
+    """Implicit function."""
+    mrvm: MRVMConfig = field(default_factory=MRVMConfig)
+    """MRVM auxiliary loss."""
+    render: RenderConfig = field(default_factory=RenderConfig)
+    """Volume rendering."""
+    max_ref_views: int = 10
+    """Largest number of reference views the model is used with."""
+
+
+PRESETS: dict[str, ModelConfig] = {
+    "fast": ModelConfig(
+        name="fast",
+        encoder=EncoderConfig(widths=(16, 32, 48), out_dim=32),
+        sampler=SamplerConfig(n_coarse=8, n_fine=8, fine_includes_coarse=False),
+        nerformer=NeRFormerConfig(d_model=24, n_heads=2, n_layers=1),
+        mrvm=MRVMConfig(proj_dim=24),
+    ),
+    "balanced": ModelConfig(
+        name="balanced",
+        encoder=EncoderConfig(widths=(32, 48, 64), out_dim=48),
+        sampler=SamplerConfig(n_coarse=12, n_fine=8, fine_includes_coarse=False),
+        nerformer=NeRFormerConfig(d_model=32, n_heads=2, n_layers=1),
+    ),
+    "accurate": ModelConfig(
+        name="accurate",
+        encoder=EncoderConfig(widths=(48, 64, 96), blocks_per_stage=2, out_dim=96),
+        sampler=SamplerConfig(n_coarse=48, n_fine=48, fine_includes_coarse=True),
+        nerformer=NeRFormerConfig(d_model=64, n_heads=4, n_layers=2),
+        mrvm=MRVMConfig(proj_dim=64),
+    ),
+}
+"""Named model configs."""
+
+
+def to_dict(cfg: Any) -> Any:
+    """A config dataclass -> nested plain dict (JSON-serialisable)."""
+    if is_dataclass(cfg):
+        return {f.name: to_dict(getattr(cfg, f.name)) for f in fields(cfg)}
+    if isinstance(cfg, tuple):
+        return [to_dict(v) for v in cfg]
+    return cfg
+
+
+def from_dict(cls: type, data: dict[str, Any]) -> Any:
+    """Nested dict -> config dataclass ``cls``; unknown keys are an :class:`InputError`."""
+    if not isinstance(data, dict):
+        raise InputError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
+    hints = get_type_hints(cls)
+    names = {f.name for f in fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise InputError(f"{cls.__name__}: unknown config field(s) {sorted(unknown)}")
+    kw = {}
+    for k, v in data.items():
+        t = hints[k]
+        if is_dataclass(t):
+            kw[k] = from_dict(t, v)
+        elif getattr(t, "__origin__", None) is tuple:
+            kw[k] = tuple(v)
+        else:
+            kw[k] = v
+    return cls(**kw)
+
+
+def merge(cfg: Any, overrides: dict[str, Any]) -> Any:
+    """Return ``cfg`` with nested ``overrides`` (a partial dict) applied."""
+    if not overrides:
+        return cfg
+    hints = get_type_hints(type(cfg))
+    kw = {}
+    for k, v in overrides.items():
+        if k not in hints:
+            raise InputError(f"{type(cfg).__name__}: unknown config field {k!r}")
+        cur = getattr(cfg, k)
+        if is_dataclass(cur) and isinstance(v, dict):
+            kw[k] = merge(cur, v)
+        elif isinstance(cur, tuple):
+            kw[k] = tuple(v)
+        else:
+            kw[k] = v
+    return replace(cfg, **kw)
+
+
+def model_config(preset: str = "balanced", overrides: dict[str, Any] | None = None) -> ModelConfig:
+    """The named preset with optional nested overrides."""
+    if preset not in PRESETS:
+        raise InputError(f"unknown model preset {preset!r}; choose one of {sorted(PRESETS)}")
+    cfg = merge(PRESETS[preset], overrides or {})
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: ModelConfig) -> None:
+    """Raise :class:`InputError` for configs that cannot work."""
+    n = cfg.nerformer
+    if n.d_model % n.n_heads:
+        raise InputError(f"nerformer.d_model ({n.d_model}) must be divisible by n_heads ({n.n_heads})")
+    if cfg.sampler.n_coarse < 1 or cfg.sampler.n_fine < 0:
+        raise InputError("sampler.n_coarse must be >= 1 and n_fine >= 0")
+    if cfg.encoder.backbone not in ("resnet", "vgg16"):
+        raise InputError(f"encoder.backbone must be 'resnet' or 'vgg16', got {cfg.encoder.backbone!r}")
+    m = cfg.mrvm
+    if not (0.0 <= m.point_mask_ratio <= 1.0 and 0.0 <= m.view_mask_prob <= 1.0):
+        raise InputError("mrvm.point_mask_ratio and view_mask_prob must be in [0, 1]")
+    if not (0.0 <= m.warmup_frac <= m.ramp_end_frac <= 1.0):
+        raise InputError("mrvm: need 0 <= warmup_frac <= ramp_end_frac <= 1")
+    if cfg.render.density_activation not in ("softplus", "relu"):
+        raise InputError("render.density_activation must be 'softplus' or 'relu'")
+
+
+__all__ = [n for n in dir() if not n.startswith("_") and n not in ("annotations", "dataclasses", "Any")]

@@ -1,0 +1,178 @@
+"""The generalizable NeRF: encoder + box-clipped samplers + NeRFormer coarse/fine branches + MRVM.
+
+Usage (world units in, world units out)::
+
+    model = GeneralizableNeRF(model_config("balanced"))
+    out = model.synthesize(ref_images, ref_c2w, ref_intr, bbox, target_c2w, target_intr)
+
+Internally everything runs in the object's normalised frame (``rays.normalization``): the box is
+[-1, 1] on its longest side, rays start at the box entry, rays that miss are background and are not
+evaluated, and large renders are evaluated ``render.chunk_rays`` rays at a time (bounded memory).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..geometry import cameras
+from . import samplers
+from .config import ModelConfig
+from .encoder import ImageEncoder
+from .mrvm import MRVMHead, make_mask
+from .nerformer import NeRFormerBranch, activate_density, harmonic
+from .projection import RefCameras, project_samples, rays_in_cameras, sample_maps
+from .rays import RayBundle, make_rays, normalization, normalize_pose
+from .renderer import volume_render
+
+
+@dataclass
+class Context:
+    """Encoded reference views (normalised frame)."""
+
+    feats: torch.Tensor
+    """(V, C, h, w) pixel-aligned features."""
+    images: torch.Tensor
+    """(V, 3, H, W) reference colours in [0, 1]."""
+    cams: RefCameras
+    """Reference cameras."""
+
+
+@dataclass
+class NormalizedScene:
+    """A scene moved into the model's frame: box centred, longest half-side 1."""
+
+    centre: np.ndarray
+    scale: float
+    box: float
+    """Half-size of the (padded) cube rays are clipped to, in normalised units."""
+
+    def pose(self, c2w: np.ndarray) -> np.ndarray:
+        return normalize_pose(c2w, self.centre, self.scale)
+
+
+def normalized_scene(bbox_min, bbox_max, padding: float) -> NormalizedScene:
+    c, s = normalization(bbox_min, bbox_max)
+    return NormalizedScene(c, s, 1.0 + padding)
+
+
+def ref_cameras(c2w_norm: Sequence[np.ndarray], intr: Sequence[cameras.Intrinsics]) -> RefCameras:
+    w2c = np.stack([cameras.invert_pose(c) for c in c2w_norm])
+    K = np.stack([i.K for i in intr])
+    return RefCameras(torch.from_numpy(w2c), torch.from_numpy(K), int(intr[0].width), int(intr[0].height))
+
+
+class GeneralizableNeRF(nn.Module):
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.encoder = ImageEncoder(cfg.encoder)
+        self.coarse = NeRFormerBranch(cfg.nerformer, cfg.encoder.out_dim)
+        self.fine = self.coarse if cfg.nerformer.share_coarse_fine else NeRFormerBranch(cfg.nerformer, cfg.encoder.out_dim)
+        self.mrvm = MRVMHead(cfg.nerformer.d_model, cfg.mrvm)
+
+    # -- reference views -------------------------------------------------------------------------
+
+    def encode(self, images: torch.Tensor, cams: RefCameras) -> Context:
+        """images (V, 3, H, W) in [0, 1] (white background) -> :class:`Context`."""
+        if images.shape[-2:] != (cams.height, cams.width):
+            raise ValueError(f"reference images {tuple(images.shape[-2:])} do not match cameras {(cams.height, cams.width)}")
+        return Context(self.encoder(images), images, cams)
+
+    # -- points ------------------------------------------------------------------------------------
+
+    def _gather(self, ctx: Context, o_c, d_c, dirs, t):
+        """Per (ray, sample, view): token inputs (R, S, V, F), validity (R, S, V), colours (R, S, V, 3)."""
+        uv, valid, p = project_samples(ctx.cams, o_c, d_c, t)
+        f = sample_maps(ctx.feats.float(), uv.float())
+        c = sample_maps(ctx.images.float(), uv.float())
+        Rw = ctx.cams.w2c[:, :3, :3].float()
+        pn = p / p.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        dref = torch.einsum("vji,vrsj->vrsi", Rw, pn)  # camera -> world direction (R^T)
+        dt = dirs[None, :, None, :].expand_as(dref)
+        enc = torch.cat([harmonic(dt - dref, self.cfg.nerformer.dir_freqs), (dt * dref).sum(-1, keepdim=True)], -1)
+        inputs = torch.cat([f, c, enc], -1) * valid[..., None]
+        return inputs.permute(1, 2, 0, 3), valid.permute(1, 2, 0), c.permute(1, 2, 0, 3)
+
+    def _branch(self, branch: NeRFormerBranch, gathered, t, far, view_mask=None):
+        inputs, valid, rgb = gathered
+        out = branch(inputs, valid, rgb, t, view_mask)
+        sigma = activate_density(out["sigma_raw"], self.cfg.render.density_activation, self.cfg.render.density_bias)
+        ren = volume_render(sigma, out["rgb"], t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
+        ren["latent"] = out["latent"]
+        ren["t"] = t
+        return ren
+
+    def render_rays(self, ctx: Context, rays: RayBundle, train: bool = False, mask_views: bool = False,
+                    generator: torch.Generator | None = None) -> dict:
+        """Render rays that hit the box (``rays.hit`` all true). Returns coarse/fine colour, depth (from
+        the camera, normalised units), accumulation, and the MRVM loss (or None)."""
+        sc = self.cfg.sampler
+        R = len(rays)
+        far = rays.far.float()
+        dirs = rays.dirs.float()
+        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
+        t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
+        coarse = self._branch(self.coarse, self._gather(ctx, o_c, d_c, dirs, t_c), t_c, far)
+        out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0}
+        if sc.n_fine > 0:
+            edges = samplers.bin_edges(t_c, far)
+            t_f = samplers.sample_pdf(edges, coarse["weights"], sc.n_fine, deterministic=not (train and sc.perturb),
+                                      eps=sc.pdf_eps, generator=generator)
+            t_all = torch.sort(torch.cat([t_c.detach(), t_f], -1), -1).values if sc.fine_includes_coarse else t_f
+            g = self._gather(ctx, o_c, d_c, dirs, t_all)
+            point_mask = view_mask = None
+            if mask_views:
+                point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), self.cfg.mrvm, generator)
+            fine = self._branch(self.fine, g, t_all, far, view_mask)
+            out["fine"] = fine
+            if mask_views:
+                with torch.no_grad():
+                    target = self.coarse(g[0], g[1], g[2], t_all)["latent"]
+                out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
+                out["n_masked"] = int(point_mask.sum())
+        off = rays.depth_offset.float()
+        for k in ("coarse", "fine"):
+            out[k]["depth_cam"] = out[k]["depth"] + off
+        return out
+
+    # -- images ------------------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def render_image(self, ctx: Context, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,
+                     chunk: int | None = None) -> dict:
+        """Render a full view (normalised frame) in chunks of rays; misses are background, not evaluated."""
+        rays = make_rays(intr, c2w_norm, box=box)
+        n = len(rays)
+        bg = 1.0 if self.cfg.render.white_background else 0.0
+        color = torch.full((n, 3), bg)
+        depth = torch.zeros(n)
+        acc = torch.zeros(n)
+        idx = torch.nonzero(rays.hit).flatten()
+        chunk = chunk or self.cfg.render.chunk_rays
+        for s in range(0, idx.numel(), chunk):
+            sel = idx[s:s + chunk]
+            o = self.render_rays(ctx, rays.select(sel))["fine"]
+            color[sel] = o["color"].float()
+            depth[sel] = o["depth_cam"].float()
+            acc[sel] = o["acc"].float()
+        H, W = intr.height, intr.width
+        return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W),
+                "rays": n, "evaluated": int(idx.numel())}
+
+    @torch.no_grad()
+    def synthesize(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
+                   bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None) -> dict:
+        """Novel view in world units: ref_images (V, H, W, 3) float in [0, 1] on white; OpenCV c2w poses;
+        bbox = (min xyz, max xyz) of the object. Depth is returned along the ray in world units."""
+        ns = normalized_scene(bbox[0], bbox[1], self.cfg.sampler.box_padding)
+        cams = ref_cameras([ns.pose(c) for c in ref_c2w], ref_intr)
+        imgs = torch.as_tensor(np.asarray(ref_images, np.float32)).permute(0, 3, 1, 2).contiguous()
+        ctx = self.encode(imgs, cams)
+        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk)
+        out["depth"] = out["depth"] * ns.scale
+        return out

@@ -1,0 +1,129 @@
+"""NeRFormer-style implicit function: per 3D point, attention across reference views, then along the ray.
+
+Per point and view the token input is [pixel-aligned feature, reference pixel colour, harmonic code
+of (target direction - reference direction), their dot product]. A learned summary token (``cls``)
+is prepended to the view sequence: it is never masked, so a point seen by no view (behind every
+camera, outside every image) still attends to something and nothing divides by zero. After each
+view-attention layer the summary tokens of a ray attend to each other along the ray (with a
+harmonic code of the sample distance). Heads: density from the summary token; colour as a softmax
+blend of the visible reference colours plus a predicted colour (IBRNet/NeRFormer style).
+MRVM replaces chosen (point, view) tokens by a learned mask token before the first layer.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .config import NeRFormerConfig
+
+
+def harmonic(x: torch.Tensor, n_freqs: int) -> torch.Tensor:
+    """[x, sin(2^k pi x), cos(2^k pi x)] for k < n_freqs along the last axis."""
+    if n_freqs == 0:
+        return x
+    freqs = (2.0 ** torch.arange(n_freqs, device=x.device, dtype=x.dtype)) * math.pi
+    xb = (x[..., None] * freqs).flatten(-2)
+    return torch.cat([x, torch.sin(xb), torch.cos(xb)], -1)
+
+
+def harmonic_dim(d: int, n_freqs: int) -> int:
+    return d * (1 + 2 * n_freqs)
+
+
+class Attention(nn.Module):
+    """Multi-head self-attention with a key validity mask; a fully masked row gives uniform weights, never NaN."""
+
+    def __init__(self, d: int, heads: int):
+        super().__init__()
+        self.h = heads
+        self.qkv = nn.Linear(d, 3 * d)
+        self.out = nn.Linear(d, d)
+
+    def forward(self, x: torch.Tensor, key_valid: torch.Tensor | None = None) -> torch.Tensor:
+        B, L, D = x.shape
+        q, k, v = self.qkv(x).view(B, L, 3, self.h, D // self.h).permute(2, 0, 3, 1, 4)
+        s = torch.matmul(q, k.transpose(-1, -2)) * (D // self.h) ** -0.5  # (B, h, L, L)
+        if key_valid is not None:
+            s = s.masked_fill(~key_valid[:, None, None, :], torch.finfo(s.dtype).min)
+        a = torch.softmax(s.float(), -1).to(v.dtype)
+        y = torch.matmul(a, v).transpose(1, 2).reshape(B, L, D)
+        return self.out(y)
+
+
+class Block(nn.Module):
+    """Pre-norm transformer block."""
+
+    def __init__(self, d: int, heads: int, ffn_mult: int):
+        super().__init__()
+        self.n1, self.n2 = nn.LayerNorm(d), nn.LayerNorm(d)
+        self.attn = Attention(d, heads)
+        self.ffn = nn.Sequential(nn.Linear(d, ffn_mult * d), nn.GELU(), nn.Linear(ffn_mult * d, d))
+
+    def forward(self, x, key_valid=None):
+        x = x + self.attn(self.n1(x), key_valid)
+        return x + self.ffn(self.n2(x))
+
+
+class NeRFormerBranch(nn.Module):
+    """One branch (coarse or fine) of the implicit function."""
+
+    def __init__(self, cfg: NeRFormerConfig, feat_dim: int):
+        super().__init__()
+        self.cfg = cfg
+        d = cfg.d_model
+        self.dir_dim = harmonic_dim(3, cfg.dir_freqs) + 1
+        self.in_proj = nn.Sequential(nn.Linear(feat_dim + 3 + self.dir_dim, d), nn.GELU(), nn.Linear(d, d))
+        self.cls_token = nn.Parameter(torch.zeros(d))
+        self.mask_token = nn.Parameter(torch.randn(d) * 0.02)
+        self.depth_proj = nn.Linear(harmonic_dim(1, cfg.depth_freqs), d)
+        self.view_blocks = nn.ModuleList(Block(d, cfg.n_heads, cfg.ffn_mult) for _ in range(cfg.n_layers))
+        self.ray_blocks = nn.ModuleList(Block(d, cfg.n_heads, cfg.ffn_mult) for _ in range(cfg.n_layers))
+        self.norm = nn.LayerNorm(d)
+        self.density = nn.Sequential(nn.Linear(d, d), nn.GELU(), nn.Linear(d, 1))
+        self.blend = nn.Linear(d, 1)
+        self.color = nn.Linear(d, 3)
+
+    def forward(self, inputs: torch.Tensor, valid: torch.Tensor, ref_rgb: torch.Tensor, t: torch.Tensor,
+                view_mask: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """inputs (R, S, V, F), valid (R, S, V), ref_rgb (R, S, V, 3), t (R, S), view_mask (R, S, V) or None.
+
+        Returns raw density (R, S), colour (R, S, 3) and the latent per-point feature (R, S, D)."""
+        R, S, V, _ = inputs.shape
+        d = self.cfg.d_model
+        x = self.in_proj(inputs) * valid[..., None].to(inputs.dtype)
+        if view_mask is not None:
+            x = torch.where(view_mask[..., None], self.mask_token.to(x.dtype).expand_as(x), x)
+        cls = self.cls_token.to(x.dtype).expand(R, S, 1, d)
+        tok = torch.cat([cls, x], 2).reshape(R * S, V + 1, d)
+        key_valid = torch.cat([torch.ones_like(valid[..., :1]), valid], -1).reshape(R * S, V + 1)
+        if view_mask is not None:  # a masked token is an input (the mask token) even where the view sees nothing
+            key_valid = key_valid | torch.cat([torch.zeros_like(view_mask[..., :1]), view_mask], -1).reshape(R * S, V + 1)
+        depth_code = self.depth_proj(harmonic(t[..., None].to(x.dtype), self.cfg.depth_freqs))  # (R, S, d)
+        for i, (vb, rb) in enumerate(zip(self.view_blocks, self.ray_blocks)):
+            tok = vb(tok, key_valid)
+            summary = tok[:, 0].reshape(R, S, d)
+            if i == 0:
+                summary = summary + depth_code
+            summary = rb(summary)
+            tok = torch.cat([summary.reshape(R * S, 1, d), tok[:, 1:]], 1)
+        tok = self.norm(tok)
+        latent = tok[:, 0].reshape(R, S, d)
+        sigma_raw = self.density(latent)[..., 0]
+        # Colour: blend visible, unmasked reference colours + one predicted colour (always available).
+        logits = self.blend(tok).reshape(R, S, V + 1).float()
+        blend_ok = valid if view_mask is None else valid & ~view_mask
+        ok = torch.cat([torch.ones_like(blend_ok[..., :1]), blend_ok], -1)
+        logits = logits.masked_fill(~ok, torch.finfo(logits.dtype).min)
+        w = torch.softmax(logits, -1)
+        own = torch.sigmoid(self.color(latent).float())
+        rgb = w[..., :1] * own + (w[..., 1:, None] * ref_rgb.float()).sum(-2)
+        return {"sigma_raw": sigma_raw, "rgb": rgb, "latent": latent}
+
+
+def activate_density(raw: torch.Tensor, kind: str, bias: float) -> torch.Tensor:
+    x = raw.float() + bias
+    return F.softplus(x) if kind == "softplus" else F.relu(x)
