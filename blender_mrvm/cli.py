@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "build-extension": ("build_extension", "build the installable Blender extension zip"),
     "bench": ("bench", "run a benchmark and write its figures to CSV/PNG"),
     "contact-sheet": ("contact_sheet", "write a PNG contact sheet of a rendered dataset"),
+    "recover-poses": ("recover_poses", "recover camera poses of photos (pycolmap) into a capture folder"),
     "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
 }
 

@@ -1,0 +1,69 @@
+"""Settings of pose recovery (one frozen dataclass, a docstring line per field)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import InputError
+
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+DISTORTED_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV")
+MATCHERS = ("auto", "exhaustive", "sequential")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """How :func:`capture.sfm.recover_poses` runs (defaults: the benchmarked fast path)."""
+
+    camera_model: str = "SIMPLE_PINHOLE"
+    """COLMAP model: SIMPLE_PINHOLE (default: phones undistort in-camera), PINHOLE, or SIMPLE_RADIAL, RADIAL, OPENCV (undistorted on export)."""
+    single_camera: bool = True
+    """All photos share one camera (one phone, one zoom); False gives each photo its own intrinsics."""
+    matcher: str = "auto"
+    """auto, exhaustive or sequential; auto = sequential for numbered frames beyond exhaustive_max_images."""
+    exhaustive_max_images: int = 30
+    """auto matches every pair up to this many images (and always when names are not numbered frames)."""
+    sequential_overlap: int = 6
+    """Sequential matching pairs each frame with this many successors (plus quadratic i+2^k)."""
+    max_image_size: int = 1600
+    """Images are downscaled to this longer side for feature extraction (poses stay in full resolution)."""
+    max_num_features: int = 2048
+    """SIFT features kept per image (pycolmap's default is 8192)."""
+    min_images: int = 3
+    """Fewer input images is an error (a pair needs allow_pair)."""
+    allow_pair: bool = False
+    """Accept exactly two images (a stereo pair): min_images and the mapper's model size drop to 2."""
+    min_registered_fraction: float = 0.5
+    """Mapping that registers fewer than this fraction of the photos (or under min_images) is an error."""
+    init_min_tri_angle: float = 0.0
+    """Initial-pair triangulation angle, degrees; 0 = COLMAP's 16 (4 with allow_pair, for short baselines)."""
+    num_threads: int = -1
+    """CPU threads for extraction, matching and mapping (-1 = all)."""
+    seed: int = 0
+    """RANSAC / mapper random seed (results repeat run to run)."""
+    normalize: bool = True
+    """Rotate the cameras' mean up vector to +z and fit the object of interest in the unit sphere."""
+    force: bool = False
+    """Overwrite an output folder that already holds files."""
+
+    def validate(self) -> "CaptureConfig":
+        if self.camera_model not in CAMERA_MODELS:
+            raise InputError(f"unknown camera model {self.camera_model!r}; choose one of {', '.join(CAMERA_MODELS)}")
+        if self.matcher not in MATCHERS:
+            raise InputError(f"unknown matcher {self.matcher!r}; choose one of {', '.join(MATCHERS)}")
+        if self.max_num_features < 64:
+            raise InputError(f"max_num_features must be at least 64 (got {self.max_num_features})")
+        if self.max_image_size != -1 and self.max_image_size < 64:
+            raise InputError(f"max_image_size must be at least 64 or -1 (got {self.max_image_size})")
+        if not 0.0 <= self.min_registered_fraction <= 1.0:
+            raise InputError("min_registered_fraction must lie in [0, 1]")
+        return self
+
+    @property
+    def has_distortion(self) -> bool:
+        return self.camera_model in DISTORTED_MODELS
+
+    @property
+    def required_images(self) -> int:
+        return 2 if self.allow_pair else max(self.min_images, 3)

@@ -1,0 +1,410 @@
+"""Pose recovery with pycolmap: photos folder -> capture folder in our dataset format.
+
+:func:`recover_poses` is a progress generator (see ``progress.py``). Each pycolmap stage runs in a
+worker thread (pycolmap releases the GIL), and the generator yields a :class:`Progress` every
+``poll`` seconds while it waits, so a Blender modal operator stepping it per timer tick never
+blocks the UI for longer than that. Closing the generator (``gen.close()``, Ctrl-C on the CLI)
+cancels the running stage through pycolmap's ``CancellationToken`` and raises nothing further;
+what was finished stays in ``<out>/colmap``.
+
+Stages and what they check (each failure is one line naming the problem):
+
+1. scan      fewer than ``required_images`` photos, an unreadable photo, photos of differing size,
+             an output folder that already holds files (without ``force``)
+2. extract   SIFT, at most ``max_num_features`` per image on images of at most ``max_image_size``
+3. match     exhaustive, or sequential for numbered frames (``matcher="auto"``); no verified pair
+             means the photos do not overlap
+4. map       incremental mapping; the largest model is kept; registering fewer than
+             ``min_registered_fraction`` of the photos is an error (the partial model is kept and
+             named in the message, ``colmap/report.json`` lists what registered)
+5. undistort when the camera model has distortion (SIMPLE_RADIAL, RADIAL, OPENCV)
+6. export    up / centre / scale normalization and the dataset folder (``capture.export``)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import Cancelled, InputError, OutputError
+from ..geometry import cameras as C
+from ..progress import Progress, ProgressGen
+from . import align
+from .config import IMAGE_EXTENSIONS, CaptureConfig
+from .export import OUTPUT_ENTRIES, CaptureView, write_capture
+
+POLL_S = 0.1
+FORMAT_VERSION = 1
+# Overall progress: percent reached at the end of each stage.
+_STAGE_END = {"scan": 2, "extract": 35, "match": 55, "map": 90, "undistort": 95, "export": 100}
+
+
+@dataclass
+class CaptureResult:
+    """What :func:`recover_poses` returns."""
+
+    out_dir: Path
+    """The capture folder written."""
+    registered: list[str]
+    """Photos with a recovered pose, in output order (rgb/000000.png is registered[0])."""
+    total: int
+    """Photos in the input folder."""
+    unregistered: list[str]
+    """Photos the mapper could not place."""
+    matcher: str
+    """The matcher used (exhaustive or sequential)."""
+    timings: dict[str, float]
+    """Seconds per stage."""
+    num_points: int
+    """Sparse 3D points written to points.ply."""
+    mean_reprojection_error: float
+    """Of the kept COLMAP model, pixels."""
+    c2w_opencv: list[np.ndarray] = field(default_factory=list)
+    """Output poses (normalized world), one per registered photo."""
+    intrinsics: list[C.Intrinsics] = field(default_factory=list)
+    """Output (undistorted) intrinsics, one per registered photo."""
+
+    def summary(self) -> str:
+        t = ", ".join(f"{k} {v:.1f}s" for k, v in self.timings.items())
+        return (f"registered {len(self.registered)}/{self.total} images, {self.num_points} points, "
+                f"reprojection {self.mean_reprojection_error:.2f}px, {self.matcher} matching; {t}")
+
+
+def natural_key(name: str) -> list:
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def list_images(images_dir: Path) -> list[str]:
+    """Photo file names in ``images_dir`` (not recursive), in natural order."""
+    images_dir = Path(images_dir)
+    if not images_dir.is_dir():
+        raise InputError(f"image folder {images_dir} does not exist")
+    names = [p.name for p in images_dir.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS]
+    return sorted(names, key=natural_key)
+
+
+def looks_like_frames(names: list[str]) -> bool:
+    """True when the names are one prefix + increasing numbers (frames of a video, a burst)."""
+    if len(names) < 2:
+        return False
+    pat = re.compile(r"^(.*?)(\d+)(\D*)$")
+    ms = [pat.match(Path(n).stem) for n in names]
+    if not all(ms):
+        return False
+    if len({(m.group(1), m.group(3)) for m in ms}) != 1:
+        return False
+    nums = [int(m.group(2)) for m in ms]
+    return all(b > a for a, b in zip(nums, nums[1:]))
+
+
+def choose_matcher(cfg: CaptureConfig, names: list[str]) -> str:
+    if cfg.matcher != "auto":
+        return cfg.matcher
+    if len(names) > cfg.exhaustive_max_images and looks_like_frames(names):
+        return "sequential"
+    return "exhaustive"
+
+
+def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tuple[int, int]:
+    """Check count, readability and sizes; return the common (width, height)."""
+    need = cfg.required_images
+    if len(names) < need:
+        hint = "" if cfg.allow_pair or len(names) != 2 else " (a stereo pair needs --pair)"
+        raise InputError(f"found {len(names)} image(s) in {images_dir}; pose recovery needs at least {need}{hint}")
+    if len(names) > 2 and cfg.allow_pair and cfg.min_images > 2:
+        pass  # a pair flag with more images simply runs the normal path
+    from PIL import Image, UnidentifiedImageError
+
+    sizes: dict[tuple[int, int], list[str]] = {}
+    for n in names:
+        try:
+            with Image.open(images_dir / n) as im:
+                im.load()
+                sizes.setdefault(im.size, []).append(n)
+        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+            raise InputError(f"cannot read image {images_dir / n}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from e
+    if len(sizes) > 1:
+        common = max(sizes, key=lambda s: len(sizes[s]))
+        odd = [(s, v[0], len(v)) for s, v in sizes.items() if s != common]
+        s, example, count = odd[0]
+        raise InputError(f"images differ in size: {example} is {s[0]}x{s[1]} but {sizes[common][0]} is "
+                         f"{common[0]}x{common[1]} ({sum(c for _, _, c in odd)} of {len(names)} differ); "
+                         "use photos of one size")
+    return next(iter(sizes))
+
+
+def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
+    """Refuse an occupied output folder unless ``force``; with it, remove only what we write."""
+    out, img = Path(out_dir).resolve(), Path(images_dir).resolve()
+    if out == img or out in img.parents:
+        raise OutputError(f"output folder {out_dir} contains the photos; choose another folder")
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output {out_dir} exists and is not a folder")
+    if out.is_dir():
+        present = sorted(p.name for p in out.iterdir())
+        if present:
+            if not force:
+                shown = ", ".join(present[:3]) + (", ..." if len(present) > 3 else "")
+                raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force to overwrite")
+            for e in OUTPUT_ENTRIES:
+                p = out / e
+                if p.is_dir():
+                    shutil.rmtree(p)
+                elif p.exists():
+                    p.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: Callable[[], str] | None = None,
+                   poll: float = POLL_S) -> ProgressGen:
+    """Run ``fn`` in a worker thread, yielding Progress while it runs; cancel it if closed."""
+    out: dict[str, Any] = {}
+
+    def target() -> None:
+        try:
+            out["value"] = fn()
+        except BaseException as e:  # noqa: BLE001  (re-raised in the generator's thread)
+            out["error"] = e
+
+    th = threading.Thread(target=target, name=f"mrvm-capture-{label}", daemon=True)
+    t0 = time.perf_counter()
+    th.start()
+    try:
+        while th.is_alive():
+            th.join(poll)
+            extra = status() if status else ""
+            yield Progress(done, 100, f"{label}{' ' + extra if extra else ''} ({time.perf_counter() - t0:.0f}s)")
+    finally:
+        if th.is_alive():  # the generator was closed: cancel the pycolmap stage and wait for it
+            token.cancel()
+            th.join()
+    if "error" in out:
+        if token.is_cancelled():
+            raise Cancelled(f"{label} cancelled")
+        raise out["error"]
+    return out.get("value")
+
+
+def _pair_stats(db_path: Path, min_inliers: int) -> tuple[int, int, set[int]]:
+    """(verified pairs, matched pairs, ids of images in a verified pair)."""
+    import pycolmap
+
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        pair_ids, geoms = db.read_two_view_geometries()
+        verified, connected = 0, set()
+        for pid, g in zip(pair_ids, geoms):
+            if len(g.inlier_matches) >= min_inliers and g.config not in (
+                    pycolmap.TwoViewGeometryConfiguration.UNDEFINED, pycolmap.TwoViewGeometryConfiguration.DEGENERATE):
+                verified += 1
+                connected.update(_pair_to_ids(pid))
+        return verified, len(pair_ids), connected
+    finally:
+        db.close()
+
+
+def _pair_to_ids(pair_id) -> tuple[int, int]:
+    if isinstance(pair_id, tuple):
+        return int(pair_id[0]), int(pair_id[1])
+    k = 2147483647
+    pid = int(pair_id)
+    return pid // k, pid % k
+
+
+def _db_image_names(db_path: Path) -> dict[int, str]:
+    import pycolmap
+
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        return {im.image_id: im.name for im in db.read_all_images()}
+    finally:
+        db.close()
+
+
+def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureConfig(),
+                  verbose: bool = False) -> ProgressGen:
+    """Recover camera poses of the photos in ``images_dir`` and write a capture folder to ``out_dir``.
+
+    A generator of :class:`Progress`; its return value is a :class:`CaptureResult`.
+    """
+    import pycolmap
+
+    cfg.validate()
+    images_dir, out_dir = Path(images_dir), Path(out_dir)
+    pycolmap.logging.minloglevel = 0 if verbose else 2
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+
+    # 1. scan
+    names = list_images(images_dir)
+    check_images(images_dir, names, cfg)
+    prepare_output(out_dir, images_dir, cfg.force)
+    work = out_dir / "colmap"
+    work.mkdir(parents=True, exist_ok=True)
+    db_path = work / "database.db"
+    matcher = choose_matcher(cfg, names)
+    timings["scan"] = time.perf_counter() - t
+    yield Progress(_STAGE_END["scan"], 100, f"{len(names)} images, {matcher} matching")
+    token = pycolmap.CancellationToken()
+    threads = cfg.num_threads
+
+    # 2. extract
+    t = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = cfg.camera_model
+    ext = pycolmap.FeatureExtractionOptions()
+    ext.max_image_size = cfg.max_image_size
+    ext.num_threads = threads
+    ext.sift.max_num_features = cfg.max_num_features
+    mode = pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE
+    yield from _run_in_thread(lambda: pycolmap.extract_features(
+        db_path, images_dir, image_names=names, camera_mode=mode, reader_options=reader, extraction_options=ext,
+        device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
+    timings["extract"] = time.perf_counter() - t
+
+    # 3. match
+    t = time.perf_counter()
+    mopts = pycolmap.FeatureMatchingOptions()
+    mopts.num_threads = threads
+    ver = pycolmap.TwoViewGeometryOptions()
+    ver.ransac.random_seed = cfg.seed
+    if matcher == "exhaustive":
+        fn = lambda: pycolmap.match_exhaustive(db_path, matching_options=mopts, verification_options=ver,  # noqa: E731
+                                               device=pycolmap.Device.cpu, cancellation_token=token)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = cfg.sequential_overlap
+        pairing.quadratic_overlap = True
+        pairing.loop_detection = False
+        fn = lambda: pycolmap.match_sequential(db_path, matching_options=mopts, pairing_options=pairing,  # noqa: E731
+                                               verification_options=ver, device=pycolmap.Device.cpu,
+                                               cancellation_token=token)
+    yield from _run_in_thread(fn, token, f"{matcher} matching", _STAGE_END["extract"])
+    verified, tried, connected = _pair_stats(db_path, ver.min_num_inliers)
+    timings["match"] = time.perf_counter() - t
+    if verified == 0:
+        raise InputError(f"the images do not overlap: none of {tried} image pairs share enough matched features "
+                         f"(database kept in {db_path})")
+    id_to_name = _db_image_names(db_path)
+    yield Progress(_STAGE_END["match"], 100, f"{verified}/{tried} pairs verified")
+
+    # 4. map
+    t = time.perf_counter()
+    need = max(cfg.required_images, math.ceil(cfg.min_registered_fraction * len(names)))
+    mopt = pycolmap.IncrementalPipelineOptions()
+    mopt.num_threads = threads
+    mopt.random_seed = cfg.seed
+    mopt.min_model_size = min(cfg.required_images, len(names))
+    tri = cfg.init_min_tri_angle or (4.0 if cfg.allow_pair else 0.0)
+    if tri:
+        mopt.mapper.init_min_tri_angle = tri
+    if cfg.allow_pair and len(names) == 2:
+        # Every track of a pair is a two-view track, which COLMAP ignores by default.
+        mopt.triangulation.ignore_two_view_tracks = False
+        mopt.mapper.init_min_num_inliers = 50
+    sparse = work / "sparse"
+    if sparse.exists():
+        shutil.rmtree(sparse)
+    sparse.mkdir(parents=True)
+    count = {"n": 0}
+
+    def on_image() -> None:
+        count["n"] += 1
+
+    def on_init() -> None:
+        count["n"] = 2
+
+    recs = yield from _run_in_thread(
+        lambda: pycolmap.incremental_mapping(db_path, images_dir, sparse, mopt, initial_image_pair_callback=on_init,
+                                             next_image_callback=on_image, cancellation_token=token),
+        token, "mapping", _STAGE_END["match"], status=lambda: f"{count['n']}/{len(names)} registered")
+    timings["map"] = time.perf_counter() - t
+    if not recs:
+        _write_report(work, names, [], None, timings)
+        raise InputError(f"mapping found no image pair to start from (too little overlap or baseline); "
+                         f"database kept in {db_path}")
+    best_idx, rec = max(recs.items(), key=lambda kv: kv[1].num_reg_images())
+    reg_names = sorted((rec.images[i].name for i in rec.reg_image_ids()), key=natural_key)
+    model_dir = sparse / str(best_idx)
+    if not model_dir.is_dir():  # pycolmap writes sparse/<idx>; make sure the kept model is on disk
+        model_dir.mkdir(parents=True, exist_ok=True)
+        rec.write(model_dir)
+    _write_report(work, names, reg_names, model_dir, timings)
+    if len(reg_names) < need:
+        missing = [n for n in names if n not in set(reg_names)]
+        shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
+        raise InputError(f"mapping registered only {len(reg_names)} of {len(names)} images (need {need}); "
+                         f"partial model kept in {model_dir}; not registered: {shown}")
+    yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
+
+    # 5. undistort
+    image_root = images_dir
+    if cfg.has_distortion:
+        t = time.perf_counter()
+        und = work / "undistorted"
+        if und.exists():
+            shutil.rmtree(und)
+        uopts = pycolmap.UndistortCameraOptions()
+        yield from _run_in_thread(lambda: pycolmap.undistort_images(
+            und, model_dir, images_dir, image_names=reg_names, output_type="COLMAP", undistort_options=uopts,
+            num_threads=threads, cancellation_token=token), token, "undistorting", _STAGE_END["map"])
+        rec = pycolmap.Reconstruction(str(und / "sparse"))
+        image_root = und / "images"
+        timings["undistort"] = time.perf_counter() - t
+        yield Progress(_STAGE_END["undistort"], 100, "undistorted")
+
+    # 6. export
+    t = time.perf_counter()
+    by_name = {im.name: im for im in rec.images.values() if im.has_pose}
+    c2ws, intrs = [], []
+    for n in reg_names:
+        im = by_name[n]
+        cam = rec.cameras[im.camera_id]
+        intrs.append(C.Intrinsics.from_K(cam.calibration_matrix(), cam.width, cam.height))
+        c2ws.append(C.c2w_opencv_from_w2c(im.cam_from_world().matrix()))
+    pts = rec.points3D
+    xyz = np.array([p.xyz for p in pts.values()], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for p in pts.values()], dtype=np.uint8).reshape(-1, 3)
+    if cfg.normalize:
+        norm = align.auto_normalization(c2ws, xyz)
+        s, r, tr = norm.s_r_t()
+        c2ws = [align.apply_similarity_to_pose(p, s, r, tr) for p in c2ws]
+        xyz = (s * xyz @ r.T + tr) if len(xyz) else xyz
+        norm_json = norm.to_json()
+    else:
+        norm_json = None
+    views = [CaptureView(n, image_root / n, k, p) for n, k, p in zip(reg_names, intrs, c2ws)]
+    unregistered = [n for n in names if n not in set(reg_names)]
+    reproj = float(rec.compute_mean_reprojection_error())
+    timings["export"] = time.perf_counter() - t  # (the meta records the time up to here)
+    meta = {
+        "kind": "capture", "version": FORMAT_VERSION, "source": str(images_dir.resolve()),
+        "registered": len(reg_names), "total": len(names), "unregistered": unregistered,
+        "camera_model": cfg.camera_model, "undistorted": cfg.has_distortion, "matcher": matcher,
+        "num_points": int(len(xyz)), "mean_reprojection_error_px": reproj,
+        "normalization": norm_json, "timings_s": timings, "config": asdict(cfg),
+        "colmap_model": str(model_dir.relative_to(out_dir)),
+    }
+    write_capture(out_dir, views, xyz, rgb, meta)
+    timings["export"] = time.perf_counter() - t
+    yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
+    return CaptureResult(out_dir, reg_names, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
+                         c2ws, intrs)
+
+
+def _write_report(work: Path, names: list[str], registered: list[str], model_dir: Path | None,
+                  timings: dict[str, float]) -> None:
+    """``colmap/report.json``: what the mapping achieved (kept also when the run fails)."""
+    rep = {"total": len(names), "registered": registered,
+           "unregistered": [n for n in names if n not in set(registered)],
+           "model": str(model_dir) if model_dir else None, "timings_s": timings}
+    (work / "report.json").write_text(json.dumps(rep, indent=1) + "\n")

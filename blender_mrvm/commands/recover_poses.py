@@ -1,0 +1,61 @@
+"""Recover camera poses of a folder of photos (pycolmap SfM) and write a capture folder in our
+dataset format: undistorted images in rgb/, SRN poses, intrinsics.txt, transforms.json (each frame
+names its photo in original_name), meta.json and the sparse points as points.ply.
+
+At least 3 photos of one size are needed; a stereo pair runs with --pair. The output folder must be
+empty unless --force is given (then only the capture's own files are replaced).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..capture.config import CAMERA_MODELS, MATCHERS, CaptureConfig
+
+    d = CaptureConfig()
+    p.add_argument("--images", required=True, help="folder of photos or video frames (PNG/JPEG/TIFF/BMP, one size)")
+    p.add_argument("--out", required=True, help="capture folder to write")
+    p.add_argument("--camera-model", choices=CAMERA_MODELS, default=d.camera_model,
+                   help=f"COLMAP camera model; distorted models are undistorted on export (default {d.camera_model})")
+    p.add_argument("--per-image-camera", action="store_true", help="each photo gets its own intrinsics")
+    p.add_argument("--matcher", choices=MATCHERS, default=d.matcher,
+                   help=f"auto: sequential for more than {d.exhaustive_max_images} numbered frames, else exhaustive")
+    p.add_argument("--max-features", type=int, default=d.max_num_features, help="SIFT features per image")
+    p.add_argument("--max-image-size", type=int, default=d.max_image_size,
+                   help="longer side used for feature extraction (-1 = full size)")
+    p.add_argument("--overlap", type=int, default=d.sequential_overlap, help="sequential matching: successors per frame")
+    p.add_argument("--min-registered", type=float, default=d.min_registered_fraction,
+                   help="fail when fewer than this fraction of photos register")
+    p.add_argument("--pair", action="store_true", help="accept a stereo pair (2 photos)")
+    p.add_argument("--no-normalize", action="store_true", help="keep COLMAP's world (no up / unit-sphere fit)")
+    p.add_argument("--threads", type=int, default=d.num_threads, help="CPU threads (-1 = all)")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--force", action="store_true", help="overwrite an output folder that holds files")
+    p.add_argument("--verbose", action="store_true", help="show COLMAP's log")
+
+
+def config_from_args(args: argparse.Namespace):
+    from ..capture.config import CaptureConfig
+
+    return CaptureConfig(camera_model=args.camera_model, single_camera=not args.per_image_camera,
+                         matcher=args.matcher, max_num_features=args.max_features,
+                         max_image_size=args.max_image_size, sequential_overlap=args.overlap,
+                         min_registered_fraction=args.min_registered, allow_pair=args.pair,
+                         normalize=not args.no_normalize, num_threads=args.threads, seed=args.seed,
+                         force=args.force).validate()
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..capture.sfm import recover_poses
+    from ..progress import run_with_tqdm
+
+    cfg = config_from_args(args)
+    res = run_with_tqdm(recover_poses(args.images, args.out, cfg, verbose=args.verbose), desc="recover-poses",
+                        unit="%")
+    print(f"{args.out}: {res.summary()}")
+    if res.unregistered:
+        shown = ", ".join(res.unregistered[:5]) + (", ..." if len(res.unregistered) > 5 else "")
+        print(f"not registered ({len(res.unregistered)}): {shown}")
+    return 0
