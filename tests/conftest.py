@@ -23,8 +23,8 @@ os.environ.setdefault("TQDM_DISABLE", "1")
 @pytest.fixture(scope="session")
 def addon():
     """Enable the add-on once per session, as Blender does for an installed extension."""
+    import bpy  # noqa: F401  (bpy first: it puts Blender's scripts, addon_utils among them, on sys.path)
     import addon_utils
-    import bpy
 
     mod = addon_utils.enable("blender_mrvm", default_set=True, handle_error=None)
     assert mod is not None, "add-on failed to enable"

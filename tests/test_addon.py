@@ -1,0 +1,128 @@
+"""The add-on: registration cycles, the extension zip, and the operator from a script."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _mrvm_types(bpy):
+    return sorted(n for n in dir(bpy.types) if n.startswith("MRVM_"))
+
+
+def test_register_unregister_register(addon):
+    import bpy
+
+    import blender_mrvm
+
+    registered = _mrvm_types(bpy)
+    assert {"MRVM_OT_render_dataset", "MRVM_PT_main", "MRVM_PT_dataset"} <= set(registered)
+    assert hasattr(bpy.types.Scene, "mrvm_dataset")
+    blender_mrvm.unregister()
+    assert _mrvm_types(bpy) == [] and not hasattr(bpy.types.Scene, "mrvm_dataset")
+    blender_mrvm.register()
+    assert _mrvm_types(bpy) == registered and hasattr(bpy.types.Scene, "mrvm_dataset")
+    blender_mrvm.register()  # registering twice re-registers cleanly
+    assert _mrvm_types(bpy) == registered
+    assert bpy.context.preferences.addons["blender_mrvm"].preferences.device == "AUTO"
+
+
+def test_every_class_in_the_package_is_registered(addon):
+    import importlib
+    import pkgutil
+
+    import bpy
+
+    import blender_mrvm
+
+    registrable = (bpy.types.Operator, bpy.types.Panel, bpy.types.PropertyGroup, bpy.types.AddonPreferences)
+    mods = [importlib.import_module("blender_mrvm.props"), importlib.import_module("blender_mrvm.prefs")]
+    for sub in ("operators", "panels"):
+        pkg = importlib.import_module(f"blender_mrvm.{sub}")
+        for m in pkgutil.iter_modules(pkg.__path__):
+            assert m.name in pkg.MODULES, f"{sub}/{m.name}.py is not in {sub}.MODULES"
+            mods.append(importlib.import_module(f"blender_mrvm.{sub}.{m.name}"))
+    classes = [c for mod in mods for c in vars(mod).values()
+               if isinstance(c, type) and issubclass(c, registrable) and c.__module__ == mod.__name__]
+    assert len(classes) >= 5
+    missing = [c.__name__ for c in classes if not c.is_registered]
+    assert not missing, missing
+    blender_mrvm.unregister()
+    try:
+        still = [c.__name__ for c in classes if c.is_registered]
+        assert not still, still
+    finally:
+        blender_mrvm.register()
+
+
+def test_bpy_free_layers_import_without_blender():
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['bpy'] = None; sys.modules['mathutils'] = None\n"
+            "import blender_mrvm, blender_mrvm.geometry.cameras, blender_mrvm.geometry.rigs, "
+            "blender_mrvm.datasets.format, blender_mrvm.cli\n"
+            "blender_mrvm.cli.build_parser()\n")
+    res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+
+
+def test_extension_zip(tmp_path):
+    from blender_mrvm.commands.build_extension import build, validate
+
+    zip_path = build(tmp_path)
+    validate(zip_path)
+    names = zipfile.ZipFile(zip_path).namelist()
+    assert "blender_manifest.toml" in names and "__init__.py" in names
+    for must in ("operators/dataset.py", "panels/main.py", "scene/render.py", "geometry/cameras.py", "cli.py"):
+        assert must in names
+    assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
+    manifest = tomllib.loads(zipfile.ZipFile(zip_path).read("blender_manifest.toml").decode())
+    assert manifest["id"] == "blender_mrvm" and manifest["type"] == "add-on"
+    assert manifest["blender_version_min"] == "4.2.0" and manifest["schema_version"] == "1.0.0"
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"] and "files" in manifest["permissions"]
+    assert manifest["version"] == tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+
+
+def test_relative_imports_only():
+    bad = []
+    for f in (ROOT / "blender_mrvm").rglob("*.py"):
+        for k, line in enumerate(f.read_text().splitlines(), 1):
+            s = line.strip()
+            if s.startswith(("import blender_mrvm", "from blender_mrvm")):
+                bad.append(f"{f.relative_to(ROOT)}:{k}")
+    assert not bad, bad
+
+
+@pytest.mark.slow
+def test_operator_renders_selected_objects(empty_scene, tmp_path):
+    import bpy
+
+    bpy.ops.mesh.primitive_torus_add()
+    props = empty_scene.mrvm_dataset
+    props.output_dir = str(tmp_path / "ds")
+    props.views, props.resolution, props.samples = 2, 24, 1
+    assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}
+    meta = json.loads((tmp_path / "ds" / "custom" / "Torus" / "meta.json").read_text())
+    assert meta["complete"] and meta["n_views"] == 2
+    assert "2 views rendered" in props.status
+
+
+def test_operator_reports_errors_and_leaves_scene(empty_scene, tmp_path):
+    import bpy
+
+    props = empty_scene.mrvm_dataset
+    props.output_dir = str(tmp_path / "ds")
+    n = len(bpy.data.objects), len(bpy.data.scenes)
+    with pytest.raises(RuntimeError, match="no mesh objects are selected"):
+        bpy.ops.mrvm.render_dataset()
+    props.source, props.source_path = "PATH", str(tmp_path / "missing.obj")
+    with pytest.raises(RuntimeError, match="mesh file or folder not found"):
+        bpy.ops.mrvm.render_dataset()
+    assert (len(bpy.data.objects), len(bpy.data.scenes)) == n and not (tmp_path / "ds").exists()

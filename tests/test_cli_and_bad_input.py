@@ -1,0 +1,145 @@
+"""The CLI and every kind of bad input: one-line error, non-zero exit, nothing lost or marked done."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from blender_mrvm.cli import main
+from tests.helpers import write_mesh
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_cli(capsys, *args):
+    code = main([str(a) for a in args])
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def one_line_error(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.fixture
+def mesh(tmp_path):
+    return write_mesh(tmp_path / "good.ply")
+
+
+def base(out, src):
+    return ["render-dataset", "--source", src, "--out", out, "--views", "2", "--resolution", "16", "--samples", "1"]
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["--views", "0"], "views must be at least 1"),
+    (["--views", "-3"], "views must be at least 1"),
+    (["--resolution", "0"], "at least 1x1"),
+    (["--resolution", "8193"], "exceeds the maximum of 8192"),
+    (["--resolution", "64x9000"], "exceeds the maximum"),
+    (["--resolution", "big"], "resolution must be R or WxH"),
+    (["--rig", "cube"], "unknown rig"),
+    (["--engine", "povray"], "unknown engine"),
+    (["--shard", "3/2"], "shard must be i/n"),
+    (["--samples", "0"], "samples must be at least 1"),
+    (["--fov", "180"], "field of view"),
+])
+def test_bad_arguments(capsys, tmp_path, mesh, extra, needle):
+    code, err = run_cli(capsys, *base(tmp_path / "out", mesh), *extra)
+    assert code != 0 and needle in one_line_error(err)
+    assert not (tmp_path / "out").exists(), "nothing is written for bad arguments"
+
+
+def test_missing_corrupt_unsupported_files(capsys, tmp_path, bpy_empty):
+    code, err = run_cli(capsys, *base(tmp_path / "o1", tmp_path / "nope.obj"))
+    assert code == 2 and "not found" in one_line_error(err)
+    bad = tmp_path / "model.xyz"
+    bad.write_text("1 2 3\n")
+    code, err = run_cli(capsys, *base(tmp_path / "o2", bad))
+    assert code == 2 and "unsupported mesh format '.xyz'" in one_line_error(err)
+    for name, content in (("broken.obj", "v 0 0\nf 1 2 9\ngarbage\n"), ("broken.ply", "ply\nformat nonsense\n"),
+                          ("broken.stl", "solid x\nnot really\n"), ("broken.off", "OFF\n3 1\n0 0\n"),
+                          ("broken.glb", "glTF nonsense"), ("empty.obj", "")):
+        f = tmp_path / name
+        f.write_text(content)
+        out = tmp_path / f"o_{name}"
+        code, err = run_cli(capsys, *base(out, f))
+        assert code == 2 and f"cannot read mesh file {f}" in one_line_error(err), (name, err)
+        metas = list(out.rglob("meta.json"))
+        assert all(not json.loads(m.read_text())["complete"] for m in metas)
+    empty_dir = tmp_path / "emptydir"
+    empty_dir.mkdir()
+    code, err = run_cli(capsys, *base(tmp_path / "o3", empty_dir))
+    assert code == 2 and "no mesh files" in one_line_error(err)
+
+
+def test_empty_selection(capsys, tmp_path, bpy_empty):
+    code, err = run_cli(capsys, *base(tmp_path / "o", "selected"))
+    assert code == 2 and "no mesh objects are selected" in one_line_error(err)
+
+
+def test_scene_rig_without_cameras(capsys, tmp_path, bpy_empty):
+    import bpy
+
+    bpy.ops.mesh.primitive_cube_add()
+    code, err = run_cli(capsys, *base(tmp_path / "o", "selected"), "--rig", "scene")
+    assert code == 2 and "needs cameras in the scene" in one_line_error(err)
+
+
+def test_output_not_writable(capsys, tmp_path, mesh, bpy_empty):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, err = run_cli(capsys, *base(blocker, mesh))
+    assert code == 2 and "exists and is not a folder" in one_line_error(err)
+    code, err = run_cli(capsys, *base(blocker / "sub", mesh))
+    assert code == 2 and "is not writable" in one_line_error(err)
+    code, err = run_cli(capsys, *base("/proc/mrvm_out", mesh))
+    assert code == 2 and "is not writable" in one_line_error(err)
+
+
+def test_no_silent_overwrite(capsys, tmp_path, mesh, bpy_empty):
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "precious.txt").write_text("keep me")
+    code, err = run_cli(capsys, *base(other, mesh))
+    assert code == 2 and "not empty and holds no blender_mrvm dataset" in one_line_error(err)
+    assert (other / "precious.txt").read_text() == "keep me" and len(list(other.iterdir())) == 1
+
+    out = tmp_path / "ds"
+    assert run_cli(capsys, *base(out, mesh))[0] == 0
+    first = (out / "custom" / "good" / "rgb" / "000000.png").read_bytes()
+    code, err = run_cli(capsys, *base(out, mesh), "--samples", "4")
+    assert code == 2 and "rendered with other settings (samples 1 != 4)" in one_line_error(err)
+    assert (out / "custom" / "good" / "rgb" / "000000.png").read_bytes() == first
+    code, err = run_cli(capsys, *base(out, mesh), "--samples", "4", "--force")
+    assert code == 0
+    meta = json.loads((out / "custom" / "good" / "meta.json").read_text())
+    assert meta["settings"]["samples"] == 4 and meta["complete"]
+
+
+def test_help_lists_commands(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for cmd in ("render-dataset", "build-extension", "bench", "demo"):
+        assert cmd in out
+
+
+@pytest.mark.slow
+def test_blender_script_entry_point(tmp_path, mesh):
+    """`blender --background -P scripts/mrvm_blender.py -- render-dataset ...`, imitated with the bpy module."""
+    env = dict(os.environ, PYTHONPATH="")
+    cmd = [sys.executable, str(ROOT / "scripts" / "mrvm_blender.py"), "--", *base(tmp_path / "out", mesh)]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (tmp_path / "out" / "custom" / "good" / "pose" / "000001.txt").is_file()
+    res = subprocess.run([sys.executable, str(ROOT / "scripts" / "mrvm_blender.py"), "--", *base(tmp_path / "o2", "nope.obj")],
+                         capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
+    assert res.returncode == 2 and "error: mesh file or folder not found: nope.obj" in res.stderr
