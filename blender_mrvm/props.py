@@ -54,7 +54,40 @@ class MRVM_PG_dataset(bpy.types.PropertyGroup):
     status: StringProperty(default="", options={"SKIP_SAVE"})
 
 
+# --- Capture (issue 6): settings of the Recover poses operator -------------------------------
+CAPTURE_MODELS = [
+    ("SIMPLE_PINHOLE", "Simple pinhole", "One focal length, no distortion (phones undistort in-camera)"),
+    ("PINHOLE", "Pinhole", "Two focal lengths, no distortion"),
+    ("SIMPLE_RADIAL", "Simple radial", "One focal length, one radial distortion term (images are undistorted)"),
+    ("RADIAL", "Radial", "Two radial distortion terms (images are undistorted)"),
+    ("OPENCV", "OpenCV", "fx, fy, k1, k2, p1, p2 (wide-angle lenses; images are undistorted)"),
+]
+
+
+class MRVM_PG_capture(bpy.types.PropertyGroup):
+    """Settings of the Recover poses operator."""
+
+    images_dir: StringProperty(name="Photos", subtype="DIR_PATH",
+                               description="Folder of photos or video frames, all of one size")
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_capture",
+                               description="Capture folder to write (// is relative to the .blend)")
+    camera_model: EnumProperty(name="Camera model", items=CAPTURE_MODELS, default="SIMPLE_PINHOLE")
+    matcher: EnumProperty(name="Matching", items=[
+        ("auto", "Auto", "Sequential for many numbered frames, otherwise every pair"),
+        ("exhaustive", "Exhaustive", "Match every pair of photos"),
+        ("sequential", "Sequential", "Match each frame with its successors (video)"),
+    ], default="auto")
+    max_features: IntProperty(name="Features", default=2048, min=64, soft_max=16384,
+                              description="SIFT features per image")
+    allow_pair: BoolProperty(name="Stereo pair", default=False, description="Accept exactly two photos")
+    force: BoolProperty(name="Overwrite", default=False, description="Overwrite an output folder that holds files")
+    running: BoolProperty(default=False, options={"SKIP_SAVE"})
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
+    status: StringProperty(default="", options={"SKIP_SAVE"})
+
+
 SCENE_PROPERTIES = {
+    "mrvm_capture": MRVM_PG_capture,
     "mrvm_dataset": MRVM_PG_dataset,
 }
 classes = tuple(SCENE_PROPERTIES.values())

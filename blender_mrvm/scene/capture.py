@@ -130,7 +130,8 @@ def _emission_material(name: str, seed: int, density: float = 1.0) -> bpy.types.
     """A procedural noise x Voronoi texture, emitted (shading-independent colours)."""
     rng = np.random.default_rng(seed)
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
+    if mat.node_tree is None:  # Blender < 5 creates materials without nodes
+        mat.use_nodes = True
     nt = mat.node_tree
     for n in list(nt.nodes):
         nt.nodes.remove(n)

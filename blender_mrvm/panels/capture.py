@@ -1,0 +1,55 @@
+"""The "Capture" section of the MRVM sidebar tab: Recover poses of a photo folder."""
+
+from __future__ import annotations
+
+import bpy
+
+from .main import MRVMPanel
+
+
+class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
+    bl_label = "Capture"
+    bl_idname = "MRVM_PT_capture"
+    bl_parent_id = "MRVM_PT_main"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        return hasattr(context.scene, "mrvm_capture")
+
+    def draw(self, context):
+        p = context.scene.mrvm_capture
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        col = layout.column()
+        col.enabled = not p.running
+        col.prop(p, "images_dir")
+        col.prop(p, "output_dir")
+        col.prop(p, "camera_model")
+        col.prop(p, "matcher")
+        col.prop(p, "max_features")
+        col.prop(p, "allow_pair")
+        col.prop(p, "force")
+        row = layout.row()
+        row.enabled = not p.running
+        row.operator("mrvm.recover_poses", icon="CAMERA_DATA")
+        if p.running:
+            layout.progress(factor=p.progress, type="BAR", text=p.status or "Recovering poses")
+        elif p.status:
+            for line in _wrap(p.status, 48):
+                layout.label(text=line)
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    words, lines, cur = text.split(), [], ""
+    for w in words:
+        if cur and len(cur) + 1 + len(w) > width:
+            lines.append(cur)
+            cur = w
+        else:
+            cur = f"{cur} {w}" if cur else w
+    return lines + ([cur] if cur else [])
+
+
+classes = (MRVM_PT_capture,)

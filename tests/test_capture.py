@@ -1,0 +1,287 @@
+"""Pose recovery (issue 6): synthetic truth, a real stereo pair, bad input, cancel, Blender import.
+
+The synthetic capture (24 views of a procedurally textured scene on a ring, 320x240, Cycles) is
+rendered once per session; one recovery of it is shared by the accuracy, format and import tests.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+from blender_mrvm.capture import align  # noqa: E402
+from blender_mrvm.capture.config import CaptureConfig  # noqa: E402
+from blender_mrvm.capture.export import read_capture, read_points_ply  # noqa: E402
+from blender_mrvm.capture.sfm import recover_poses  # noqa: E402
+from blender_mrvm.errors import Cancelled, InputError, OutputError  # noqa: E402
+from blender_mrvm.geometry import cameras as C  # noqa: E402
+from blender_mrvm.progress import run_to_end  # noqa: E402
+
+N_VIEWS, W, H = 24, 320, 240
+CFG = CaptureConfig(num_threads=2)
+
+
+@pytest.fixture(scope="session")
+def ring(tmp_path_factory):
+    """The rendered synthetic capture: (images dir, truth dict)."""
+    import bpy  # noqa: F401
+
+    from blender_mrvm.scene.capture import render_textured_ring
+
+    d = tmp_path_factory.mktemp("capture_ring")
+    render_textured_ring(d, n_views=N_VIEWS, width=W, height=H, samples=4, threads=2)
+    return d / "images", json.loads((d / "truth.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def recovered(ring, tmp_path_factory):
+    images, truth = ring
+    out = tmp_path_factory.mktemp("capture_out") / "cap"
+    events = []
+    gen = recover_poses(images, out, CFG)
+    while True:
+        try:
+            events.append(next(gen))
+        except StopIteration as stop:
+            return stop.value, truth, events
+
+
+def test_synthetic_ring_poses_match_truth(recovered):
+    res, truth, events = recovered
+    assert res.total == N_VIEWS and len(res.registered) == N_VIEWS and not res.unregistered
+    tr = {v["name"]: np.array(v["c2w_opencv"]) for v in truth["views"]}
+    err = align.pose_errors(res.c2w_opencv, [tr[n] for n in res.registered])
+    print(f"median rotation {err.median_rotation_deg:.3f} deg, median centre {err.median_centre / truth['radius']:.4%} of R")
+    assert err.median_rotation_deg < 0.5
+    assert err.median_centre < 0.01 * truth["radius"]
+    f_true = truth["views"][0]["K"][0][0]
+    assert abs(res.intrinsics[0].fx - f_true) < 0.02 * f_true
+    assert res.mean_reprojection_error < 1.0
+    # Progress is monotone, ends at 100 %, and each stage was timed.
+    done = [e.done for e in events]
+    assert done == sorted(done) and done[-1] == 100
+    assert {"scan", "extract", "match", "map", "export"} <= set(res.timings)
+
+
+def test_capture_folder_is_our_dataset_format(recovered):
+    from blender_mrvm.datasets import format as F
+
+    res, truth, _ = recovered
+    out = Path(res.out_dir)
+    cap = read_capture(out)
+    assert [f.extra["original_name"] for f in cap.frames] == res.registered
+    assert cap.meta["registered"] == N_VIEWS and cap.meta["total"] == N_VIEWS and cap.meta["kind"] == "capture"
+    for i, f in enumerate(cap.frames):
+        assert f.file_path == f"rgb/{i:06d}.png"
+        assert F.read_png(out / f.file_path).shape == (H, W, 3)
+        np.testing.assert_allclose(F.read_srn_pose(out / "pose" / f"{i:06d}.txt"), f.c2w_opencv, atol=1e-6)
+    intr = F.read_srn_intrinsics(out / "intrinsics.txt")
+    assert abs(intr.fx - cap.frames[0].intrinsics.fx) < 1e-4
+    xyz, rgb = read_points_ply(out / "points.ply")
+    assert len(xyz) == res.num_points > 500 and rgb.dtype == np.uint8 and rgb.std() > 5
+    # Normalization: the cameras' mean up vector is +z, the object of interest fits the unit sphere.
+    ups = np.array([-f.c2w_opencv[:3, 1] for f in cap.frames]).mean(0)
+    assert np.degrees(np.arccos(ups[2] / np.linalg.norm(ups))) < 1e-6
+    centre = np.array([f.c2w_opencv[:3, 3] for f in cap.frames])
+    d = np.linalg.norm(centre, axis=1)
+    assert 1.0 < d.min() and d.max() < 10.0
+    # The ring's axis is vertical after normalization: camera heights vary by the ring's wobble only.
+    assert np.ptp(centre[:, 2]) < 0.15 * d.mean()
+
+
+def test_blender_cameras_project_like_colmap(recovered, empty_scene):
+    """Points project through the imported Blender cameras to COLMAP's pixels (within 1 px)."""
+    import pycolmap
+
+    from blender_mrvm.scene import camera as scam
+    from blender_mrvm.scene.capture import import_capture
+
+    res, _, _ = recovered
+    out = Path(res.out_dir)
+    made = import_capture(out, empty_scene)
+    assert len(made["cameras"]) == N_VIEWS
+    assert len(made["points"].data.vertices) == res.num_points
+    assert made["points"].data.color_attributes.get("Col") is not None
+    cam0 = made["cameras"][0].data
+    assert cam0.background_images[0].image is not None
+    meta = json.loads((out / "meta.json").read_text())
+    norm = meta["normalization"]
+    s, r, c = norm["scale"], np.array(norm["rotation"]), np.array(norm["centre"])
+    rec = pycolmap.Reconstruction(str(out / meta["colmap_model"]))
+    by_name = {im.name: im for im in rec.images.values()}
+    worst = 0.0
+    for obj in made["cameras"]:
+        im = by_name[obj["mrvm_original_name"]]
+        intr, c2w = scam.read_camera(obj, empty_scene)
+        w2c = C.invert_pose(c2w)
+        ids = [p.point3D_id for p in im.points2D if p.has_point3D()]
+        xyz = np.array([rec.points3D[i].xyz for i in ids])
+        cam = rec.cameras[im.camera_id]
+        uv_colmap = np.array([cam.img_from_cam(im.cam_from_world() * x) for x in xyz])
+        uv_blender, z = C.project(intr.K, w2c, s * (xyz - c) @ r.T)
+        assert (z > 0).all()
+        worst = max(worst, float(np.abs(uv_blender - uv_colmap).max()))
+    print(f"worst Blender-vs-COLMAP reprojection difference {worst:.2e} px")
+    assert worst < 1.0
+
+
+@pytest.fixture(scope="module")
+def moto_dir(tmp_path_factory):
+    from PIL import Image
+    from skimage import data
+
+    left, right, _ = data.stereo_motorcycle()
+    d = tmp_path_factory.mktemp("moto")
+    Image.fromarray(left).save(d / "left.png")
+    Image.fromarray(right).save(d / "right.png")
+    return d
+
+
+def test_real_stereo_pair(moto_dir, tmp_path, capsys):
+    from blender_mrvm.cli import main
+
+    # The default path refuses two photos and says how to run a pair.
+    assert main(["recover-poses", "--images", str(moto_dir), "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs at least 3" in err[0] and "--pair" in err[0]
+    assert main(["recover-poses", "--images", str(moto_dir), "--out", str(tmp_path / "b"), "--pair",
+                 "--threads", "2"]) == 0
+    cap = read_capture(tmp_path / "b")
+    assert cap.meta["registered"] == 2 and len(cap.frames) == 2
+    assert cap.meta["mean_reprojection_error_px"] < 1.0 and len(cap.xyz) > 200
+    # A rectified pair: the baseline runs along the left camera's x axis, the cameras are parallel.
+    left, right = (f.c2w_opencv for f in sorted(cap.frames, key=lambda f: f.extra["original_name"]))
+    base = right[:3, 3] - left[:3, 3]
+    assert np.degrees(np.arccos(abs(base @ left[:3, 0]) / np.linalg.norm(base))) < 3.0
+    assert align.rotation_angle_deg(left[:3, :3].T @ right[:3, :3]) < 3.0
+
+
+# --------------------------------------------------------------------------------------------
+# Bad input: one-line errors naming the problem; partial results kept; nothing overwritten
+# --------------------------------------------------------------------------------------------
+
+def _copy(ring_images: Path, dst: Path, idx) -> Path:
+    dst.mkdir(parents=True, exist_ok=True)
+    for i in idx:
+        shutil.copy(ring_images / f"{i:03d}.png", dst / f"{i:03d}.png")
+    return dst
+
+
+def _noise(dst: Path, n: int, size=(W, H), seed=0) -> None:
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    for k in range(n):
+        Image.fromarray((rng.random((size[1], size[0], 3)) * 255).astype(np.uint8)).save(dst / f"noise{k}.png")
+
+
+def _run(images, out, cfg=CFG):
+    return run_to_end(recover_poses(images, out, cfg))
+
+
+def test_too_few_images(ring, tmp_path):
+    d = _copy(ring[0], tmp_path / "in", [0, 1])
+    with pytest.raises(InputError, match=r"found 2 image\(s\) .* needs at least 3"):
+        _run(d, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreadable_and_mixed_size(ring, tmp_path):
+    d = _copy(ring[0], tmp_path / "in", [0, 1, 2])
+    (d / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not an image")
+    with pytest.raises(InputError, match=r"cannot read image .*broken\.png"):
+        _run(d, tmp_path / "out")
+    (d / "broken.png").unlink()
+    _noise(d, 1, size=(200, 100))
+    with pytest.raises(InputError, match=r"images differ in size: noise0\.png is 200x100 but 000\.png is 320x240"):
+        _run(d, tmp_path / "out")
+
+
+def test_no_overlap(tmp_path):
+    d = tmp_path / "in"
+    d.mkdir()
+    _noise(d, 4, size=(160, 120))
+    with pytest.raises(InputError, match=r"do not overlap") as ei:
+        _run(d, tmp_path / "out")
+    assert "\n" not in str(ei.value)
+    assert (tmp_path / "out" / "colmap" / "database.db").is_file()  # kept for inspection
+
+
+def test_too_few_registered_keeps_partial_model(ring, tmp_path):
+    d = _copy(ring[0], tmp_path / "in", [0, 1, 2, 3])
+    _noise(d, 5, seed=3)
+    with pytest.raises(InputError, match=r"registered only 4 of 9 images \(need 5\); partial model kept in") as ei:
+        _run(d, tmp_path / "out")
+    assert "noise0.png" in str(ei.value)
+    rep = json.loads((tmp_path / "out" / "colmap" / "report.json").read_text())
+    assert rep["registered"] == ["000.png", "001.png", "002.png", "003.png"] and len(rep["unregistered"]) == 5
+    assert Path(rep["model"]).is_dir() and not (tmp_path / "out" / "transforms.json").exists()
+    # The same photos with a lower bar: the 4 that overlap are written, the rest reported.
+    res = _run(d, tmp_path / "out2", CaptureConfig(num_threads=2, min_registered_fraction=0.4))
+    assert res.registered == ["000.png", "001.png", "002.png", "003.png"] and len(res.unregistered) == 5
+    assert json.loads((tmp_path / "out2" / "meta.json").read_text())["unregistered"] == res.unregistered
+
+
+def test_output_not_overwritten_without_force(ring, tmp_path, capsys):
+    from blender_mrvm.cli import main
+
+    d = _copy(ring[0], tmp_path / "in", [0, 1, 2, 3, 4])
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "meta.json").write_text("precious")
+    (out / "notes.txt").write_text("mine")
+    assert main(["recover-poses", "--images", str(d), "--out", str(out), "--threads", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already holds files" in err[0] and "--force" in err[0]
+    assert (out / "meta.json").read_text() == "precious"
+    for bad in (d, d.parent):  # the photos' folder itself, or a folder holding it
+        with pytest.raises(OutputError, match="contains the photos"):
+            _run(d, bad, CaptureConfig(force=True))
+    assert main(["recover-poses", "--images", str(d), "--out", str(out), "--threads", "2", "--force"]) == 0
+    assert json.loads((out / "meta.json").read_text())["registered"] == 5
+    assert (out / "notes.txt").read_text() == "mine"  # --force replaces only the capture's own files
+
+
+def test_cancel_by_closing_the_generator(ring, tmp_path):
+    gen = recover_poses(ring[0], tmp_path / "out", CFG)
+    first = next(gen)
+    assert first.done == 2 and "24 images" in first.message
+    ev = next(gen)  # extraction is running in its worker thread
+    assert "extracting" in ev.message
+    gen.close()  # cancels the pycolmap stage and waits for it
+    import threading
+
+    assert not [t for t in threading.enumerate() if t.name.startswith("mrvm-capture")]
+    assert (tmp_path / "out" / "colmap" / "database.db").is_file()
+    assert not (tmp_path / "out" / "transforms.json").exists()
+    with pytest.raises(StopIteration):
+        next(gen)
+    assert Cancelled  # (the CLI maps Ctrl-C to the same close(); nothing is raised by close itself)
+
+
+def test_matcher_choice_and_config_errors():
+    from blender_mrvm.capture.sfm import choose_matcher, looks_like_frames
+
+    frames = [f"frame_{i:04d}.jpg" for i in range(40)]
+    assert looks_like_frames(frames) and choose_matcher(CaptureConfig(), frames) == "sequential"
+    assert choose_matcher(CaptureConfig(), frames[:20]) == "exhaustive"
+    assert choose_matcher(CaptureConfig(matcher="exhaustive"), frames) == "exhaustive"
+    photos = [f"IMG_{i}.jpg" for i in range(20)] + [f"DSC_{i}.jpg" for i in range(20)]
+    assert not looks_like_frames(photos) and choose_matcher(CaptureConfig(), photos) == "exhaustive"
+    with pytest.raises(InputError, match="unknown camera model 'FISHEYE'"):
+        CaptureConfig(camera_model="FISHEYE").validate()
+
+
+def test_umeyama_recovers_a_similarity():
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(30, 3))
+    r = align.rotation_between(np.array([0.0, 0.0, 1.0]), np.array([1.0, 2.0, 3.0]))
+    s, r2, t = align.umeyama(x, 2.5 * x @ r.T + [1.0, -2.0, 0.5])
+    assert abs(s - 2.5) < 1e-9 and np.allclose(r2, r) and np.allclose(t, [1.0, -2.0, 0.5])
