@@ -77,13 +77,10 @@ def safe_id(name: str) -> str:
 
 
 def _shapenet_models(root: Path) -> list[tuple[str, Path]]:
-    """(category, model file) pairs under a ShapeNetCore root or synset folder."""
-    out = []
-    for f in sorted(root.glob("*/models/model_normalized.obj")) + sorted(root.glob("*/*/models/model_normalized.obj")):
-        synset = f.parents[2].name
-        cat = SHAPENET_SYNSETS.get(synset, synset) if f.parents[2] != root.parent else synset
-        out.append((cat, f))
-    return out
+    """(category, model file) pairs under a ShapeNetCore root or a single synset folder."""
+    files = sorted(root.glob("*/models/model_normalized.obj")) + sorted(root.glob("*/*/models/model_normalized.obj"))
+    # <synset>/<model>/models/model_normalized.obj: the synset folder names the category
+    return [(SHAPENET_SYNSETS.get(f.parents[2].name, f.parents[2].name), f) for f in files]
 
 
 def resolve_sources(sources: tuple[str, ...], category: str | None = None) -> list[ObjectSpec]:
