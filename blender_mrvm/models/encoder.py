@@ -17,10 +17,14 @@ from .config import EncoderConfig
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
+MIN_SIDE = 16
+"""Reference images smaller than this are resampled up before encoding (GroupNorm needs spatial extent)."""
 
 
 def _gn(c: int) -> nn.GroupNorm:
-    return nn.GroupNorm(min(8, c), c)
+    import math
+
+    return nn.GroupNorm(math.gcd(8, c), c)
 
 
 class BasicBlock(nn.Module):
@@ -71,6 +75,11 @@ class ImageEncoder(nn.Module):
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         x = (images - self.mean) / self.std
+        h, w = x.shape[-2:]
+        if min(h, w) < MIN_SIDE:  # tiny references (down to 1x1): resample up; features stay pixel-aligned
+            f = MIN_SIDE / min(h, w)
+            x = F.interpolate(x, size=(max(MIN_SIDE, round(h * f)), max(MIN_SIDE, round(w * f))), mode="bilinear",
+                              align_corners=False)
         feats = []
         if self.cfg.backbone == "vgg16":
             for i, layer in enumerate(self.vgg):

@@ -48,8 +48,13 @@ def intersect_box(origins, dirs, bbox_min, bbox_max):
     hi = xp.as_tensor(bbox_max, dtype=origins.dtype) if is_torch else np.asarray(bbox_max, np.float64)
     zero = dirs == 0
     safe = xp.where(zero, xp.ones_like(dirs), dirs)
-    t0 = (lo - origins) / safe
-    t1 = (hi - origins) / safe
+    if is_torch:
+        t0 = (lo - origins) / safe
+        t1 = (hi - origins) / safe
+    else:
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            t0 = (lo - origins) / safe
+            t1 = (hi - origins) / safe
     tmin = xp.minimum(t0, t1)
     tmax = xp.maximum(t0, t1)
     inside = (origins >= lo) & (origins <= hi)
