@@ -1,0 +1,290 @@
+"""Multi-view object loaders: our format, SRN (pixelNeRF), NMR/DVR and NeRF-synthetic.
+
+Every loader returns :class:`ObjectScene` objects with OpenCV camera-to-world poses and
+:class:`~..geometry.cameras.Intrinsics` (conversions go through ``geometry/cameras.py``), images as
+float32 RGB in [0, 1] composited on white, and an object box (from ``meta.json`` where the format
+has one, else the format's documented bounds). bpy-free.
+
+Layouts read::
+
+    ours     <root>/<category>/<object>/{rgb,pose}/NNNNNN.*, intrinsics.txt, meta.json (bbox)
+    srn      <root>/<object>/{rgb/*.png, pose/*.txt, intrinsics.txt}   (pixelNeRF's SRN layout)
+    nmr      <root>/<category>/<object>/{image/*.png, cameras.npz}, <root>/<category>/<split>.lst
+    nerf     <root>/<scene>/transforms_{train,val,test}.json + image files
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import cameras
+from . import format as F
+
+SRN_BOX = 0.5
+"""SRN (ShapeNet, pixelNeRF): objects lie within a sphere of radius ~0.5 around the origin (near 0.8, far 1.8 at distance 1.3)."""
+NMR_BOX = 0.5
+"""NMR/DVR: ShapeNet objects normalised into the unit cube [-0.5, 0.5]^3."""
+NERF_SYNTHETIC_BOX = 1.5
+"""NeRF-synthetic scenes fit in [-1.5, 1.5]^3 (near 2, far 6 at distance 4)."""
+FORMATS = ("ours", "srn", "nmr", "nerf")
+
+
+@dataclass
+class ObjectScene:
+    """One object seen from several posed views."""
+
+    name: str
+    """Object id."""
+    category: str
+    """Category (synset or name; '' when unknown)."""
+    images: np.ndarray
+    """(N, H, W, 3) float32 RGB in [0, 1], composited on white."""
+    c2w: np.ndarray
+    """(N, 4, 4) float64 camera-to-world, OpenCV axes."""
+    intrinsics: list
+    """N :class:`Intrinsics`, one per view."""
+    bbox: tuple
+    """(min xyz, max xyz) float64 of the object."""
+    view_ids: list = field(default_factory=list)
+    """Index of each view in its source (file number)."""
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+    def foreground_boxes(self, thresh: float = 0.99) -> np.ndarray:
+        """(N, 4) [x0, y0, x1, y1) pixel boxes of the non-white pixels (whole image when none)."""
+        out = np.zeros((len(self), 4), np.int64)
+        for i, im in enumerate(self.images):
+            fg = (im < thresh).any(-1)
+            ys, xs = np.nonzero(fg)
+            h, w = fg.shape
+            out[i] = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1) if xs.size else (0, 0, w, h)
+        return out
+
+
+def to_float_rgb(arr: np.ndarray) -> np.ndarray:
+    """uint8 / uint16 / float image (H, W[, C]) -> float32 RGB in [0, 1], alpha composited on white."""
+    a = np.asarray(arr)
+    if a.dtype == np.uint8:
+        x = a.astype(np.float32) / 255.0
+    elif a.dtype == np.uint16:
+        x = a.astype(np.float32) / 65535.0
+    else:
+        x = a.astype(np.float32)
+    if x.ndim == 2:
+        x = np.repeat(x[..., None], 3, -1)
+    if x.shape[-1] == 4:
+        alpha = x[..., 3:4]
+        x = x[..., :3] * alpha + (1.0 - alpha)
+    elif x.shape[-1] == 2:  # grey + alpha
+        x = np.repeat(x[..., :1] * x[..., 1:] + (1.0 - x[..., 1:]), 3, -1)
+    return np.clip(x[..., :3], 0.0, 1.0)
+
+
+def _stack(images: Sequence[np.ndarray], where: Path) -> np.ndarray:
+    shapes = {im.shape for im in images}
+    if len(shapes) != 1:
+        raise InputError(f"{where}: views have different image sizes {sorted(shapes)}")
+    return np.stack(images).astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------------- ours
+
+def load_ours(obj_dir: Path) -> ObjectScene:
+    ov = F.read_object(Path(obj_dir))
+    if not ov.indices:
+        raise InputError(f"{obj_dir}: no finished views")
+    meta = ov.meta
+    if "bbox" in meta:
+        b = meta["bbox"]
+        lo, hi = (b["min"], b["max"]) if isinstance(b, dict) else (b[0], b[1])
+    elif "bound_radius" in meta:
+        r = float(meta["bound_radius"])
+        lo, hi = [-r] * 3, [r] * 3
+    else:
+        raise InputError(f"{obj_dir}/meta.json has no 'bbox' (object bounds)")
+    images = _stack([to_float_rgb(ov.rgb(i)) for i in range(len(ov.indices))], obj_dir)
+    h, w = images.shape[1:3]
+    if (ov.intrinsics.width, ov.intrinsics.height) != (w, h):
+        raise InputError(f"{obj_dir}: intrinsics say {ov.intrinsics.width}x{ov.intrinsics.height}, images are {w}x{h}")
+    return ObjectScene(str(meta.get("object_id", Path(obj_dir).name)), str(meta.get("category", Path(obj_dir).parent.name)),
+                       images, np.stack(ov.c2w_opencv), [ov.intrinsics] * len(ov.indices),
+                       (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices))
+
+
+def list_ours(root: Path, split: str | None = None) -> list[Path]:
+    """Object folders of our format (those in ``splits/<split>.lst`` if given; entries 'cat/id' or 'id')."""
+    root = Path(root)
+    dirs = sorted(p.parent for p in root.glob("*/*/meta.json"))
+    if split:
+        entries = F.read_split(root, split)
+        if not entries:
+            raise InputError(f"{root}/splits/{split}.lst is missing or empty")
+        keep = set(entries)
+        dirs = [d for d in dirs if f"{d.parent.name}/{d.name}" in keep or d.name in keep]
+    return dirs
+
+
+# --------------------------------------------------------------------------------------------- SRN
+
+def load_srn(obj_dir: Path) -> ObjectScene:
+    """pixelNeRF SRN layout: rgb/*.png, pose/*.txt (OpenCV c2w), intrinsics.txt (f cx cy / ... / H W)."""
+    obj_dir = Path(obj_dir)
+    rgbs = sorted((obj_dir / "rgb").glob("*.png"))
+    if not rgbs:
+        raise InputError(f"{obj_dir}: no rgb/*.png (not an SRN object folder)")
+    intr = F.read_srn_intrinsics(obj_dir / "intrinsics.txt")
+    images, poses, ids = [], [], []
+    for p in rgbs:
+        pose = obj_dir / "pose" / f"{p.stem}.txt"
+        if not pose.is_file():
+            raise InputError(f"{obj_dir}: {p.name} has no pose/{pose.name}")
+        images.append(to_float_rgb(F.read_png(p)))
+        poses.append(F.read_srn_pose(pose))
+        ids.append(int(p.stem) if p.stem.isdigit() else len(ids))
+    images = _stack(images, obj_dir)
+    h, w = images.shape[1:3]
+    if (intr.width, intr.height) != (w, h):  # SRN intrinsics may be given at another resolution
+        intr = intr.scaled(w / intr.width)
+    return ObjectScene(obj_dir.name, obj_dir.parent.name, images, np.stack(poses), [intr] * len(ids),
+                       (np.full(3, -SRN_BOX), np.full(3, SRN_BOX)), ids)
+
+
+# --------------------------------------------------------------------------------------------- NMR/DVR
+
+def load_nmr(obj_dir: Path) -> ObjectScene:
+    """DVR/NMR: image/*.png + cameras.npz with world_mat_i (3x4 or 4x4 K [R|t], projection) and camera_mat_i.
+
+    DVR's ``world_mat`` is the world-to-camera [R | t] in OpenCV axes; ``camera_mat`` maps camera
+    coordinates to NDC in [-1, 1] (pixelNeRF: fx_px = camera_mat[0,0] * W / 2, principal point at the
+    image centre plus camera_mat[:2, 2] * size / 2)."""
+    obj_dir = Path(obj_dir)
+    imgs = sorted((obj_dir / "image").glob("*.png")) or sorted((obj_dir / "image").glob("*.jpg"))
+    cam_file = obj_dir / "cameras.npz"
+    if not imgs or not cam_file.is_file():
+        raise InputError(f"{obj_dir}: need image/*.png and cameras.npz (NMR/DVR layout)")
+    cams = np.load(cam_file)
+    images, poses, intrs, ids = [], [], [], []
+    for k, p in enumerate(imgs):
+        i = int(p.stem) if p.stem.isdigit() else k
+        wm, cm = f"world_mat_{i}", f"camera_mat_{i}"
+        if wm not in cams or cm not in cams:
+            raise InputError(f"{cam_file}: missing {wm} / {cm}")
+        im = to_float_rgb(F.read_png(p))
+        h, w = im.shape[:2]
+        cmat = np.asarray(cams[cm], np.float64)
+        fx, fy = cmat[0, 0] * w / 2.0, cmat[1, 1] * h / 2.0
+        cx, cy = w / 2.0 + cmat[0, 2] * w / 2.0, h / 2.0 + cmat[1, 2] * h / 2.0
+        w2c = cameras.as_pose(np.asarray(cams[wm], np.float64)[:3, :4])
+        images.append(im)
+        poses.append(cameras.c2w_opencv_from_w2c(w2c))
+        intrs.append(cameras.Intrinsics(fx, fy, cx, cy, w, h))
+        ids.append(i)
+    return ObjectScene(obj_dir.name, obj_dir.parent.name, _stack(images, obj_dir), np.stack(poses), intrs,
+                       (np.full(3, -NMR_BOX), np.full(3, NMR_BOX)), ids)
+
+
+def list_nmr(root: Path, split: str) -> list[Path]:
+    """NMR/DVR object folders listed in ``<root>/<category>/<split>.lst``."""
+    out = []
+    for lst in sorted(Path(root).glob(f"*/{split}.lst")):
+        out += [lst.parent / ln.strip() for ln in lst.read_text().splitlines() if ln.strip()]
+    return out
+
+
+# --------------------------------------------------------------------------------------------- NeRF-synthetic
+
+def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
+    """NeRF-synthetic: transforms_<split>.json (OpenGL c2w, camera_angle_x) + RGBA PNGs (on white)."""
+    scene_dir = Path(scene_dir)
+    tf = scene_dir / f"transforms_{split}.json"
+    if not tf.is_file():
+        raise InputError(f"{scene_dir}: no transforms_{split}.json")
+    d = json.loads(tf.read_text())
+    images, poses, intrs = [], [], []
+    for fr in d.get("frames", []):
+        p = scene_dir / fr["file_path"]
+        if not p.suffix:
+            p = p.with_suffix(".png")
+        im = to_float_rgb(F.read_png(p))
+        h, w = im.shape[:2]
+        if "fl_x" in d or "fl_x" in fr:  # nerfstudio-style intrinsics
+            g = {**d, **fr}
+            intr = cameras.Intrinsics(float(g["fl_x"]), float(g.get("fl_y", g["fl_x"])), float(g.get("cx", w / 2)),
+                                      float(g.get("cy", h / 2)), w, h)
+        else:
+            intr = cameras.intrinsics_from_fov(float(d["camera_angle_x"]), w, h)
+        images.append(im)
+        poses.append(cameras.opencv_from_opengl(np.asarray(fr["transform_matrix"], np.float64)))
+        intrs.append(intr)
+    if not images:
+        raise InputError(f"{tf}: no frames")
+    return ObjectScene(scene_dir.name, "", _stack(images, scene_dir), np.stack(poses), intrs,
+                       (np.full(3, -NERF_SYNTHETIC_BOX), np.full(3, NERF_SYNTHETIC_BOX)), list(range(len(images))))
+
+
+# --------------------------------------------------------------------------------------------- dispatch
+
+def detect_format(root: Path) -> str:
+    """Guess the layout of a dataset root (or a single object folder)."""
+    root = Path(root)
+    if (root / F.ROOT_MANIFEST).is_file() or any(root.glob("*/*/meta.json")) or (root / "meta.json").is_file():
+        return "ours"
+    if any(root.glob("transforms_*.json")) or any(root.glob("*/transforms_*.json")):
+        return "nerf"
+    if any(root.glob("*/*/cameras.npz")) or (root / "cameras.npz").is_file():
+        return "nmr"
+    if (root / "intrinsics.txt").is_file() or any(root.glob("*/intrinsics.txt")) or any(root.glob("*/*/intrinsics.txt")):
+        return "srn"
+    raise InputError(f"{root}: not a dataset this tool reads (ours, SRN, NMR/DVR or NeRF-synthetic)")
+
+
+def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> list[tuple[str, Path]]:
+    """(format, path) of every object of ``split`` under ``root``."""
+    root = Path(root)
+    fmt = fmt or detect_format(root)
+    if fmt == "ours":
+        if (root / "meta.json").is_file():
+            return [("ours", root)]
+        has_split = (root / "splits" / f"{split}.lst").is_file()
+        return [("ours", p) for p in list_ours(root, split if has_split else None)]
+    if fmt == "srn":
+        # pixelNeRF: <root>/<cat>_<split>/<object>/ or a folder of objects
+        if (root / "intrinsics.txt").is_file():
+            return [("srn", root)]
+        cands = sorted(p.parent for p in root.glob(f"*_{split}/*/intrinsics.txt")) or \
+            sorted(p.parent for p in root.glob("*/intrinsics.txt"))
+        return [("srn", p) for p in cands]
+    if fmt == "nmr":
+        if (root / "cameras.npz").is_file():
+            return [("nmr", root)]
+        return [("nmr", p) for p in list_nmr(root, split)]
+    if fmt == "nerf":
+        scenes = [root] if any(root.glob("transforms_*.json")) else sorted(p.parent for p in root.glob("*/transforms_train.json"))
+        return [("nerf", p) for p in scenes]
+    raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
+
+
+def load_object(fmt: str, path: Path, split: str = "train") -> ObjectScene:
+    if fmt == "ours":
+        return load_ours(path)
+    if fmt == "srn":
+        return load_srn(path)
+    if fmt == "nmr":
+        return load_nmr(path)
+    if fmt == "nerf":
+        return load_nerf_synthetic(path, split)
+    raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
+
+
+def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit: int | None = None) -> list[ObjectScene]:
+    objs = list_objects(root, fmt, split)
+    if not objs:
+        raise InputError(f"{root}: no objects for split {split!r}")
+    return [load_object(f, p, split) for f, p in objs[:limit]]

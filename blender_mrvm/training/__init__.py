@@ -1,0 +1,1 @@
+"""Training, evaluation and checkpoints for the embedded model (bpy-free; runs under torchrun)."""
