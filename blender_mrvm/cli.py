@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("bench", "run a benchmark and write its figures to CSV/PNG"),
     "contact-sheet": ("contact_sheet", "write a PNG contact sheet of a rendered dataset"),
     "recover-poses": ("recover_poses", "recover camera poses of photos (pycolmap) into a capture folder"),
+    "preview-library": ("preview_library", "render a contact sheet PNG of the procedural object library"),
     "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
 }
 
