@@ -1,0 +1,137 @@
+"""Render a ShapeNet-13-style multi-view set from the procedural library, with the papers' splits.
+
+Settings (as in pixelNeRF / NeRFormer evaluations on ShapeNet-NMR):
+
+- ``all``: category-agnostic; every category is split into train/val/test objects.
+- ``unseen``: train (and val) on airplane, car, chair; test on the other 10 categories.
+
+Views follow the NMR layout (a turntable at 30 degrees elevation, 24 views by default). The
+evaluation protocol is fixed and written next to the split lists: ``splits/eval_views.json``
+names the input view ids for 1-view and 2-view tests and the remaining target views;
+``splits/test_views.lst`` repeats it per test object (``category/object_id inputs1 | inputs2``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+UNSEEN_TRAIN = ("airplane", "car", "chair")
+SETTINGS = ("all", "unseen")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--setting", choices=SETTINGS, default="all", help="all: category-agnostic; unseen: "
+                   "train on airplane/car/chair, test on the other 10")
+    p.add_argument("--objects-per-category", type=int, default=2, help="objects (seeds) per category")
+    p.add_argument("--views", type=int, default=24, help="views per object (NMR uses 24)")
+    p.add_argument("--resolution", type=int, default=64, help="square image size in pixels (NMR uses 64)")
+    p.add_argument("--out", required=True, help="dataset root folder")
+    p.add_argument("--shard", default="0/1", help="i/n: render only this deterministic share of the objects")
+    p.add_argument("--engine", default="CYCLES", choices=("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH"))
+    p.add_argument("--samples", type=int, default=8, help="samples per pixel")
+    p.add_argument("--seed", type=int, default=0, help="first object seed (objects use seed .. seed+N-1)")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    from ..errors import InputError
+
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise InputError(f"--shard must look like i/n (e.g. 0/4), got {text!r}") from None
+    if n < 1 or not 0 <= i < n:
+        raise InputError(f"--shard must be i/n with 0 <= i < n, got {text!r}")
+    return i, n
+
+
+def eval_views(views: int) -> dict:
+    """Fixed input view ids (1- and 2-view tests) and the targets (every other view)."""
+    from ..errors import InputError
+
+    if views < 3:
+        raise InputError(f"the evaluation protocol needs at least 3 views per object, got {views}")
+    first = round(views * 0.125) % views  # a three-quarter front view on the turntable
+    second = (first + views // 2) % views  # the opposite side
+    return {"views": views, "input_views_1": [first], "input_views_2": [first, second],
+            "target_views_1": [v for v in range(views) if v != first],
+            "target_views_2": [v for v in range(views) if v not in (first, second)]}
+
+
+def plan(setting: str, per_category: int, first_seed: int = 0) -> dict[str, list[str]]:
+    """Source strings per split: {"train": [...], "val": [...], "test": [...]} (bpy-free)."""
+    from ..errors import InputError
+    from ..scene.procedural._registry import CATEGORIES
+
+    if setting not in SETTINGS:
+        raise InputError(f"unknown setting {setting!r}; choose all or unseen")
+    if per_category < 1:
+        raise InputError(f"--objects-per-category must be at least 1, got {per_category}")
+    if first_seed < 0:
+        raise InputError(f"--seed must not be negative, got {first_seed}")
+    out: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+    for cat in CATEGORIES:
+        seeds = list(range(first_seed, first_seed + per_category))
+        srcs = [f"procedural:{cat}:{s}" for s in seeds]
+        if setting == "unseen":
+            if cat in UNSEEN_TRAIN:
+                n_val = per_category // 10
+                out["train"] += srcs[:per_category - n_val]
+                out["val"] += srcs[per_category - n_val:]
+            else:
+                out["test"] += srcs
+        else:
+            if per_category == 1:
+                out["train"] += srcs
+                continue
+            n_test = max(1, round(per_category * 0.2))
+            n_val = round(per_category * 0.1)
+            n_train = per_category - n_test - n_val
+            out["train"] += srcs[:n_train]
+            out["val"] += srcs[n_train:n_train + n_val]
+            out["test"] += srcs[n_train + n_val:]
+    return out
+
+
+def run(args) -> int:
+    from ..datasets import format as F
+    from ..errors import InputError
+    from ..progress import run_with_tqdm
+    from ..scene.render import RenderConfig, render_dataset
+
+    if args.views < 1:
+        raise InputError(f"--views must be at least 1, got {args.views}")
+    if not 1 <= args.resolution <= 8192:
+        raise InputError(f"--resolution must be between 1 and 8192, got {args.resolution}")
+    shard = parse_shard(args.shard)
+    protocol = eval_views(args.views)
+    groups = plan(args.setting, args.objects_per_category, args.seed)
+    out = Path(args.out)
+    total_views = 0
+    force = args.force
+    for split, sources in groups.items():
+        if not sources:
+            continue
+        cfg = RenderConfig(out=out, sources=tuple(sources), rig="turntable", views=args.views,
+                           resolution=(args.resolution, args.resolution), engine=args.engine, samples=args.samples,
+                           elevation_deg=30.0, seed=args.seed, shard=shard, force=force, split=split)
+        summary = run_with_tqdm(render_dataset(cfg), desc=f"{args.setting}/{split}", unit="view")
+        total_views += summary.views_rendered
+        force = False  # the first group has claimed (or been allowed into) the folder
+    splits_dir = out / "splits"
+    splits_dir.mkdir(parents=True, exist_ok=True)
+    test_ids = F.read_split(out, "test") if (splits_dir / "test.lst").exists() else []
+    record = dict(protocol, setting=args.setting,
+                  train_categories=sorted({s.split(":")[1] for s in groups["train"]}),
+                  test_categories=sorted({s.split(":")[1] for s in groups["test"]}),
+                  rig="turntable", elevation_deg=30.0)
+    F.atomic_write_json(splits_dir / "eval_views.json", record)
+    lines = [f"{t} {' '.join(map(str, protocol['input_views_1']))} | {' '.join(map(str, protocol['input_views_2']))}"
+             for t in test_ids]
+    F.atomic_write_text(splits_dir / "test_views.lst", "\n".join(lines) + ("\n" if lines else ""))
+    print(f"wrote {out} ({args.setting}: {len(groups['train'])} train, {len(groups['val'])} val, "
+          f"{len(groups['test'])} test objects; {total_views} views rendered in this shard)")
+    print(json.dumps({k: record[k] for k in ("input_views_1", "input_views_2")}))
+    return 0

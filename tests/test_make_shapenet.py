@@ -1,0 +1,76 @@
+"""make-shapenet: the papers' splits (all / unseen), the fixed evaluation views, and a tiny real run."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from blender_mrvm.commands import make_shapenet as M
+from blender_mrvm.errors import InputError
+
+
+def test_unseen_setting_trains_on_three_and_tests_on_ten():
+    g = M.plan("unseen", 10)
+    cats = lambda srcs: {s.split(":")[1] for s in srcs}  # noqa: E731
+    assert cats(g["train"]) == {"airplane", "car", "chair"} == cats(g["val"])
+    assert len(cats(g["test"])) == 10 and not cats(g["test"]) & {"airplane", "car", "chair"}
+    assert len(g["train"]) == 27 and len(g["val"]) == 3 and len(g["test"]) == 100
+
+
+def test_all_setting_splits_every_category():
+    g = M.plan("all", 10)
+    for split, n in (("train", 7), ("val", 1), ("test", 2)):
+        per = {}
+        for s in g[split]:
+            per[s.split(":")[1]] = per.get(s.split(":")[1], 0) + 1
+        assert len(per) == 13 and set(per.values()) == {n}
+    assert not set(g["train"]) & set(g["test"])
+
+
+def test_eval_views_are_fixed_and_disjoint_from_targets():
+    p = M.eval_views(24)
+    assert p["input_views_1"] == [3] and p["input_views_2"] == [3, 15]
+    assert set(p["input_views_2"]).isdisjoint(p["target_views_2"])
+    assert len(p["target_views_1"]) == 23 and len(p["target_views_2"]) == 22
+
+
+@pytest.mark.parametrize("call,match", [
+    (lambda: M.plan("all", 0), "objects-per-category"),
+    (lambda: M.plan("some", 3), "unknown setting"),
+    (lambda: M.plan("all", 3, -1), "must not be negative"),
+    (lambda: M.parse_shard("3/2"), "shard"),
+    (lambda: M.parse_shard("x"), "shard"),
+    (lambda: M.eval_views(2), "at least 3 views"),
+])
+def test_bad_arguments_are_clear_errors(call, match):
+    with pytest.raises(InputError, match=match):
+        call()
+
+
+@pytest.mark.slow
+def test_tiny_unseen_set_renders_with_splits_and_part_masks(bpy_empty, tmp_path):
+    import numpy as np
+
+    from blender_mrvm.cli import main
+    from blender_mrvm.datasets.format import read_png, read_split
+    from blender_mrvm.scene.procedural import PART_LABELS
+
+    out = tmp_path / "sn"
+    code = main(["make-shapenet", "--setting", "unseen", "--objects-per-category", "1", "--views", "4",
+                 "--resolution", "16", "--samples", "1", "--out", str(out)])
+    assert code == 0
+    assert read_split(out, "train") == ["airplane/airplane_000000", "car/car_000000", "chair/chair_000000"]
+    test = read_split(out, "test")
+    assert len(test) == 10 and "bench/bench_000000" in test
+    proto = json.loads((out / "splits" / "eval_views.json").read_text())
+    assert proto["input_views_1"] == [0] and proto["input_views_2"] == [0, 2] and proto["setting"] == "unseen"
+    lines = (out / "splits" / "test_views.lst").read_text().splitlines()
+    assert lines[0] == f"{test[0]} 0 | 0 2" and len(lines) == 10
+    meta = json.loads((out / "chair" / "chair_000000" / "meta.json").read_text())
+    ids = set()
+    for v in range(4):
+        ids |= set(np.unique(read_png(out / "chair" / "chair_000000" / "mask" / f"{v:06d}.png")).tolist())
+    ids.discard(0)
+    assert ids and all(PART_LABELS[i].startswith("chair/") for i in ids)
+    assert {str(i) for i in ids} <= set(meta["labels"])
