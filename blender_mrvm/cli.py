@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "contact-sheet": ("contact_sheet", "write a PNG contact sheet of a rendered dataset"),
     "recover-poses": ("recover_poses", "recover camera poses of photos (pycolmap) into a capture folder"),
     "preview-library": ("preview_library", "render a contact sheet PNG of the procedural object library"),
+    "make-shapenet": ("make_shapenet", "render a ShapeNet-13-style set from the procedural library with the papers' splits"),
     "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
 }
 
