@@ -25,7 +25,7 @@ from blender_mrvm.geometry import cameras as C  # noqa: E402
 from blender_mrvm.progress import run_to_end  # noqa: E402
 
 N_VIEWS, W, H = 24, 320, 240
-CFG = CaptureConfig(num_threads=2)
+CFG = CaptureConfig(num_threads=2, single_camera=True)  # one rendering camera: share it (tighter focal)
 
 
 @pytest.fixture(scope="session")
@@ -285,3 +285,23 @@ def test_umeyama_recovers_a_similarity():
     r = align.rotation_between(np.array([0.0, 0.0, 1.0]), np.array([1.0, 2.0, 3.0]))
     s, r2, t = align.umeyama(x, 2.5 * x @ r.T + [1.0, -2.0, 0.5])
     assert abs(s - 2.5) < 1e-9 and np.allclose(r2, r) and np.allclose(t, [1.0, -2.0, 0.5])
+
+
+def test_recover_poses_operator_creates_cameras(ring, tmp_path, empty_scene):
+    import bpy
+
+    d = _copy(ring[0], tmp_path / "in", range(0, 8))
+    p = empty_scene.mrvm_capture
+    p.images_dir, p.output_dir = str(d), str(tmp_path / "cap")
+    assert bpy.ops.mrvm.recover_poses() == {"FINISHED"}
+    assert p.status.startswith("Recovered 8/8 photos")
+    coll = bpy.data.collections["Capture cap"]
+    cams = [o for o in coll.objects if o.type == "CAMERA"]
+    assert sorted(o["mrvm_original_name"] for o in cams) == [f"{i:03d}.png" for i in range(8)]
+    assert (empty_scene.render.resolution_x, empty_scene.render.resolution_y) == (W, H)
+    assert all(o.data.background_images[0].image.size[:] == (W, H) for o in cams)
+    # A second run into the same folder is refused (no --force), and says so.
+    with pytest.raises(RuntimeError, match="already holds files"):  # background mode raises reported errors
+        bpy.ops.mrvm.recover_poses()
+    assert "already holds files" in p.status
+    assert hasattr(bpy.types, "MRVM_PT_capture")

@@ -17,6 +17,7 @@ A capture has no depth, normal or mask images: it is reference views, not a rend
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -89,12 +90,15 @@ def write_capture(out_dir: Path, views: list[CaptureView], xyz: np.ndarray, rgb:
     frames = []
     for i, v in enumerate(views):
         name = F.view_name(i)
+        dst = out_dir / "rgb" / f"{name}.png"
         with Image.open(v.image_path) as im:
-            arr = np.asarray(im.convert("RGB"))
-        if arr.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
-            raise InputError(f"{v.image_path}: image is {arr.shape[1]}x{arr.shape[0]}, its camera says "
-                             f"{v.intrinsics.width}x{v.intrinsics.height}")
-        F.write_png(out_dir / "rgb" / f"{name}.png", arr)
+            if im.size != (v.intrinsics.width, v.intrinsics.height):
+                raise InputError(f"{v.image_path}: image is {im.size[0]}x{im.size[1]}, its camera says "
+                                 f"{v.intrinsics.width}x{v.intrinsics.height}")
+            if im.format == "PNG" and im.mode == "RGB":  # already what rgb/ holds: copy the bytes
+                F.atomic_write(dst, lambda tmp, src=v.image_path: shutil.copyfile(src, tmp))
+            else:
+                F.write_png(dst, np.asarray(im.convert("RGB")))
         F.write_srn_pose(out_dir / "pose" / f"{name}.txt", v.c2w_opencv)
         k = v.intrinsics
         frames.append({"file_path": f"rgb/{name}.png", "c2w_opencv": v.c2w_opencv, "original_name": v.original_name,

@@ -265,7 +265,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     ext.max_image_size = cfg.max_image_size
     ext.num_threads = threads
     ext.sift.max_num_features = cfg.max_num_features
-    mode = pycolmap.CameraMode.SINGLE if cfg.single_camera else pycolmap.CameraMode.PER_IMAGE
+    mode = pycolmap.CameraMode.SINGLE if cfg.shared_camera else pycolmap.CameraMode.PER_IMAGE
     yield from _run_in_thread(lambda: pycolmap.extract_features(
         db_path, images_dir, image_names=names, camera_mode=mode, reader_options=reader, extraction_options=ext,
         device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])

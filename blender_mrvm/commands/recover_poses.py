@@ -19,7 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="capture folder to write")
     p.add_argument("--camera-model", choices=CAMERA_MODELS, default=d.camera_model,
                    help=f"COLMAP camera model; distorted models are undistorted on export (default {d.camera_model})")
-    p.add_argument("--per-image-camera", action="store_true", help="each photo gets its own intrinsics")
+    p.add_argument("--single-camera", action="store_true",
+                   help="all photos share one camera (slower matching; default: intrinsics per photo)")
     p.add_argument("--matcher", choices=MATCHERS, default=d.matcher,
                    help=f"auto: sequential for more than {d.exhaustive_max_images} numbered frames, else exhaustive")
     p.add_argument("--max-features", type=int, default=d.max_num_features, help="SIFT features per image")
@@ -39,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace):
     from ..capture.config import CaptureConfig
 
-    return CaptureConfig(camera_model=args.camera_model, single_camera=not args.per_image_camera,
+    return CaptureConfig(camera_model=args.camera_model, single_camera=args.single_camera,
                          matcher=args.matcher, max_num_features=args.max_features,
                          max_image_size=args.max_image_size, sequential_overlap=args.overlap,
                          min_registered_fraction=args.min_registered, allow_pair=args.pair,

@@ -11,9 +11,10 @@
 
 Image sizes: a Blender scene has one render resolution. A capture is rejected upstream when its
 photos differ in size, so the scene resolution is set once to the capture's (undistorted) size and
-each camera carries its own lens, sensor and shift. Per-image intrinsics therefore import exactly as
-long as they share the pixel aspect fx/fy (always true for SIMPLE_* models and a shared camera);
-otherwise :class:`CameraConventionError` names the camera.
+each camera carries its own lens, sensor and shift. Per-image intrinsics (the capture default for
+one-focal models) therefore import exactly as long as they share the pixel aspect fx/fy: always for
+SIMPLE_* / RADIAL models (fx = fy) and for PINHOLE / OPENCV, which pose recovery always runs with one
+shared camera; a folder that breaks this raises :class:`CameraConventionError`.
 """
 
 from __future__ import annotations
