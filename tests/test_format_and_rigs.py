@@ -125,3 +125,23 @@ def test_framing_fills_the_frame():
         rigs.rig_poses("cube", 3, 1.0)
     with pytest.raises(InputError):
         rigs.rig_poses("sphere", 0, 1.0)
+
+
+def test_read_object_capture_layout_with_per_view_intrinsics(tmp_path):
+    """A recovered capture has rgb + pose only and per-frame intrinsics in transforms.json."""
+    obj = tmp_path / "cap"
+    ks = [C.Intrinsics(50.0 + k, 50.0 + k, 16.0, 12.0, 32, 24) for k in range(3)]
+    poses = [C.look_at_opencv((2.0, k - 1.0, 1.0)) for k in range(3)]
+    frames = []
+    for k in range(3):
+        F.write_png(obj / "rgb" / f"{k:06d}.png", np.full((24, 32, 3), 40 * k, np.uint8))
+        F.write_srn_pose(obj / "pose" / f"{k:06d}.txt", poses[k])
+        frames.append({"file_path": f"rgb/{k:06d}.png", "c2w_opencv": poses[k], "fl_x": ks[k].fx, "fl_y": ks[k].fy,
+                       "cx": ks[k].cx, "cy": ks[k].cy})
+    F.atomic_write_json(obj / "transforms.json", F.transforms_dict(ks[0], frames))
+    F.atomic_write_json(obj / "meta.json", {"category": "capture"})
+    ov = F.read_object(obj)
+    assert ov.indices == [0, 1, 2] and ov.intrinsics_per_view == ks
+    assert ov.has("rgb") and not ov.has("depth")
+    assert all(np.allclose(a, b) for a, b in zip(ov.c2w_opencv, poses))
+    assert ov.rgb(2)[0, 0, 0] == 80

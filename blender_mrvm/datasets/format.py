@@ -279,39 +279,67 @@ def read_split(root: Path, split: str) -> list[str]:
 
 @dataclass
 class ObjectViews:
-    """One object folder of our format, read back."""
+    """One object folder of our format (a render or a recovered capture), read back."""
 
     path: Path
     meta: dict[str, Any]
     intrinsics: Intrinsics
+    """The object's intrinsics (``intrinsics.txt``; the first view's when they differ per view)."""
     c2w_opencv: list[np.ndarray]
     indices: list[int]
+    intrinsics_per_view: list[Intrinsics] = field(default_factory=list)
+    """Intrinsics of each view (from ``transforms.json`` frames when they carry their own)."""
+
+    def _path(self, kind: str, i: int) -> Path:
+        return view_paths(self.path, self.indices[i])[kind]
+
+    def has(self, kind: str) -> bool:
+        """Whether every view has a ``kind`` file (captures have rgb and pose only)."""
+        return all(view_paths(self.path, k)[kind].is_file() for k in self.indices)
 
     def rgb(self, i: int) -> np.ndarray:
-        return read_png(view_paths(self.path, self.indices[i])["rgb"])
+        return read_png(self._path("rgb", i))
 
     def depth(self, i: int) -> np.ndarray:
-        return read_depth(view_paths(self.path, self.indices[i])["depth"])
+        return read_depth(self._path("depth", i))
 
     def normals(self, i: int) -> np.ndarray:
-        return read_normals(view_paths(self.path, self.indices[i])["normal"])
+        return read_normals(self._path("normal", i))
 
     def mask(self, i: int) -> np.ndarray:
-        return read_png(view_paths(self.path, self.indices[i])["mask"])
+        return read_png(self._path("mask", i))
 
 
 def read_object(obj_dir: Path) -> ObjectViews:
-    """Read an object folder (finished views only) written by ``render-dataset``."""
+    """Read an object folder written by ``render-dataset`` or ``recover-poses``.
+
+    A view is read when its RGB image and pose exist (renders also have depth, normals and a mask;
+    captures do not). Intrinsics come from ``transforms.json`` (per view when frames carry their
+    own), else from the SRN ``intrinsics.txt``.
+    """
     obj_dir = Path(obj_dir)
     meta_path = obj_dir / "meta.json"
     if not meta_path.is_file():
         raise InputError(f"{obj_dir} is not an object folder (no meta.json)")
     meta = json.loads(meta_path.read_text())
-    intr = read_srn_intrinsics(obj_dir / "intrinsics.txt")
-    if "fl_y" in meta.get("intrinsics", {}):
-        m = meta["intrinsics"]
-        intr = Intrinsics(m["fl_x"], m["fl_y"], m["cx"], m["cy"], m["w"], m["h"])
+    tf = obj_dir / "transforms.json"
+    by_view: dict[int, Intrinsics] = {}
+    if tf.is_file():
+        for fr in read_transforms(tf):
+            stem = Path(fr.file_path).stem
+            if stem.isdigit():
+                by_view[int(stem)] = fr.intrinsics
+    if (obj_dir / "intrinsics.txt").is_file():
+        intr = read_srn_intrinsics(obj_dir / "intrinsics.txt")
+        m = meta.get("intrinsics", {})
+        if "fl_y" in m:  # SRN holds one focal length; meta.json keeps both
+            intr = Intrinsics(m["fl_x"], m["fl_y"], m["cx"], m["cy"], m["w"], m["h"])
+    elif by_view:
+        intr = by_view[min(by_view)]
+    else:
+        raise InputError(f"{obj_dir}: no intrinsics.txt or transforms.json")
     idx = sorted(int(p.stem) for p in (obj_dir / "pose").glob("*.txt") if p.stem.isdigit())
-    idx = [i for i in idx if view_complete(obj_dir, i)]
+    idx = [i for i in idx if view_paths(obj_dir, i)["rgb"].is_file()]
     poses = [read_srn_pose(view_paths(obj_dir, i)["pose"]) for i in idx]
-    return ObjectViews(obj_dir, meta, intr, poses, idx)
+    per_view = [by_view.get(i, intr) for i in idx]
+    return ObjectViews(obj_dir, meta, intr, poses, idx, per_view)
