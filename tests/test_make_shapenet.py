@@ -7,6 +7,7 @@ import json
 import pytest
 
 from blender_mrvm.commands import make_shapenet as M
+from blender_mrvm.commands.render_dataset import parse_shard
 from blender_mrvm.errors import InputError
 
 
@@ -39,8 +40,8 @@ def test_eval_views_are_fixed_and_disjoint_from_targets():
     (lambda: M.plan("all", 0), "objects-per-category"),
     (lambda: M.plan("some", 3), "unknown setting"),
     (lambda: M.plan("all", 3, -1), "must not be negative"),
-    (lambda: M.parse_shard("3/2"), "shard"),
-    (lambda: M.parse_shard("x"), "shard"),
+    (lambda: parse_shard("3/2"), "shard"),
+    (lambda: parse_shard("x"), "shard"),
     (lambda: M.eval_views(2), "at least 3 views"),
 ])
 def test_bad_arguments_are_clear_errors(call, match):

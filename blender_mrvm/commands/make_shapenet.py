@@ -35,18 +35,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")
 
 
-def parse_shard(text: str) -> tuple[int, int]:
-    from ..errors import InputError
-
-    try:
-        i, n = (int(x) for x in text.split("/"))
-    except ValueError:
-        raise InputError(f"--shard must look like i/n (e.g. 0/4), got {text!r}") from None
-    if n < 1 or not 0 <= i < n:
-        raise InputError(f"--shard must be i/n with 0 <= i < n, got {text!r}")
-    return i, n
-
-
 def eval_views(views: int) -> dict:
     """Fixed input view ids (1- and 2-view tests) and the targets (every other view)."""
     from ..errors import InputError
@@ -100,6 +88,7 @@ def run(args) -> int:
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..scene.render import RenderConfig, render_dataset
+    from .render_dataset import parse_shard
 
     if args.views < 1:
         raise InputError(f"--views must be at least 1, got {args.views}")

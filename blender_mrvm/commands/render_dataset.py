@@ -27,10 +27,12 @@ def parse_resolution(text: str) -> tuple[int, int]:
 
 def parse_shard(text: str) -> tuple[int, int]:
     try:
-        i, n = text.split("/")
-        return int(i), int(n)
+        i, n = (int(x) for x in text.split("/"))
     except ValueError:
         raise InputError(f"shard must be i/n (e.g. 0/4), got {text!r}") from None
+    if n < 1 or not 0 <= i < n:
+        raise InputError(f"shard must be i/n with 0 <= i < n, got {text!r}")
+    return i, n
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
