@@ -29,6 +29,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "preview-library": ("preview_library", "render a contact sheet PNG of the procedural object library"),
     "make-shapenet": ("make_shapenet", "render a ShapeNet-13-style set from the procedural library with the papers' splits"),
     "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
+    "fetch-weights": ("fetch_weights", "set-up: convert the offline LPIPS/VGG16 weights into the local cache"),
+    "train": ("train", "train the generalizable NeRF with MRVM (torchrun for several processes)"),
+    "eval": ("eval", "evaluate a checkpoint (SRN protocol): PSNR, SSIM, LPIPS per category -> JSON + PNG grid"),
 }
 
 

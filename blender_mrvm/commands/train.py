@@ -1,0 +1,48 @@
+"""Train the generalizable NeRF (MRVM pretraining, then finetuning) from a JSON run config.
+
+Single process:  python -m blender_mrvm train --config run.json
+Data-parallel:   torchrun --nproc_per_node N -m blender_mrvm train --config run.json
+Resumes from the run folder's latest checkpoint unless --no-resume.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, default=None, help="run config JSON ({'model': ..., 'train': ...})")
+    p.add_argument("--preset", default=None, help="model preset (fast, balanced, accurate) when the config names none")
+    p.add_argument("--data", default=None, help="dataset root (overrides train.data)")
+    p.add_argument("--out", dest="out_dir", default=None, help="run folder (overrides train.out_dir)")
+    p.add_argument("--iterations", type=int, default=None, help="overrides train.iterations")
+    p.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    from ..progress import run_with_tqdm
+    from ..training.config import load_run_config
+    from ..training.trainer import train
+
+    mcfg, tcfg = load_run_config(args.config, {"data": args.data, "out_dir": args.out_dir,
+                                               "iterations": args.iterations})
+    if args.preset:
+        from ..models.config import model_config
+
+        mcfg = model_config(args.preset)
+    if not tcfg.data:
+        raise InputError("no dataset: give --data or train.data in the config")
+    import os
+
+    rank = int(os.environ.get("RANK", "0"))
+    summary = run_with_tqdm(train(mcfg, tcfg, resume=not args.no_resume), desc="train", unit="step",
+                            disable=True if rank else None)
+    out = Path(tcfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"summary_rank{summary['rank']}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if rank == 0:
+        print(json.dumps({k: summary[k] for k in ("step", "checkpoint", "resumed_from", "world_size")}))
+    return 0

@@ -1,0 +1,119 @@
+"""Training run config (frozen dataclass) and the JSON run-config file read by ``train --config``.
+
+A run config file is JSON::
+
+    {"model": {"preset": "balanced", "overrides": {...}},
+     "train": {"data": "path/to/dataset", "iterations": 20000, ...}}
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from ..models.config import ModelConfig, from_dict, merge, model_config, to_dict
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run."""
+
+    data: str = ""
+    """Dataset root (ours, SRN, NMR/DVR or NeRF-synthetic)."""
+    data_format: str = ""
+    """Dataset format; '' detects it."""
+    split: str = "train"
+    """Split to train on."""
+    max_objects: int = 0
+    """Use at most this many objects (0 = all)."""
+    out_dir: str = "runs/mrvm"
+    """Run folder: metrics.jsonl, checkpoints/, config.json."""
+    seed: int = 0
+    """Seed for initialisation and all sampling (per rank: seed + rank)."""
+    iterations: int = 20000
+    """Optimizer steps in all (pretraining + finetuning)."""
+    pretrain_frac: float = 0.8
+    """Share of iterations in the MRVM pretraining phase; the rest finetunes without masking."""
+    objects_per_step: int = 2
+    """Objects per step per process (each with its own reference set)."""
+    rays_per_object: int = 256
+    """Target rays sampled per object per step."""
+    min_ref_views: int = 1
+    """Fewest reference views drawn per object."""
+    max_ref_views: int = 3
+    """Most reference views drawn per object (random 1..K)."""
+    bbox_sampling_frac: float = 0.1
+    """Share of early iterations drawing target rays only inside the object's 2D box (pixelNeRF)."""
+    lr: float = 5e-4
+    """Peak AdamW learning rate."""
+    lr_warmup: int = 200
+    """Linear learning-rate warm-up steps."""
+    lr_final_frac: float = 0.05
+    """Cosine decay ends at lr * lr_final_frac."""
+    weight_decay: float = 0.01
+    """AdamW weight decay."""
+    grad_clip: float = 1.0
+    """Global gradient-norm clip (0 = off)."""
+    coarse_weight: float = 1.0
+    """Weight of the coarse branch's photometric loss."""
+    amp: str = "none"
+    """Autocast: 'none', 'bf16' (CPU/GPU) or 'fp16' (GPU, with a grad scaler)."""
+    log_every: int = 10
+    """Write a metrics line every this many steps."""
+    ckpt_every: int = 1000
+    """Checkpoint every this many steps (and at the end)."""
+    keep_checkpoints: int = 2
+    """Checkpoints kept on disk (older ones are removed)."""
+    threads: int = 0
+    """torch CPU threads per process (0 = torch's default)."""
+    device: str = "cpu"
+    """'cpu' or 'cuda' (under torchrun each rank takes cuda:LOCAL_RANK)."""
+
+
+def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) -> tuple[ModelConfig, TrainConfig]:
+    """Read a run-config JSON (or none) and apply ``overrides`` to the train section."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"config file {path} does not exist")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise InputError(f"{path}: not valid JSON ({e})") from e
+    unknown = set(data) - {"model", "train"}
+    if unknown:
+        raise InputError(f"{path}: unknown top-level keys {sorted(unknown)} (expected 'model' and 'train')")
+    m = data.get("model", {})
+    if "config" in m:  # a full config (as saved in a checkpoint)
+        mcfg = from_dict(ModelConfig, m["config"])
+    else:
+        mcfg = model_config(m.get("preset", "balanced"), m.get("overrides"))
+    tcfg = from_dict(TrainConfig, data.get("train", {}))
+    if overrides:
+        tcfg = merge(tcfg, {k: v for k, v in overrides.items() if v is not None})
+    validate(tcfg)
+    return mcfg, tcfg
+
+
+def validate(c: TrainConfig) -> None:
+    if c.iterations < 1:
+        raise InputError(f"iterations must be >= 1, got {c.iterations}")
+    if not 1 <= c.min_ref_views <= c.max_ref_views:
+        raise InputError("need 1 <= min_ref_views <= max_ref_views")
+    if c.amp not in ("none", "bf16", "fp16"):
+        raise InputError(f"amp must be none, bf16 or fp16, got {c.amp!r}")
+    if not 0.0 <= c.pretrain_frac <= 1.0 or not 0.0 <= c.bbox_sampling_frac <= 1.0:
+        raise InputError("pretrain_frac and bbox_sampling_frac must be in [0, 1]")
+    if c.rays_per_object < 1 or c.objects_per_step < 1:
+        raise InputError("rays_per_object and objects_per_step must be >= 1")
+
+
+def run_config_dict(mcfg: ModelConfig, tcfg: TrainConfig) -> dict:
+    return {"model": {"config": to_dict(mcfg)}, "train": to_dict(tcfg)}
+
+
+__all__ = ["TrainConfig", "load_run_config", "run_config_dict", "validate", "replace"]

@@ -1,0 +1,295 @@
+"""The trainer: AdamW + warm-up/cosine schedule, gradient clipping, optional autocast, MRVM pretraining
+then finetuning, JSONL metrics, atomic checkpoints and exact resume; data-parallel under ``torchrun``.
+
+Per step and process: ``objects_per_step`` objects, each with a random 1..K reference set and one
+target view; ``rays_per_object`` target pixels drawn inside the object's 2D box during the first
+``bbox_sampling_frac`` of training (pixelNeRF) and over the whole image afterwards. Rays that miss
+the object's 3D box are background: they are scored (prediction = white) but never evaluated.
+
+Distributed: under ``torchrun`` (``WORLD_SIZE > 1``) each rank draws its own batch (seed + rank),
+parameters start identical (broadcast from rank 0) and gradients are averaged with one all-reduce
+per step (gloo on CPU, nccl on GPU) - the same update as DistributedDataParallel, without requiring
+every parameter to be used in every phase (the MRVM head is idle while finetuning). Rank 0 writes
+logs and checkpoints; every rank's RNG state is stored, so resume is exact on any world size that
+matches the saved one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from contextlib import nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..datasets.loaders import ObjectScene, load_dataset
+from ..errors import InputError
+from ..models.config import ModelConfig
+from ..models.model import GeneralizableNeRF, normalized_scene, ref_cameras
+from ..models.mrvm import lambda_at
+from ..models.rays import make_rays
+from ..progress import Progress
+from . import checkpoint as ckpt
+from .config import TrainConfig, run_config_dict
+
+
+# ------------------------------------------------------------------------------------------- distributed
+
+@dataclass
+class Dist:
+    rank: int = 0
+    world: int = 1
+    local_rank: int = 0
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+def init_distributed(device: str) -> Dist:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return Dist()
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if device.startswith("cuda") else "gloo")
+    return Dist(dist.get_rank(), dist.get_world_size(), int(os.environ.get("LOCAL_RANK", "0")))
+
+
+def _broadcast_params(model: torch.nn.Module) -> None:
+    import torch.distributed as dist
+
+    with torch.no_grad():
+        for t in list(model.parameters()) + list(model.buffers()):
+            dist.broadcast(t.data, 0)
+
+
+def _allreduce_grads(params: list[torch.nn.Parameter], world: int) -> None:
+    import torch.distributed as dist
+
+    grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in params]
+    flat = torch.cat([g.reshape(-1) for g in grads])
+    dist.all_reduce(flat)
+    flat /= world
+    off = 0
+    for p in params:
+        n = p.numel()
+        p.grad = flat[off:off + n].view_as(p).clone()
+        off += n
+
+
+# ------------------------------------------------------------------------------------------- data
+
+def lr_at(step: int, cfg: TrainConfig) -> float:
+    """Linear warm-up to ``lr`` then cosine decay to ``lr * lr_final_frac``."""
+    if step < cfg.lr_warmup:
+        return cfg.lr * (step + 1) / cfg.lr_warmup
+    span = max(1, cfg.iterations - cfg.lr_warmup)
+    p = min(1.0, (step - cfg.lr_warmup) / span)
+    return cfg.lr * (cfg.lr_final_frac + (1 - cfg.lr_final_frac) * 0.5 * (1 + math.cos(math.pi * p)))
+
+
+class RayBatcher:
+    """Draws (reference set, target rays) per object from a list of scenes with one numpy generator."""
+
+    def __init__(self, scenes: list[ObjectScene], cfg: TrainConfig, model_cfg: ModelConfig, seed: int):
+        if not scenes:
+            raise InputError("no training objects")
+        for s in scenes:
+            if len(s) < 2:
+                raise InputError(f"object {s.category}/{s.name} has {len(s)} view(s); training needs >= 2")
+        self.scenes = scenes
+        self.cfg = cfg
+        self.padding = model_cfg.sampler.box_padding
+        self.rng = np.random.default_rng(seed)
+        self._boxes = [s.foreground_boxes() for s in scenes]
+
+    def draw(self, bbox_phase: bool) -> dict[str, Any]:
+        c, rng = self.cfg, self.rng
+        j = int(rng.integers(len(self.scenes)))
+        s = self.scenes[j]
+        k = int(rng.integers(c.min_ref_views, min(c.max_ref_views, len(s) - 1) + 1))
+        perm = rng.permutation(len(s))
+        refs, tgt = perm[:k], int(perm[k])
+        ns = normalized_scene(s.bbox[0], s.bbox[1], self.padding)
+        cams = ref_cameras([ns.pose(s.c2w[i]) for i in refs], [s.intrinsics[i] for i in refs])
+        images = torch.from_numpy(np.ascontiguousarray(s.images[refs])).permute(0, 3, 1, 2).contiguous()
+        intr = s.intrinsics[tgt]
+        x0, y0, x1, y1 = self._boxes[j][tgt] if bbox_phase else (0, 0, intr.width, intr.height)
+        px = rng.integers(x0, x1, c.rays_per_object)
+        py = rng.integers(y0, y1, c.rays_per_object)
+        rays = make_rays(intr, ns.pose(s.c2w[tgt]), np.stack([px + 0.5, py + 0.5], -1), box=ns.box)
+        gt = torch.from_numpy(s.images[tgt][py, px].astype(np.float32))
+        return {"images": images, "cams": cams, "rays": rays, "gt": gt, "n_refs": k}
+
+
+# ------------------------------------------------------------------------------------------- training
+
+def _autocast(cfg: TrainConfig, device: str):
+    if cfg.amp == "none":
+        return nullcontext()
+    dtype = torch.bfloat16 if cfg.amp == "bf16" else torch.float16
+    return torch.autocast(device_type="cuda" if device.startswith("cuda") else "cpu", dtype=dtype)
+
+
+def _rng_state(batcher: RayBatcher, gen: torch.Generator) -> dict[str, Any]:
+    return {"numpy": batcher.rng.bit_generator.state, "torch_gen": gen.get_state(), "torch_global": torch.get_rng_state()}
+
+
+def _set_rng_state(batcher: RayBatcher, gen: torch.Generator, st: dict[str, Any]) -> None:
+    batcher.rng.bit_generator.state = st["numpy"]
+    gen.set_state(st["torch_gen"])
+    torch.set_rng_state(st["torch_global"])
+
+
+def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None):
+    """Progress generator; returns a summary dict (final step, last losses, checkpoint path)."""
+    device = cfg.device
+    dd = init_distributed(device)
+    if device.startswith("cuda") and dd.world > 1:
+        device = f"cuda:{dd.local_rank}"
+        torch.cuda.set_device(device)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    run_dir = Path(cfg.out_dir)
+    if scenes is None:
+        scenes = load_dataset(Path(cfg.data), cfg.split, cfg.data_format or None, cfg.max_objects or None)
+    torch.manual_seed(cfg.seed)
+    model = GeneralizableNeRF(model_cfg).to(device)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    scaler = torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
+    batcher = RayBatcher(scenes, cfg, model_cfg, cfg.seed * 7919 + dd.rank)
+    gen = torch.Generator().manual_seed(cfg.seed * 104729 + dd.rank)
+    torch.manual_seed(cfg.seed + dd.rank)
+    start = 0
+    found = ckpt.find_checkpoint(run_dir) if resume else None
+    if found is not None and (found / ckpt.STATE_FILE).is_file():
+        from safetensors.torch import load_model as st_load
+
+        st_load(model, str(found / ckpt.MODEL_FILE), strict=True, device=device)
+        state = ckpt.load_trainer_state(found)
+        if state.get("world_size", 1) != dd.world:
+            raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
+                             f"resume with the same number (got {dd.world})")
+        opt.load_state_dict(state["optimizer"])
+        _set_rng_state(batcher, gen, state["rng"][dd.rank])
+        start = int(state["step"])
+    elif dd.world > 1:
+        _broadcast_params(model)
+    if dd.main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.json").write_text(json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
+    pretrain_steps = int(round(cfg.pretrain_frac * cfg.iterations)) if model_cfg.mrvm.enabled else 0
+    bbox_steps = int(round(cfg.bbox_sampling_frac * cfg.iterations))
+    log = open(run_dir / "metrics.jsonl", "a", encoding="utf-8") if dd.main else None
+    last: dict[str, float] = {}
+    saved = None
+    try:
+        t0 = time.perf_counter()
+        for step in range(start, cfg.iterations):
+            model.train()
+            lr = lr_at(step, cfg)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            masking = step < pretrain_steps
+            lam = lambda_at(step, pretrain_steps, model_cfg.mrvm)
+            opt.zero_grad(set_to_none=True)
+            tot = {"loss": 0.0, "mse_fine": 0.0, "mse_coarse": 0.0, "mrvm": 0.0, "hit": 0.0}
+            for _ in range(cfg.objects_per_step):
+                b = batcher.draw(step < bbox_steps)
+                rays, gt = b["rays"], b["gt"].to(device)
+                hit = rays.hit
+                n = gt.shape[0]
+                bg = 1.0 if model_cfg.render.white_background else 0.0
+                miss_err = ((bg - gt[~hit.to(device)]) ** 2).sum()
+                with _autocast(cfg, device):
+                    ctx = model.encode(b["images"].to(device), b["cams"])
+                    loss = torch.zeros((), device=device)
+                    if hit.any():
+                        out = model.render_rays(ctx, rays.select(torch.nonzero(hit).flatten()), train=True,
+                                                mask_views=masking, generator=gen)
+                        g_hit = gt[hit.to(device)]
+                        sse_f = ((out["fine"]["color"].float() - g_hit) ** 2).sum()
+                        sse_c = ((out["coarse"]["color"].float() - g_hit) ** 2).sum()
+                        mse_f = (sse_f + miss_err) / (3 * n)
+                        mse_c = (sse_c + miss_err) / (3 * n)
+                        loss = mse_f + cfg.coarse_weight * mse_c
+                        if out["mrvm_loss"] is not None:
+                            loss = loss + lam * out["mrvm_loss"]
+                            tot["mrvm"] += float(out["mrvm_loss"].detach()) / cfg.objects_per_step
+                        tot["mse_fine"] += float(mse_f.detach()) / cfg.objects_per_step
+                        tot["mse_coarse"] += float(mse_c.detach()) / cfg.objects_per_step
+                    else:
+                        tot["mse_fine"] += float(miss_err / (3 * n)) / cfg.objects_per_step
+                    tot["hit"] += float(hit.float().mean()) / cfg.objects_per_step
+                loss = loss / cfg.objects_per_step
+                tot["loss"] += float(loss.detach())
+                (scaler.scale(loss) if scaler else loss).backward()
+            if dd.world > 1:
+                _allreduce_grads(params, dd.world)
+            if scaler:
+                scaler.unscale_(opt)
+            gnorm = torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip) if cfg.grad_clip > 0 else torch.tensor(0.0)
+            if scaler:
+                scaler.step(opt)
+                scaler.update()
+            else:
+                opt.step()
+            if masking:
+                model.mrvm.update_target()
+            done = step + 1
+            last = {"step": done, "lr": lr, "lambda": lam, "masking": masking, "grad_norm": float(gnorm),
+                    "psnr_fine": -10 * math.log10(max(tot["mse_fine"], 1e-10)), **tot,
+                    "time_s": time.perf_counter() - t0}
+            if log and (done % cfg.log_every == 0 or done == cfg.iterations or done == start + 1):
+                log.write(json.dumps(last) + "\n")
+                log.flush()
+            if done % cfg.ckpt_every == 0 or done == cfg.iterations:
+                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd)
+            yield Progress(done, cfg.iterations, f"loss {tot['loss']:.4f} psnr {last['psnr_fine']:.2f}")
+    finally:
+        if log:
+            log.close()
+    return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
+            "resumed_from": start, "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
+
+
+def param_digest(model: torch.nn.Module) -> str:
+    """sha256 of all parameters and buffers (ranks of a data-parallel run must agree)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for k, v in model.state_dict().items():
+        h.update(k.encode())
+        h.update(v.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist):
+    my = _rng_state(batcher, gen)
+    if dd.world > 1:
+        import torch.distributed as dist
+
+        states: list[Any] = [None] * dd.world
+        dist.all_gather_object(states, my)
+    else:
+        states = [my]
+    path = None
+    if dd.main:
+        state = {"step": step, "optimizer": opt.state_dict(), "rng": states, "world_size": dd.world}
+        path = ckpt.save_checkpoint(run_dir, step, model, model_cfg, state,
+                                    {"train_config": json.dumps(run_config_dict(model_cfg, cfg)["train"])},
+                                    keep=cfg.keep_checkpoints)
+    if dd.world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
+    return path
