@@ -1,0 +1,135 @@
+"""The one way operators run long work: a core progress generator (``progress.py``), driven
+
+- modally from the UI (``invoke``): a timer advances the generator one step per tick, so the UI
+  stays responsive; the panel's status line, Blender's progress indicator and the status bar show
+  progress; Esc (or Blender closing the operator) cancels by closing the generator, whose
+  ``finally`` blocks keep what was finished and clean up the rest;
+- to the end in one call from scripts and ``--background`` (``execute``).
+
+A subclass names the PropertyGroup on the scene that holds ``running``, ``progress`` and
+``status`` (``props_attr``), starts its generator (``start``) and turns the generator's result into
+scene changes and a message (``on_result``, on the main thread).
+"""
+
+from __future__ import annotations
+
+from ..errors import MRVMError
+
+_PROGRESS_STEPS = 1000
+
+
+class ProgressOperator:
+    props_attr: str = ""
+    """Scene attribute of the PropertyGroup with running / progress / status."""
+    job_name: str = "Job"
+    """Used in messages: '<job_name> is already running', '<job_name> cancelled'."""
+    cancel_hint: str = ""
+    """Appended to the cancel message (what was kept)."""
+    timer_interval: float = 0.01
+
+    _gen = None
+    _timer = None
+
+    # -- to implement ---------------------------------------------------------------------
+    def start(self, context):
+        """Return the core progress generator (may raise MRVMError for bad settings)."""
+        raise NotImplementedError
+
+    def on_result(self, context, result) -> str:
+        """Apply the generator's result on the main thread; return the success message."""
+        raise NotImplementedError
+
+    # -- shared machinery ---------------------------------------------------------------
+    def _props(self, context):
+        return getattr(context.scene, self.props_attr)
+
+    def _begin(self, context):
+        gen = self.start(context)
+        first = next(gen)  # the generator validates its input before any work
+        return gen, first
+
+    def execute(self, context):
+        from ..progress import run_to_end
+
+        props = self._props(context)
+        try:
+            gen, _ = self._begin(context)
+            message = self.on_result(context, run_to_end(gen))
+        except MRVMError as e:
+            props.status = str(e)
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        props.status = message
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        props = self._props(context)
+        if props.running:
+            self.report({"WARNING"}, f"{self.job_name} is already running")
+            return {"CANCELLED"}
+        try:
+            self._gen, first = self._begin(context)
+        except MRVMError as e:
+            props.status = str(e)
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        props.running, props.progress, props.status = True, first.fraction, first.message
+        wm = context.window_manager
+        wm.progress_begin(0, _PROGRESS_STEPS)
+        self._timer = wm.event_timer_add(self.timer_interval, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _finish(self, context, cancelled: bool, message: str, level: str = "INFO"):
+        wm = context.window_manager
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        if context.workspace:
+            context.workspace.status_text_set(None)
+        props = self._props(context)
+        props.running = False
+        props.status = message
+        self.report({level}, message)
+        _redraw(context)
+        return {"CANCELLED"} if cancelled else {"FINISHED"}
+
+    def _cancel_message(self) -> str:
+        return f"{self.job_name} cancelled" + (f"; {self.cancel_hint}" if self.cancel_hint else "")
+
+    def cancel(self, context):  # Blender closing the operator (file load, quit)
+        if self._gen is not None:
+            self._gen.close()
+        self._finish(context, True, self._cancel_message(), "WARNING")
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self._gen.close()
+            return self._finish(context, True, self._cancel_message(), "WARNING")
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            ev = next(self._gen)
+        except StopIteration as stop:
+            try:
+                return self._finish(context, False, self.on_result(context, stop.value))
+            except MRVMError as e:
+                return self._finish(context, True, str(e), "ERROR")
+        except MRVMError as e:
+            return self._finish(context, True, str(e), "ERROR")
+        props = self._props(context)
+        count = f" ({ev.done}/{ev.total})" if ev.total else ""
+        props.progress, props.status = ev.fraction, f"{ev.message}{count}, Esc to cancel"
+        context.window_manager.progress_update(int(ev.fraction * _PROGRESS_STEPS))
+        if context.workspace:
+            context.workspace.status_text_set(f"MRVM: {props.status}")
+        _redraw(context, "VIEW_3D")
+        return {"RUNNING_MODAL"}
+
+
+def _redraw(context, area_type: str | None = None) -> None:
+    for area in context.screen.areas if context.screen else ():
+        if area_type is None or area.type == area_type:
+            area.tag_redraw()
