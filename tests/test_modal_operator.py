@@ -1,0 +1,126 @@
+"""The modal machinery of ProgressOperator, driven with synthetic events (headless Blender has no
+event loop): progress reaches the status line and progress bar, Esc cancels and closes the core
+generator, errors surface as reports."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from blender_mrvm.errors import InputError
+from blender_mrvm.operators._modal import ProgressOperator
+from blender_mrvm.progress import Progress
+
+
+class FakeWM:
+    def __init__(self):
+        self.calls = []
+
+    def progress_begin(self, a, b):
+        self.calls.append(("begin", a, b))
+
+    def progress_update(self, v):
+        self.calls.append(("update", v))
+
+    def progress_end(self):
+        self.calls.append(("end",))
+
+    def event_timer_add(self, interval, window=None):
+        self.calls.append(("timer_add",))
+        return object()
+
+    def event_timer_remove(self, timer):
+        self.calls.append(("timer_remove",))
+
+    def modal_handler_add(self, op):
+        self.calls.append(("modal",))
+
+
+class FakeWorkspace:
+    def __init__(self):
+        self.text = None
+
+    def status_text_set(self, text):
+        self.text = text
+
+
+def make_context():
+    props = SimpleNamespace(running=False, progress=0.0, status="")
+    return SimpleNamespace(scene=SimpleNamespace(job=props), window_manager=FakeWM(), window=None,
+                           workspace=FakeWorkspace(), screen=None)
+
+
+class Job(ProgressOperator):
+    props_attr = "job"
+    job_name = "Test job"
+    cancel_hint = "kept 2 things"
+
+    def __init__(self, n=3, fail_at=None):
+        self.n, self.fail_at, self.reports, self.closed = n, fail_at, [], False
+
+    def report(self, level, msg):
+        self.reports.append((next(iter(level)), msg))
+
+    def start(self, context):
+        def gen():
+            try:
+                yield Progress(0, self.n, "start")
+                for i in range(self.n):
+                    if i == self.fail_at:
+                        raise InputError("broken input at step 1")
+                    yield Progress(i + 1, self.n, f"step {i + 1}")
+                return "result"
+            finally:
+                self.closed = True
+        return gen()
+
+    def on_result(self, context, result):
+        return f"done with {result}"
+
+
+TIMER = SimpleNamespace(type="TIMER")
+
+
+def test_modal_runs_to_the_end():
+    ctx, op = make_context(), Job()
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"}
+    props = ctx.scene.job
+    assert props.running and props.status == "start"
+    assert op.modal(ctx, SimpleNamespace(type="MOUSEMOVE")) == {"PASS_THROUGH"}
+    assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"}
+    assert props.status == "step 1 (1/3), Esc to cancel" and abs(props.progress - 1 / 3) < 1e-9
+    assert ctx.workspace.text == "MRVM: step 1 (1/3), Esc to cancel"
+    results = [op.modal(ctx, TIMER) for _ in range(3)]
+    assert results == [{"RUNNING_MODAL"}, {"RUNNING_MODAL"}, {"FINISHED"}]
+    assert not props.running and props.status == "done with result" and ctx.workspace.text is None
+    calls = ctx.window_manager.calls
+    assert ("update", 1000) in calls and ("timer_remove",) in calls and calls[-1] == ("end",)
+    assert op.reports[-1] == ("INFO", "done with result") and op.closed
+
+
+def test_escape_cancels_and_closes_the_generator():
+    ctx, op = make_context(), Job(n=10)
+    op.invoke(ctx, None)
+    op.modal(ctx, TIMER)
+    assert op.modal(ctx, SimpleNamespace(type="ESC")) == {"CANCELLED"}
+    assert op.closed and not ctx.scene.job.running
+    assert op.reports[-1] == ("WARNING", "Test job cancelled; kept 2 things")
+    assert ("end",) in ctx.window_manager.calls and ("timer_remove",) in ctx.window_manager.calls
+
+
+def test_errors_are_reported_and_stop_the_job():
+    ctx, op = make_context(), Job(n=3, fail_at=1)
+    op.invoke(ctx, None)
+    op.modal(ctx, TIMER)
+    assert op.modal(ctx, TIMER) == {"CANCELLED"}
+    assert op.reports[-1] == ("ERROR", "broken input at step 1") and not ctx.scene.job.running
+    # a second job while one runs is refused
+    ctx2, a, b = make_context(), Job(), Job()
+    a.invoke(ctx2, None)
+    assert b.invoke(ctx2, None) == {"CANCELLED"} and b.reports[-1][0] == "WARNING"
+
+
+def test_execute_runs_synchronously():
+    ctx, op = make_context(), Job()
+    assert op.execute(ctx) == {"FINISHED"} and ctx.scene.job.status == "done with result"
+    ctx, op = make_context(), Job(fail_at=0)
+    assert op.execute(ctx) == {"CANCELLED"} and op.reports[-1] == ("ERROR", "broken input at step 1")
