@@ -1,0 +1,83 @@
+"""Model rendering speed: seconds per novel view for each preset, and the work box clipping saves.
+
+For each preset and reference count, a randomly initialised model (speed does not depend on the
+weights) renders a view of an SRN-like set-up (camera 1.3 units from a [-0.4, 0.4]^3 object box,
+f = 131.25 px at 128 px: pixelNeRF's SRN cars cameras) after one warm-up render; the median of
+``--repeats`` timed renders is reported with the rays evaluated (those that hit the object's box)
+against all rays, and the points evaluated against evaluating every ray with the same samples between a fixed near and
+far (what pixelNeRF does). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
+The issue's target: ``balanced``, 128 x 128, 2 reference views, about 1 s on 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import platform
+import statistics
+import time
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="bench_out", help="folder for bench_model.csv")
+    p.add_argument("--presets", default="fast,balanced,accurate", help="comma-separated model presets")
+    p.add_argument("--views", default="1,2", help="comma-separated reference-view counts")
+    p.add_argument("--sizes", default="128", help="comma-separated square render sizes")
+    p.add_argument("--repeats", type=int, default=3, help="timed renders per configuration (median reported)")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+
+
+def run(args) -> int:
+    import numpy as np
+    import torch
+
+    from ..geometry import cameras
+    from ..models.config import model_config
+    from ..models.model import GeneralizableNeRF
+
+    torch.set_num_threads(args.threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5],
+                                                                   [-0.8, -0.5, 0.2])]
+    bbox = (np.full(3, -0.4), np.full(3, 0.4))
+    for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
+        cfg = model_config(preset)
+        torch.manual_seed(0)
+        model = GeneralizableNeRF(cfg).eval()
+        n_params = sum(p.numel() for p in model.parameters())
+        for size in [int(s) for s in args.sizes.split(",")]:
+            intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
+            for nv in [int(v) for v in args.views.split(",")]:
+                refs = np.random.default_rng(0).random((nv, size, size, 3)).astype(np.float32)
+                ref_poses = [cameras.look_at_opencv(e) for e in eyes[1:1 + nv]]
+                target = cameras.look_at_opencv(eyes[0])
+                model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)  # warm-up
+                times = []
+                for _ in range(args.repeats):
+                    t0 = time.perf_counter()
+                    res = model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)
+                    times.append(time.perf_counter() - t0)
+                sec = statistics.median(times)
+                sc = cfg.sampler
+                pts_ray = sc.n_coarse + sc.n_fine + (sc.n_coarse if sc.fine_includes_coarse else 0)
+                rows.append({
+                    "preset": preset, "size": size, "ref_views": nv, "threads": args.threads, "params": n_params,
+                    "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4),
+                    "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
+                    "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
+                    "points_evaluated": res["evaluated"] * pts_ray,
+                    "points_fixed_near_far": res["rays"] * pts_ray,
+                    "rays_per_s": round(res["evaluated"] / sec, 1),
+                    "cpu": platform.processor() or platform.machine(), "torch": torch.__version__,
+                })
+                print(f"{preset:9s} {size}px {nv} ref(s): {sec:.3f} s/view, {res['evaluated']}/{res['rays']} rays evaluated")
+    path = out / "bench_model.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {path}")
+    return 0
