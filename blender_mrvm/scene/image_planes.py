@@ -1,0 +1,520 @@
+"""Image planes: a novel view placed in the scene exactly on its camera's frustum.
+
+For a target camera, :func:`build_image_planes` creates a plane whose four corners lie on the rays
+through the image's four outer corners (pixel coordinates (0, 0), (W, 0), (W, H), (0, H) in the
+pixel-centre convention of ``geometry/cameras.py``) at a planar depth ``distance`` along the
+camera's viewing axis. The corners come from the camera's intrinsics as ``scene/camera.read_camera``
+reads them (lens shift, sensor fit, resolution and pixel aspect included), so rendering the camera's
+view shows the image pixel for pixel. The quad is parented to its camera (it follows the camera),
+and its material is shadeless: the image's colour as emission, mixed with a transparent BSDF by the
+image's alpha (background = alpha 0), rendered BLENDED (the Blender 4.2+/5.0 ``surface_render_method``)
+and invisible to shadow / diffuse / glossy / transmission rays, so it neither lights nor shades the
+scene.
+
+Images are written as PNG (and depth as EXR when given) into a folder (default ``//mrvm_novel_views``
+next to the .blend; paths are stored relative to the .blend) or packed into the .blend. Everything is
+created in the collection "MRVM novel views". Building is a transaction: on any error every
+datablock and file it created is removed and every file it replaced is restored.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from ..errors import InputError, OutputError
+from ..geometry import cameras as C
+from . import camera as scam
+from .objects import remove_new_data, safe_id, snapshot_data
+
+COLLECTION = "MRVM novel views"
+PLANE_TAG = "mrvm_plane_of"
+"""Custom property on a plane object: the name of the camera it belongs to."""
+
+
+@dataclass(frozen=True)
+class NovelView:
+    """One image to place in front of one camera."""
+
+    camera: str
+    """Name of the camera object (in ``bpy.data.objects``)."""
+    rgba: Path | np.ndarray
+    """PNG file, or a uint8 (H, W, 3|4) array (alpha 0 = background)."""
+    depth: Path | np.ndarray | None = None
+    """Optional planar z-depth: an EXR file or a float (H, W) array, saved beside the image."""
+
+
+@dataclass(frozen=True)
+class PlaneConfig:
+    """Where and how image planes are built."""
+
+    distance: float = 1.0
+    """Planar depth of the plane along the camera's viewing axis, scene units (inside the clip range)."""
+    pack: bool = False
+    """Pack images (and depth) into the .blend instead of referencing files."""
+    folder: str = "//mrvm_novel_views"
+    """Folder for PNG/EXR files (``//`` = next to the .blend); in pack mode only the names are kept."""
+    collection: str = COLLECTION
+    """Collection that receives planes (and generated cameras)."""
+    replace: bool = True
+    """Remove earlier planes of the same cameras once the new ones are built."""
+    interpolation: str = "Linear"
+    """Image texture interpolation (Linear, Closest, Cubic)."""
+
+    def validate(self) -> "PlaneConfig":
+        if not (np.isfinite(self.distance) and self.distance > 0):
+            raise InputError(f"plane distance must be positive, got {self.distance}")
+        if self.interpolation not in ("Linear", "Closest", "Cubic", "Smart"):
+            raise InputError(f"unknown interpolation {self.interpolation!r}")
+        if not self.pack and not self.folder.strip():
+            raise InputError("choose a folder for the novel-view images (or pack them into the .blend)")
+        return self
+
+
+@dataclass
+class PlaneResult:
+    """What :func:`build_image_planes` created."""
+
+    collection: bpy.types.Collection
+    planes: list
+    images: list
+    files: list
+
+
+# ---------------------------------------------------------------------------------------------
+# Geometry (pure numpy; no bpy state)
+# ---------------------------------------------------------------------------------------------
+
+FAN_CENTRE_OFFSET = (0.25, 0.125)
+"""Offset (pixels) of the plane's inner vertex from the frame centre (see :func:`plane_vertices_camera`)."""
+
+
+def plane_pixels(intr: C.Intrinsics) -> np.ndarray:
+    """(5, 2) pixel coordinates of the plane's vertices: four frame corners, then the inner vertex.
+
+    Corners in order bottom-left, bottom-right, top-right, top-left (counter-clockwise seen from the
+    camera, so the faces point at it). The quad is a fan of four triangles around an inner vertex
+    at (W/2 + 1/4, H/2 + 1/8): no edge passes through a pixel centre at any resolution (each edge
+    would need an even/odd ratio to equal an odd/odd one), so a ray through a pixel centre never
+    hits two triangles of the plane at once; Cycles would then apply a semi-transparent pixel's
+    alpha twice (the diagonal of a plain quad crosses every diagonal pixel centre of a square image).
+    """
+    w, h = float(intr.width), float(intr.height)
+    ox, oy = FAN_CENTRE_OFFSET
+    return np.array([[0.0, h], [w, h], [w, 0.0], [0.0, 0.0], [w / 2.0 + ox, h / 2.0 + oy]])
+
+
+FACES = [(0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)]
+"""Triangles of the plane (vertex indices of :func:`plane_pixels`)."""
+
+
+def plane_vertices_camera(intr: C.Intrinsics, distance: float) -> np.ndarray:
+    """(5, 3) plane vertices at planar depth ``distance`` in Blender camera-local axes.
+
+    Pixel (u, v) maps to OpenCV camera coordinates d * ((u - cx) / fx, (v - cy) / fy, 1); Blender's
+    camera axes flip y and z.
+    """
+    uv = plane_pixels(intr)
+    pts = np.stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy, np.ones(len(uv))], axis=1) * distance
+    return pts * np.array([1.0, -1.0, -1.0])
+
+
+def plane_uvs(intr: C.Intrinsics) -> np.ndarray:
+    """(5, 2) texture coordinates: Blender images start at the bottom-left, PNG rows at the top."""
+    uv = plane_pixels(intr)
+    return np.stack([uv[:, 0] / intr.width, 1.0 - uv[:, 1] / intr.height], axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Transaction: datablocks and files
+# ---------------------------------------------------------------------------------------------
+
+class Transaction:
+    """Undo log for building: new datablocks, new files, replaced files (restored on rollback)."""
+
+    def __init__(self) -> None:
+        self.before = snapshot_data()
+        self._new_files: list[Path] = []
+        self._backups: list[tuple[Path, Path]] = []
+        self._tmpdirs: list[Path] = []
+        self._undo: list = []
+
+    def on_rollback(self, fn) -> None:
+        """Call ``fn()`` on rollback (to undo a change to data that existed before)."""
+        self._undo.append(fn)
+
+    def tmpdir(self) -> Path:
+        d = Path(tempfile.mkdtemp(prefix="mrvm_planes_"))
+        self._tmpdirs.append(d)
+        return d
+
+    def write(self, path: Path, writer) -> Path:
+        """Write ``path`` through ``writer(tmp)`` + rename; an existing file is kept aside until commit."""
+        path = Path(path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OutputError(f"cannot create folder {path.parent}: {e.strerror or e}") from e
+        if path.exists():
+            fd, bak = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".bak", dir=path.parent)
+            os.close(fd)
+            os.replace(path, bak)
+            self._backups.append((path, Path(bak)))
+        else:
+            self._new_files.append(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+        os.close(fd)
+        try:
+            writer(tmp)
+            os.replace(tmp, path)
+        except OSError as e:
+            raise OutputError(f"cannot write {path}: {e.strerror or e}") from e
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        return path
+
+    def rollback(self) -> None:
+        for fn in reversed(self._undo):
+            with contextlib.suppress(Exception):
+                fn()
+        remove_new_data(self.before)
+        for p in self._new_files:
+            with contextlib.suppress(OSError):
+                p.unlink()
+        for p, bak in reversed(self._backups):
+            with contextlib.suppress(OSError):
+                os.replace(bak, p)
+        self._cleanup()
+
+    def commit(self) -> None:
+        for _, bak in self._backups:
+            with contextlib.suppress(OSError):
+                bak.unlink()
+        self._cleanup()
+
+    def _cleanup(self) -> None:
+        for d in self._tmpdirs:
+            shutil.rmtree(d, ignore_errors=True)
+        self._new_files, self._backups, self._tmpdirs, self._undo = [], [], [], []
+
+
+@contextlib.contextmanager
+def transaction(txn: Transaction | None = None):
+    """Yield a :class:`Transaction`; roll it back on any exception, commit otherwise.
+
+    With an outer ``txn`` this is a no-op wrapper: the outer owner commits or rolls back.
+    """
+    if txn is not None:
+        yield txn
+        return
+    t = Transaction()
+    try:
+        yield t
+    except BaseException:
+        t.rollback()
+        raise
+    t.commit()
+
+
+# ---------------------------------------------------------------------------------------------
+# Inputs
+# ---------------------------------------------------------------------------------------------
+
+def _camera_object(name: str) -> bpy.types.Object:
+    obj = bpy.data.objects.get(name)
+    if obj is None:
+        raise InputError(f"camera {name!r} does not exist")
+    if obj.type != "CAMERA":
+        raise InputError(f"{name!r} is a {obj.type.lower()}, not a camera")
+    return obj
+
+
+def _image_size(src: Path | np.ndarray, what: str) -> tuple[int, int]:
+    """(width, height) of a PNG file or an image array; InputError naming what is wrong."""
+    if isinstance(src, np.ndarray):
+        if src.dtype != np.uint8 or src.ndim != 3 or src.shape[2] not in (3, 4):
+            raise InputError(f"{what}: expected a uint8 (H, W, 3|4) array, got {src.dtype} {src.shape}")
+        return src.shape[1], src.shape[0]
+    p = Path(src)
+    if not p.is_file():
+        raise InputError(f"{what}: image {p} does not exist")
+    from PIL import Image
+
+    try:
+        with Image.open(p) as im:
+            if im.format != "PNG":
+                raise InputError(f"{what}: {p} is {im.format}, expected PNG")
+            return im.size
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(f"{what}: cannot read image {p}: {e}") from e
+
+
+def _depth_size(src: Path | np.ndarray, what: str) -> tuple[int, int]:
+    if isinstance(src, np.ndarray):
+        if src.ndim != 2 or not np.issubdtype(src.dtype, np.floating):
+            raise InputError(f"{what}: depth must be a float (H, W) array, got {src.dtype} {src.shape}")
+        return src.shape[1], src.shape[0]
+    p = Path(src)
+    if not p.is_file():
+        raise InputError(f"{what}: depth file {p} does not exist")
+    from ..datasets.format import read_depth
+
+    d = read_depth(p)
+    return d.shape[1], d.shape[0]
+
+
+def _check_aspect(img_wh: tuple[int, int], intr: C.Intrinsics, what: str) -> None:
+    """The image must cover the camera frame: the render size at some scale (each side rounded)."""
+    w, h = img_wh
+    fits_w = abs(h - intr.height * w / intr.width) <= 1.0  # scale taken from the width
+    fits_h = abs(w - intr.width * h / intr.height) <= 1.0  # scale taken from the height
+    if not (fits_w or fits_h):
+        raise InputError(f"{what}: image is {w}x{h} but the camera renders {intr.width}x{intr.height}; "
+                         "the image must have the frame's aspect ratio")
+
+
+def _folder(cfg: PlaneConfig) -> Path:
+    f = cfg.folder.strip()
+    if f.startswith("//") and not bpy.data.filepath:
+        raise OutputError("save the .blend first or choose an absolute folder for the novel views "
+                          "(// is relative to the .blend)")
+    return Path(bpy.path.abspath(f))
+
+
+def _blend_path(p: Path) -> str:
+    """A file path as Blender stores it: relative to the saved .blend when possible."""
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(str(p))
+        except ValueError:  # another drive (Windows)
+            pass
+    return str(p)
+
+
+# ---------------------------------------------------------------------------------------------
+# Building blocks
+# ---------------------------------------------------------------------------------------------
+
+def _ensure_collection(scene: bpy.types.Scene, name: str, txn: Transaction) -> bpy.types.Collection:
+    coll = bpy.data.collections.get(name)
+    if coll is None:
+        coll = bpy.data.collections.new(name)  # removed on rollback with the other new data
+    if coll not in scene.collection.children_recursive:
+        scene.collection.children.link(coll)
+        if coll.as_pointer() in txn.before["collections"]:
+            txn.on_rollback(lambda: scene.collection.children.unlink(coll))
+    return coll
+
+
+def _unique_stems(cameras: list[str]) -> list[str]:
+    seen: dict[str, int] = {}
+    out = []
+    for name in cameras:
+        s = safe_id(name)
+        k = seen.get(s, 0)
+        seen[s] = k + 1
+        out.append(s if k == 0 else f"{s}_{k}")
+    return out
+
+
+def _write_png(txn: Transaction, src: Path | np.ndarray, dst: Path) -> Path:
+    if isinstance(src, np.ndarray):
+        from PIL import Image
+
+        arr = np.ascontiguousarray(src)
+        return txn.write(dst, lambda tmp: Image.fromarray(arr).save(tmp, format="PNG"))
+    src = Path(src)
+    if dst.exists() and src.resolve() == dst.resolve():
+        return dst  # already in place
+    return txn.write(dst, lambda tmp: shutil.copyfile(src, tmp))
+
+
+def _write_exr(txn: Transaction, src: Path | np.ndarray, dst: Path) -> Path:
+    if isinstance(src, np.ndarray):
+        import OpenEXR
+
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        chans = {"Y": np.ascontiguousarray(src, dtype=np.float32)}
+
+        def w(tmp: str) -> None:
+            with OpenEXR.File(header, chans) as f:
+                f.write(tmp)
+        return txn.write(dst, w)
+    src = Path(src)
+    if dst.exists() and src.resolve() == dst.resolve():
+        return dst
+    return txn.write(dst, lambda tmp: shutil.copyfile(src, tmp))
+
+
+def _load_image(path: Path, name: str, stored_path: str, pack: bool, non_color: bool = False) -> bpy.types.Image:
+    try:
+        img = bpy.data.images.load(str(path), check_existing=False)
+    except RuntimeError as e:
+        raise InputError(f"Blender cannot load {path}: {e}") from e
+    img.name = name
+    if non_color:
+        img.colorspace_settings.name = "Non-Color"
+    else:
+        img.alpha_mode = "STRAIGHT"
+    if pack:
+        img.pack()
+    img.filepath_raw = stored_path
+    return img
+
+
+def _material(name: str, image: bpy.types.Image, interpolation: str) -> bpy.types.Material:
+    """Shadeless image material: emission of the image colour, transparent where alpha is 0."""
+    mat = bpy.data.materials.new(name)
+    if mat.node_tree is None:  # Blender < 5 creates materials without nodes
+        mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = interpolation
+    tex.extension = "EXTEND"  # the outermost texels reach the frame edge without fading
+    emit = nt.nodes.new("ShaderNodeEmission")
+    emit.inputs["Strength"].default_value = 1.0
+    transparent = nt.nodes.new("ShaderNodeBsdfTransparent")
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    nt.links.new(tex.outputs["Color"], emit.inputs["Color"])
+    nt.links.new(tex.outputs["Alpha"], mix.inputs["Fac"])
+    nt.links.new(transparent.outputs["BSDF"], mix.inputs[1])
+    nt.links.new(emit.outputs["Emission"], mix.inputs[2])
+    nt.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    for i, n in enumerate((tex, emit, transparent, mix, out)):
+        n.location = (-600 + 200 * i, 0)
+    transparent.location = (-200, 200)
+    # EEVEE (4.2+): forward-rendered blending gives soft alpha edges; no shadow from the plane.
+    mat.surface_render_method = "BLENDED"
+    mat.use_transparency_overlap = False
+    mat.use_transparent_shadow = True
+    mat.use_backface_culling = False
+    return mat
+
+
+def _plane_mesh(name: str, intr: C.Intrinsics, distance: float) -> bpy.types.Mesh:
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata([tuple(map(float, c)) for c in plane_vertices_camera(intr, distance)], [], FACES)
+    uvs = plane_uvs(intr)
+    uv = mesh.uv_layers.new(name="UVMap")
+    for loop in mesh.loops:
+        uv.data[loop.index].uv = tuple(uvs[loop.vertex_index])
+    mesh.update()
+    return mesh
+
+
+def _plane_object(name: str, mesh: bpy.types.Mesh, cam: bpy.types.Object, coll: bpy.types.Collection) -> bpy.types.Object:
+    obj = bpy.data.objects.new(name, mesh)
+    coll.objects.link(obj)
+    obj.parent = cam
+    obj.matrix_parent_inverse = Matrix.Identity(4)
+    # World = camera without its scale (read_camera's frame): basis = parent^-1 @ unscaled parent.
+    parent = C.as_pose(cam.matrix_world)
+    obj.matrix_basis = Matrix((np.linalg.inv(parent) @ C.remove_scale(parent)).tolist())
+    for attr in ("visible_shadow", "visible_diffuse", "visible_glossy", "visible_transmission",
+                 "visible_volume_scatter"):
+        setattr(obj, attr, False)
+    obj.hide_select = False
+    obj[PLANE_TAG] = cam.name
+    return obj
+
+
+def planes_of(camera: bpy.types.Object) -> list[bpy.types.Object]:
+    """Image planes built for ``camera`` (children tagged with its name)."""
+    return [o for o in camera.children if o.get(PLANE_TAG) == camera.name]
+
+
+def _remove_planes(objs: list[bpy.types.Object]) -> None:
+    """Remove planes with their mesh, and materials / images no one else uses."""
+    meshes = {o.data for o in objs if o.data is not None}
+    mats = {s.material for o in objs for s in o.material_slots if s.material is not None}
+    imgs = {n.image for m in mats if m.node_tree for n in m.node_tree.nodes
+            if n.type == "TEX_IMAGE" and n.image is not None}
+    depth_imgs = {bpy.data.images.get(o.get("mrvm_depth_image", "")) for o in objs} - {None}
+    bpy.data.batch_remove(list(objs))
+    bpy.data.batch_remove([m for m in meshes if m.users == 0])
+    bpy.data.batch_remove([m for m in mats if m.users == 0])
+    bpy.data.batch_remove([i for i in imgs if i.users == 0])
+    bpy.data.batch_remove([i for i in depth_imgs if i.users <= 1])  # only the fake user left
+
+
+# ---------------------------------------------------------------------------------------------
+# The builder
+# ---------------------------------------------------------------------------------------------
+
+def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: PlaneConfig,
+                       txn: Transaction | None = None) -> PlaneResult:
+    """Create one image plane per view in ``cfg.collection``; all or nothing (see module doc).
+
+    Everything is checked before anything is created: cameras exist and are perspective, the
+    plane lies inside each camera's clip range, images exist and have the frame's aspect ratio,
+    depth maps match their image.
+    """
+    cfg.validate()
+    if not views:
+        raise InputError("no novel views to place")
+    # ---- check (no side effects)
+    for vl in scene.view_layers:  # fresh camera matrices (loc/rot/scale set since the last update)
+        vl.update()
+    cams, intrs = [], []
+    for v in views:
+        cam = _camera_object(v.camera)
+        intr, _ = scam.read_camera(cam, scene)
+        if not (cam.data.clip_start < cfg.distance < cam.data.clip_end):
+            raise InputError(f"plane distance {cfg.distance:g} is outside camera {cam.name!r}'s clip range "
+                             f"({cam.data.clip_start:g}..{cam.data.clip_end:g})")
+        wh = _image_size(v.rgba, f"camera {cam.name!r}")
+        _check_aspect(wh, intr, f"camera {cam.name!r}")
+        if v.depth is not None and _depth_size(v.depth, f"camera {cam.name!r}") != wh:
+            raise InputError(f"camera {cam.name!r}: depth map size differs from its image {wh[0]}x{wh[1]}")
+        cams.append(cam)
+        intrs.append(intr)
+    if len({c.name for c in cams}) != len(cams):
+        raise InputError("each camera can take only one novel view per run")
+    folder = None if cfg.pack else _folder(cfg)
+    stored_folder = cfg.folder.strip() or "//mrvm_novel_views"
+
+    # ---- build (rolled back on any error)
+    with transaction(txn) as t:
+        coll = _ensure_collection(scene, cfg.collection, t)
+        old = [p for c in cams for p in planes_of(c)] if cfg.replace else []
+        work = t.tmpdir() if cfg.pack else None
+        planes, images, files = [], [], []
+        for v, cam, intr, stem in zip(views, cams, intrs, _unique_stems([c.name for c in cams])):
+            png = _write_png(t, v.rgba, (work or folder) / f"{stem}.png")
+            stored = (f"{stored_folder.rstrip('/')}/{stem}.png" if cfg.pack else _blend_path(png))
+            img = _load_image(png, f"MRVM {cam.name}", stored, cfg.pack)
+            if not cfg.pack:
+                files.append(png)
+            images.append(img)
+            mesh = _plane_mesh(f"MRVM plane {cam.name}", intr, cfg.distance)
+            mesh.materials.append(_material(f"MRVM {cam.name}", img, cfg.interpolation))
+            obj = _plane_object(f"MRVM plane {cam.name}", mesh, cam, coll)
+            obj["mrvm_image"] = img.name
+            obj["mrvm_distance"] = float(cfg.distance)
+            if v.depth is not None:
+                exr = _write_exr(t, v.depth, (work or folder) / f"{stem}_depth.exr")
+                stored_d = (f"{stored_folder.rstrip('/')}/{stem}_depth.exr" if cfg.pack else _blend_path(exr))
+                dimg = _load_image(exr, f"MRVM depth {cam.name}", stored_d, cfg.pack, non_color=True)
+                dimg.use_fake_user = True  # referenced by no material: keep it through save/reload
+                obj["mrvm_depth_image"] = dimg.name
+                images.append(dimg)
+                if not cfg.pack:
+                    files.append(exr)
+            planes.append(obj)
+        if old:
+            _remove_planes(old)
+    return PlaneResult(coll, planes, images, files)
