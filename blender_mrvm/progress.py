@@ -48,8 +48,42 @@ def run_to_end(gen: ProgressGen) -> Any:
             return stop.value
 
 
+PROGRESS_ENV = "MRVM_PROGRESS"
+"""Set to ``json`` (as the add-on's worker runner does) to get machine-readable progress on stdout."""
+
+
+def progress_json(event: Progress, desc: str = "") -> str:
+    """One stdout line for a parent process: ``{"mrvm": "progress", "done": .., "total": .., ...}``."""
+    import json
+
+    return json.dumps({"mrvm": "progress", "done": event.done, "total": event.total, "message": event.message,
+                       "skipped": event.skipped, "desc": desc})
+
+
+def _run_with_json(gen: ProgressGen, desc: str) -> Any:
+    try:
+        while True:
+            try:
+                event = next(gen)
+            except StopIteration as stop:
+                return stop.value
+            sys.stdout.write(progress_json(event, desc) + "\n")
+            sys.stdout.flush()
+    except KeyboardInterrupt:
+        gen.close()
+        raise
+
+
 def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: bool | None = None) -> Any:
-    """Drive a progress generator with a tqdm bar on stderr; return its result."""
+    """Drive a progress generator with a tqdm bar on stderr; return its result.
+
+    With ``MRVM_PROGRESS=json`` in the environment each event is instead one JSON line on stdout
+    (:func:`progress_json`), which the add-on's worker runner parses.
+    """
+    import os
+
+    if os.environ.get(PROGRESS_ENV, "").lower() == "json":
+        return _run_with_json(gen, desc)
     from tqdm import tqdm
 
     bar = None

@@ -1,0 +1,373 @@
+"""The worker process: heavy work (training, synthesis, pose recovery) runs in a child ``python -m
+blender_mrvm <command> ...`` (DESIGN.md, "Where torch runs inside Blender"). bpy-free.
+
+- :func:`choose_interpreter` picks the Python that runs the child: the one set in the add-on
+  preferences when there is one (the user's explicit choice), else the running Python (Blender's own)
+  when it has the dependencies, else a project ``.venv`` found next to the add-on or repository.
+- :func:`probe` reports which dependencies an interpreter has (without importing them), and
+  :func:`install_hint` the one command that installs what is missing.
+- :func:`run_worker` starts the child with ``MRVM_PROGRESS=json`` (so ``progress.run_with_tqdm``
+  prints one JSON line per event on stdout) and is itself a progress generator: a modal operator
+  calls ``next()`` once per timer tick (each call waits at most ``poll_s``), and cancels with
+  ``gen.close()``, which interrupts the child (SIGINT: the CLI closes its own generator, keeping
+  finished work) and escalates to terminate / kill when it does not exit in time. A child that
+  fails raises :class:`WorkerError` with its one ``error: ...`` line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import Cancelled, InputError, MRVMError
+from .progress import Progress, ProgressGen
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+"""The package folder (``blender_mrvm/``, or the installed extension's folder)."""
+
+DEPENDENCIES: tuple[tuple[str, str, str], ...] = (
+    ("torch", "torch==2.13.0", "training and novel-view synthesis"),
+    ("safetensors", "safetensors>=0.4", "model checkpoints"),
+    ("numpy", "numpy>=1.24,<2", "everything"),
+    ("PIL", "pillow>=10", "PNG images"),
+    ("OpenEXR", "openexr>=3.3", "depth and normal maps (EXR)"),
+    ("pycolmap", "pycolmap==4.2.1", "recovering the poses of photos"),
+)
+"""(import name, pip requirement, what needs it) of the worker's dependencies (pins as pyproject.toml)."""
+
+_PROBE = r"""
+import importlib.util, importlib.metadata, json, sys
+dists = {"PIL": "pillow", "OpenEXR": "openexr"}
+out = {}
+for m in sys.argv[1:]:
+    try:
+        found = importlib.util.find_spec(m) is not None
+    except Exception:
+        found = False
+    v = None
+    if found:
+        try:
+            v = importlib.metadata.version(dists.get(m, m))
+        except Exception:
+            v = "unknown version"
+    out[m] = v
+print(json.dumps({"python": sys.version.split()[0], "modules": out}))
+"""
+
+
+class WorkerError(MRVMError):
+    """The worker process failed; the message is its one-line error."""
+
+    def __init__(self, message: str, returncode: int | None = None):
+        super().__init__(message)
+        self.returncode = returncode
+
+
+# ---------------------------------------------------------------------------------------------
+# Interpreters
+# ---------------------------------------------------------------------------------------------
+
+def module_name() -> str:
+    """Module the child runs with ``-m``: the package folder's name (the extension id)."""
+    return PACKAGE_DIR.name
+
+
+def venv_python(venv: Path) -> Path:
+    return venv / ("Scripts/python.exe" if os.name == "nt" else "bin/python")
+
+
+def find_project_venv(start: Path | None = None, levels: int = 4) -> Path | None:
+    """The ``.venv`` interpreter of the project holding the add-on (symlinks followed), or None."""
+    starts = [Path(start) if start else PACKAGE_DIR]
+    starts.append(starts[0].resolve())
+    for s in starts:
+        for d in [s, *list(s.parents)[:levels]]:
+            py = venv_python(d / ".venv")
+            if py.is_file():
+                return py
+    return None
+
+
+@dataclass(frozen=True)
+class Interpreter:
+    """The Python chosen to run the worker."""
+
+    path: str
+    """Executable."""
+    source: str
+    """Why: "preferences", "blender" (the running Python) or "project venv"."""
+
+
+_probe_cache: dict[tuple[str, float], dict] = {}
+
+
+def probe(python: str, timeout: float = 30.0) -> dict:
+    """``{"python": version, "modules": {name: version or None}}`` for ``python`` (cached per file).
+
+    Uses ``find_spec`` (nothing is imported, so it takes well under a second). Raises
+    :class:`InputError` when the interpreter cannot run.
+    """
+    p = Path(python)
+    if not p.is_file():
+        raise InputError(f"worker Python {python} does not exist")
+    key = (str(p), p.stat().st_mtime)
+    if key in _probe_cache:
+        return _probe_cache[key]
+    try:
+        cp = subprocess.run([str(p), "-c", _PROBE, *[m for m, _, _ in DEPENDENCIES]], capture_output=True, text=True,
+                            timeout=timeout, env=_clean_env(), stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise InputError(f"worker Python {python} cannot run: {e}") from e
+    try:
+        out = json.loads(cp.stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        last = (cp.stderr.strip().splitlines() or ["no output"])[-1]
+        raise InputError(f"worker Python {python} cannot run: {last}") from None
+    _probe_cache[key] = out
+    return out
+
+
+def clear_probe_cache() -> None:
+    _probe_cache.clear()
+
+
+def missing(python: str, needs: tuple[str, ...] = ("torch",)) -> list[str]:
+    """Import names of ``needs`` that ``python`` lacks."""
+    mods = probe(python)["modules"]
+    return [m for m in needs if not mods.get(m)]
+
+
+def install_hint(python: str, names: list[str]) -> str:
+    """The command that installs ``names`` (import names) into ``python``."""
+    specs = {m: spec for m, spec, _ in DEPENDENCIES}
+    reqs = " ".join(f'"{specs.get(n, n)}"' for n in names)
+    return f'"{python}" -m pip install {reqs}'
+
+
+def choose_interpreter(python_path: str = "", needs: tuple[str, ...] = ("torch",)) -> Interpreter:
+    """The worker's Python: the preference if set, else this Python if it has ``needs``, else a project .venv.
+
+    Falls back to this Python (which then lacks something; :func:`missing` says what).
+    """
+    pref = python_path.strip()
+    if pref:
+        p = Path(os.path.expanduser(pref))
+        if p.is_dir():  # a venv folder instead of its interpreter
+            p = venv_python(p) if venv_python(p).is_file() else p
+        if not p.is_file():
+            raise InputError(f"the worker Python set in the add-on preferences does not exist: {pref}")
+        return Interpreter(str(p), "preferences")
+    own = sys.executable
+    try:
+        if own and not missing(own, needs):
+            return Interpreter(own, "blender")
+    except InputError:
+        pass
+    venv = find_project_venv()
+    if venv is not None:
+        return Interpreter(str(venv), "project venv")
+    return Interpreter(own, "blender")
+
+
+def require(interp: Interpreter, needs: tuple[str, ...] = ("torch",)) -> None:
+    """Raise :class:`InputError` naming what ``interp`` lacks and the command that installs it."""
+    lacking = missing(interp.path, needs)
+    if lacking:
+        raise InputError(f"{', '.join(lacking)} missing in the worker Python {interp.path} ({interp.source}); "
+                         f"install with: {install_hint(interp.path, lacking)} (or set Worker Python in the add-on preferences)")
+
+
+# ---------------------------------------------------------------------------------------------
+# Running
+# ---------------------------------------------------------------------------------------------
+
+def _clean_env() -> dict[str, str]:
+    env = dict(os.environ)
+    for k in ("PYTHONHOME", "PYTHONSTARTUP", "PYTHONEXECUTABLE"):  # Blender's, not the child's
+        env.pop(k, None)
+    return env
+
+
+def worker_env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    """The child's environment: the package importable, JSON progress, unbuffered UTF-8 output."""
+    from .progress import PROGRESS_ENV
+
+    env = _clean_env()
+    parent = str(PACKAGE_DIR.parent)
+    env["PYTHONPATH"] = os.pathsep.join([parent, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]])
+    env[PROGRESS_ENV] = "json"
+    env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONIOENCODING"] = "utf-8"
+    env.update(extra or {})
+    return env
+
+
+def worker_argv(python: str, command: str, args: list[str]) -> list[str]:
+    return [python, "-m", module_name(), command, *map(str, args)]
+
+
+@dataclass
+class WorkerResult:
+    """What a finished worker left besides its files."""
+
+    returncode: int
+    seconds: float
+    output: list[str] = field(default_factory=list)
+    """stdout lines that were not progress events (the command's own report)."""
+    stderr_tail: list[str] = field(default_factory=list)
+    events: int = 0
+    """Progress events received."""
+
+
+def parse_progress(line: str) -> Progress | None:
+    """A progress event from one stdout line, or None for any other line."""
+    i = line.find('{"mrvm"')  # C-level prints (Blender's render log) may share the line
+    if i < 0:
+        return None
+    s = line[i:].strip()
+    try:
+        d = json.loads(s)
+    except ValueError:
+        return None
+    if not isinstance(d, dict) or d.get("mrvm") != "progress":
+        return None
+    try:
+        return Progress(int(d.get("done", 0)), int(d.get("total", 0)), str(d.get("message", "")),
+                        int(d.get("skipped", 0)))
+    except (TypeError, ValueError):
+        return None
+
+
+def error_message(returncode: int, stderr_lines: list[str], python: str) -> str:
+    """The one line a failed child's error is reported as."""
+    errs = [ln[len("error: "):].strip() for ln in stderr_lines if ln.startswith("error: ")]
+    if errs:
+        return errs[-1]
+    for ln in reversed(stderr_lines):
+        if "No module named" in ln:
+            name = ln.split("No module named", 1)[1].strip().strip("'\"").split(".")[0]
+            return f"{name} is missing in the worker Python {python}; install with: {install_hint(python, [name])}"
+    tail = next((ln.strip() for ln in reversed(stderr_lines) if ln.strip()), "no message")
+    return f"worker failed (exit code {returncode}): {tail}"
+
+
+def _reader(stream, name: str, q: queue.Queue) -> None:
+    try:
+        for line in iter(stream.readline, ""):
+            q.put((name, line.rstrip("\r\n")))
+    except (OSError, ValueError):
+        pass
+    finally:
+        q.put((name, None))
+
+
+def _signal(proc: subprocess.Popen, sig) -> None:
+    try:
+        if os.name == "posix":
+            os.killpg(proc.pid, sig)  # the child leads its own process group (torchrun's ranks too)
+        elif sig == signal.SIGINT:
+            proc.terminate()  # no console signal for a detached child on Windows
+        else:
+            proc.kill() if sig == getattr(signal, "SIGKILL", None) else proc.terminate()
+    except (ProcessLookupError, PermissionError, OSError):
+        pass
+
+
+def stop(proc: subprocess.Popen, grace_s: float = 5.0) -> int | None:
+    """Interrupt ``proc`` (the CLI then closes its work cleanly), then terminate, then kill."""
+    steps = [(signal.SIGINT, grace_s), (signal.SIGTERM, 2.0)]
+    if hasattr(signal, "SIGKILL"):
+        steps.append((signal.SIGKILL, 5.0))
+    for sig, wait in steps:
+        if proc.poll() is not None:
+            break
+        _signal(proc, sig)
+        try:
+            proc.wait(timeout=wait)
+        except subprocess.TimeoutExpired:
+            continue
+    return proc.poll()
+
+
+def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | None = None,
+               env: dict[str, str] | None = None, poll_s: float = 0.1, grace_s: float = 5.0,
+               on_start=None) -> ProgressGen:
+    """Run ``python -m blender_mrvm <command> <args>`` as a progress generator (see module doc).
+
+    ``on_start(proc)`` is called with the ``subprocess.Popen`` once the child runs. Yields the
+    latest :class:`Progress` at least every ``poll_s`` seconds; returns a
+    :class:`WorkerResult`. Raises :class:`WorkerError` (the child's ``error: ...`` line) when the
+    child fails, :class:`Cancelled` when it was interrupted from outside.
+    """
+    argv = worker_argv(python, command, args)
+    t0 = time.monotonic()
+    try:
+        proc = subprocess.Popen(argv, cwd=str(cwd) if cwd else None, env=worker_env(env), stdin=subprocess.DEVNULL,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, encoding="utf-8",
+                                errors="replace", bufsize=1, start_new_session=(os.name == "posix"),
+                                creationflags=getattr(subprocess, "CREATE_NEW_PROCESS_GROUP", 0))
+    except OSError as e:
+        raise WorkerError(f"cannot start the worker Python {python}: {e.strerror or e}") from e
+    if on_start is not None:
+        on_start(proc)
+    q: queue.Queue = queue.Queue()
+    threads = [threading.Thread(target=_reader, args=(s, n, q), daemon=True)
+               for s, n in ((proc.stdout, "out"), (proc.stderr, "err"))]
+    for t in threads:
+        t.start()
+    result = WorkerResult(returncode=-1, seconds=0.0)
+    stderr_tail: deque[str] = deque(maxlen=50)
+    last = Progress(0, 0, f"starting {command}")
+    open_streams = 2
+    try:
+        yield last
+        while open_streams:
+            deadline = time.monotonic() + poll_s
+            got = False
+            while open_streams:
+                try:
+                    timeout = 0.0 if got else max(0.0, deadline - time.monotonic())
+                    name, line = q.get(timeout=timeout) if timeout > 0 else q.get_nowait()
+                except queue.Empty:
+                    break
+                if line is None:
+                    open_streams -= 1
+                    continue
+                if name == "out":
+                    ev = parse_progress(line)
+                    if ev is not None:
+                        last, got = ev, True
+                        result.events += 1
+                    elif line.strip():
+                        result.output.append(line)
+                        del result.output[:-200]
+                else:
+                    stderr_tail.append(line)
+            if open_streams:
+                yield last
+        rc = proc.wait()
+    finally:
+        if proc.poll() is None:
+            stop(proc, grace_s)
+        for t in threads:
+            t.join(timeout=1.0)
+        for s in (proc.stdout, proc.stderr):
+            try:
+                s.close()
+            except OSError:
+                pass
+    result.returncode, result.seconds, result.stderr_tail = rc, time.monotonic() - t0, list(stderr_tail)
+    if rc == 0:
+        return result
+    if rc in (130, -signal.SIGINT):
+        raise Cancelled("the worker was interrupted; finished work is kept")
+    raise WorkerError(error_message(rc, list(stderr_tail), python), rc)

@@ -1,0 +1,174 @@
+"""The worker process runner: JSON progress from the CLI, a real child command streaming events,
+cancel (child gone, finished views kept), errors as one line, interpreter choice and dependency probe.
+No bpy in this process: the child (render-dataset) imports Blender itself."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import sys
+import time
+import venv
+from pathlib import Path
+
+import pytest
+
+from blender_mrvm import worker as W
+from blender_mrvm.errors import Cancelled, InputError
+from blender_mrvm.progress import Progress, run_with_tqdm
+
+ROOT = Path(__file__).resolve().parents[1]
+RENDER = ["--source", "procedural:chair:0", "--resolution", "16", "--engine", "BLENDER_WORKBENCH"]
+ENV = {"OMP_NUM_THREADS": "1"}
+
+
+def _gen(n):
+    for i in range(n):
+        yield Progress(i + 1, n, f"step {i + 1}")
+    return "result"
+
+
+def test_run_with_tqdm_json_mode(monkeypatch, capsys):
+    monkeypatch.setenv("MRVM_PROGRESS", "json")
+    assert run_with_tqdm(_gen(3), desc="d") == "result"
+    lines = capsys.readouterr().out.splitlines()
+    assert [json.loads(ln) for ln in lines] == [
+        {"mrvm": "progress", "done": i, "total": 3, "message": f"step {i}", "skipped": 0, "desc": "d"} for i in (1, 2, 3)]
+    assert [W.parse_progress(ln) for ln in lines] == [Progress(i, 3, f"step {i}") for i in (1, 2, 3)]
+    monkeypatch.delenv("MRVM_PROGRESS")
+    assert run_with_tqdm(_gen(3), disable=True) == "result"
+    assert capsys.readouterr().out == "", "without the variable nothing goes to stdout (tqdm writes to stderr)"
+
+
+def test_parse_progress_and_error_lines():
+    ev = '{"mrvm": "progress", "done": 2, "total": 5, "message": "m", "skipped": 1, "desc": ""}'
+    assert W.parse_progress(ev) == Progress(2, 5, "m", 1)
+    assert W.parse_progress("Fra:1 Mem:12M " + ev) == Progress(2, 5, "m", 1)  # Blender's log on the same line
+    for other in ("wrote out.png", '{"a": 1}', '{"mrvm": "result"}', '{"mrvm": "progress", "done": "x"}', "{"):
+        assert W.parse_progress(other) is None
+    py = "/opt/py/bin/python"
+    assert W.error_message(2, ["Traceback", "error: first", "noise", "error: the real one"], py) == "the real one"
+    msg = W.error_message(1, ["Traceback (most recent call last):", "  ...", "ModuleNotFoundError: No module named 'torch'"], py)
+    assert msg == f'torch is missing in the worker Python {py}; install with: "{py}" -m pip install "torch==2.13.0"'
+    assert W.error_message(-9, ["", "Killed", ""], py) == "worker failed (exit code -9): Killed"
+    assert W.error_message(1, [], py) == "worker failed (exit code 1): no message"
+
+
+def test_child_streams_progress_and_finishes(tmp_path):
+    out = tmp_path / "ds"
+    events = []
+    gen = W.run_worker("render-dataset", [*RENDER, "--views", "3", "--out", out], sys.executable, env=ENV)
+    while True:
+        try:
+            events.append(next(gen))
+        except StopIteration as stop:
+            res = stop.value
+            break
+    assert res.returncode == 0 and res.events >= 4  # "starting" + one per view
+    distinct = sorted({(e.done, e.total) for e in events if e.total})
+    assert distinct == [(0, 3), (1, 3), (2, 3), (3, 3)]
+    assert any("3 views rendered" in ln for ln in res.output)
+    assert len(list((out / "chair" / "chair_000000" / "rgb").glob("*.png"))) == 3
+
+
+def test_cancel_stops_the_child_and_keeps_finished_views(tmp_path):
+    out = tmp_path / "ds"
+    procs = []
+    gen = W.run_worker("render-dataset", [*RENDER, "--views", "400", "--out", out], sys.executable, env=ENV,
+                       on_start=procs.append, grace_s=10.0)
+    t0 = time.monotonic()
+    for ev in gen:
+        if ev.done >= 2:
+            break
+        assert time.monotonic() - t0 < 60, "no progress from the child"
+    t1 = time.monotonic()
+    gen.close()
+    (proc,) = procs
+    assert proc.poll() is not None, "the child still runs after cancel"
+    assert time.monotonic() - t1 < 10.0
+    assert proc.returncode == 130, "SIGINT: the CLI closed its generator and exited as interrupted (not killed)"
+    obj = out / "chair" / "chair_000000"
+    done = sorted(p.name for p in (obj / "pose").glob("*.txt"))
+    assert 2 <= len(done) < 400, "finished views are kept, the rest was not rendered"
+    for i in range(len(done)):  # every committed view is complete, no temp files left behind
+        assert all((obj / k / f"{i:06d}{ext}").is_file() for k, ext in
+                   (("rgb", ".png"), ("depth", ".exr"), ("normal", ".exr"), ("mask", ".png"), ("pose", ".txt")))
+    assert not [p for p in obj.rglob(".*") if p.is_file()]
+
+
+def test_child_error_is_one_line(tmp_path):
+    gen = W.run_worker("render-dataset", ["--source", str(tmp_path / "nothing.obj"), "--out", tmp_path / "o"],
+                       sys.executable, env=ENV)
+    with pytest.raises(W.WorkerError) as ei:
+        for _ in gen:
+            pass
+    assert str(ei.value) == f"mesh file or folder not found: {tmp_path / 'nothing.obj'}"
+    assert ei.value.returncode == 2 and "\n" not in str(ei.value)
+
+
+def test_interrupted_from_outside_is_cancelled(tmp_path):
+    procs = []
+    gen = W.run_worker("render-dataset", [*RENDER, "--views", "400", "--out", tmp_path / "ds"], sys.executable,
+                       env=ENV, on_start=procs.append)
+    with pytest.raises(Cancelled, match="interrupted"):
+        for ev in gen:
+            if ev.done >= 1:
+                W._signal(procs[0], __import__("signal").SIGINT)
+
+
+@pytest.fixture(scope="module")
+def bare_python(tmp_path_factory):
+    """A real interpreter without the project's dependencies (a fresh venv, no pip)."""
+    d = tmp_path_factory.mktemp("bare") / "venv"
+    venv.create(d, with_pip=False, symlinks=os.name != "nt")
+    return str(W.venv_python(d))
+
+
+def test_probe_and_install_hint(bare_python):
+    W.clear_probe_cache()
+    ours = W.probe(sys.executable)["modules"]
+    assert all(ours[m] for m, _, _ in W.DEPENDENCIES), ours
+    assert ours["torch"].startswith("2.13")
+    bare = W.probe(bare_python)["modules"]
+    assert not any(bare.values()), bare
+    assert W.missing(bare_python, ("torch", "pycolmap")) == ["torch", "pycolmap"]
+    assert W.install_hint(bare_python, ["torch", "OpenEXR"]) == f'"{bare_python}" -m pip install "torch==2.13.0" "openexr>=3.3"'
+    with pytest.raises(InputError, match="does not exist"):
+        W.probe("/nonexistent/python")
+
+
+def test_missing_dependency_in_the_child_is_one_line(bare_python, tmp_path):
+    gen = W.run_worker("render-dataset", [*RENDER, "--out", tmp_path / "o"], bare_python)
+    with pytest.raises(W.WorkerError) as ei:
+        for _ in gen:
+            pass
+    msg = str(ei.value)
+    assert msg.startswith(f"numpy is missing in the worker Python {bare_python}; install with: \"{bare_python}\" -m pip install")
+
+
+def test_choose_interpreter(bare_python, tmp_path):
+    # The preference wins when set (a venv folder is accepted too); a wrong path is an error.
+    assert W.choose_interpreter(bare_python) == W.Interpreter(bare_python, "preferences")
+    assert W.choose_interpreter(str(Path(bare_python).parents[1])).path == bare_python
+    with pytest.raises(InputError, match="does not exist"):
+        W.choose_interpreter(str(tmp_path / "no" / "python"))
+    # Empty: this Python has torch, so it runs the worker.
+    assert W.choose_interpreter("") == W.Interpreter(sys.executable, "blender")
+    with pytest.raises(InputError) as ei:
+        W.require(W.Interpreter(bare_python, "preferences"), ("torch",))
+    assert "torch missing in the worker Python" in str(ei.value) and '-m pip install "torch==2.13.0"' in str(ei.value)
+
+
+def test_find_project_venv_through_an_extension_symlink(tmp_path):
+    proj = tmp_path / "proj"
+    py = W.venv_python(proj / ".venv")
+    py.parent.mkdir(parents=True)
+    py.write_text("")
+    (proj / "blender_mrvm").mkdir()
+    ext = tmp_path / "blender" / "extensions" / "user_default"
+    ext.mkdir(parents=True)
+    (ext / "blender_mrvm").symlink_to(proj / "blender_mrvm")
+    assert W.find_project_venv(ext / "blender_mrvm") == py
+    assert W.find_project_venv(tmp_path / "blender" / "extensions") is None
+    assert W.find_project_venv() == W.venv_python(ROOT / ".venv")
