@@ -111,10 +111,12 @@ def load_ours(obj_dir: Path) -> ObjectScene:
         raise InputError(f"{obj_dir}/meta.json has no 'bbox' (object bounds)")
     images = _stack([to_float_rgb(ov.rgb(i)) for i in range(len(ov.indices))], obj_dir)
     h, w = images.shape[1:3]
-    if (ov.intrinsics.width, ov.intrinsics.height) != (w, h):
-        raise InputError(f"{obj_dir}: intrinsics say {ov.intrinsics.width}x{ov.intrinsics.height}, images are {w}x{h}")
+    intrs = list(getattr(ov, "intrinsics_per_view", None) or []) or [ov.intrinsics] * len(ov.indices)
+    for intr in intrs:
+        if (intr.width, intr.height) != (w, h):
+            raise InputError(f"{obj_dir}: intrinsics say {intr.width}x{intr.height}, images are {w}x{h}")
     return ObjectScene(str(meta.get("object_id", Path(obj_dir).name)), str(meta.get("category", Path(obj_dir).parent.name)),
-                       images, np.stack(ov.c2w_opencv), [ov.intrinsics] * len(ov.indices),
+                       images, np.stack(ov.c2w_opencv), intrs,
                        (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices))
 
 
