@@ -371,3 +371,53 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
     if rc in (130, -signal.SIGINT):
         raise Cancelled("the worker was interrupted; finished work is kept")
     raise WorkerError(error_message(rc, list(stderr_tail), python), rc)
+
+
+# ---------------------------------------------------------------------------------------------
+# Dependency status (the add-on preferences draw it)
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DependencyReport:
+    """What the worker's Python has and lacks."""
+
+    interpreter: Interpreter | None
+    """The chosen interpreter (None when it could not be chosen: ``error`` says why)."""
+    python_version: str = ""
+    """Its Python version."""
+    modules: dict = field(default_factory=dict)
+    """Import name -> version, or None when missing."""
+    error: str = ""
+    """Why no interpreter could be checked (a bad preference path, a Python that does not run)."""
+
+    @property
+    def missing(self) -> list[str]:
+        return [m for m, _, _ in DEPENDENCIES if not self.modules.get(m)]
+
+    @property
+    def install_command(self) -> str:
+        return install_hint(self.interpreter.path, self.missing) if self.interpreter and self.missing else ""
+
+    def lines(self) -> list[tuple[str, bool]]:
+        """(text, ok) lines for a status box: the interpreter, each dependency, the install command."""
+        if self.error:
+            return [(self.error, False)]
+        it = self.interpreter
+        src = {"preferences": "set in preferences", "blender": "Blender's own", "project venv": "project .venv"}[it.source]
+        out = [(f"Worker Python ({src}, {self.python_version}): {it.path}", True)]
+        for m, _, why in DEPENDENCIES:
+            v = self.modules.get(m)
+            out.append((f"{m} {v}" if v else f"{m}: missing (needed for {why})", bool(v)))
+        if self.missing:
+            out.append((f"Install with: {self.install_command}", False))
+        return out
+
+
+def dependency_report(python_path: str = "") -> DependencyReport:
+    """The dependency status of the interpreter :func:`choose_interpreter` picks for ``python_path``."""
+    try:
+        it = choose_interpreter(python_path)
+        info = probe(it.path)
+    except InputError as e:
+        return DependencyReport(None, error=str(e))
+    return DependencyReport(it, info.get("python", ""), dict(info.get("modules", {})))

@@ -65,9 +65,11 @@ def test_child_streams_progress_and_finishes(tmp_path):
         except StopIteration as stop:
             res = stop.value
             break
-    assert res.returncode == 0 and res.events >= 4  # "starting" + one per view
-    distinct = sorted({(e.done, e.total) for e in events if e.total})
-    assert distinct == [(0, 3), (1, 3), (2, 3), (3, 3)]
+    assert res.returncode == 0 and res.events == 4  # the child's "starting" + one per view
+    # Events that arrive within one poll interval are coalesced into the latest (a UI tick shows one).
+    seen = [(e.done, e.total) for e in events]
+    assert seen[0] == (0, 0) and seen[-1] == (3, 3) and seen == sorted(seen)
+    assert all(e.message for e in events)
     assert any("3 views rendered" in ln for ln in res.output)
     assert len(list((out / "chair" / "chair_000000" / "rgb").glob("*.png"))) == 3
 

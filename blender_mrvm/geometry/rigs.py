@@ -86,3 +86,25 @@ def near_far(c2w_list: list[np.ndarray], bound_radius: float, center=(0.0, 0.0, 
     near = max(float(d.min() - bound_radius), 1e-3 * bound_radius)
     far = float(d.max() + bound_radius)
     return near, far
+
+
+def orbit_poses(count: int, radius: float, elevation_deg: float = 20.0, center=(0.0, 0.0, 0.0),
+                start_azimuth_deg: float = 0.0) -> list[np.ndarray]:
+    """OpenCV camera-to-world poses of ``count`` cameras evenly spaced on a circle around ``center``.
+
+    The circle lies at ``elevation_deg`` above the horizontal plane through ``center`` (world z up),
+    at distance ``radius``; the first camera sits at azimuth ``start_azimuth_deg`` (0 = +x), the
+    others follow counter-clockwise seen from above; every camera looks at ``center``.
+    """
+    if count <= 0:
+        raise InputError(f"orbit needs at least one camera, got {count}")
+    if not (math.isfinite(radius) and radius > 0):
+        raise InputError(f"orbit radius must be positive, got {radius}")
+    if not -90.0 <= elevation_deg <= 90.0:
+        raise InputError(f"orbit elevation must be within -90..90 degrees, got {elevation_deg:g}")
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    el = math.radians(elevation_deg)
+    az = math.radians(start_azimuth_deg) + np.linspace(0.0, 2.0 * math.pi, count, endpoint=False)
+    pos = np.stack([radius * math.cos(el) * np.cos(az), radius * math.cos(el) * np.sin(az),
+                    np.full(count, radius * math.sin(el))], axis=1) + c
+    return [look_at_opencv(p, c) for p in pos]

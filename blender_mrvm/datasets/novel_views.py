@@ -1,0 +1,109 @@
+"""The files between the add-on and the synthesis worker (bpy-free).
+
+The add-on writes ``targets.json``; the worker (``python -m blender_mrvm synthesize --references DIR
+--views 0 1 --targets targets.json --checkpoint CKPT --out OUT``) reads it and writes, for target i,
+``OUT/rgb/<i:06d>.png`` (RGBA, alpha 0 = background) and, when asked, ``OUT/depth/<i:06d>.exr``
+(planar z-depth, channel "Y"): the paths each target names. References are an object folder of our
+dataset format (a render, a recovered capture, or scene cameras exported by the add-on).
+
+::
+
+    {"format": "blender_mrvm.targets", "version": 1, "depth": false,
+     "targets": [{"name": "Camera", "generated": false, "c2w_opencv": [[4x4]],
+                  "fl_x": .., "fl_y": .., "cx": .., "cy": .., "w": .., "h": ..,
+                  "rgb": "rgb/000000.png", "depth": "depth/000000.exr"}]}
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry.cameras import Intrinsics, as_pose
+from .format import atomic_write_json
+
+TARGETS_FORMAT = "blender_mrvm.targets"
+TARGETS_VERSION = 1
+MAX_REFERENCES = 10
+
+
+@dataclass(frozen=True)
+class Target:
+    """One view to synthesize."""
+
+    name: str
+    """Name of the Blender camera (existing, or to create when ``generated``)."""
+    intrinsics: Intrinsics
+    """Pixel intrinsics (pixel-centre convention) at the size the image is synthesized."""
+    c2w_opencv: np.ndarray
+    """4x4 camera-to-world, OpenCV axes."""
+    generated: bool = False
+    """The camera does not exist yet: the add-on creates it with the result (an orbit camera)."""
+
+    def rgb_path(self, index: int) -> str:
+        return f"rgb/{index:06d}.png"
+
+    def depth_path(self, index: int) -> str:
+        return f"depth/{index:06d}.exr"
+
+
+def parse_views(text: str, max_views: int = MAX_REFERENCES) -> tuple[int, ...]:
+    """Reference view indices from '0 1', '0,1' or '0, 3, 5'; 1..max_views distinct, non-negative."""
+    parts = [p for p in text.replace(",", " ").split() if p]
+    try:
+        views = tuple(int(p) for p in parts)
+    except ValueError:
+        raise InputError(f"reference views must be view numbers like '0 1', got {text!r}") from None
+    if not views:
+        raise InputError("choose at least one reference view")
+    if len(views) > max_views:
+        raise InputError(f"at most {max_views} reference views, got {len(views)}")
+    if min(views) < 0 or len(set(views)) != len(views):
+        raise InputError(f"reference views must be distinct and non-negative, got {text!r}")
+    return views
+
+
+def write_targets(path: Path, targets: list[Target], depth: bool = False) -> Path:
+    """Write ``targets.json`` (atomically)."""
+    if not targets:
+        raise InputError("no target views")
+    names = [t.name for t in targets]
+    if len(set(names)) != len(names):
+        raise InputError("target names must be unique")
+    rows = []
+    for i, t in enumerate(targets):
+        k = t.intrinsics
+        rows.append({"name": t.name, "generated": bool(t.generated), "c2w_opencv": as_pose(t.c2w_opencv).tolist(),
+                     "fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height,
+                     "rgb": t.rgb_path(i), "depth": t.depth_path(i)})
+    atomic_write_json(Path(path), {"format": TARGETS_FORMAT, "version": TARGETS_VERSION, "depth": bool(depth),
+                                   "targets": rows})
+    return Path(path)
+
+
+def read_targets(path: Path) -> tuple[list[Target], bool]:
+    """``(targets, depth wanted)`` from ``targets.json``; InputError naming what is wrong."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"targets file {path} does not exist") from None
+    except ValueError as e:
+        raise InputError(f"{path} is not JSON: {e}") from None
+    if d.get("format") != TARGETS_FORMAT or int(d.get("version", 0)) > TARGETS_VERSION:
+        raise InputError(f"{path} is not a targets file of version <= {TARGETS_VERSION}")
+    out = []
+    for i, r in enumerate(d.get("targets", [])):
+        try:
+            k = Intrinsics(float(r["fl_x"]), float(r["fl_y"]), float(r["cx"]), float(r["cy"]), int(r["w"]), int(r["h"]))
+            out.append(Target(str(r["name"]), k, as_pose(np.asarray(r["c2w_opencv"], dtype=np.float64)),
+                              bool(r.get("generated", False))))
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{path}: target {i} is malformed ({e})") from None
+    if not out:
+        raise InputError(f"{path} lists no targets")
+    return out, bool(d.get("depth", False))

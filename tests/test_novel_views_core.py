@@ -1,0 +1,93 @@
+"""bpy-free parts of novel views: the orbit rig, targets.json, reference view lists."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from blender_mrvm.datasets.novel_views import Target, parse_views, read_targets, write_targets
+from blender_mrvm.errors import InputError
+from blender_mrvm.geometry.cameras import Intrinsics
+from blender_mrvm.geometry.rigs import orbit_poses
+
+
+def test_orbit_poses_circle_elevation_and_look_at():
+    center = np.array([0.5, -1.0, 0.25])
+    poses = orbit_poses(6, 3.0, 30.0, center, start_azimuth_deg=90.0)
+    assert len(poses) == 6
+    pos = np.array([p[:3, 3] for p in poses])
+    off = pos - center
+    assert np.allclose(np.linalg.norm(off, axis=1), 3.0)
+    assert np.allclose(off[:, 2], 3.0 * math.sin(math.radians(30.0)))
+    assert np.allclose(off[0], [0.0, 3.0 * math.cos(math.radians(30.0)), 1.5], atol=1e-12)  # azimuth 90 = +y
+    az = np.degrees(np.arctan2(off[:, 1], off[:, 0]))
+    assert np.allclose(np.diff(np.unwrap(np.radians(az))), math.radians(60.0))  # evenly, counter-clockwise
+    for p, o in zip(poses, off):
+        r = p[:3, :3]
+        assert np.allclose(r.T @ r, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(r), 1.0)
+        assert np.allclose(r[:, 2], -o / 3.0)  # OpenCV +z looks at the centre
+        assert r[2, 1] < 0  # image "down" points down in the world: the horizon is level, not upside down
+    with pytest.raises(InputError, match="at least one"):
+        orbit_poses(0, 1.0)
+    with pytest.raises(InputError, match="radius"):
+        orbit_poses(3, 0.0)
+    with pytest.raises(InputError, match="elevation"):
+        orbit_poses(3, 1.0, 95.0)
+    top = orbit_poses(2, 2.0, 90.0)  # straight above: still proper rotations looking down
+    assert all(np.allclose(p[:3, 2], [0, 0, -1]) for p in top)
+
+
+def test_targets_round_trip(tmp_path):
+    k = Intrinsics(40.0, 30.0, 16.5, 11.0, 32, 24)
+    c2w = orbit_poses(2, 2.0, 10.0)
+    ts = [Target("A", k, c2w[0]), Target("MRVM orbit 000", k, c2w[1], generated=True)]
+    path = write_targets(tmp_path / "targets.json", ts, depth=True)
+    d = json.loads(path.read_text())
+    assert [t["rgb"] for t in d["targets"]] == ["rgb/000000.png", "rgb/000001.png"]
+    assert [t["depth"] for t in d["targets"]] == ["depth/000000.exr", "depth/000001.exr"]
+    back, depth = read_targets(path)
+    assert depth is True
+    for a, b in zip(ts, back):
+        assert (a.name, a.intrinsics, a.generated) == (b.name, b.intrinsics, b.generated)
+        assert np.array_equal(a.c2w_opencv, b.c2w_opencv)
+    with pytest.raises(InputError, match="unique"):
+        write_targets(tmp_path / "t2.json", [ts[0], ts[0]])
+    with pytest.raises(InputError, match="no target"):
+        write_targets(tmp_path / "t3.json", [])
+    (tmp_path / "bad.json").write_text(json.dumps({"format": "blender_mrvm.targets", "version": 1, "targets": [{"name": "x"}]}))
+    with pytest.raises(InputError, match="target 0 is malformed"):
+        read_targets(tmp_path / "bad.json")
+    with pytest.raises(InputError, match="does not exist"):
+        read_targets(tmp_path / "none.json")
+    (tmp_path / "other.json").write_text("{}")
+    with pytest.raises(InputError, match="not a targets file"):
+        read_targets(tmp_path / "other.json")
+
+
+def test_parse_views():
+    assert parse_views("0 1") == (0, 1)
+    assert parse_views(" 3, 5,7 ") == (3, 5, 7)
+    for bad, msg in (("", "at least one"), ("a b", "view numbers"), ("1 1", "distinct"), ("-1", "non-negative"),
+                     (" ".join(map(str, range(11))), "at most 10")):
+        with pytest.raises(InputError, match=msg):
+            parse_views(bad)
+
+
+def test_dependency_report_lines(tmp_path):
+    from blender_mrvm import worker as W
+
+    it = W.Interpreter("/py", "project venv")
+    rep = W.DependencyReport(it, "3.11.7", {"torch": None, "safetensors": "0.4", "numpy": "1.26.4", "PIL": "10.0",
+                                           "OpenEXR": None, "pycolmap": "4.2.1"})
+    assert rep.missing == ["torch", "OpenEXR"]
+    assert rep.install_command == '"/py" -m pip install "torch==2.13.0" "openexr>=3.3"'
+    lines = rep.lines()
+    assert lines[0] == ("Worker Python (project .venv, 3.11.7): /py", True)
+    assert ("torch: missing (needed for training and novel-view synthesis)", False) in lines
+    assert ("numpy 1.26.4", True) in lines
+    assert lines[-1] == ('Install with: "/py" -m pip install "torch==2.13.0" "openexr>=3.3"', False)
+    bad = W.dependency_report(str(tmp_path / "nope"))
+    assert bad.interpreter is None and bad.lines() == [(f"the worker Python set in the add-on preferences does not exist: {tmp_path / 'nope'}", False)]
