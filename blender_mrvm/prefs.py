@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import bpy
 from bpy.props import EnumProperty, StringProperty
 
@@ -11,13 +9,49 @@ from bpy.props import EnumProperty, StringProperty
 ADDON_ID = __package__
 
 
-def dependency_status() -> list[tuple[str, bool, str]]:
-    """(name, available, how to get it) for the heavy dependencies, in Blender's own Python."""
-    out = []
-    for mod, pip_name in (("torch", "torch==2.13.0"), ("OpenEXR", "openexr"), ("pycolmap", "pycolmap==4.2.1")):
-        ok = importlib.util.find_spec(mod) is not None
-        out.append((mod, ok, f"pip install {pip_name}"))
-    return out
+def dependency_status(context=None):
+    """What the worker's Python (see ``worker.choose_interpreter``) has and lacks: a ``DependencyReport``.
+
+    Probed once per interpreter file (cached; "Check again" clears the cache), without importing torch.
+    """
+    from .worker import dependency_report
+
+    prefs = get(context)
+    return dependency_report(prefs.python_path if prefs else "")
+
+
+class MRVM_OT_check_dependencies(bpy.types.Operator):
+    """Check again which dependencies the worker Python has (after installing something)"""
+
+    bl_idname = "mrvm.check_dependencies"
+    bl_label = "Check Again"
+
+    def execute(self, context):
+        from .worker import clear_probe_cache
+
+        clear_probe_cache()
+        rep = dependency_status(context)
+        if rep.error or rep.missing:
+            self.report({"WARNING"}, rep.error or f"missing in {rep.interpreter.path}: {', '.join(rep.missing)}")
+        else:
+            self.report({"INFO"}, f"all dependencies found in {rep.interpreter.path}")
+        return {"FINISHED"}
+
+
+class MRVM_OT_copy_install_command(bpy.types.Operator):
+    """Copy the command that installs the missing dependencies into the worker Python"""
+
+    bl_idname = "mrvm.copy_install_command"
+    bl_label = "Copy Install Command"
+
+    def execute(self, context):
+        cmd = dependency_status(context).install_command
+        if not cmd:
+            self.report({"INFO"}, "nothing is missing")
+            return {"CANCELLED"}
+        context.window_manager.clipboard = cmd
+        self.report({"INFO"}, f"copied: {cmd}")
+        return {"FINISHED"}
 
 
 class MRVM_AddonPreferences(bpy.types.AddonPreferences):
@@ -40,10 +74,13 @@ class MRVM_AddonPreferences(bpy.types.AddonPreferences):
         layout.prop(self, "checkpoint_dir")
         layout.prop(self, "cache_dir")
         box = layout.box()
-        box.label(text="Dependencies in Blender's Python:")
-        for name, ok, how in dependency_status():
-            box.label(text=f"{name}: found" if ok else f"{name}: missing ({how}, or set Worker Python)",
-                      icon="CHECKMARK" if ok else "ERROR")
+        rep = dependency_status(context)
+        for text, ok in rep.lines():
+            box.label(text=text, icon="CHECKMARK" if ok else "ERROR")
+        row = box.row()
+        row.operator("mrvm.check_dependencies", icon="FILE_REFRESH")
+        if rep.install_command:
+            row.operator("mrvm.copy_install_command", icon="COPYDOWN")
 
 
 def get(context=None) -> MRVM_AddonPreferences | None:
@@ -53,7 +90,7 @@ def get(context=None) -> MRVM_AddonPreferences | None:
     return addon.preferences if addon else None
 
 
-classes = (MRVM_AddonPreferences,)
+classes = (MRVM_AddonPreferences, MRVM_OT_check_dependencies, MRVM_OT_copy_install_command)
 
 
 def register() -> None:

@@ -86,9 +86,57 @@ class MRVM_PG_capture(bpy.types.PropertyGroup):
     status: StringProperty(default="", options={"SKIP_SAVE"})
 
 
+# --- Novel views (issue 5): settings of the Synthesize novel views operator --------------------
+class MRVM_PG_novel_views(bpy.types.PropertyGroup):
+    """Settings of the Synthesize novel views operator."""
+
+    reference_source: EnumProperty(name="References", items=[
+        ("DATASET", "Dataset folder", "An object folder of a rendered dataset (rgb/ + pose/)"),
+        ("SCENE", "Scene cameras", "Cameras in the scene with a background image (the reference photo)"),
+        ("CAPTURE", "Recovered capture", "A capture folder written by Recover poses"),
+    ], default="DATASET")
+    dataset_dir: StringProperty(name="Object folder", subtype="DIR_PATH",
+                                description="One object's folder of a rendered dataset (holds rgb/ and pose/)")
+    capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", default="//mrvm_capture",
+                                description="Capture folder written by Recover poses")
+    reference_views: StringProperty(name="Views", default="0 1",
+                                    description="Indices of the views used as references (1 to 10), e.g. '0 1'")
+    target_source: EnumProperty(name="Targets", items=[
+        ("SELECTED", "Selected cameras", "Synthesize the view of every selected camera"),
+        ("ORBIT", "Orbit", "Generate cameras on a circle around the 3D cursor"),
+    ], default="ORBIT")
+    orbit_count: IntProperty(name="Cameras", default=8, min=1, soft_max=120, description="Cameras on the orbit")
+    orbit_elevation: FloatProperty(name="Elevation", default=0.3490659, min=-1.5707963, max=1.5707963, subtype="ANGLE",
+                                   description="Height of the orbit above the 3D cursor, as an angle")
+    orbit_radius: FloatProperty(name="Radius", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
+                                description="Distance of the orbit cameras from the 3D cursor")
+    orbit_fov: FloatProperty(name="Field of view", default=0.6981317, min=0.01745, max=2.967, subtype="ANGLE",
+                             description="Field of view of the orbit cameras (along the longer image side)")
+    checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
+                               description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
+    device: EnumProperty(name="Device", items=[
+        ("AUTO", "Auto", "CUDA when available, else CPU"),
+        ("CPU", "CPU", "Always the CPU"),
+        ("CUDA", "CUDA", "An NVIDIA GPU"),
+    ], default="AUTO")
+    plane_distance: FloatProperty(name="Plane distance", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
+                                  description="Distance of each image plane from its camera along the view axis")
+    output: EnumProperty(name="Images", items=[
+        ("FILES", "Files", "Save PNG files into the output folder and reference them"),
+        ("PACK", "Pack into .blend", "Pack the images into the .blend file"),
+    ], default="FILES")
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_novel_views",
+                               description="Folder of the novel-view PNG/EXR files (// is relative to the .blend)")
+    save_depth: BoolProperty(name="Depth (EXR)", default=False, description="Also save each view's depth map as EXR")
+    running: BoolProperty(default=False, options={"SKIP_SAVE"})
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
+    status: StringProperty(default="", options={"SKIP_SAVE"})
+
+
 SCENE_PROPERTIES = {
     "mrvm_capture": MRVM_PG_capture,
     "mrvm_dataset": MRVM_PG_dataset,
+    "mrvm_novel_views": MRVM_PG_novel_views,
 }
 classes = tuple(SCENE_PROPERTIES.values())
 

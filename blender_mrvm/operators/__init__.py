@@ -5,7 +5,7 @@ Each module in ``MODULES`` defines a ``classes`` tuple; they are registered in o
 
 import importlib
 
-MODULES = ("dataset", "capture")
+MODULES = ("dataset", "capture", "synthesize")
 
 
 def _classes():

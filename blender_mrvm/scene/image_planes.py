@@ -284,7 +284,7 @@ def _check_aspect(img_wh: tuple[int, int], intr: C.Intrinsics, what: str) -> Non
                          "the image must have the frame's aspect ratio")
 
 
-def _folder(cfg: PlaneConfig) -> Path:
+def output_folder(cfg: PlaneConfig) -> Path:
     f = cfg.folder.strip()
     if f.startswith("//") and not bpy.data.filepath:
         raise OutputError("save the .blend first or choose an absolute folder for the novel views "
@@ -306,7 +306,7 @@ def _blend_path(p: Path) -> str:
 # Building blocks
 # ---------------------------------------------------------------------------------------------
 
-def _ensure_collection(scene: bpy.types.Scene, name: str, txn: Transaction) -> bpy.types.Collection:
+def ensure_collection(scene: bpy.types.Scene, name: str, txn: Transaction) -> bpy.types.Collection:
     coll = bpy.data.collections.get(name)
     if coll is None:
         coll = bpy.data.collections.new(name)  # removed on rollback with the other new data
@@ -484,12 +484,12 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
         intrs.append(intr)
     if len({c.name for c in cams}) != len(cams):
         raise InputError("each camera can take only one novel view per run")
-    folder = None if cfg.pack else _folder(cfg)
+    folder = None if cfg.pack else output_folder(cfg)
     stored_folder = cfg.folder.strip() or "//mrvm_novel_views"
 
     # ---- build (rolled back on any error)
     with transaction(txn) as t:
-        coll = _ensure_collection(scene, cfg.collection, t)
+        coll = ensure_collection(scene, cfg.collection, t)
         old = [p for c in cams for p in planes_of(c)] if cfg.replace else []
         work = t.tmpdir() if cfg.pack else None
         planes, images, files = [], [], []

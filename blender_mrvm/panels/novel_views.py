@@ -1,0 +1,84 @@
+"""The "Novel views" section of the MRVM sidebar tab: references, targets, model, image planes."""
+
+from __future__ import annotations
+
+import bpy
+
+from .main import MRVMPanel
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}{'s' if n != 1 else ''}"
+
+
+class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
+    bl_label = "Novel Views"
+    bl_idname = "MRVM_PT_novel_views"
+    bl_parent_id = "MRVM_PT_main"
+
+    @classmethod
+    def poll(cls, context):
+        return hasattr(context.scene, "mrvm_novel_views")
+
+    def draw(self, context):
+        from ..scene.novel_views import reference_cameras
+
+        p = context.scene.mrvm_novel_views
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        col = layout.column()
+        col.enabled = not p.running
+
+        col.prop(p, "reference_source")
+        if p.reference_source == "DATASET":
+            col.prop(p, "dataset_dir")
+            col.prop(p, "reference_views")
+        elif p.reference_source == "CAPTURE":
+            col.prop(p, "capture_dir")
+            col.prop(p, "reference_views")
+        else:
+            n = len(reference_cameras(context.scene))
+            col.label(text=f"{_count(n, 'camera')} with a reference image", icon="CAMERA_DATA" if n else "ERROR")
+
+        col.separator()
+        col.prop(p, "target_source")
+        if p.target_source == "SELECTED":
+            n = sum(1 for o in context.selected_objects if o.type == "CAMERA")
+            col.label(text=f"{_count(n, 'camera')} selected", icon="CAMERA_DATA" if n else "ERROR")
+        else:
+            col.prop(p, "orbit_count")
+            col.prop(p, "orbit_elevation")
+            col.prop(p, "orbit_radius")
+            col.prop(p, "orbit_fov")
+            col.label(text="Around the 3D cursor", icon="PIVOT_CURSOR")
+
+        col.separator()
+        col.prop(p, "checkpoint")
+        col.prop(p, "device")
+        col.prop(p, "plane_distance")
+        col.prop(p, "output")
+        if p.output == "FILES":
+            col.prop(p, "output_dir")
+        col.prop(p, "save_depth")
+
+        from .. import prefs as P
+
+        rep = P.dependency_status(context)
+        if rep.error or "torch" in rep.missing:
+            box = layout.box()
+            box.label(text=rep.error or "torch is missing in the worker Python", icon="ERROR")
+            box.label(text="See the add-on preferences for what to install")
+        if p.running:
+            layout.progress(factor=p.progress, type="BAR", text=p.status or "Synthesizing...")
+            layout.label(text="Press Esc to cancel", icon="INFO")
+        else:
+            layout.operator("mrvm.synthesize", icon="RENDER_RESULT")
+            if p.status:
+                from .capture import _wrap
+
+                for line in _wrap(p.status, 48):
+                    layout.label(text=line)
+
+
+classes = (MRVM_PT_novel_views,)

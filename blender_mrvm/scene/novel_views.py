@@ -1,0 +1,214 @@
+"""Novel views in Blender: gather references and targets for the synthesis worker, bring results in.
+
+The synthesis itself runs in the worker process (``worker.run_worker``, DESIGN.md "Where torch runs
+inside Blender"); this module is its main-thread half:
+
+- references: an object folder (a rendered dataset's object or a recovered capture), checked with
+  ``datasets.format.read_object``; or the scene's cameras that carry a background image (the photo),
+  exported as a capture folder (``capture.export.write_capture``) so the worker reads one format;
+- targets: the selected cameras, or an orbit around a centre (``geometry.rigs.orbit_poses``) whose
+  cameras are only created when the results arrive (a cancelled or failed run leaves nothing);
+- :func:`import_results`: in one transaction, the generated cameras and one image plane per target
+  (``scene.image_planes``) in the collection "MRVM novel views".
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from ..datasets.novel_views import Target
+from ..errors import InputError
+from ..geometry import cameras as C
+from . import camera as scam
+from . import image_planes as IP
+
+ORBIT_PREFIX = "MRVM orbit"
+
+
+# ---------------------------------------------------------------------------------------------
+# References
+# ---------------------------------------------------------------------------------------------
+
+def check_reference_folder(folder: Path, views: tuple[int, ...]) -> tuple[Path, tuple[int, ...]]:
+    """An object folder (render or capture) whose ``views`` all have an image and a pose."""
+    from ..datasets.format import read_object, view_paths
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"reference folder {folder} does not exist")
+    ov = read_object(folder)
+    for v in views:
+        if v in ov.indices:
+            continue
+        paths = view_paths(folder, v)
+        if paths["rgb"].is_file():
+            raise InputError(f"reference view {v} of {folder} has no pose ({paths['pose'].name} missing)")
+        raise InputError(f"reference view {v} does not exist in {folder} (it has views "
+                         f"{', '.join(map(str, ov.indices[:12]))}{' ...' if len(ov.indices) > 12 else ''})")
+    return folder, tuple(views)
+
+
+def reference_cameras(scene: bpy.types.Scene) -> list[bpy.types.Object]:
+    """Scene cameras with a background image (outside the novel-views collection), by name."""
+    novel = bpy.data.collections.get(IP.COLLECTION)
+    out = []
+    for obj in scene.objects:
+        if obj.type != "CAMERA" or (novel is not None and obj.name in novel.objects):
+            continue
+        if any(bg.image is not None for bg in obj.data.background_images):
+            out.append(obj)
+    return sorted(out, key=lambda o: o.name)
+
+
+def _image_file(img: bpy.types.Image, tmp: Path) -> Path:
+    """A readable file of a Blender image: its file, or its packed bytes written to ``tmp``."""
+    if img.packed_file is not None:
+        p = tmp / f"packed_{len(list(tmp.iterdir()))}{Path(img.filepath).suffix or '.png'}"
+        p.write_bytes(img.packed_file.data)
+        return p
+    p = Path(bpy.path.abspath(img.filepath, library=img.library))
+    if not p.is_file():
+        raise InputError(f"image {img.name!r} ({img.filepath}) does not exist")
+    return p
+
+
+def export_scene_references(scene: bpy.types.Scene, cams: list[bpy.types.Object], out_dir: Path) -> tuple[Path, tuple[int, ...]]:
+    """Write scene cameras and their background photos as a capture folder; return (folder, views).
+
+    Each camera's intrinsics are read at the scene's render settings and scaled to its photo's size
+    (the photo must have the frame's aspect ratio).
+    """
+    if not cams:
+        raise InputError("no scene camera has a reference image (give cameras a background image, "
+                         "or use a dataset folder or a recovered capture)")
+    out_dir = Path(out_dir)
+    tmp = Path(tempfile.mkdtemp(prefix="mrvm_refs_"))
+    try:
+        return _export(scene, cams, out_dir, tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _export(scene, cams, out_dir: Path, tmp: Path) -> tuple[Path, tuple[int, ...]]:
+    from PIL import Image
+
+    from ..capture.export import CaptureView, write_capture
+
+    views = []
+    for cam in cams:
+        bg = next(bg for bg in cam.data.background_images if bg.image is not None)
+        path = _image_file(bg.image, tmp)
+        try:
+            with Image.open(path) as im:
+                w, h = im.size
+        except Exception as e:
+            raise InputError(f"camera {cam.name!r}: cannot read its image {path}: {e}") from e
+        intr, c2w = scam.read_camera(cam, scene)
+        if abs(h - intr.height * w / intr.width) > 1.0:
+            raise InputError(f"camera {cam.name!r}: its image is {w}x{h} but the camera frame is "
+                             f"{intr.width}x{intr.height} (different aspect ratio)")
+        k = C.Intrinsics(intr.fx * w / intr.width, intr.fy * h / intr.height, intr.cx * w / intr.width,
+                         intr.cy * h / intr.height, w, h)
+        views.append(CaptureView(cam.name, path, k, c2w))
+    write_capture(out_dir, views, np.zeros((0, 3)), np.zeros((0, 3), np.uint8),
+                  {"kind": "scene cameras", "cameras": [c.name for c in cams]})
+    return out_dir, tuple(range(len(views)))
+
+
+# ---------------------------------------------------------------------------------------------
+# Targets
+# ---------------------------------------------------------------------------------------------
+
+def selected_targets(scene: bpy.types.Scene, objects) -> list[Target]:
+    """Targets for the selected camera objects among ``objects``."""
+    cams = sorted((o for o in objects if o.type == "CAMERA"), key=lambda o: o.name)
+    if not cams:
+        raise InputError("no camera selected: select the target cameras (or generate an orbit)")
+    out = []
+    for cam in cams:
+        intr, c2w = scam.read_camera(cam, scene)
+        out.append(Target(cam.name, intr, c2w))
+    return out
+
+
+def _orbit_camera_settings(scene: bpy.types.Scene, fov: float) -> C.BlenderCamera:
+    """An AUTO-fit 36 mm camera with field of view ``fov`` along the longer side, at the scene's size."""
+    if not 0 < fov < math.pi:
+        raise InputError(f"field of view must be between 0 and 180 degrees, got {math.degrees(fov):g}")
+    w, h = scam.render_size(scene)
+    return C.BlenderCamera(lens=18.0 / math.tan(fov / 2.0), sensor_width=36.0, sensor_height=36.0, sensor_fit="AUTO",
+                           resolution_x=w, resolution_y=h,
+                           pixel_aspect_x=scene.render.pixel_aspect_x, pixel_aspect_y=scene.render.pixel_aspect_y)
+
+
+def orbit_targets(scene: bpy.types.Scene, count: int, radius: float, elevation: float, fov: float,
+                  center=(0.0, 0.0, 0.0)) -> list[Target]:
+    """``count`` generated targets on a circle around ``center`` (angles in radians), looking at it."""
+    from ..geometry.rigs import orbit_poses
+
+    intr = C.intrinsics_from_blender(_orbit_camera_settings(scene, fov))
+    taken = {o.name for o in bpy.data.objects}
+    names, i = [], 0
+    while len(names) < count:  # fresh names: existing orbit cameras are kept
+        n = f"{ORBIT_PREFIX} {i:03d}"
+        if n not in taken:
+            names.append(n)
+        i += 1
+    poses = orbit_poses(count, radius, math.degrees(elevation), center)
+    return [Target(n, intr, p, generated=True) for n, p in zip(names, poses)]
+
+
+def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection) -> bpy.types.Object:
+    """A camera that renders exactly ``t.intrinsics`` (at any scale) from ``t.c2w_opencv``."""
+    cam = scam.new_camera(t.name, coll)
+    if cam.name != t.name:
+        raise InputError(f"an object named {t.name!r} already exists")
+    bc = C.blender_from_intrinsics(t.intrinsics)
+    d = cam.data
+    d.type, d.lens_unit = "PERSP", "MILLIMETERS"
+    d.sensor_fit, d.sensor_width, d.sensor_height = bc.sensor_fit, bc.sensor_width, bc.sensor_height
+    d.lens, d.shift_x, d.shift_y = bc.lens, bc.shift_x, bc.shift_y
+    cam.matrix_world = Matrix(C.blender_from_opencv(t.c2w_opencv).tolist())
+    intr, _ = scam.read_camera(cam, scene)
+    k = t.intrinsics
+    same = np.allclose([intr.fx / intr.width, intr.fy / intr.fx, intr.cx / intr.width, intr.cy / intr.height],
+                       [k.fx / k.width, k.fy / k.fx, k.cx / k.width, k.cy / k.height], rtol=1e-6, atol=1e-9)
+    if not same or abs(k.height - intr.height * k.width / intr.width) > 1.0:
+        raise InputError(f"camera {t.name!r}: the scene's render size or pixel aspect changed since synthesis started")
+    return cam
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+# ---------------------------------------------------------------------------------------------
+
+def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path, cfg: IP.PlaneConfig,
+                   depth: bool = False) -> IP.PlaneResult:
+    """Create generated cameras and one image plane per target from the worker's ``out_dir``.
+
+    All or nothing: a missing or unreadable result, or any other error, leaves the scene and the
+    output folder as they were.
+    """
+    out_dir = Path(out_dir)
+    for i, t in enumerate(targets):
+        if not (out_dir / t.rgb_path(i)).is_file():
+            raise InputError(f"the worker wrote no image for {t.name!r} ({out_dir / t.rgb_path(i)})")
+        if depth and not (out_dir / t.depth_path(i)).is_file():
+            raise InputError(f"the worker wrote no depth map for {t.name!r} ({out_dir / t.depth_path(i)})")
+    with IP.transaction() as txn:
+        coll = IP.ensure_collection(scene, cfg.collection, txn)
+        for t in targets:
+            if t.generated:
+                _create_camera(scene, t, coll)
+            elif bpy.data.objects.get(t.name) is None:
+                raise InputError(f"target camera {t.name!r} was removed while synthesizing")
+        views = [IP.NovelView(t.name, out_dir / t.rgb_path(i), out_dir / t.depth_path(i) if depth else None)
+                 for i, t in enumerate(targets)]
+        return IP.build_image_planes(scene, views, cfg, txn=txn)
