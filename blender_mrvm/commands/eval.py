@@ -1,7 +1,10 @@
 """Evaluate a checkpoint with the SRN protocol: fixed input view ids, every other view scored.
 
-Writes <out>/eval.json (PSNR, SSIM, LPIPS-VGG per category and overall, with the nearest-reference
-and mean-colour baselines) and <out>/eval_grid.png. LPIPS needs the offline weights
+The input views default to the dataset's own protocol (``splits/eval_views.json`` from
+``make-shapenet``: ``--n-inputs 1`` or ``2``), or pixelNeRF's ids for SRN folders; ``--input-views``
+overrides them. The checkpoint defaults to the shipped model. Writes <out>/eval.json (PSNR, SSIM,
+LPIPS-VGG per category and overall, with the nearest-reference and mean-colour baselines and the
+margin over the better one) and <out>/eval_grid.png. LPIPS needs the offline weights
 (`python -m blender_mrvm fetch-weights`); --no-lpips skips it explicitly.
 """
 
@@ -13,12 +16,18 @@ from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=Path, required=True, help="run folder, checkpoint folder or model.safetensors")
+    p.add_argument("--checkpoint", type=Path, default=None,
+                   help="run folder, checkpoint folder or .safetensors file (default: the shipped model)")
     p.add_argument("--data", type=Path, required=True, help="dataset root (ours, SRN, NMR/DVR, NeRF-synthetic)")
     p.add_argument("--split", default="test", help="split to evaluate (default test)")
     p.add_argument("--format", dest="fmt", default=None, help="dataset format (default: detect)")
-    p.add_argument("--input-views", default="0", help="comma-separated input view ids, e.g. 64 or 64,104 (SRN)")
+    p.add_argument("--n-inputs", type=int, default=2, help="number of input views of the dataset's protocol "
+                   "(splits/eval_views.json input_views_N; default 2)")
+    p.add_argument("--input-views", default=None, help="comma-separated input view ids overriding the protocol, "
+                   "e.g. 64 or 64,104 (then every other view is scored)")
     p.add_argument("--max-objects", type=int, default=0, help="evaluate at most this many objects (0 = all)")
+    p.add_argument("--max-objects-per-category", type=int, default=0,
+                   help="evaluate the first N objects of each category of the split (0 = all)")
     p.add_argument("--max-targets", type=int, default=0, help="score at most this many views per object (0 = all)")
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
@@ -28,28 +37,49 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     import torch
 
-    from ..datasets.loaders import load_dataset
+    from ..datasets.loaders import detect_format, list_objects, load_object
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
-    from ..training.evaluate import evaluate
+    from ..training.evaluate import evaluate, per_category, protocol_views
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    try:
-        views = [int(v) for v in str(args.input_views).split(",") if v.strip()]
-    except ValueError as e:
-        raise InputError(f"--input-views must be comma-separated integers, got {args.input_views!r}") from e
-    if not views:
-        raise InputError("--input-views is empty")
+    if not args.data.exists():
+        raise InputError(f"dataset {args.data} does not exist")
+    fmt = args.fmt or detect_format(args.data)
+    if args.input_views is not None:
+        try:
+            views = [int(v) for v in str(args.input_views).split(",") if v.strip()]
+        except ValueError as e:
+            raise InputError(f"--input-views must be comma-separated integers, got {args.input_views!r}") from e
+        if not views:
+            raise InputError("--input-views is empty")
+        targets, source = None, "--input-views"
+    else:
+        if args.n_inputs < 1:
+            raise InputError(f"--n-inputs must be at least 1, got {args.n_inputs}")
+        views, targets, source = protocol_views(args.data, args.n_inputs, fmt)
+    if args.checkpoint is None:
+        from ..models.pretrained import default_checkpoint
+
+        args.checkpoint = default_checkpoint()
     model, _, meta = load_model(args.checkpoint)
     lpips = None
     if not args.no_lpips:
         from ..models.metrics import LPIPS
 
         lpips = LPIPS()
-    scenes = load_dataset(args.data, args.split, args.fmt, args.max_objects or None)
-    report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out), desc="eval", unit="view")
-    report["checkpoint"] = {"path": str(args.checkpoint), "step": meta.get("step")}
+    objs = list_objects(args.data, fmt, args.split)
+    objs = per_category(objs, lambda o: Path(o[1]).parent.name, args.max_objects_per_category)
+    objs = objs[:args.max_objects or None]
+    if not objs:
+        raise InputError(f"{args.data}: no objects for split {args.split!r}")
+    scenes = [load_object(f, p, args.split) for f, p in objs]
+    extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None},
+             "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
+                      "max_objects_per_category": args.max_objects_per_category}}
+    report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
+                                    extra=extra), desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     return 0

@@ -1,9 +1,13 @@
 """Evaluation with the SRN / pixelNeRF protocol: fixed input view ids per object, every other view scored.
 
-Reports PSNR, SSIM and LPIPS-VGG per category and overall (means over all scored views), plus the
-two trivial baselines the acceptance criterion compares against: the nearest reference view shown
-as the answer (by camera direction), and the mean colour of the reference images. Writes a JSON
-report and a PNG grid (per object: references | ground truth | prediction).
+The input view ids come from the dataset's own protocol file where it has one
+(``splits/eval_views.json`` written by ``make-shapenet``: ``input_views_1`` / ``input_views_2`` and
+the matching ``target_views_*``), else from pixelNeRF's fixed SRN ids (64 / 64, 104), else they must
+be given. Reports PSNR, SSIM and LPIPS-VGG per category and overall (means over all scored views),
+plus the two trivial baselines the acceptance criterion compares against: the nearest reference
+view shown as the answer (by camera direction), and the mean colour of the reference images, and
+the model's PSNR margin over the better of the two. Writes a JSON report and a PNG grid (one row
+per category: references | ground truth | prediction).
 """
 
 from __future__ import annotations
@@ -23,6 +27,49 @@ from ..models.metrics import psnr, ssim
 from ..progress import Progress
 
 METRICS = ("psnr", "ssim", "lpips")
+PROTOCOL_FILE = "eval_views.json"
+"""Protocol file under ``<root>/splits/`` (written by ``make-shapenet``)."""
+SRN_INPUT_VIEWS = {1: [64], 2: [64, 104]}
+"""pixelNeRF's fixed SRN input views (``eval.py --source``), used for SRN folders without a protocol file."""
+
+
+def protocol_views(root: Path, n_inputs: int, fmt: str | None = None) -> tuple[list[int], list[int] | None, str]:
+    """(input view ids, target view ids or None = every other view, where they came from) for ``n_inputs``.
+
+    Reads ``<root>/splits/eval_views.json`` (``input_views_<n>``, ``target_views_<n>``); SRN folders
+    without one use pixelNeRF's ids; anything else is an :class:`InputError` asking for explicit ids."""
+    path = Path(root) / "splits" / PROTOCOL_FILE
+    if path.is_file():
+        try:
+            rec = json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise InputError(f"{path}: not valid JSON ({e})") from e
+        key = f"input_views_{n_inputs}"
+        if key not in rec:
+            have = sorted(k.rsplit("_", 1)[1] for k in rec if k.startswith("input_views_"))
+            raise InputError(f"{path} has no {key} (it defines {', '.join(have) or 'no'} input count(s)); "
+                             f"pass --input-views explicitly")
+        inputs = [int(v) for v in rec[key]]
+        targets = rec.get(f"target_views_{n_inputs}")
+        return inputs, ([int(v) for v in targets] if targets is not None else None), str(path)
+    if fmt == "srn" and n_inputs in SRN_INPUT_VIEWS:
+        return list(SRN_INPUT_VIEWS[n_inputs]), None, "pixelNeRF SRN protocol"
+    raise InputError(f"{root} has no splits/{PROTOCOL_FILE} naming the fixed input views; "
+                     f"pass --input-views (e.g. 0 or 0,1)")
+
+
+def per_category(items: Sequence, category, k: int) -> list:
+    """The first ``k`` items of every category, order kept (``k`` <= 0 keeps all)."""
+    if k <= 0:
+        return list(items)
+    seen: dict[str, int] = defaultdict(int)
+    out = []
+    for it in items:
+        c = category(it)
+        if seen[c] < k:
+            seen[c] += 1
+            out.append(it)
+    return out
 
 
 def _nearest_ref(scene: ObjectScene, refs: Sequence[int], tgt: int) -> int:
@@ -39,8 +86,12 @@ def _scores(pred: torch.Tensor, gt: torch.Tensor, lpips) -> dict[str, float]:
 
 
 def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips=None, max_targets: int = 0,
-             out_dir: Path | None = None, grid_objects: int = 8, chunk: int | None = None):
-    """Progress generator; returns the report dict (also written to ``out_dir/eval.json``)."""
+             out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
+             target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None):
+    """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
+
+    ``target_views``: view ids to score (None = every view that is not an input); ``extra``: entries
+    added to the report (e.g. the checkpoint and the protocol's source)."""
     model.eval()
     records: list[dict[str, Any]] = []
     grid_rows = []
@@ -51,11 +102,22 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         if missing:
             raise InputError(f"object {s.category}/{s.name} has no view(s) {missing} to use as input")
         refs = [pos[v] for v in input_views]
-        targets = [k for k in range(len(s)) if k not in refs]
+        if target_views is None:
+            targets = [k for k in range(len(s)) if k not in refs]
+        else:
+            absent = [v for v in target_views if v not in pos]
+            if absent:
+                raise InputError(f"object {s.category}/{s.name} has no target view(s) {absent[:5]}")
+            targets = [pos[v] for v in target_views if pos[v] not in refs]
         if max_targets and len(targets) > max_targets:
             targets = [targets[i] for i in np.linspace(0, len(targets) - 1, max_targets).round().astype(int)]
         jobs.append((s, refs, targets))
     total = sum(len(t) for _, _, t in jobs)
+    # grid: the first object of every category, then further objects, up to grid_objects rows
+    firsts = {}
+    for oi, (s, _, _) in enumerate(jobs):
+        firsts.setdefault(s.category, oi)
+    grid_set = set((list(firsts.values()) + [i for i in range(len(jobs)) if i not in firsts.values()])[:grid_objects])
     done = 0
     for oi, (s, refs, targets) in enumerate(jobs):
         ref_imgs = s.images[refs]
@@ -71,13 +133,16 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                 rec["baseline_nearest"] = _scores(near, gt, lpips)
             rec["baseline_mean"] = _scores(torch.from_numpy(np.broadcast_to(mean_col, gt.shape).copy()), gt, lpips)
             records.append(rec)
-            if ti == 0 and oi < grid_objects:
+            if ti == 0 and oi in grid_set:
                 grid_rows.append([*ref_imgs, s.images[t], pred.numpy()])
             done += 1
             yield Progress(done, total, f"{s.category}/{s.name} view {s.view_ids[t]}: {rec['psnr']:.2f} dB")
     report = summarize(records)
-    report["protocol"] = {"input_views": list(input_views), "max_targets": max_targets, "objects": len(jobs),
+    report["protocol"] = {"input_views": list(input_views),
+                          "target_views": list(target_views) if target_views is not None else "all others",
+                          "max_targets": max_targets, "objects": len(jobs),
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None}
+    report.update(extra or {})
     if out_dir is not None:
         out_dir = Path(out_dir)
         F.atomic_write_json(out_dir / "eval.json", {**report, "views": records})
@@ -103,6 +168,11 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         b["n"] = len(recs)
         b["baseline_nearest"] = {m: _mean(recs, m, "baseline_nearest") for m in METRICS}
         b["baseline_mean"] = {m: _mean(recs, m, "baseline_mean") for m in METRICS}
+        base = {k: b[k]["psnr"] for k in ("baseline_nearest", "baseline_mean") if b[k]["psnr"] is not None}
+        if base and b["psnr"] is not None:
+            best = max(base, key=base.get)
+            b["best_baseline"] = best
+            b["psnr_gain_over_best_baseline"] = b["psnr"] - base[best]
         return b
 
     return {"overall": block(records), "per_category": {c: block(v) for c, v in sorted(by_cat.items())}}

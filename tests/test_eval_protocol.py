@@ -1,0 +1,126 @@
+"""`eval` follows the dataset's own SRN-style protocol: input/target ids from splits/eval_views.json,
+test-split objects, per-category selection, both trivial baselines and the margin over the better one."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm.cli import main
+from blender_mrvm.datasets import format as F
+from blender_mrvm.errors import InputError
+from blender_mrvm.models import vgg
+from blender_mrvm.models.config import model_config
+from blender_mrvm.models.metrics import psnr
+from blender_mrvm.models.model import GeneralizableNeRF
+from blender_mrvm.training.checkpoint import save_checkpoint
+from blender_mrvm.training.evaluate import per_category, protocol_views, summarize
+from blender_mrvm.training.synthetic import make_sphere_dataset
+
+torch.set_num_threads(1)
+HAVE_WEIGHTS = (vgg.weights_dir() / vgg.VGG_FILE).is_file()
+TINY = {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
+        "sampler": {"n_coarse": 4, "n_fine": 2}}
+
+
+@pytest.fixture(scope="module")
+def two_category_set(tmp_path_factory):
+    """Categories 'red' (3 objects) and 'blue' (2), 6 views each; test split: 2 red + 1 blue objects."""
+    root = tmp_path_factory.mktemp("evalset")
+    make_sphere_dataset(root, n_objects=3, n_views=6, resolution=16, seed=1, category="red")
+    make_sphere_dataset(root, n_objects=2, n_views=6, resolution=16, seed=2, category="blue")
+    F.write_split(root, "train", ["red/obj000", "blue/obj000"])
+    F.write_split(root, "test", ["red/obj001", "red/obj002", "blue/obj001"])
+    F.atomic_write_json(root / "splits" / "eval_views.json", {
+        "views": 6, "input_views_1": [4], "input_views_2": [4, 1],
+        "target_views_1": [0, 1, 2, 3, 5], "target_views_2": [0, 3, 5]})
+    return root
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    torch.manual_seed(0)
+    cfg = model_config("fast", TINY)
+    return save_checkpoint(tmp_path_factory.mktemp("run"), 3, GeneralizableNeRF(cfg), cfg, None)
+
+
+def test_protocol_views_from_file_srn_and_error(two_category_set, tmp_path):
+    assert protocol_views(two_category_set, 2) == ([4, 1], [0, 3, 5], str(two_category_set / "splits" / "eval_views.json"))
+    assert protocol_views(two_category_set, 1)[:2] == ([4], [0, 1, 2, 3, 5])
+    with pytest.raises(InputError, match="no input_views_3"):
+        protocol_views(two_category_set, 3)
+    assert protocol_views(tmp_path, 2, "srn")[:2] == ([64, 104], None)  # pixelNeRF's SRN ids
+    with pytest.raises(InputError, match="pass --input-views"):
+        protocol_views(tmp_path, 1, "ours")
+
+
+def test_per_category_keeps_order_and_counts():
+    items = ["a1", "b1", "a2", "a3", "c1", "b2"]
+    assert per_category(items, lambda s: s[0], 1) == ["a1", "b1", "c1"]
+    assert per_category(items, lambda s: s[0], 2) == ["a1", "b1", "a2", "c1", "b2"]
+    assert per_category(items, lambda s: s[0], 0) == items
+
+
+def test_gain_over_best_baseline():
+    recs = [{"category": "a", "psnr": 25.0, "ssim": 0.9, "baseline_nearest": {"psnr": 18.0, "ssim": 0.7},
+             "baseline_mean": {"psnr": 12.0, "ssim": 0.5}},
+            {"category": "b", "psnr": 21.0, "ssim": 0.9, "baseline_nearest": {"psnr": 10.0, "ssim": 0.7},
+             "baseline_mean": {"psnr": 16.0, "ssim": 0.5}}]
+    r = summarize(recs)
+    assert r["overall"]["best_baseline"] == "baseline_nearest"  # 14 vs 14 -> ties keep the first
+    assert r["overall"]["psnr_gain_over_best_baseline"] == pytest.approx(23.0 - 14.0)
+    assert r["per_category"]["b"]["best_baseline"] == "baseline_mean"
+    assert r["per_category"]["b"]["psnr_gain_over_best_baseline"] == pytest.approx(5.0)
+
+
+def test_eval_command_uses_dataset_protocol(two_category_set, checkpoint, tmp_path):
+    out = tmp_path / "ev"
+    args = ["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--out", str(out),
+            "--threads", "1"]
+    if not HAVE_WEIGHTS:
+        args.append("--no-lpips")
+    assert main(args) == 0
+    rep = json.loads((out / "eval.json").read_text())
+    p = rep["protocol"]
+    assert p["input_views"] == [4, 1] and p["target_views"] == [0, 3, 5]
+    assert p["objects"] == 3 and p["scored_views"] == 9
+    assert rep["data"]["protocol_source"].endswith("eval_views.json") and rep["checkpoint"]["step"] == 3
+    assert {(v["category"], v["object"]) for v in rep["views"]} == {("red", "obj001"), ("red", "obj002"),
+                                                                    ("blue", "obj001")}
+    assert {v["view"] for v in rep["views"]} == {0, 3, 5}
+    assert rep["per_category"]["red"]["n"] == 6 and rep["per_category"]["blue"]["n"] == 3
+    # the mean-colour baseline, recomputed independently from the files
+    obj = two_category_set / "blue" / "obj001"
+    refs = np.stack([F.read_png(obj / "rgb" / f"{i:06d}.png")[..., :3] for i in (4, 1)]).astype(np.float32) / 255
+    gt = F.read_png(obj / "rgb" / "000003.png")[..., :3].astype(np.float32) / 255
+    want = float(psnr(torch.from_numpy(np.broadcast_to(refs.reshape(-1, 3).mean(0), gt.shape).copy()),
+                      torch.from_numpy(gt))[0])
+    got = [v for v in rep["views"] if v["object"] == "obj001" and v["category"] == "blue" and v["view"] == 3][0]
+    assert got["baseline_mean"]["psnr"] == pytest.approx(want, abs=1e-4)
+    o = rep["overall"]
+    best = max(o["baseline_nearest"]["psnr"], o["baseline_mean"]["psnr"])
+    assert o["psnr_gain_over_best_baseline"] == pytest.approx(o["psnr"] - best)
+    if HAVE_WEIGHTS:
+        assert 0 <= o["lpips"] < 1 and 0 <= o["baseline_mean"]["lpips"] < 1
+    grid = F.read_png(out / "eval_grid.png")  # one row per category first: red and blue, then the 3rd object
+    assert grid.shape[0] == 3 * (16 + 2) + 2 and grid.shape[1] == 4 * (16 + 2) + 2
+
+    # 1-view protocol and one object per category
+    out1 = tmp_path / "ev1"
+    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--n-inputs", "1",
+                 "--max-objects-per-category", "1", "--no-lpips", "--out", str(out1), "--threads", "1"]) == 0
+    rep1 = json.loads((out1 / "eval.json").read_text())
+    assert rep1["protocol"]["input_views"] == [4] and rep1["protocol"]["scored_views"] == 2 * 5
+    assert {v["object"] for v in rep1["views"]} == {"obj001"} and set(rep1["per_category"]) == {"red", "blue"}
+
+
+def test_eval_bad_protocol_request(two_category_set, checkpoint, tmp_path, capsys):
+    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--n-inputs", "5",
+                 "--no-lpips", "--out", str(tmp_path / "e")]) == 2
+    assert "no input_views_5" in capsys.readouterr().err
+    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(tmp_path / "nope"), "--no-lpips",
+                 "--out", str(tmp_path / "e")]) == 2
+    assert "does not exist" in capsys.readouterr().err
