@@ -4,7 +4,6 @@ No bpy in this process: the child (render-dataset) imports Blender itself."""
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import sys
