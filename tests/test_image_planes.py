@@ -291,3 +291,25 @@ def test_failure_midway_rolls_back_datablocks_and_files(empty_scene, tmp_path, m
     assert len(calls) == 2, "the first plane was built before the failure"
     assert _state(tmp_path) == before
     assert not any(p.name.endswith(".bak") or p.name.startswith(".") for p in folder.iterdir())
+
+
+def test_file_names_never_overwrite_another_planes_image(empty_scene, tmp_path):
+    import bpy
+
+    from blender_mrvm.scene import image_planes as IP
+
+    scene = empty_scene
+    a = _scene_camera(scene, "Cam 1", CAMERAS["shifted"])
+    b = _scene_camera(scene, "Cam_1", CAMERAS["shifted"], location=(0.0, -4.0, 1.0))
+    cfg = IP.PlaneConfig(distance=1.0, folder=str(tmp_path))
+    IP.build_image_planes(scene, [IP.NovelView("Cam 1", _test_image(40, 28, 1))], cfg)
+    IP.build_image_planes(scene, [IP.NovelView("Cam_1", _test_image(40, 28, 2))], cfg)  # same safe name
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["Cam_1.png", "Cam_1_1.png"]
+    for cam, seed in ((a, 1), (b, 2)):
+        (plane,) = IP.planes_of(cam)
+        img = bpy.data.images[plane["mrvm_image"]]
+        img.reload()
+        assert _images_equal(img, _test_image(40, 28, seed)) <= 0.51
+    # Rebuilding a camera's plane reuses its own file name.
+    IP.build_image_planes(scene, [IP.NovelView("Cam_1", _test_image(40, 28, 3))], cfg)
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["Cam_1.png", "Cam_1_1.png"]

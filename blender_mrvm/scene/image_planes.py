@@ -317,14 +317,40 @@ def ensure_collection(scene: bpy.types.Scene, name: str, txn: Transaction) -> bp
     return coll
 
 
-def _unique_stems(cameras: list[str]) -> list[str]:
-    seen: dict[str, int] = {}
+def _image_paths_in_use(exclude: list[bpy.types.Object]) -> set[str]:
+    """Resolved file paths of the images in the file, except those of the planes in ``exclude``."""
+    skip = set()
+    for o in exclude:
+        for s in o.material_slots:
+            if s.material and s.material.node_tree:
+                skip |= {n.image.name for n in s.material.node_tree.nodes if n.type == "TEX_IMAGE" and n.image}
+        skip.add(o.get("mrvm_depth_image", ""))
+    out = set()
+    for img in bpy.data.images:
+        if img.name in skip or not img.filepath or img.packed_file is not None:
+            continue
+        try:
+            out.add(str(Path(bpy.path.abspath(img.filepath, library=img.library)).resolve()))
+        except (OSError, ValueError):
+            pass
+    return out
+
+
+def _unique_stems(cameras: list[str], folder: Path | None, in_use: set[str]) -> list[str]:
+    """File stems per camera: distinct within the run and not a file another image of the .blend shows."""
+    taken: set[str] = set()
     out = []
     for name in cameras:
-        s = safe_id(name)
-        k = seen.get(s, 0)
-        seen[s] = k + 1
-        out.append(s if k == 0 else f"{s}_{k}")
+        base, k = safe_id(name), 0
+        while True:
+            s = base if k == 0 else f"{base}_{k}"
+            clash = folder is not None and any(str((folder / f"{s}{ext}").resolve()) in in_use
+                                               for ext in (".png", "_depth.exr"))
+            if s not in taken and not clash:
+                break
+            k += 1
+        taken.add(s)
+        out.append(s)
     return out
 
 
@@ -493,7 +519,8 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
         old = [p for c in cams for p in planes_of(c)] if cfg.replace else []
         work = t.tmpdir() if cfg.pack else None
         planes, images, files = [], [], []
-        for v, cam, intr, stem in zip(views, cams, intrs, _unique_stems([c.name for c in cams])):
+        stems = _unique_stems([c.name for c in cams], folder, _image_paths_in_use(old))
+        for v, cam, intr, stem in zip(views, cams, intrs, stems):
             png = _write_png(t, v.rgba, (work or folder) / f"{stem}.png")
             stored = (f"{stored_folder.rstrip('/')}/{stem}.png" if cfg.pack else _blend_path(png))
             img = _load_image(png, f"MRVM {cam.name}", stored, cfg.pack)
