@@ -9,6 +9,8 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from .scene.procedural._registry import CATEGORIES
+
 ENGINES = [
     ("CYCLES", "Cycles", "Path tracing on the CPU (default; all passes in one render)"),
     ("BLENDER_EEVEE", "EEVEE", "Rasterizer (slow on software GL); data passes from a 1-sample Cycles render"),
@@ -23,13 +25,22 @@ RIGS = [
 ]
 
 
+LIBRARY_ITEMS = [("ALL", "All 13 categories", "Every category of the procedural library")] + [
+    (c, c.capitalize(), f"Procedural {c}s") for c in CATEGORIES]
+
+
 class MRVM_PG_dataset(bpy.types.PropertyGroup):
     """Settings of the Render dataset operator."""
 
     source: EnumProperty(name="Objects", items=[
         ("SELECTED", "Selected objects", "Each selected mesh object becomes one dataset object"),
         ("PATH", "Mesh files / ShapeNet", "A mesh file, a folder of mesh files, or a ShapeNetCore folder"),
+        ("LIBRARY", "Procedural library", "Generated ShapeNet-13-style objects with part labels"),
     ], default="SELECTED")
+    library_category: EnumProperty(name="Category", items=LIBRARY_ITEMS, default="ALL")
+    library_count: IntProperty(name="Objects", default=4, min=1, soft_max=1000,
+                               description="Objects (seeds) per category")
+    library_seed: IntProperty(name="First seed", default=0, min=0)
     source_path: StringProperty(name="Path", subtype="FILE_PATH",
                                 description="Mesh file (OBJ, PLY, STL, glTF/GLB, OFF), folder of them, or ShapeNetCore folder")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_dataset",

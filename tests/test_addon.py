@@ -116,6 +116,20 @@ def test_operator_renders_selected_objects(empty_scene, tmp_path):
     assert "2 views rendered" in props.status
 
 
+@pytest.mark.slow
+def test_operator_renders_library_objects(empty_scene, tmp_path):
+    import bpy
+
+    props = empty_scene.mrvm_dataset
+    props.source, props.library_category, props.library_count, props.library_seed = "LIBRARY", "chair", 2, 5
+    props.output_dir = str(tmp_path / "ds")
+    props.views, props.resolution, props.samples = 1, 16, 1
+    assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}
+    assert sorted(p.name for p in (tmp_path / "ds" / "chair").iterdir()) == ["chair_000005", "chair_000006"]
+    meta = json.loads((tmp_path / "ds" / "chair" / "chair_000005" / "meta.json").read_text())
+    assert "chair/seat" in meta["labels"].values()
+
+
 def test_operator_reports_errors_and_leaves_scene(empty_scene, tmp_path):
     import bpy
 

@@ -22,6 +22,12 @@ def config_from_props(context) -> "RenderConfig":  # noqa: F821
     p = context.scene.mrvm_dataset
     if p.source == "SELECTED":
         sources = ("selected",)
+    elif p.source == "LIBRARY":
+        from ..scene.procedural import CATEGORIES
+
+        cats = CATEGORIES if p.library_category == "ALL" else (p.library_category,)
+        sources = tuple(f"procedural:{c}:{s}" for c in cats
+                        for s in range(p.library_seed, p.library_seed + p.library_count))
     else:
         if not p.source_path.strip():
             raise MRVMError("choose a mesh file or folder to render")

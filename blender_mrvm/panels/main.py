@@ -44,6 +44,10 @@ class MRVM_PT_dataset(MRVMPanel, bpy.types.Panel):
         col.prop(p, "source")
         if p.source == "PATH":
             col.prop(p, "source_path")
+        elif p.source == "LIBRARY":
+            col.prop(p, "library_category")
+            col.prop(p, "library_count")
+            col.prop(p, "library_seed")
         else:
             n = sum(1 for o in context.selected_objects if o.type == "MESH")
             col.label(text=f"{n} mesh object{'s' if n != 1 else ''} selected", icon="OBJECT_DATA")
