@@ -225,6 +225,7 @@ def test_rebuild_replaces_the_old_plane(empty_scene, tmp_path):
     IP.build_image_planes(scene, [IP.NovelView("Cam", _test_image(24, 36, 2))], cfg)
     (plane,) = IP.planes_of(cam)
     assert len(bpy.data.meshes) == 1 and len(bpy.data.materials) == 1 and len(bpy.data.images) == 1
+    assert (plane.name, bpy.data.images[0].name, bpy.data.materials[0].name) == ("MRVM plane Cam", "MRVM Cam", "MRVM Cam")
     assert _images_equal(bpy.data.images[0], _test_image(24, 36, 2)) <= 0.51
 
 

@@ -5,7 +5,7 @@ through the image's four outer corners (pixel coordinates (0, 0), (W, 0), (W, H)
 pixel-centre convention of ``geometry/cameras.py``) at a planar depth ``distance`` along the
 camera's viewing axis. The corners come from the camera's intrinsics as ``scene/camera.read_camera``
 reads them (lens shift, sensor fit, resolution and pixel aspect included), so rendering the camera's
-view shows the image pixel for pixel. The quad is parented to its camera (it follows the camera),
+view shows the image pixel for pixel. The plane is parented to its camera (it follows the camera),
 and its material is shadeless: the image's colour as emission, mixed with a transparent BSDF by the
 image's alpha (background = alpha 0), rendered BLENDED (the Blender 4.2+/5.0 ``surface_render_method``)
 and invisible to shadow / diffuse / glossy / transmission rays, so it neither lights nor shades the
@@ -544,4 +544,13 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
             planes.append(obj)
         if old:
             _remove_planes(old)
+            for obj in planes:  # take back the names the removed planes held ("... .001" otherwise)
+                cam = obj.parent.name
+                obj.name = obj.data.name = f"MRVM plane {cam}"
+                obj.data.materials[0].name = f"MRVM {cam}"
+                for key, name in (("mrvm_image", f"MRVM {cam}"), ("mrvm_depth_image", f"MRVM depth {cam}")):
+                    if key in obj:
+                        img = bpy.data.images[obj[key]]
+                        img.name = name  # Blender adds a suffix when another image holds the name
+                        obj[key] = img.name
     return PlaneResult(coll, planes, images, files)
