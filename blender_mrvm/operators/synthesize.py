@@ -54,11 +54,13 @@ class SynthesisJob:
 
 
 def default_checkpoint() -> Path | None:
-    """The model shipped with the add-on, when this version ships one."""
-    from ..worker import PACKAGE_DIR
+    """The model shipped with the add-on (``models.pretrained``), or None when this copy has none."""
+    from ..models import pretrained
 
-    p = PACKAGE_DIR / "assets" / "model" / "model.safetensors"
-    return p if p.is_file() else None
+    try:
+        return pretrained.default_checkpoint()
+    except InputError:
+        return None
 
 
 def model_available() -> bool:
