@@ -174,6 +174,9 @@ class Transaction:
         os.close(fd)
         try:
             writer(tmp)
+            mask = os.umask(0)
+            os.umask(mask)
+            os.chmod(tmp, 0o666 & ~mask)  # an ordinary file, not mkstemp's private 0600
             os.replace(tmp, path)
         except OSError as e:
             raise OutputError(f"cannot write {path}: {e.strerror or e}") from e

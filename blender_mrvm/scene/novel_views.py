@@ -9,15 +9,19 @@ inside Blender"); this module is its main-thread half:
 - targets: the selected cameras, or an orbit around a centre (``geometry.rigs.orbit_poses``) whose
   cameras are only created when the results arrive (a cancelled or failed run leaves nothing);
 - :func:`import_results`: in one transaction, the generated cameras and one image plane per target
-  (``scene.image_planes``) in the collection "MRVM novel views".
+  (``scene.image_planes``) in the collection "MRVM novel views";
+- :func:`write_blend`: the same into a new .blend (the ``synthesize --blend`` CLI and ``make demo``),
+  with the reference cameras showing their images and the view transform "Standard".
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import bpy
 import numpy as np
@@ -212,3 +216,97 @@ def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path,
         views = [IP.NovelView(t.name, out_dir / t.rgb_path(i), out_dir / t.depth_path(i) if depth else None)
                  for i, t in enumerate(targets)]
         return IP.build_image_planes(scene, views, cfg, txn=txn)
+
+
+# ---------------------------------------------------------------------------------------------
+# A .blend of the results (CLI, demo)
+# ---------------------------------------------------------------------------------------------
+
+REFERENCE_COLLECTION = "MRVM references"
+
+
+def default_plane_distance(targets: list[Target], bbox) -> float:
+    """Half the planar depth of the object's centre, median over the targets (planes float between
+    each camera and the object; the same distance for every plane)."""
+    centre = 0.5 * (np.asarray(bbox[0], np.float64) + np.asarray(bbox[1], np.float64))
+    z = [float((C.invert_pose(t.c2w_opencv) @ np.append(centre, 1.0))[2]) for t in targets]
+    z = [v for v in z if v > 0]
+    if not z:
+        raise InputError("the object's centre is behind every target camera; give a plane distance")
+    return 0.5 * float(np.median(z))
+
+
+def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int, ...]) -> list[bpy.types.Object]:
+    """Cameras of reference ``views`` of an object folder, each showing its image as background image."""
+    from ..datasets.format import read_object, view_paths
+
+    ov = read_object(Path(folder))
+    pos = {v: k for k, v in enumerate(ov.indices)}
+    coll = bpy.data.collections.get(REFERENCE_COLLECTION) or bpy.data.collections.new(REFERENCE_COLLECTION)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    cams = []
+    for v in views:
+        k = pos[v]
+        intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
+        cam = _create_camera(scene, Target(f"MRVM reference {v:03d}", intr, ov.c2w_opencv[k], True), coll)
+        img = bpy.data.images.load(str(view_paths(Path(folder), v)["rgb"]), check_existing=True)
+        bg = cam.data.background_images.new()
+        bg.image = img
+        cam.data.show_background_images = True
+        cams.append(cam)
+    return cams
+
+
+def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references: Path | None = None,
+                reference_views: tuple[int, ...] = (), plane_distance: float | None = None, bbox=None,
+                populate: Callable[[bpy.types.Scene], None] | None = None) -> Path:
+    """A new .blend (the current file is replaced) with a camera and an image plane per target of a
+    finished synthesis (``out_dir``), the reference cameras (their images as background images), and
+    whatever ``populate(scene)`` adds; images next to it in ``<stem>_novel_views/``. On an error the
+    .blend and the image folder are removed again (when this call created them)."""
+    from ..datasets.novel_views import read_targets
+
+    blend_path = Path(blend_path).resolve()
+    targets, depth = read_targets(Path(targets_json))
+    out_dir = Path(out_dir)
+    depth = depth and all((out_dir / t.depth_path(i)).is_file() for i, t in enumerate(targets))
+    if plane_distance is None:
+        if bbox is None:
+            raise InputError("give a plane distance or the object's box")
+        plane_distance = default_plane_distance(targets, bbox)
+    sizes = {(t.intrinsics.width, t.intrinsics.height) for t in targets}
+    w, h = max(sizes)
+    for tw, th in sizes:
+        if abs(th * w / tw - h) > 1.0:
+            raise InputError(f"the targets have different aspect ratios ({w}x{h} and {tw}x{th}); a Blender scene "
+                             "has one frame shape: write them into separate .blend files")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
+    scene.view_settings.view_transform = "Standard"  # the planes show the images' true colours
+    existed = blend_path.exists()
+    folder = blend_path.parent / f"{blend_path.stem}_novel_views"
+    folder_existed = folder.exists()
+    try:
+        blend_path.parent.mkdir(parents=True, exist_ok=True)
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))  # "//" paths resolve next to it from here on
+        scene = bpy.context.scene
+        gen = [dataclasses.replace(t, generated=True) for t in targets]
+        cfg = IP.PlaneConfig(distance=float(plane_distance), folder=f"//{folder.name}")
+        import_results(scene, gen, out_dir, cfg, depth=depth)
+        if references is not None and reference_views:
+            add_reference_cameras(scene, Path(references), tuple(reference_views))
+        scene.camera = bpy.data.objects[gen[0].name]
+        if populate is not None:
+            populate(scene)
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))
+    except BaseException:
+        if not existed:
+            blend_path.unlink(missing_ok=True)
+            Path(str(blend_path) + "1").unlink(missing_ok=True)
+        if not folder_existed:
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
+    Path(str(blend_path) + "1").unlink(missing_ok=True)  # Blender's backup of the first save
+    return blend_path

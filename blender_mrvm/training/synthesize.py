@@ -1,0 +1,474 @@
+"""Novel views from posed reference images with a trained checkpoint (bpy-free).
+
+The core of ``python -m blender_mrvm synthesize`` and of the add-on's Synthesize operator (which
+runs that command in the worker process). :func:`synthesize_views` is a progress generator:
+
+1. checks everything before writing anything: the targets file (``datasets/novel_views.py``), the
+   reference folder (our dataset format: a rendered object, a recovered capture, or scene cameras
+   exported by the add-on; every chosen view needs an image and a pose), the checkpoint (it must
+   load, be a ``blender_mrvm`` model of a format version this code reads, and match its config),
+   and the device;
+2. encodes the references once and renders every target in chunks of rays (one progress event per
+   chunk, so a cancel lands within a chunk), rays that miss the object's box are background and
+   are not evaluated;
+3. writes, for target i, ``rgb/<i:06d>.png`` (RGBA: straight colour, alpha = the model's
+   accumulated opacity, so compositing over white gives back the model's output) and, when asked,
+   ``depth/<i:06d>.exr`` (planar z-depth in scene units along the camera axis, channel "Y", 0 where
+   the accumulated opacity is below one half), plus ``synthesis.json`` (what was run). Everything is
+   written into a temporary folder beside ``out`` and moved into place at the end: an error or a
+   cancel leaves ``out`` as it was.
+
+The object's box (the model clips rays to it and works in the box's normalised frame) comes from
+the reference folder: ``meta.json`` ``bbox`` (renders), ``bound_radius``, a normalised capture (its
+object of interest fits the unit sphere), else where the reference cameras' optical axes meet
+(radius half the camera distance). ``bbox`` in the config overrides all of them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..datasets import format as F
+from ..datasets.novel_views import MAX_REFERENCES, Target, read_targets
+from ..errors import InputError, OutputError
+from ..geometry import cameras as C
+from ..progress import Progress, ProgressGen
+
+ALPHA_DEPTH_THRESHOLD = 0.5
+"""Depth is written where the accumulated opacity reaches this (0 = background elsewhere)."""
+
+
+@dataclass(frozen=True)
+class SynthesisConfig:
+    """One synthesis run."""
+
+    references: Path
+    """Object folder of our dataset format (render, recovered capture, or exported scene cameras)."""
+    targets: Path
+    """``targets.json`` naming the views to synthesize (``datasets/novel_views.py``)."""
+    out: Path
+    """Output folder: rgb/, depth/ and synthesis.json."""
+    views: tuple[int, ...] = ()
+    """Reference view indices; empty = every view of the folder (at most 10)."""
+    checkpoint: Path | None = None
+    """Model checkpoint (file, checkpoint folder or run folder); None = the shipped model."""
+    device: str = "auto"
+    """auto (CUDA when available), cpu or cuda[:N]."""
+    depth: bool | None = None
+    """Write depth maps; None = as the targets file asks."""
+    chunk_rays: int = 0
+    """Rays per forward pass (0 = the model config's ``render.chunk_rays``)."""
+    ref_size: int = 0
+    """Resize the references so their longer side has this many pixels (0 = the first view's size)."""
+    bbox: tuple | None = None
+    """Object box ((min x, y, z), (max x, y, z)) in world units; None = from the references."""
+    threads: int = 0
+    """torch CPU threads (0 = torch's default)."""
+
+
+@dataclass
+class References:
+    """Reference views ready for the model."""
+
+    folder: Path
+    views: tuple[int, ...]
+    """View indices in the folder."""
+    images: np.ndarray
+    """(V, H, W, 3) float32 in [0, 1], composited on white."""
+    c2w: list
+    """V OpenCV camera-to-world poses."""
+    intrinsics: list
+    """V intrinsics at the images' (common) size."""
+    bbox: tuple
+    """(min xyz, max xyz) float64."""
+    bbox_source: str
+    """Where the box came from."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Inputs
+# ---------------------------------------------------------------------------------------------
+
+def resolve_device(name: str):
+    """A torch device from auto / cpu / cuda[:N]; InputError when CUDA is asked for but absent."""
+    import torch
+
+    n = (name or "auto").strip().lower()
+    if n == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if n == "cpu":
+        return torch.device("cpu")
+    if n == "cuda" or n.startswith("cuda:"):
+        if not torch.cuda.is_available():
+            raise InputError("device cuda was asked for, but torch sees no CUDA GPU here (use --device cpu or auto)")
+        dev = torch.device(n)
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise InputError(f"device {n}: torch sees only {torch.cuda.device_count()} CUDA GPU(s)")
+        return dev
+    raise InputError(f"unknown device {name!r}; choose auto, cpu or cuda")
+
+
+def load_checkpoint(path: Path | None, device="cpu"):
+    """(model in eval mode, model config, metadata, path) from a checkpoint; one-line InputError when it
+    does not load, is not a blender_mrvm model, has a newer format version, or does not match its config."""
+    from ..training.checkpoint import load_model
+
+    if path is None:
+        from ..models.pretrained import default_checkpoint
+
+        path = default_checkpoint()
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"checkpoint {path} does not exist")
+    try:
+        model, cfg, meta = load_model(path, "cpu")
+    except InputError:
+        raise
+    except (KeyError, TypeError, ValueError) as e:  # metadata that is not a model config
+        raise InputError(f"checkpoint {path} has an unreadable model config ({type(e).__name__}: {e})") from None
+    except RuntimeError as e:  # strict load: weights do not match the config they were saved with
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"checkpoint {path} does not match its model config: {first}") from None
+    except Exception as e:  # safetensors: not a safetensors file, truncated, ...
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"checkpoint {path} does not load: {first}") from None
+    model = model.to(device).eval()
+    return model, cfg, meta, path
+
+
+def parse_bbox(values: Sequence[float]) -> tuple:
+    """(min, max) from six numbers; InputError for a wrong count or an empty box."""
+    v = np.asarray(list(values), dtype=np.float64)
+    if v.shape != (6,) or not np.all(np.isfinite(v)):
+        raise InputError(f"a box is six finite numbers (min x y z, max x y z), got {list(values)}")
+    lo, hi = v[:3], v[3:]
+    if np.any(hi <= lo):
+        raise InputError(f"box max {hi.tolist()} must exceed its min {lo.tolist()} on every axis")
+    return lo, hi
+
+
+def object_box(meta: dict, c2w: Sequence[np.ndarray]) -> tuple[tuple, str]:
+    """((min, max), source) of the object the references show (see the module doc)."""
+    b = meta.get("bbox")
+    if b is not None:
+        lo, hi = (b["min"], b["max"]) if isinstance(b, dict) else (b[0], b[1])
+        return parse_bbox([*lo, *hi]), "meta.json bbox"
+    if meta.get("bound_radius"):
+        r = float(meta["bound_radius"])
+        return parse_bbox([-r, -r, -r, r, r, r]), "meta.json bound_radius"
+    if meta.get("kind") == "capture" and meta.get("normalization"):
+        return parse_bbox([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]), "normalised capture (unit sphere)"
+    from ..capture.align import auto_normalization
+
+    norm = auto_normalization(list(c2w), np.zeros((0, 3)))
+    r = 1.0 / norm.scale
+    c = norm.centre
+    return parse_bbox([*(c - r), *(c + r)]), f"reference cameras ({norm.method}, radius half the camera distance)"
+
+
+def _resize(img: np.ndarray, w: int, h: int) -> np.ndarray:
+    """Anti-aliased bilinear resize of a float (H, W, 3) image."""
+    if img.shape[1] == w and img.shape[0] == h:
+        return img
+    import torch
+    import torch.nn.functional as Fn
+
+    t = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1)[None]
+    down = w < img.shape[1] or h < img.shape[0]
+    out = Fn.interpolate(t, size=(h, w), mode="bilinear", align_corners=False, antialias=down)
+    return out[0].permute(1, 2, 0).clamp(0, 1).numpy()
+
+
+def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None) -> References:
+    """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong."""
+    from ..datasets.loaders import to_float_rgb
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"reference folder {folder} does not exist")
+    ov = F.read_object(folder)
+    if not ov.indices:
+        rgbs = sorted((folder / "rgb").glob("*.png"))
+        if rgbs:
+            raise InputError(f"the reference images in {folder} have no poses (no pose/*.txt beside rgb/)")
+        raise InputError(f"{folder} holds no reference views (rgb/*.png with pose/*.txt)")
+    if not views:
+        if len(ov.indices) > MAX_REFERENCES:
+            raise InputError(f"{folder} has {len(ov.indices)} views; choose at most {MAX_REFERENCES} "
+                             f"reference views (e.g. --views 0,1)")
+        views = tuple(ov.indices)
+    views = tuple(int(v) for v in views)
+    if len(views) > MAX_REFERENCES:
+        raise InputError(f"at most {MAX_REFERENCES} reference views, got {len(views)}")
+    if len(set(views)) != len(views):
+        raise InputError(f"reference views must be distinct, got {list(views)}")
+    pos = {v: k for k, v in enumerate(ov.indices)}
+    for v in views:
+        if v in pos:
+            continue
+        paths = F.view_paths(folder, v)
+        if paths["rgb"].is_file():
+            raise InputError(f"reference view {v} of {folder} has no pose ({paths['pose'].name} missing)")
+        shown = ", ".join(map(str, ov.indices[:12])) + (" ..." if len(ov.indices) > 12 else "")
+        raise InputError(f"reference view {v} does not exist in {folder} (it has views {shown})")
+    imgs, intrs, poses = [], [], []
+    for v in views:
+        k = pos[v]
+        path = F.view_paths(folder, v)["rgb"]
+        try:
+            img = to_float_rgb(ov.rgb(k))
+        except Exception as e:
+            raise InputError(f"cannot read reference image {path}: {e}") from None
+        intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
+        if (img.shape[1], img.shape[0]) != (intr.width, intr.height):
+            if abs(img.shape[0] - intr.height * img.shape[1] / intr.width) > 1.0:
+                raise InputError(f"reference view {v}: image is {img.shape[1]}x{img.shape[0]} but its camera is "
+                                 f"{intr.width}x{intr.height} (different aspect ratio)")
+            intr = _scale_to(intr, img.shape[1], img.shape[0])
+        imgs.append(img)
+        intrs.append(intr)
+        poses.append(C.as_pose(ov.c2w_opencv[k]))
+    # One size for all references: the first view's, or the longer side ref_size.
+    w0, h0 = intrs[0].width, intrs[0].height
+    if ref_size and ref_size > 0:
+        s = ref_size / max(w0, h0)
+        w0, h0 = max(1, round(w0 * s)), max(1, round(h0 * s))
+    for i, (img, intr) in enumerate(zip(imgs, intrs)):
+        if (intr.width, intr.height) != (w0, h0):
+            if abs(intr.height * w0 / intr.width - h0) > 1.0:
+                raise InputError(f"reference views {views[0]} and {views[i]} have different aspect ratios "
+                                 f"({intrs[0].width}x{intrs[0].height} and {intr.width}x{intr.height})")
+            imgs[i], intrs[i] = _resize(img, w0, h0), _scale_to(intr, w0, h0)
+    if bbox is not None:
+        box, src = parse_bbox([*bbox[0], *bbox[1]]), "given"
+    else:
+        box, src = object_box(ov.meta, poses)
+    return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src)
+
+
+def _scale_to(intr: C.Intrinsics, w: int, h: int) -> C.Intrinsics:
+    """The same camera at ``w`` x ``h`` pixels (pixel-centre exact: coordinates scale with the size)."""
+    sx, sy = w / intr.width, h / intr.height
+    return C.Intrinsics(intr.fx * sx, intr.fy * sy, intr.cx * sx, intr.cy * sy, int(w), int(h), intr.skew * sx)
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering
+# ---------------------------------------------------------------------------------------------
+
+def encode_references(model, refs: References, device):
+    """(context, normalised scene) for ``refs``: the references encoded once for every target."""
+    import torch
+
+    from ..models.model import normalized_scene, ref_cameras
+
+    ns = normalized_scene(refs.bbox[0], refs.bbox[1], model.cfg.sampler.box_padding)
+    cams = ref_cameras([ns.pose(c) for c in refs.c2w], refs.intrinsics)
+    cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)
+    imgs = torch.from_numpy(refs.images).permute(0, 3, 1, 2).contiguous().to(device)
+    with torch.no_grad():
+        ctx = model.encode(imgs, cams)
+    return ctx, ns
+
+
+def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device):
+    """Progress generator over one view: yields rays finished, returns dict(color (H, W, 3) on white,
+    acc (H, W), depth_z (H, W) planar z-depth in world units, evaluated rays).
+
+    The same computation as ``GeneralizableNeRF.render_image`` (box-clipped rays, misses are
+    background), chunk by chunk so a caller can report progress and stop between chunks."""
+    import torch
+
+    from ..models.rays import make_rays
+
+    rays = make_rays(intr, ns.pose(c2w), box=ns.box)
+    n = len(rays)
+    bg = 1.0 if model.cfg.render.white_background else 0.0
+    color = torch.full((n, 3), bg)
+    acc = torch.zeros(n)
+    dist = torch.zeros(n)
+    idx = torch.nonzero(rays.hit).flatten()
+    yield n - idx.numel()
+    for s in range(0, idx.numel(), chunk):
+        sel = idx[s:s + chunk]
+        sub = rays.select(sel)
+        sub = type(sub)(*(getattr(sub, f).to(device) for f in ("origins", "dirs", "far", "hit", "depth_offset")))
+        with torch.no_grad():
+            out = model.render_rays(ctx, sub)["fine"]
+        w, t = out["weights"].float(), out["t"].float()
+        a = out["acc"].float()
+        surf = (w * t).sum(-1) / a.clamp_min(1e-8)  # expected termination given the ray stops
+        color[sel] = out["color"].float().cpu()
+        acc[sel] = a.cpu()
+        dist[sel] = (surf + sub.depth_offset.float()).cpu()
+        yield sel.numel()
+    H, W = intr.height, intr.width
+    # Distance along the ray (normalised units) -> planar z in world units: z = dist * scale * d_cam.z.
+    _, d = C.rays_opencv(intr, np.eye(4))
+    zdir = torch.from_numpy(d[..., 2].reshape(-1).astype(np.float32))
+    depth_z = torch.where(acc >= ALPHA_DEPTH_THRESHOLD, dist * float(ns.scale) * zdir, torch.zeros(n))
+    return {"color": color.view(H, W, 3).clamp(0, 1).numpy(), "acc": acc.view(H, W).clamp(0, 1).numpy(),
+            "depth_z": depth_z.view(H, W).numpy(), "evaluated": int(idx.numel()), "rays": n}
+
+
+def rgba_image(color_on_white: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """uint8 RGBA with straight colour such that compositing over white gives ``color_on_white``.
+
+    The model's colour is c * a + (1 - a) (white background); the straight colour is
+    (colour - (1 - a)) / a, computed with the 8-bit alpha that is stored so the round trip is exact
+    to within the 8-bit rounding of the colour; where alpha rounds to 0 the colour is kept as is.
+    """
+    a8 = F.to_uint8(np.clip(acc, 0.0, 1.0))
+    a = a8.astype(np.float32)[..., None] / 255.0
+    straight = np.where(a > 0, (color_on_white - (1.0 - a)) / np.maximum(a, 1e-6), color_on_white)
+    rgb8 = F.to_uint8(np.clip(straight, 0.0, 1.0))
+    return np.concatenate([rgb8, a8[..., None]], axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The run
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class SynthesisSummary:
+    """What a run did (also written to ``out/synthesis.json``)."""
+
+    out: Path
+    targets: list = field(default_factory=list)
+    """Per target: name, files, size, rays evaluated, seconds."""
+    seconds: float = 0.0
+    device: str = "cpu"
+    checkpoint: str = ""
+    bbox: list = field(default_factory=list)
+    bbox_source: str = ""
+    references: list = field(default_factory=list)
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output {out} exists and is not a folder")
+    parent = out.parent if out.parent != Path("") else Path(".")
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK):
+        raise OutputError(f"cannot write into {probe}")
+
+
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
+def _move_into(tmp: Path, out: Path) -> None:
+    """Move everything under ``tmp`` into ``out`` (files replace files of the same name), with the
+    permissions of ordinary new files (temporary files and folders are private to the user)."""
+    mask = _umask()
+    for p in [tmp, *tmp.rglob("*")]:
+        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~mask)
+    if not out.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, out)
+        return
+    for p in sorted(tmp.rglob("*")):
+        if p.is_file():
+            dst = out / p.relative_to(tmp)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(p, dst)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
+    """Progress generator (events in rays); returns a :class:`SynthesisSummary`. See the module doc."""
+    import torch
+
+    t0 = time.perf_counter()
+    if cfg.threads and cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    targets, depth_wanted = read_targets(Path(cfg.targets))
+    depth = depth_wanted if cfg.depth is None else bool(cfg.depth)
+    refs = load_references(Path(cfg.references), tuple(cfg.views), cfg.ref_size, cfg.bbox)
+    device = resolve_device(cfg.device)
+    model, mcfg, meta, ck_path = load_checkpoint(cfg.checkpoint, device)
+    if len(refs.views) > mcfg.max_ref_views:
+        raise InputError(f"the model takes at most {mcfg.max_ref_views} reference views, got {len(refs.views)}")
+    chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(mcfg.render.chunk_rays)
+    out = Path(cfg.out)
+    _check_out(out)
+    total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
+    summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
+                               bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
+                               bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)])
+    yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
+    ctx, ns = encode_references(model, refs, device)
+    base = out.parent if str(out.parent) else Path(".")
+    base.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=base))
+    done = 0
+    try:
+        for i, t in enumerate(targets):
+            ts = time.perf_counter()
+            gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device)
+            msg = f"view {i + 1}/{len(targets)} ({t.name})"
+            while True:
+                try:
+                    done += next(gen)
+                except StopIteration as stop:
+                    res = stop.value
+                    break
+                yield Progress(done, total, msg)
+            F.write_png(tmp / t.rgb_path(i), rgba_image(res["color"], res["acc"]))
+            files = {"rgb": t.rgb_path(i)}
+            if depth:
+                F.write_depth(tmp / t.depth_path(i), res["depth_z"].astype(np.float32))
+                files["depth"] = t.depth_path(i)
+            summary.targets.append({"name": t.name, **files, "width": t.intrinsics.width,
+                                    "height": t.intrinsics.height, "rays": res["rays"],
+                                    "evaluated_rays": res["evaluated"], "seconds": time.perf_counter() - ts})
+        summary.seconds = time.perf_counter() - t0
+        F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg))
+        _move_into(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    yield Progress(total, total, f"{len(targets)} view{'s' if len(targets) != 1 else ''} written")
+    return summary
+
+
+def _summary_json(s: SynthesisSummary, meta: dict, mcfg) -> dict[str, Any]:
+    return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
+            "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
+            "model": mcfg.name, "device": s.device, "references": {"folder": s.references[0], "views": s.references[1]},
+            "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
+            "rgb": "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)",
+            "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}"}
+
+
+def targets_from_views(folder: Path, views: Sequence[int]) -> list[Target]:
+    """Targets at the cameras of ``views`` of an object folder (the demo and tests score them against the
+    folder's own images)."""
+    ov = F.read_object(Path(folder))
+    pos = {v: k for k, v in enumerate(ov.indices)}
+    out = []
+    for v in views:
+        if v not in pos:
+            raise InputError(f"view {v} does not exist in {folder}")
+        k = pos[v]
+        intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
+        out.append(Target(f"view {v:03d}", intr, C.as_pose(ov.c2w_opencv[k])))
+    return out
+
+
+def json_line(summary: SynthesisSummary) -> str:
+    return json.dumps({"out": str(summary.out), "views": len(summary.targets), "seconds": round(summary.seconds, 3),
+                       "device": summary.device, "bbox_source": summary.bbox_source})

@@ -1,0 +1,238 @@
+"""`synthesize`: a tiny checkpoint made here renders finite RGBA/depth images of the targets' sizes, the
+same numbers as the model's own renderer; bad checkpoints and references give one-line errors and
+leave nothing behind; --blend writes a .blend whose planes sit on their cameras' frusta."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm.cli import main
+from blender_mrvm.datasets import format as F
+from blender_mrvm.datasets.novel_views import Target, write_targets
+from blender_mrvm.errors import InputError
+from blender_mrvm.geometry import cameras as C
+from blender_mrvm.progress import run_to_end
+from blender_mrvm.training import synthesize as S
+from blender_mrvm.training.synthetic import make_sphere_dataset
+
+torch.set_num_threads(1)
+TINY = {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
+        "sampler": {"n_coarse": 4, "n_fine": 2}}
+
+
+def tiny_checkpoint(run_dir: Path, overrides: dict | None = None, seed: int = 0) -> Path:
+    """An untrained tiny model saved through the checkpoint API (the tests never need a good model)."""
+    from blender_mrvm.models.config import model_config
+    from blender_mrvm.models.model import GeneralizableNeRF
+    from blender_mrvm.training.checkpoint import save_checkpoint
+
+    cfg = model_config("fast", merge_dicts(TINY, overrides or {}))
+    torch.manual_seed(seed)
+    save_checkpoint(run_dir, 3, GeneralizableNeRF(cfg), cfg, None)
+    return run_dir
+
+
+def merge_dicts(a: dict, b: dict) -> dict:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = merge_dicts(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth")
+    data = make_sphere_dataset(root / "data", n_objects=1, n_views=4, resolution=16, seed=1)
+    obj = data / "spheres" / "obj000"
+    ck = tiny_checkpoint(root / "run")
+    # Targets: two views of the folder (16x16) and one bigger, shifted camera (24x24).
+    tg = S.targets_from_views(obj, [2, 3])
+    k = tg[0].intrinsics
+    tg.append(Target("wide", C.Intrinsics(k.fx * 1.5, k.fy * 1.5, 13.0, 10.0, 24, 24), tg[1].c2w_opencv))
+    write_targets(root / "targets.json", tg, depth=True)
+    return root, obj, ck, tg
+
+
+def _args(root, obj, ck, out, *extra):
+    return ["synthesize", "--references", str(obj), "--views", "0,1", "--targets", str(root / "targets.json"),
+            "--checkpoint", str(ck), "--out", str(out), "--device", "cpu", "--threads", "1", *extra]
+
+
+def test_cli_writes_finite_rgba_and_depth_of_each_target(setup, capsys):
+    root, obj, ck, tg = setup
+    out = root / "out"
+    assert main(_args(root, obj, ck, out)) == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["views"] == 3 and line["bbox_source"] == "meta.json bbox"
+    for i, t in enumerate(tg):
+        rgba = F.read_png(out / t.rgb_path(i))
+        assert rgba.shape == (t.intrinsics.height, t.intrinsics.width, 4) and rgba.dtype == np.uint8
+        d = F.read_depth(out / t.depth_path(i))
+        assert d.shape == rgba.shape[:2] and np.isfinite(d).all() and (d >= 0).all()
+    rep = json.loads((out / "synthesis.json").read_text())
+    assert rep["references"]["views"] == [0, 1] and rep["checkpoint_step"] == 3 and rep["model"] == "fast"
+    assert [r["name"] for r in rep["targets"]] == ["view 002", "view 003", "wide"]
+    assert all(0 < r["evaluated_rays"] <= r["rays"] for r in rep["targets"])
+    assert not list(root.glob(".out.partial-*"))
+
+
+def test_same_numbers_as_the_models_renderer_and_png_round_trip(setup, tmp_path):
+    """Chunked rendering equals GeneralizableNeRF.synthesize; the RGBA PNG over white gives it back."""
+    root, obj, ck, tg = setup
+    model, mcfg, _, _ = S.load_checkpoint(ck)
+    refs = S.load_references(obj, (0, 1))
+    ctx, ns = S.encode_references(model, refs, "cpu")
+    t = tg[2]
+    res = run_to_end(S.render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, 7, "cpu"))  # odd chunk size
+    ref = model.synthesize(refs.images, refs.c2w, refs.intrinsics, refs.bbox, t.c2w_opencv, t.intrinsics)
+    assert np.abs(res["color"] - ref["color"].numpy()).max() < 1e-5
+    assert np.abs(res["acc"] - ref["acc"].numpy()).max() < 1e-5
+    assert 0 < res["evaluated"] < res["rays"] == 24 * 24  # rays that miss the box are not evaluated
+    rgba = S.rgba_image(res["color"], res["acc"]).astype(np.float64) / 255.0
+    over_white = rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])
+    assert np.abs(over_white - res["color"]).max() <= 1.0 / 255.0 + 1e-6
+    assert np.array_equal(rgba[..., 3], F.to_uint8(res["acc"]) / 255.0)
+
+
+def test_depth_is_planar_z_in_world_units(tmp_path, setup):
+    """An opaque model (density bias 30) stops every ray at the box entry: the planar depth unprojects onto
+    the padded box's surface, and equals the model's own along-ray depth times the ray's z component."""
+    root, obj, _, tg = setup
+    ck = tiny_checkpoint(tmp_path / "opaque", {"render": {"density_bias": 30.0}, "sampler": {"n_coarse": 64}})
+    model, mcfg, _, _ = S.load_checkpoint(ck)
+    refs = S.load_references(obj, (0, 1))
+    ctx, ns = S.encode_references(model, refs, "cpu")
+    t = tg[2]
+    res = run_to_end(S.render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, 512, "cpu"))
+    hit = res["acc"] > 0.999
+    assert hit.sum() > 50 and (res["depth_z"][~hit & (res["acc"] < 0.5)] == 0).all()
+    pts = C.unproject_depth(t.intrinsics, t.c2w_opencv, res["depth_z"])[hit]
+    half = ns.box * ns.scale  # padded half size in world units
+    rel = np.abs(pts - ns.centre) / half
+    step = 2.0 * np.sqrt(3) / 64  # at most one coarse step behind the entry (normalised units / half size)
+    assert (rel.max(axis=1) > 1.0 - step - 1e-6).all() and (rel.max(axis=1) < 1.0 + 1e-6).all()
+    ref = model.synthesize(refs.images, refs.c2w, refs.intrinsics, refs.bbox, t.c2w_opencv, t.intrinsics)
+    _, d = C.rays_opencv(t.intrinsics, np.eye(4))
+    assert np.allclose(res["depth_z"][hit], (ref["depth"].numpy() * d[..., 2])[hit], rtol=1e-4)
+
+
+def _fails(args, msg, capsys, out: Path):
+    rc = main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert msg in err[0], err[0]
+    assert not out.exists() and not list(out.parent.glob(f".{out.name}.partial-*")), "nothing half-written"
+    return err[0]
+
+
+def test_bad_checkpoints_are_one_line_errors(setup, tmp_path, capsys):
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    from blender_mrvm.training.checkpoint import MODEL_FILE
+
+    root, obj, ck, _ = setup
+    out = tmp_path / "out"
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"\x00garbage" * 10)
+    _fails(_args(root, obj, junk, out), "does not load", capsys, out)
+    other = tmp_path / "other.safetensors"
+    save_file({"w": torch.zeros(2)}, str(other), metadata={"format": "someone.else"})
+    _fails(_args(root, obj, other, out), "is not a blender_mrvm model checkpoint (format 'someone.else')", capsys, out)
+    # Another model's weights (d_model 16) under the tiny model's config (d_model 8): the strict load refuses.
+    big = tiny_checkpoint(tmp_path / "big", {"nerformer": {"d_model": 16}})
+    with safe_open(str(next((big / "checkpoints").glob("step_*")) / MODEL_FILE), framework="pt") as f:
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    with safe_open(str(next((ck / "checkpoints").glob("step_*")) / MODEL_FILE), framework="pt") as f:
+        meta = dict(f.metadata())
+    mixed = tmp_path / "mixed.safetensors"
+    save_file(tensors, str(mixed), metadata=meta)
+    _fails(_args(root, obj, mixed, out), "does not match its model config", capsys, out)
+    meta["format_version"] = "99"
+    save_file(tensors, str(mixed), metadata=meta)
+    _fails(_args(root, obj, mixed, out), "has format version 99, newer than this code", capsys, out)
+    _fails(_args(root, obj, tmp_path / "nope", out), "does not exist", capsys, out)
+
+
+def test_bad_references_and_targets_are_one_line_errors(setup, tmp_path, capsys):
+    import shutil
+
+    root, obj, ck, _ = setup
+    out = tmp_path / "out"
+    _fails(_args(root, tmp_path / "missing", ck, out), "reference folder", capsys, out)
+    _fails(_args(root, obj, ck, out)[:4] + ["0,9"] + _args(root, obj, ck, out)[5:],
+           "reference view 9 does not exist", capsys, out)
+    nopose = tmp_path / "nopose"
+    shutil.copytree(obj, nopose)
+    (nopose / "pose" / "000001.txt").unlink()
+    _fails(_args(root, nopose, ck, out), "reference view 1 of", capsys, out)
+    shutil.rmtree(nopose / "pose")
+    _fails(_args(root, nopose, ck, out), "have no poses", capsys, out)
+    args = _args(root, obj, ck, out)
+    args[args.index("--targets") + 1] = str(tmp_path / "none.json")
+    _fails(args, "targets file", capsys, out)
+    if not torch.cuda.is_available():
+        args = _args(root, obj, ck, out)
+        args[args.index("--device") + 1] = "cuda"
+        _fails(args, "no CUDA GPU", capsys, out)
+
+
+def test_cancel_leaves_nothing_and_existing_output_keeps_other_files(setup, tmp_path):
+    root, obj, ck, tg = setup
+    out = tmp_path / "out"
+    cfg = S.SynthesisConfig(obj, root / "targets.json", out, (0, 1), ck, "cpu", chunk_rays=16)
+    gen = S.synthesize_views(cfg)
+    events = [next(gen) for _ in range(4)]
+    assert events[-1].total == 16 * 16 * 2 + 24 * 24 and 0 < events[-1].done < events[-1].total
+    gen.close()  # what Esc / SIGINT does
+    assert not out.exists() and not list(tmp_path.glob(".out.partial-*"))
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    summary = run_to_end(S.synthesize_views(cfg))
+    assert (out / "keep.txt").read_text() == "mine" and (out / "rgb" / "000002.png").is_file()
+    assert len(summary.targets) == 3 and (out / "depth").is_dir()  # depth: as targets.json asks
+    with pytest.raises(InputError, match="at most 10 reference views"):
+        S.load_references(obj, tuple(range(11)))
+
+
+@pytest.mark.slow
+def test_blend_has_cameras_and_planes_on_their_frusta(setup, tmp_path, addon):
+    import bpy
+
+    from blender_mrvm.scene import camera as scam
+    from blender_mrvm.scene import image_planes as IP
+
+    root, obj, ck, tg = setup
+    blend = tmp_path / "res" / "scene.blend"
+    assert main(_args(root, obj, ck, tmp_path / "out", "--blend", str(blend)) + ["--plane-distance", "0.7"]) == 0
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    try:
+        scene = bpy.context.scene
+        assert scene.view_settings.view_transform == "Standard"
+        coll = bpy.data.collections[IP.COLLECTION]
+        for t in tg:
+            cam = bpy.data.objects[t.name]
+            assert cam.name in coll.objects
+            (plane,) = IP.planes_of(cam)
+            img = bpy.data.images[plane["mrvm_image"]]
+            assert img.has_data or img.size[0] > 0
+            assert Path(bpy.path.abspath(img.filepath)).is_file()
+            assert tuple(img.size) == (t.intrinsics.width, t.intrinsics.height)
+            # corners on the target camera's frame corners (the render size is the largest target's)
+            intr, c2w = scam.read_camera(cam, scene)
+            assert np.allclose(c2w, t.c2w_opencv, atol=1e-5)
+            verts = np.array([plane.matrix_world @ v.co for v in plane.data.vertices])[:4]
+            uv, z = C.project(t.intrinsics.K, C.invert_pose(t.c2w_opencv), verts)
+            corners = np.array([[0, 1], [1, 1], [1, 0], [0, 0]]) * [t.intrinsics.width, t.intrinsics.height]
+            assert np.abs(uv - corners).max() < 0.5 and np.allclose(z, 0.7, rtol=1e-5)
+        refs = bpy.data.collections["MRVM references"].objects
+        assert sorted(o.name for o in refs) == ["MRVM reference 000", "MRVM reference 001"]
+        assert all(o.data.background_images[0].image is not None for o in refs)
+    finally:
+        bpy.ops.wm.read_homefile(use_empty=True)
