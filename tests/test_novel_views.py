@@ -1,6 +1,8 @@
 """Novel views in Blender: panel, preferences' dependency status, scene references exported for the
-worker, results imported as cameras + image planes (all or nothing), and the Synthesize operator's
-checks (bad input, torch missing, the model not in this version yet), each leaving the scene as it was."""
+worker, results imported as cameras + image planes (all or nothing), and the Synthesize operator end
+to end through the worker process with a tiny checkpoint made here (execute, and the modal path with
+synthetic timer / Esc events), plus its checks (bad input, a checkpoint that does not load, torch
+missing), each leaving the scene as it was."""
 
 from __future__ import annotations
 
@@ -120,6 +122,21 @@ def _corner_error(scene, cam, plane) -> float:
         q = world_to_camera_view(scene, cam, plane.matrix_world @ v.co)
         got.append((q.x * w, (1.0 - q.y) * h))
     return float(np.abs(np.array(got) - corners).max())
+
+
+def tiny_checkpoint(run_dir: Path) -> Path:
+    """An untrained tiny model saved through the checkpoint API (these tests need a model that loads, not a good one)."""
+    import torch
+
+    from blender_mrvm.models.config import model_config
+    from blender_mrvm.models.model import GeneralizableNeRF
+    from blender_mrvm.training.checkpoint import save_checkpoint
+
+    cfg = model_config("fast", {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
+                                "sampler": {"n_coarse": 4, "n_fine": 2}})
+    torch.manual_seed(0)
+    save_checkpoint(run_dir, 1, GeneralizableNeRF(cfg), cfg, None)
+    return run_dir
 
 
 # ---------------------------------------------------------------------------------------------
@@ -307,8 +324,7 @@ def ready(empty_scene, tmp_path, prefs):
     target = _camera(scene, "Target", (-3.0, 0.0, 1.0))
     for o in scene.objects:
         o.select_set(o == target)
-    ck = tmp_path / "model.safetensors"
-    ck.write_bytes(b"not loaded by the add-on itself; the worker checks it")
+    ck = tiny_checkpoint(tmp_path / "run")
     p = scene.mrvm_novel_views
     p.reference_source, p.dataset_dir, p.reference_views = "DATASET", str(folder), "0 1"
     p.target_source, p.checkpoint, p.plane_distance = "SELECTED", str(ck), 1.0
@@ -327,14 +343,141 @@ def _fails(msg: str):
     assert re.search(msg, bpy.context.scene.mrvm_novel_views.status), "the panel shows the error too"
 
 
-def test_operator_stops_at_the_model_seam(ready):
-    """Valid input everywhere: the one thing missing is the model's synthesize command (issue 4)."""
-    from blender_mrvm.operators import synthesize as S
+def _reference_synthesis(job, tmp_path) -> np.ndarray:
+    """What the synthesize core writes for ``job`` when run here, in-process (the operator must match it)."""
+    from blender_mrvm.datasets.format import read_png
+    from blender_mrvm.datasets.novel_views import write_targets
+    from blender_mrvm.progress import run_to_end
+    from blender_mrvm.training.synthesize import SynthesisConfig, synthesize_views
 
-    job = S.plan_from_props(__import__("bpy").context)
+    write_targets(tmp_path / "check" / "targets.json", list(job.targets))
+    run_to_end(synthesize_views(SynthesisConfig(job.reference_dir, tmp_path / "check" / "targets.json",
+                                                tmp_path / "check" / "out", job.views, job.checkpoint, "cpu")))
+    return read_png(tmp_path / "check" / "out" / "rgb" / "000000.png")
+
+
+def test_operator_synthesizes_through_the_worker(ready, tmp_path, monkeypatch):
+    """Execute path end to end: worker process, tiny checkpoint, one image plane on the target's frustum
+    showing exactly what the synthesize core computes for that camera; the job folder is removed."""
+    import tempfile
+
+    import bpy
+
+    from blender_mrvm.datasets.format import read_png
+    from blender_mrvm.operators import synthesize as S
+    from blender_mrvm.scene import image_planes as IP
+
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(jobs))
+    assert S.model_available()
+    job = S.plan_from_props(bpy.context)
     assert job.views == (0, 1) and [t.name for t in job.targets] == ["Target"] and job.device == "auto"
-    assert not S.model_available()
-    _fails("novel-view synthesis is not available in this version yet: the worker has no `synthesize` command")
+    assert bpy.ops.mrvm.synthesize() == {"FINISHED"}
+    status = ready.mrvm_novel_views.status
+    assert re.fullmatch(r"1 novel view in collection 'MRVM novel views', synthesized in [0-9.]+ s", status), status
+    cam = bpy.data.objects["Target"]
+    (plane,) = IP.planes_of(cam)
+    assert _corner_error(ready, cam, plane) < 0.5
+    png = Path(bpy.path.abspath(bpy.data.images[plane["mrvm_image"]].filepath))
+    got = read_png(png)
+    assert got.shape == (H, W, 4)
+    assert np.array_equal(got, _reference_synthesis(job, tmp_path))
+    assert not list(jobs.glob("mrvm_synth_*")), "the job folder is removed"
+
+
+class _FakeWM:
+    def __init__(self):
+        self.calls = []
+
+    def progress_begin(self, a, b):
+        self.calls.append("begin")
+
+    def progress_update(self, v):
+        self.calls.append(("update", v))
+
+    def progress_end(self):
+        self.calls.append("end")
+
+    def event_timer_add(self, interval, window=None):
+        return object()
+
+    def event_timer_remove(self, timer):
+        self.calls.append("timer_remove")
+
+    def modal_handler_add(self, op):
+        self.calls.append("modal")
+
+
+def _modal_driver():
+    """The Synthesize operator's own start/on_result on the ProgressOperator machinery, with a fake
+    window manager (headless Blender has no event loop or window), as tests/test_modal_operator.py does."""
+    import bpy
+
+    from blender_mrvm.operators._modal import ProgressOperator
+    from blender_mrvm.operators.synthesize import MRVM_OT_synthesize as Op
+
+    class Driver(ProgressOperator):
+        props_attr, job_name, cancel_hint = Op.props_attr, Op.job_name, Op.cancel_hint
+        start, on_result = Op.start, Op.on_result
+
+        def __init__(self):
+            self.reports = []
+
+        def report(self, level, msg):
+            self.reports.append((next(iter(level)), msg))
+
+    ctx = types.SimpleNamespace(scene=bpy.context.scene, selected_objects=list(bpy.context.selected_objects),
+                                preferences=bpy.context.preferences, window_manager=_FakeWM(), window=None,
+                                workspace=types.SimpleNamespace(status_text_set=lambda t: None), screen=None)
+    return Driver(), ctx
+
+
+TIMER, ESC = types.SimpleNamespace(type="TIMER"), types.SimpleNamespace(type="ESC")
+
+
+def test_operator_modal_progress_and_finish(ready, tmp_path):
+    import time
+
+    import bpy
+
+    from blender_mrvm.scene import image_planes as IP
+
+    op, ctx = _modal_driver()
+    p = ready.mrvm_novel_views
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"} and p.running
+    statuses, deadline, res = [], time.monotonic() + 120, {"RUNNING_MODAL"}
+    while res == {"RUNNING_MODAL"} and time.monotonic() < deadline:
+        res = op.modal(ctx, TIMER)
+        statuses.append(p.status)
+    assert res == {"FINISHED"} and not p.running, (res, op.reports)
+    assert any(s.startswith("view 1/1 (Target)") and s.endswith("Esc to cancel") for s in statuses), statuses[-5:]
+    assert p.status.startswith("1 novel view in collection") and op.reports[-1][0] == "INFO"
+    assert len(IP.planes_of(bpy.data.objects["Target"])) == 1
+    assert ctx.window_manager.calls[-1] == "end"
+
+
+def test_operator_modal_escape_stops_the_worker_and_adds_nothing(ready, tmp_path, monkeypatch):
+    import tempfile
+
+    from blender_mrvm import worker as Wk
+
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(jobs))
+    procs = []
+    real = Wk.run_worker
+    monkeypatch.setattr(Wk, "run_worker", lambda *a, **k: real(*a, on_start=procs.append, **k))
+    op, ctx = _modal_driver()
+    before = _state()
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"}
+    assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"}
+    assert len(procs) == 1 and procs[0].poll() is None, "the worker is running"
+    assert op.modal(ctx, ESC) == {"CANCELLED"}
+    assert procs[0].poll() is not None, "Esc ended the worker process"
+    assert op.reports[-1] == ("WARNING", "Synthesis cancelled; nothing was added")
+    assert _state() == before and not ready.mrvm_novel_views.running
+    assert not list(jobs.glob("mrvm_synth_*")), "the job folder is removed"
 
 
 def test_operator_writes_the_job_for_the_worker(ready, tmp_path):
@@ -392,7 +535,12 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
         _fails("no checkpoint chosen, and this version ships no trained model yet")
     else:  # empty = the shipped model
         assert plan_from_props(bpy.context).checkpoint == default_checkpoint()
-    p.checkpoint = str(tmp_path / "model.safetensors")
+    p.checkpoint = str(tmp_path / "run")
+    # A checkpoint that does not load: the worker's one-line error, nothing added.
+    (tmp_path / "junk.safetensors").write_bytes(b"junk" * 8)
+    p.checkpoint = str(tmp_path / "junk.safetensors")
+    _fails("checkpoint .*junk.safetensors does not load")
+    p.checkpoint = str(tmp_path / "run")
     # The plane behind the camera's far clip.
     p.plane_distance = 5000.0
     _fails("plane distance 5000 is outside camera 'Target'")

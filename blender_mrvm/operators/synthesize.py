@@ -9,12 +9,11 @@ see ``datasets/novel_views.py`` for the files). Steps:
    (selected cameras, or an orbit around the 3D cursor), the plane settings, the checkpoint;
 2. :func:`prepare` picks the worker's Python (``worker.choose_interpreter``), checks it has torch,
    and that this version has the ``synthesize`` command; then writes the job folder;
-3. the worker runs (modal: one ``next()`` per timer tick, Esc cancels it and nothing is created);
+3. the worker runs (``operators/_modal.ProgressOperator``: modal, one ``next()`` per timer tick with
+   the worker's progress in the panel and status bar; Esc cancels it, the child is interrupted and
+   nothing is created; ``execute`` runs it to the end for scripts);
 4. on the main thread, ``scene.novel_views.import_results`` creates the orbit cameras and one image
-   plane per target, all or nothing.
-
-Until the trained model and its ``synthesize`` command exist (issue 4), step 2 fails with a clear
-message; nothing here fakes a result.
+   plane per target, all or nothing. The job folder is removed either way.
 """
 
 from __future__ import annotations
@@ -23,10 +22,15 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import bpy
 
 from ..errors import InputError, MRVMError
+from ._modal import ProgressOperator
+
+if TYPE_CHECKING:
+    from ..progress import ProgressGen
 
 SYNTH_COMMAND = "synthesize"
 
@@ -172,132 +176,67 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
             "--checkpoint", str(job.checkpoint), "--device", job.device, "--out", str(job_dir / "out")]
 
 
-def _import(context, job: SynthesisJob, job_dir: Path) -> str:
+@dataclass
+class SynthesisRun:
+    """A finished worker run: what the main thread imports."""
+
+    job: SynthesisJob
+    job_dir: Path
+    seconds: float
+
+
+def run_job(context, job: SynthesisJob, interp) -> "ProgressGen":
+    """Progress generator: write the job folder, run the worker, return a :class:`SynthesisRun`.
+
+    The job folder is removed on error or cancel (closing the generator interrupts the worker);
+    after success :func:`import_run` removes it."""
+    from ..worker import run_worker
+
+    job_dir = Path(tempfile.mkdtemp(prefix="mrvm_synth_"))
+    ok = False
+    try:
+        args = write_job(context, job, job_dir)
+        result = yield from run_worker(SYNTH_COMMAND, args, interp.path)
+        ok = True
+        return SynthesisRun(job, job_dir, result.seconds)
+    finally:
+        if not ok:
+            shutil.rmtree(job_dir, ignore_errors=True)
+
+
+def import_run(context, run: SynthesisRun) -> str:
+    """Create the cameras and image planes of a finished run (all or nothing); the success message."""
     from ..scene.novel_views import import_results
 
-    res = import_results(context.scene, list(job.targets), job_dir / "out", job.planes, depth=job.depth)
+    job = run.job
+    try:
+        res = import_results(context.scene, list(job.targets), run.job_dir / "out", job.planes, depth=job.depth)
+    finally:
+        shutil.rmtree(run.job_dir, ignore_errors=True)
     made = sum(1 for t in job.targets if t.generated)
     return (f"{len(res.planes)} novel view{'s' if len(res.planes) != 1 else ''} in collection {res.collection.name!r}"
-            + (f" ({made} new cameras)" if made else ""))
+            + (f" ({made} new cameras)" if made else "") + f", synthesized in {run.seconds:.1f} s")
 
 
-class MRVM_OT_synthesize(bpy.types.Operator):
+class MRVM_OT_synthesize(ProgressOperator, bpy.types.Operator):
     """Synthesize novel views of the references from the target cameras and place them as image planes aligned to their cameras"""
 
     bl_idname = "mrvm.synthesize"
     bl_label = "Synthesize Novel Views"
     bl_options = {"REGISTER", "UNDO"}
 
-    _gen = None
-    _timer = None
-    _job = None
-    _dir = None
+    props_attr = "mrvm_novel_views"
+    job_name = "Synthesis"
+    cancel_hint = "nothing was added"
+    timer_interval = 0.1
 
-    def _start(self, context):
-        from ..worker import run_worker
-
+    def start(self, context):
         job = plan_from_props(context)
         interp = prepare(context, job)
-        job_dir = Path(tempfile.mkdtemp(prefix="mrvm_synth_"))
-        try:
-            args = write_job(context, job, job_dir)
-            gen = run_worker(SYNTH_COMMAND, args, interp.path)
-            first = next(gen)
-        except BaseException:
-            shutil.rmtree(job_dir, ignore_errors=True)
-            raise
-        self._job, self._dir, self._gen = job, job_dir, gen
-        return first
+        return run_job(context, job, interp)
 
-    def _cleanup(self):
-        if self._gen is not None:
-            self._gen.close()
-            self._gen = None
-        if self._dir is not None:
-            shutil.rmtree(self._dir, ignore_errors=True)
-            self._dir = None
-
-    def execute(self, context):
-        from ..progress import run_to_end
-
-        props = context.scene.mrvm_novel_views
-        try:
-            self._start(context)
-            run_to_end(self._gen)
-            msg = _import(context, self._job, self._dir)
-        except MRVMError as e:
-            props.status = str(e)
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
-        finally:
-            self._cleanup()
-        props.status = msg
-        self.report({"INFO"}, msg)
-        return {"FINISHED"}
-
-    def invoke(self, context, event):
-        props = context.scene.mrvm_novel_views
-        if props.running:
-            self.report({"WARNING"}, "Synthesis is already running")
-            return {"CANCELLED"}
-        try:
-            first = self._start(context)
-        except MRVMError as e:
-            self._cleanup()
-            props.status = str(e)
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
-        props.running, props.progress, props.status = True, first.fraction, first.message
-        wm = context.window_manager
-        wm.progress_begin(0, 100)
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
-
-    def _finish(self, context, cancelled: bool, message: str, level: str = "INFO"):
-        wm = context.window_manager
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        wm.progress_end()
-        self._cleanup()
-        if context.workspace:
-            context.workspace.status_text_set(None)
-        props = context.scene.mrvm_novel_views
-        props.running = False
-        props.status = message
-        self.report({level}, message)
-        for area in context.screen.areas if context.screen else ():
-            area.tag_redraw()
-        return {"CANCELLED"} if cancelled else {"FINISHED"}
-
-    def cancel(self, context):  # Blender closing the operator (file load, quit)
-        self._finish(context, True, "Synthesis cancelled", "WARNING")
-
-    def modal(self, context, event):
-        if event.type == "ESC":
-            return self._finish(context, True, "Synthesis cancelled; nothing was added", "WARNING")
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            ev = next(self._gen)
-        except StopIteration:
-            try:
-                msg = _import(context, self._job, self._dir)
-            except MRVMError as e:
-                return self._finish(context, True, str(e), "ERROR")
-            return self._finish(context, False, msg)
-        except MRVMError as e:
-            return self._finish(context, True, str(e), "ERROR")
-        props = context.scene.mrvm_novel_views
-        props.progress, props.status = ev.fraction, f"{ev.message} (Esc to cancel)"
-        context.window_manager.progress_update(int(100 * ev.fraction))
-        if context.workspace:
-            context.workspace.status_text_set(f"MRVM: {props.status}")
-        for area in context.screen.areas if context.screen else ():
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-        return {"RUNNING_MODAL"}
+    def on_result(self, context, run: SynthesisRun) -> str:
+        return import_run(context, run)
 
 
 classes = (MRVM_OT_synthesize,)
