@@ -144,10 +144,39 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
     status: StringProperty(default="", options={"SKIP_SAVE"})
 
 
+
+# --- Model training (issue 5): settings of the Train / fine-tune operator ---------------------------
+class MRVM_PG_train(bpy.types.PropertyGroup):
+    """Settings of the Train / fine-tune operator (runs `python -m blender_mrvm train` in the worker)."""
+
+    data_dir: StringProperty(name="Dataset", subtype="DIR_PATH", default="//mrvm_dataset",
+                             description="Root of a rendered dataset (ours, SRN, NMR/DVR or NeRF-synthetic)")
+    run_dir: StringProperty(name="Run folder", subtype="DIR_PATH", default="//mrvm_runs/run",
+                            description="Folder for checkpoints and the metrics log; a run there is continued")
+    preset: EnumProperty(name="Model", items=[
+        ("fast", "Fast", "Smallest model: quick experiments"),
+        ("balanced", "Balanced", "The shipped model's size (about a second per 128 px view on 2 CPU cores)"),
+        ("accurate", "Accurate", "Largest model: slow on a CPU"),
+    ], default="balanced")
+    iterations: IntProperty(name="Iterations", default=2000, min=1, soft_max=200000,
+                            description="Optimizer steps in all; a continued run trains up to this step")
+    checkpoint_every: IntProperty(name="Checkpoint every", default=200, min=1, soft_max=10000,
+                                  description="Write a checkpoint every this many steps (cancelling keeps the last one)")
+    rays_per_object: IntProperty(name="Rays per object", default=256, min=1, soft_max=4096,
+                                 description="Target rays per object per step")
+    resume: BoolProperty(name="Continue run", default=True,
+                         description="Continue from the run folder's last checkpoint (fine-tune); off starts afresh")
+    use_for_synthesis: BoolProperty(name="Use for novel views", default=True,
+                                    description="When training finishes, pick its checkpoint for Synthesize novel views")
+    running: BoolProperty(default=False, options={"SKIP_SAVE"})
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
+    status: StringProperty(default="", options={"SKIP_SAVE"})
+
 SCENE_PROPERTIES = {
     "mrvm_capture": MRVM_PG_capture,
     "mrvm_dataset": MRVM_PG_dataset,
     "mrvm_novel_views": MRVM_PG_novel_views,
+    "mrvm_train": MRVM_PG_train,
 }
 classes = tuple(SCENE_PROPERTIES.values())
 

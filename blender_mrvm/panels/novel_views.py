@@ -1,4 +1,5 @@
-"""The "Novel views" section of the MRVM sidebar tab: references, targets, model, image planes."""
+"""The "Model" and "Novel views" sections of the MRVM sidebar tab: training / fine-tuning the model,
+and synthesizing novel views (references, targets, checkpoint, image planes)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,58 @@ from .main import MRVMPanel
 
 def _count(n: int, word: str) -> str:
     return f"{n} {word}{'s' if n != 1 else ''}"
+
+
+def _torch_warning(layout, context) -> None:
+    from .. import prefs as P
+
+    rep = P.dependency_status(context)
+    if rep.error or "torch" in rep.missing:
+        box = layout.box()
+        box.label(text=rep.error or "torch is missing in the worker Python", icon="ERROR")
+        box.label(text="See the add-on preferences for what to install")
+
+
+def _status(layout, text: str) -> None:
+    from .capture import _wrap
+
+    for line in _wrap(text, 48):
+        layout.label(text=line)
+
+
+class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
+    bl_label = "Model"
+    bl_idname = "MRVM_PT_model"
+    bl_parent_id = "MRVM_PT_main"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        return hasattr(context.scene, "mrvm_train")
+
+    def draw(self, context):
+        p = context.scene.mrvm_train
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        col = layout.column()
+        col.enabled = not p.running
+        col.prop(p, "data_dir")
+        col.prop(p, "run_dir")
+        col.prop(p, "preset")
+        col.prop(p, "iterations")
+        col.prop(p, "checkpoint_every")
+        col.prop(p, "rays_per_object")
+        col.prop(p, "resume")
+        col.prop(p, "use_for_synthesis")
+        _torch_warning(layout, context)
+        if p.running:
+            layout.progress(factor=p.progress, type="BAR", text=p.status or "Training...")
+            layout.label(text="Press Esc to cancel", icon="INFO")
+        else:
+            layout.operator("mrvm.train", icon="MOD_NOISE")
+            if p.status:
+                _status(layout, p.status)
 
 
 class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
@@ -55,6 +108,17 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
 
         col.separator()
         col.prop(p, "checkpoint")
+        if not p.checkpoint.strip():
+            from .. import prefs as P
+            from ..operators.synthesize import default_checkpoint
+
+            pr = P.get(context)
+            if pr is not None and pr.checkpoint_dir.strip():
+                col.label(text="Model: the checkpoint set in the preferences", icon="INFO")
+            elif default_checkpoint() is not None:
+                col.label(text=f"Model: shipped ({default_checkpoint().stem})", icon="INFO")
+            else:
+                col.label(text="No shipped model in this copy: choose a checkpoint", icon="ERROR")
         col.prop(p, "device")
         col.prop(p, "plane_distance")
         col.prop(p, "output")
@@ -62,23 +126,14 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
             col.prop(p, "output_dir")
         col.prop(p, "save_depth")
 
-        from .. import prefs as P
-
-        rep = P.dependency_status(context)
-        if rep.error or "torch" in rep.missing:
-            box = layout.box()
-            box.label(text=rep.error or "torch is missing in the worker Python", icon="ERROR")
-            box.label(text="See the add-on preferences for what to install")
+        _torch_warning(layout, context)
         if p.running:
             layout.progress(factor=p.progress, type="BAR", text=p.status or "Synthesizing...")
             layout.label(text="Press Esc to cancel", icon="INFO")
         else:
             layout.operator("mrvm.synthesize", icon="RENDER_RESULT")
             if p.status:
-                from .capture import _wrap
-
-                for line in _wrap(p.status, 48):
-                    layout.label(text=line)
+                _status(layout, p.status)
 
 
-classes = (MRVM_PT_novel_views,)
+classes = (MRVM_PT_model, MRVM_PT_novel_views)

@@ -1,0 +1,193 @@
+"""Operator: Train / fine-tune the model from the panel (``bpy.ops.mrvm.train()``).
+
+Training runs in the worker process (``python -m blender_mrvm train --config job.json``, the same
+command a cluster job runs), driven by ``operators/_modal.ProgressOperator``: modal from the UI with
+the step, loss and PSNR in the panel and status bar, Esc interrupts the worker (checkpoints written
+so far are kept, and training again continues from the last one); ``execute`` runs it to the end.
+
+"Fine-tune" means continuing a run: with "Continue run" on, the trainer resumes from the run
+folder's last checkpoint (weights, optimizer, schedule and random state) and trains up to the
+iteration count, on whatever dataset is chosen now. When it finishes, the run folder is picked as
+the Synthesize novel views checkpoint (the synthesis loads its latest checkpoint).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import bpy
+
+from ..errors import InputError
+from ._modal import ProgressOperator
+
+if TYPE_CHECKING:
+    from ..progress import ProgressGen
+
+TRAIN_COMMAND = "train"
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """One training run, checked and ready to start."""
+
+    data: Path
+    """Dataset root."""
+    run_dir: Path
+    """Run folder (checkpoints/, metrics.jsonl, config.json)."""
+    preset: str
+    """Model preset."""
+    iterations: int
+    """Steps in all."""
+    checkpoint_every: int
+    """Checkpoint interval in steps."""
+    rays_per_object: int
+    """Target rays per object per step."""
+    resume: bool
+    """Continue from the run folder's last checkpoint."""
+    device: str
+    """The add-on preferences' device: cpu, cuda, or auto (the trainer's default, the CPU)."""
+
+
+def _abs(p: str, what: str) -> Path:
+    raw = p.strip()
+    if not raw:
+        raise InputError(f"choose the {what}")
+    if raw.startswith("//") and not bpy.data.filepath:
+        raise InputError(f"save the .blend first or choose an absolute {what} (// is relative to the .blend)")
+    return Path(bpy.path.abspath(raw))
+
+
+def run_model_name(run_dir: Path) -> str | None:
+    """The model preset a run folder was trained with (its config.json), or None when it has no run."""
+    cfg = Path(run_dir) / "config.json"
+    if not cfg.is_file():
+        return None
+    try:
+        return str(json.loads(cfg.read_text())["model"]["config"]["name"])
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def plan_from_props(context) -> TrainJob:
+    """Check the Model section's settings; no side effects. MRVMError on bad input."""
+    from .. import prefs as P
+
+    p = context.scene.mrvm_train
+    data = _abs(p.data_dir, "dataset folder")
+    if not data.is_dir():
+        raise InputError(f"dataset folder {data} does not exist (render one in the Dataset section)")
+    run_dir = _abs(p.run_dir, "run folder")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise InputError(f"run folder {run_dir} is a file")
+    if p.resume:
+        name = run_model_name(run_dir)
+        if name is not None and name != p.preset:
+            raise InputError(f"the run folder holds a {name!r} model; choose that model to continue it, "
+                             "a new run folder, or turn off Continue run")
+    pr = P.get(context)
+    dev = (pr.device if pr else "AUTO").lower()
+    return TrainJob(data, run_dir, p.preset, int(p.iterations), int(p.checkpoint_every), int(p.rays_per_object),
+                    bool(p.resume), dev)
+
+
+def prepare(context):
+    """The worker's interpreter, after checking it has what training needs."""
+    from .. import prefs as P
+    from ..worker import choose_interpreter, require
+
+    pr = P.get(context)
+    interp = choose_interpreter(pr.python_path if pr else "")
+    require(interp, ("torch", "safetensors", "numpy", "PIL"))
+    return interp
+
+
+def write_job(job: TrainJob, job_dir: Path) -> list[str]:
+    """Write the run config for ``train --config``; return the worker's arguments."""
+    train = {"data": str(job.data), "out_dir": str(job.run_dir), "iterations": job.iterations,
+             "ckpt_every": job.checkpoint_every, "rays_per_object": job.rays_per_object,
+             "log_every": max(1, min(10, job.checkpoint_every))}
+    if job.device != "auto":
+        train["device"] = job.device
+    cfg = job_dir / "train.json"
+    cfg.write_text(json.dumps({"model": {"preset": job.preset}, "train": train}, indent=2) + "\n")
+    args = ["--config", str(cfg)]
+    if not job.resume:
+        args.append("--no-resume")
+    return args
+
+
+@dataclass
+class TrainRun:
+    job: TrainJob
+    summary: dict
+    """The train command's last JSON line: step, checkpoint, resumed_from, world_size."""
+    seconds: float
+
+
+def run_job(job: TrainJob, interp) -> "ProgressGen":
+    """Progress generator: run the worker; return a :class:`TrainRun`. The job folder is always removed."""
+    from ..worker import run_worker
+
+    job_dir = Path(tempfile.mkdtemp(prefix="mrvm_train_"))
+    try:
+        args = write_job(job, job_dir)
+        result = yield from run_worker(TRAIN_COMMAND, args, interp.path)
+    finally:
+        shutil.rmtree(job_dir, ignore_errors=True)
+    summary = {}
+    for line in reversed(result.output):
+        try:
+            summary = json.loads(line)
+            break
+        except ValueError:
+            continue
+    return TrainRun(job, summary if isinstance(summary, dict) else {}, result.seconds)
+
+
+def on_train_result(context, run: TrainRun) -> str:
+    """Pick the run for novel views (when asked) and say what was trained."""
+    p = context.scene.mrvm_train
+    ck = run.summary.get("checkpoint")
+    if not ck and run.summary.get("resumed_from", 0) >= run.job.iterations:
+        raise InputError(f"the run in {run.job.run_dir} is already at step {run.summary['resumed_from']}; "
+                         "raise Iterations to train further")
+    if not ck:
+        raise InputError(f"training finished but wrote no checkpoint into {run.job.run_dir}")
+    msg = f"Trained to step {run.summary.get('step')} in {run.seconds:.0f} s"
+    if run.summary.get("resumed_from"):
+        msg += f" (continued from step {run.summary['resumed_from']})"
+    msg += f"; checkpoint {ck}"
+    nv = getattr(context.scene, "mrvm_novel_views", None)
+    if p.use_for_synthesis and nv is not None:
+        nv.checkpoint = p.run_dir.strip() if p.run_dir.strip().startswith("//") else str(run.job.run_dir)
+        msg += " (picked for novel views)"
+    return msg
+
+
+class MRVM_OT_train(ProgressOperator, bpy.types.Operator):
+    """Train the novel-view model on a rendered dataset, or continue (fine-tune) a run, in the worker process"""
+
+    bl_idname = "mrvm.train"
+    bl_label = "Train / Fine-tune"
+    bl_options = {"REGISTER"}
+
+    props_attr = "mrvm_train"
+    job_name = "Training"
+    cancel_hint = "checkpoints written so far are kept (train again to continue)"
+    timer_interval = 0.1
+
+    def start(self, context):
+        job = plan_from_props(context)
+        interp = prepare(context)
+        return run_job(job, interp)
+
+    def on_result(self, context, run: TrainRun) -> str:
+        return on_train_result(context, run)
+
+
+classes = (MRVM_OT_train,)

@@ -1,0 +1,122 @@
+"""Train / fine-tune from the panel: the operator runs `train` in the worker on a tiny analytic set,
+writes checkpoints that Synthesize novel views then uses, continues a run, refuses settings that
+cannot work, and Esc stops the worker (modal path with synthetic events)."""
+
+from __future__ import annotations
+
+import json
+import re
+import types
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture
+def train_ready(empty_scene, tmp_path, addon):
+    import bpy
+
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    pr = bpy.context.preferences.addons["blender_mrvm"].preferences
+    saved = (pr.python_path, pr.checkpoint_dir, pr.device)
+    pr.python_path, pr.checkpoint_dir, pr.device = "", "", "CPU"
+    data = make_sphere_dataset(tmp_path / "data", n_objects=2, n_views=4, resolution=16, seed=3)
+    p = empty_scene.mrvm_train
+    p.data_dir, p.run_dir, p.preset = str(data), str(tmp_path / "run"), "fast"
+    p.iterations, p.checkpoint_every, p.rays_per_object = 2, 1, 32
+    yield empty_scene
+    pr.python_path, pr.checkpoint_dir, pr.device = saved
+
+
+def test_panel_draws_the_model_section(train_ready):
+    from test_novel_views import _draw  # the FakeLayout helper
+
+    from blender_mrvm.panels.novel_views import MRVM_PT_model
+
+    log = _draw(MRVM_PT_model)
+    props = {e[1] for e in log if e[0] == "prop"}
+    assert {"data_dir", "run_dir", "preset", "iterations", "checkpoint_every", "resume", "use_for_synthesis"} <= props
+    assert ("operator", "mrvm.train") in log
+
+
+def test_train_writes_checkpoints_that_synthesis_picks_and_continues(train_ready, tmp_path):
+    import bpy
+
+    from blender_mrvm.operators import synthesize as S
+    from blender_mrvm.training.checkpoint import find_checkpoint, load_model
+
+    p = train_ready.mrvm_train
+    assert bpy.ops.mrvm.train() == {"FINISHED"}
+    assert re.match(r"Trained to step 2 in \d+ s; checkpoint .*step_0000002 \(picked for novel views\)$", p.status), p.status
+    run = tmp_path / "run"
+    assert find_checkpoint(run).name == "step_0000002"
+    model, cfg, meta = load_model(run)
+    assert cfg.name == "fast" and meta["step"] == "2"
+    assert json.loads((run / "config.json").read_text())["train"]["ckpt_every"] == 1
+    nv = train_ready.mrvm_novel_views
+    assert nv.checkpoint == str(run)
+    # Synthesis now takes that run (its latest checkpoint) as the model.
+    assert S._checkpoint(bpy.context, nv) == run
+    # Fine-tune: continue the same run to step 3.
+    p.iterations = 3
+    assert bpy.ops.mrvm.train() == {"FINISHED"}
+    assert "Trained to step 3" in p.status and "(continued from step 2)" in p.status
+    assert find_checkpoint(run).name == "step_0000003"
+    # Already there: a clear message, not a silent success.
+    with pytest.raises(RuntimeError, match="already at step 3; raise Iterations"):
+        bpy.ops.mrvm.train()
+
+
+def test_train_bad_settings(train_ready, tmp_path):
+    import bpy
+
+    p = train_ready.mrvm_train
+    p.data_dir = str(tmp_path / "nothing")
+    with pytest.raises(RuntimeError, match="dataset folder .*nothing does not exist"):
+        bpy.ops.mrvm.train()
+    assert "does not exist" in p.status
+    p.data_dir = str(tmp_path)  # a folder without a dataset: the worker's one-line error
+    with pytest.raises(RuntimeError, match="not a dataset this tool reads") as e:
+        bpy.ops.mrvm.train()
+    assert "\n" not in str(e.value).strip() and "not a dataset this tool reads" in p.status
+    run = tmp_path / "run"
+    run.mkdir(exist_ok=True)
+    (run / "config.json").write_text(json.dumps({"model": {"config": {"name": "balanced"}}}))
+    p.data_dir = str(tmp_path / "data")
+    with pytest.raises(RuntimeError, match="the run folder holds a 'balanced' model"):
+        bpy.ops.mrvm.train()
+
+
+def test_train_modal_escape_stops_the_worker(train_ready, tmp_path, monkeypatch):
+    import bpy
+
+    from blender_mrvm import worker as Wk
+    from blender_mrvm.operators._modal import ProgressOperator
+    from blender_mrvm.operators.train import MRVM_OT_train as Op
+    from test_novel_views import _FakeWM
+
+    procs = []
+    real = Wk.run_worker
+    monkeypatch.setattr(Wk, "run_worker", lambda *a, **k: real(*a, on_start=procs.append, **k))
+    train_ready.mrvm_train.iterations = 100000
+
+    class Driver(ProgressOperator):
+        props_attr, job_name, cancel_hint = Op.props_attr, Op.job_name, Op.cancel_hint
+        start, on_result = Op.start, Op.on_result
+        reports: list = []
+
+        def report(self, level, msg):
+            self.reports.append((next(iter(level)), msg))
+
+    ctx = types.SimpleNamespace(scene=bpy.context.scene, preferences=bpy.context.preferences, window=None,
+                                window_manager=_FakeWM(), screen=None,
+                                workspace=types.SimpleNamespace(status_text_set=lambda t: None))
+    op = Driver()
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"}
+    assert op.modal(ctx, types.SimpleNamespace(type="TIMER")) == {"RUNNING_MODAL"}
+    assert procs and procs[0].poll() is None
+    assert op.modal(ctx, types.SimpleNamespace(type="ESC")) == {"CANCELLED"}
+    assert procs[0].poll() is not None
+    assert op.reports[-1] == ("WARNING", "Training cancelled; checkpoints written so far are kept (train again to continue)")
+    assert not train_ready.mrvm_train.running
