@@ -28,6 +28,8 @@ class CaptureConfig:
     """Sequential matching pairs each frame with this many successors (plus quadratic i+2^k)."""
     max_image_size: int = 1600
     """Images are downscaled to this longer side for feature extraction (poses stay in full resolution)."""
+    upsample_below: int = 640
+    """SIFT upsamples photos 2x first (octave -1) only when their longer side is below this; larger: ~3x faster."""
     max_num_features: int = 2048
     """SIFT features kept per image (pycolmap's default is 8192)."""
     min_images: int = 3
@@ -56,6 +58,8 @@ class CaptureConfig:
             raise InputError(f"max_num_features must be at least 64 (got {self.max_num_features})")
         if self.max_image_size != -1 and self.max_image_size < 64:
             raise InputError(f"max_image_size must be at least 64 or -1 (got {self.max_image_size})")
+        if self.upsample_below < 0:
+            raise InputError(f"upsample_below must be at least 0 (got {self.upsample_below})")
         if not 0.0 <= self.min_registered_fraction <= 1.0:
             raise InputError("min_registered_fraction must lie in [0, 1]")
         return self
@@ -68,6 +72,13 @@ class CaptureConfig:
     def shared_camera(self) -> bool:
         """Shared for two-focal models (a Blender scene has one pixel aspect) and pairs (too few views otherwise)."""
         return self.single_camera or self.allow_pair or self.camera_model in ("PINHOLE", "OPENCV")
+
+    def sift_first_octave(self, width: int, height: int) -> int:
+        """COLMAP's SIFT first octave for photos of this size: -1 (upsample 2x) below ``upsample_below``, else 0."""
+        side = max(width, height)
+        if self.max_image_size != -1:
+            side = min(side, self.max_image_size)
+        return -1 if side < self.upsample_below else 0
 
     @property
     def required_images(self) -> int:

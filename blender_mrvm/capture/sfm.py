@@ -11,7 +11,8 @@ Stages and what they check (each failure is one line naming the problem):
 
 1. scan      fewer than ``required_images`` photos, an unreadable photo, photos of differing size,
              an output folder that already holds files (without ``force``)
-2. extract   SIFT, at most ``max_num_features`` per image on images of at most ``max_image_size``
+2. extract   SIFT, at most ``max_num_features`` per image on images of at most ``max_image_size``;
+             the image is upsampled 2x first (first octave -1) only below ``upsample_below`` px
 3. match     exhaustive, or sequential for numbered frames (``matcher="auto"``); no verified pair
              means the photos do not overlap
 4. map       incremental mapping; the largest model is kept; registering fewer than
@@ -63,11 +64,13 @@ class CaptureResult:
     matcher: str
     """The matcher used (exhaustive or sequential)."""
     timings: dict[str, float]
-    """Seconds per stage."""
+    """Seconds per stage (wall clock)."""
     num_points: int
     """Sparse 3D points written to points.ply."""
     mean_reprojection_error: float
     """Of the kept COLMAP model, pixels."""
+    cpu_timings: dict[str, float] = field(default_factory=dict)
+    """CPU seconds per stage (this process, all threads); unlike wall time, barely moved by other load."""
     c2w_opencv: list[np.ndarray] = field(default_factory=list)
     """Output poses (normalized world), one per registered photo."""
     intrinsics: list[C.Intrinsics] = field(default_factory=list)
@@ -242,37 +245,40 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     images_dir, out_dir = Path(images_dir), Path(out_dir)
     pycolmap.logging.minloglevel = 0 if verbose else 2
     timings: dict[str, float] = {}
-    t = time.perf_counter()
+    cpu_timings: dict[str, float] = {}  # process CPU seconds (all threads): robust to a busy machine
+    t, c = time.perf_counter(), time.process_time()
 
     # 1. scan
     names = list_images(images_dir)
-    check_images(images_dir, names, cfg)
+    size = check_images(images_dir, names, cfg)
     prepare_output(out_dir, images_dir, cfg.force)
     work = out_dir / "colmap"
     work.mkdir(parents=True, exist_ok=True)
     db_path = work / "database.db"
     matcher = choose_matcher(cfg, names)
-    timings["scan"] = time.perf_counter() - t
+    timings["scan"], cpu_timings["scan"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["scan"], 100, f"{len(names)} images, {matcher} matching")
     token = pycolmap.CancellationToken()
     threads = cfg.num_threads
 
     # 2. extract
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     ext = pycolmap.FeatureExtractionOptions()
     ext.max_image_size = cfg.max_image_size
     ext.num_threads = threads
     ext.sift.max_num_features = cfg.max_num_features
+    first_octave = cfg.sift_first_octave(*size)
+    ext.sift.first_octave = first_octave
     mode = pycolmap.CameraMode.SINGLE if cfg.shared_camera else pycolmap.CameraMode.PER_IMAGE
     yield from _run_in_thread(lambda: pycolmap.extract_features(
         db_path, images_dir, image_names=names, camera_mode=mode, reader_options=reader, extraction_options=ext,
         device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
-    timings["extract"] = time.perf_counter() - t
+    timings["extract"], cpu_timings["extract"] = time.perf_counter() - t, time.process_time() - c
 
     # 3. match
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     mopts = pycolmap.FeatureMatchingOptions()
     mopts.num_threads = threads
     ver = pycolmap.TwoViewGeometryOptions()
@@ -290,7 +296,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
                                                cancellation_token=token)
     yield from _run_in_thread(fn, token, f"{matcher} matching", _STAGE_END["extract"])
     verified, tried, connected = _pair_stats(db_path, ver.min_num_inliers)
-    timings["match"] = time.perf_counter() - t
+    timings["match"], cpu_timings["match"] = time.perf_counter() - t, time.process_time() - c
     if verified == 0:
         raise InputError(f"the images do not overlap: none of {tried} image pairs share enough matched features "
                          f"(database kept in {db_path})")
@@ -298,7 +304,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     yield Progress(_STAGE_END["match"], 100, f"{verified}/{tried} pairs verified")
 
     # 4. map
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     need = max(cfg.required_images, math.ceil(cfg.min_registered_fraction * len(names)))
     mopt = pycolmap.IncrementalPipelineOptions()
     mopt.num_threads = threads
@@ -327,7 +333,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         lambda: pycolmap.incremental_mapping(db_path, images_dir, sparse, mopt, initial_image_pair_callback=on_init,
                                              next_image_callback=on_image, cancellation_token=token),
         token, "mapping", _STAGE_END["match"], status=lambda: f"{count['n']}/{len(names)} registered")
-    timings["map"] = time.perf_counter() - t
+    timings["map"], cpu_timings["map"] = time.perf_counter() - t, time.process_time() - c
     if not recs:
         _write_report(work, names, [], None, timings)
         raise InputError(f"mapping found no image pair to start from (too little overlap or baseline); "
@@ -349,7 +355,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     # 5. undistort
     image_root = images_dir
     if cfg.has_distortion:
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         und = work / "undistorted"
         if und.exists():
             shutil.rmtree(und)
@@ -359,11 +365,11 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
             num_threads=threads, cancellation_token=token), token, "undistorting", _STAGE_END["map"])
         rec = pycolmap.Reconstruction(str(und / "sparse"))
         image_root = und / "images"
-        timings["undistort"] = time.perf_counter() - t
+        timings["undistort"], cpu_timings["undistort"] = time.perf_counter() - t, time.process_time() - c
         yield Progress(_STAGE_END["undistort"], 100, "undistorted")
 
     # 6. export
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     c2ws, intrs = [], []
     for n in reg_names:
@@ -385,20 +391,23 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     views = [CaptureView(n, image_root / n, k, p) for n, k, p in zip(reg_names, intrs, c2ws)]
     unregistered = [n for n in names if n not in set(reg_names)]
     reproj = float(rec.compute_mean_reprojection_error())
-    timings["export"] = time.perf_counter() - t  # (the meta records the time up to here)
+    # (the meta records the export time up to here)
+    timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     meta = {
         "kind": "capture", "version": FORMAT_VERSION, "source": str(images_dir.resolve()),
         "registered": len(reg_names), "total": len(names), "unregistered": unregistered,
         "camera_model": cfg.camera_model, "undistorted": cfg.has_distortion, "matcher": matcher,
+        "sift_first_octave": first_octave,
         "num_points": int(len(xyz)), "mean_reprojection_error_px": reproj,
-        "normalization": norm_json, "timings_s": timings, "config": asdict(cfg),
+        "normalization": norm_json, "timings_s": timings, "cpu_timings_s": cpu_timings,
+        "config": asdict(cfg),
         "colmap_model": str(model_dir.relative_to(out_dir)),
     }
     write_capture(out_dir, views, xyz, rgb, meta)
-    timings["export"] = time.perf_counter() - t
+    timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
     return CaptureResult(out_dir, reg_names, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
-                         c2ws, intrs)
+                         cpu_timings, c2ws, intrs)
 
 
 def _write_report(work: Path, names: list[str], registered: list[str], model_dir: Path | None,

@@ -26,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-features", type=int, default=d.max_num_features, help="SIFT features per image")
     p.add_argument("--max-image-size", type=int, default=d.max_image_size,
                    help="longer side used for feature extraction (-1 = full size)")
+    p.add_argument("--upsample-below", type=int, default=d.upsample_below,
+                   help="SIFT upsamples photos 2x only when their longer side is below this many pixels "
+                        f"(default {d.upsample_below}; 0 = never; 100000 = always, as COLMAP does)")
     p.add_argument("--overlap", type=int, default=d.sequential_overlap, help="sequential matching: successors per frame")
     p.add_argument("--min-registered", type=float, default=d.min_registered_fraction,
                    help="fail when fewer than this fraction of photos register")
@@ -42,7 +45,8 @@ def config_from_args(args: argparse.Namespace):
 
     return CaptureConfig(camera_model=args.camera_model, single_camera=args.single_camera,
                          matcher=args.matcher, max_num_features=args.max_features,
-                         max_image_size=args.max_image_size, sequential_overlap=args.overlap,
+                         max_image_size=args.max_image_size, upsample_below=args.upsample_below,
+                         sequential_overlap=args.overlap,
                          min_registered_fraction=args.min_registered, allow_pair=args.pair,
                          normalize=not args.no_normalize, num_threads=args.threads, seed=args.seed,
                          force=args.force).validate()
