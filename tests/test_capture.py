@@ -68,6 +68,8 @@ def test_synthetic_ring_poses_match_truth(recovered):
     done = [e.done for e in events]
     assert done == sorted(done) and done[-1] == 100
     assert {"scan", "extract", "match", "map", "export"} <= set(res.timings)
+    assert set(res.cpu_timings) == set(res.timings) and all(v >= 0.0 for v in res.cpu_timings.values())
+    assert res.cpu_timings["extract"] > 0.0  # pycolmap's worker threads count: process CPU time, all threads
 
 
 def test_capture_folder_is_our_dataset_format(recovered):
@@ -78,6 +80,11 @@ def test_capture_folder_is_our_dataset_format(recovered):
     cap = read_capture(out)
     assert [f.extra["original_name"] for f in cap.frames] == res.registered
     assert cap.meta["registered"] == N_VIEWS and cap.meta["total"] == N_VIEWS and cap.meta["kind"] == "capture"
+    assert cap.meta["sift_first_octave"] == -1  # 320 px is below upsample_below: SIFT upsamples 2x first
+    # The shared camera's focal length came from the view graph: with COLMAP's 1.2 x width guess (384 px for a
+    # true 277) 8-9 of 12 seeded mappings of this ring converged to a mirrored solution (rotation errors > 8 deg).
+    assert cap.meta["focal_from_view_graph"] is True
+    assert set(cap.meta["cpu_timings_s"]) == set(cap.meta["timings_s"])
     for i, f in enumerate(cap.frames):
         assert f.file_path == f"rgb/{i:06d}.png"
         assert F.read_png(out / f.file_path).shape == (H, W, 3)
@@ -156,6 +163,7 @@ def test_real_stereo_pair(moto_dir, tmp_path, capsys):
     cap = read_capture(tmp_path / "b")
     assert cap.meta["registered"] == 2 and len(cap.frames) == 2
     assert cap.meta["mean_reprojection_error_px"] < 1.0 and len(cap.xyz) > 200
+    assert cap.meta["focal_from_view_graph"] is False  # one pair is no view graph (and a rectified pair is critical)
     # A rectified pair: the baseline runs along the left camera's x axis, the cameras are parallel.
     left, right = (f.c2w_opencv for f in sorted(cap.frames, key=lambda f: f.extra["original_name"]))
     base = right[:3, 3] - left[:3, 3]
@@ -244,8 +252,15 @@ def test_output_not_overwritten_without_force(ring, tmp_path, capsys):
     for bad in (d, d.parent):  # the photos' folder itself, or a folder holding it
         with pytest.raises(OutputError, match="contains the photos"):
             _run(d, bad, CaptureConfig(force=True))
-    assert main(["recover-poses", "--images", str(d), "--out", str(out), "--threads", "2", "--force"]) == 0
-    assert json.loads((out / "meta.json").read_text())["registered"] == 5
+    assert main(["recover-poses", "--images", str(d), "--out", str(out), "--threads", "2", "--force",
+                 "--upsample-below", "0"]) == 0
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["registered"] == 5
+    assert meta["config"]["upsample_below"] == 0 and meta["sift_first_octave"] == 0  # the CLI option reaches SIFT
+    assert meta["focal_from_view_graph"] is False  # per-photo cameras (the default) keep COLMAP's focal guess
+    res = _run(d, tmp_path / "guess", CaptureConfig(num_threads=2, single_camera=True, estimate_focal=False))
+    assert len(res.registered) == 5
+    assert json.loads((tmp_path / "guess" / "meta.json").read_text())["focal_from_view_graph"] is False
     assert (out / "notes.txt").read_text() == "mine"  # --force replaces only the capture's own files
 
 
@@ -277,6 +292,43 @@ def test_matcher_choice_and_config_errors():
     assert not looks_like_frames(photos) and choose_matcher(CaptureConfig(), photos) == "exhaustive"
     with pytest.raises(InputError, match="unknown camera model 'FISHEYE'"):
         CaptureConfig(camera_model="FISHEYE").validate()
+    with pytest.raises(InputError, match="upsample_below must be at least 0"):
+        CaptureConfig(upsample_below=-1).validate()
+
+
+def test_sift_first_octave_rule():
+    """SIFT upsamples 2x (octave -1) only below upsample_below px, measured on the side SIFT actually sees."""
+    d = CaptureConfig()
+    assert d.upsample_below == 640
+    assert d.sift_first_octave(960, 540) == 0 and d.sift_first_octave(540, 960) == 0  # the bench size
+    assert d.sift_first_octave(640, 480) == 0 and d.sift_first_octave(639, 480) == -1
+    assert d.sift_first_octave(320, 240) == -1
+    assert d.sift_first_octave(4000, 3000) == 0  # downscaled to max_image_size 1600 first
+    assert CaptureConfig(max_image_size=500).sift_first_octave(4000, 3000) == -1
+    assert CaptureConfig(max_image_size=-1).sift_first_octave(4000, 3000) == 0
+    assert CaptureConfig(upsample_below=0).sift_first_octave(320, 240) == 0
+    assert CaptureConfig(upsample_below=100000).sift_first_octave(4000, 3000) == -1  # COLMAP's default
+
+
+def test_bench_gives_every_method_the_same_photos():
+    from blender_mrvm.bench.capture import subset_names, summarize
+
+    truth = {"views": [{"name": f"{i:03d}.png"} for i in range(40)]}
+    assert subset_names(truth, 10, "arc") == [f"{i:03d}.png" for i in range(10)]
+    assert subset_names(truth, 10, "spread") == [f"{i:03d}.png" for i in range(0, 40, 4)]
+    assert subset_names(truth, 40, "arc") == subset_names(truth, 40, "spread")
+    with pytest.raises(ValueError):
+        subset_names(truth, 41)
+    base = dict(images=40, width=960, height=540, subset="arc", matcher="x", max_features=1, sift_first_octave=0,
+                **{f"{s}_s": 1.0 for s in ("scan", "extract", "match", "map", "undistort", "export")},
+                registered="40/40", median_rot_deg=0.1, median_centre_pct_radius=0.1, load_1min=1.0)
+    runs = [base | {"method": "pycolmap_default", "total_s": t, "total_cpu_s": 2 * t} for t in (30.0, 10.0, 20.0)]
+    runs += [base | {"method": "ours", "total_s": t, "total_cpu_s": t, "median_rot_deg": r}
+             for t, r in ((5.0, 0.1), (4.0, 0.7), (6.0, 0.1))]
+    rows = {r["method"]: r for r in summarize(runs)}
+    assert rows["pycolmap_default"]["total_s"] == 20.0 and rows["ours"]["total_s"] == 5.0  # medians
+    assert rows["ours"]["time_ratio"] == 0.25 and rows["ours"]["cpu_ratio"] == 0.125
+    assert rows["pycolmap_default"]["accurate"] and not rows["ours"]["accurate"]  # one repeat broke 0.5 deg
 
 
 def test_umeyama_recovers_a_similarity():

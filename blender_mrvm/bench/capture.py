@@ -1,17 +1,31 @@
 """Pose recovery speed and accuracy: our defaults against pycolmap's defaults (exhaustive matching).
 
 A procedurally textured scene is rendered (Cycles, emission shading) from a ring of 40 known cameras
-at 960x540; subsets of 10, 20 and 40 evenly spaced views are recovered twice:
+at 960x540 (9 degrees apart). For each size n (10, 20, 40) the same n photos go to every method:
+``--subset arc`` (default) takes n consecutive ring views, so neighbours stay 9 degrees apart at every
+n; ``--subset spread`` takes n evenly spaced views (36 degrees apart at n=10, where no method
+registers every view). Methods:
 
-- ``ours``: ``capture.sfm.recover_poses`` with the default :class:`CaptureConfig` (2048 SIFT
-  features, sequential matching for more than 30 numbered frames, SIMPLE_PINHOLE with intrinsics
-  per photo), including the export of the capture folder;
+- ``ours``: ``capture.sfm.recover_poses`` with the default :class:`CaptureConfig` (SIFT from the
+  photo's own resolution above ``upsample_below`` px, at most 2048 features, exhaustive matching up to
+  30 photos and sequential matching for more numbered frames, SIMPLE_PINHOLE per photo), including
+  the photo checks (scan) and the export of the capture folder;
+- ``ours_exhaustive``: the same with ``matcher="exhaustive"``: what an unordered photo set (names that
+  are not numbered frames) gets;
 - ``pycolmap_default``: ``extract_features`` / ``match_exhaustive`` / ``incremental_mapping`` with
-  pycolmap's default options (8192 features, SIMPLE_RADIAL, every pair), largest model kept.
+  pycolmap's default options (SIFT on the 2x-upsampled photo, 8192 features, SIMPLE_RADIAL, every
+  pair), largest model kept.
 
-Accuracy: Umeyama similarity alignment of the recovered camera centres to the truth, then the median
-rotation error (degrees) and median centre error (% of the ring radius). Time per stage, total,
-registered/total and the errors go to ``<out>/bench_capture.csv``.
+Every method gets the same photos and ``--threads``. Each (n, method) runs ``--repeats`` times; the
+order of the methods rotates from one repeat to the next (no method always runs first or on a warm
+cache). Wall and CPU seconds (``time.process_time``: this process, all threads) are taken per stage;
+on a shared machine the CPU seconds are the steadier figure, so both are reported with the 1-minute
+load average. Accuracy: Umeyama similarity alignment of the recovered camera centres to the truth,
+then the median rotation error (degrees) and median centre error (% of the ring radius);
+``accurate`` = every photo registered, rotation < 0.5 deg and centre < 1 % in every repeat.
+
+Writes ``<out>/bench_capture_runs.csv`` (every run) and ``<out>/bench_capture.csv`` (medians per
+method and size, with the time ratio to ``pycolmap_default``).
 """
 
 from __future__ import annotations
@@ -19,24 +33,30 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import shutil
+import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 
-STAGES = ("extract", "match", "map", "undistort", "export")
+STAGES = ("scan", "extract", "match", "map", "undistort", "export")
+METHODS = ("ours", "ours_exhaustive", "pycolmap_default")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="bench_out", help="folder for bench_capture.csv and the cached renders")
+    p.add_argument("--out", default="bench_out", help="folder for the CSVs and the cached renders")
     p.add_argument("--sizes", default="10,20,40", help="numbers of images to recover")
     p.add_argument("--views", type=int, default=40, help="views rendered on the ring (subsets are taken)")
     p.add_argument("--width", type=int, default=960)
     p.add_argument("--height", type=int, default=540)
     p.add_argument("--samples", type=int, default=4)
-    p.add_argument("--methods", default="ours,pycolmap_default")
-    p.add_argument("--threads", type=int, default=-1, help="CPU threads for both methods (-1 = all)")
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, of {', '.join(METHODS)}")
+    p.add_argument("--threads", type=int, default=-1, help="CPU threads for every method (-1 = all)")
+    p.add_argument("--repeats", type=int, default=3, help="runs per method and size (medians are reported)")
+    p.add_argument("--subset", choices=("arc", "spread"), default="arc",
+                   help="arc: n consecutive ring views; spread: n evenly spaced views")
 
 
 def _render(out: Path, args) -> dict:
@@ -51,10 +71,19 @@ def _render(out: Path, args) -> dict:
     return json.loads(truth_path.read_text()) | {"dir": str(ring)}
 
 
-def _subset(truth: dict, n: int, dst: Path) -> list[str]:
+def subset_names(truth: dict, n: int, how: str = "arc") -> list[str]:
+    """The photos given to every method: n consecutive ring views (arc) or n evenly spaced ones (spread)."""
     views = truth["views"]
+    if n > len(views):
+        raise ValueError(f"asked for {n} images from a ring of {len(views)} views")
+    if how == "arc":
+        return [v["name"] for v in views[:n]]
     step = len(views) / n
-    names = [views[int(round(i * step)) % len(views)]["name"] for i in range(n)]
+    return [views[int(round(i * step)) % len(views)]["name"] for i in range(n)]
+
+
+def _subset(truth: dict, n: int, dst: Path, how: str) -> list[str]:
+    names = subset_names(truth, n, how)
     if dst.exists():
         shutil.rmtree(dst)
     dst.mkdir(parents=True)
@@ -73,16 +102,29 @@ def _errors(names, c2ws, truth) -> tuple[float, float]:
     return e.median_rotation_deg, 100.0 * e.median_centre / truth["radius"]
 
 
-def run_ours(images: Path, work: Path, threads: int) -> dict:
+def run_ours(images: Path, work: Path, threads: int, **overrides) -> dict:
     from ..capture.config import CaptureConfig
     from ..capture.sfm import recover_poses
+    from ..errors import MRVMError
     from ..progress import run_to_end
 
-    t0 = time.perf_counter()
-    res = run_to_end(recover_poses(images, work, CaptureConfig(num_threads=threads, force=True)))
-    total = time.perf_counter() - t0
-    return {"timings": res.timings, "total": total, "names": res.registered, "c2w": res.c2w_opencv,
-            "matcher": res.matcher, "features": CaptureConfig().max_num_features}
+    cfg = CaptureConfig(num_threads=threads, force=True, **overrides)
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        res = run_to_end(recover_poses(images, work, cfg))
+    except MRVMError as e:  # a failed recovery is a result too (registered 0, errors NaN)
+        return {"timings": {}, "cpu": {}, "total": time.perf_counter() - t0, "total_cpu": time.process_time() - c0,
+                "names": [], "c2w": [], "matcher": cfg.matcher, "features": cfg.max_num_features,
+                "first_octave": "", "error": str(e)}
+    total, total_cpu = time.perf_counter() - t0, time.process_time() - c0
+    meta = json.loads((work / "meta.json").read_text())
+    return {"timings": res.timings, "cpu": res.cpu_timings, "total": total, "total_cpu": total_cpu,
+            "names": res.registered, "c2w": res.c2w_opencv, "matcher": res.matcher,
+            "features": cfg.max_num_features, "first_octave": meta["sift_first_octave"], "error": ""}
+
+
+def run_ours_exhaustive(images: Path, work: Path, threads: int) -> dict:
+    return run_ours(images, work, threads, matcher="exhaustive")
 
 
 def run_pycolmap_default(images: Path, work: Path, threads: int) -> dict:
@@ -95,23 +137,23 @@ def run_pycolmap_default(images: Path, work: Path, threads: int) -> dict:
         shutil.rmtree(work)
     (work / "sparse").mkdir(parents=True)
     db = work / "database.db"
-    tm = {}
-    t0 = time.perf_counter()
+    tm, cpu = {}, {}
+    t0, c0 = time.perf_counter(), time.process_time()
     ext = pycolmap.FeatureExtractionOptions()
     ext.num_threads = threads
     pycolmap.extract_features(db, images, extraction_options=ext, device=pycolmap.Device.cpu)
-    tm["extract"] = time.perf_counter() - t0
-    t = time.perf_counter()
+    tm["extract"], cpu["extract"] = time.perf_counter() - t0, time.process_time() - c0
+    t, c = time.perf_counter(), time.process_time()
     mo = pycolmap.FeatureMatchingOptions()
     mo.num_threads = threads
     pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
-    tm["match"] = time.perf_counter() - t
-    t = time.perf_counter()
+    tm["match"], cpu["match"] = time.perf_counter() - t, time.process_time() - c
+    t, c = time.perf_counter(), time.process_time()
     opts = pycolmap.IncrementalPipelineOptions()
     opts.num_threads = threads
     recs = pycolmap.incremental_mapping(db, images, work / "sparse", opts)
-    tm["map"] = time.perf_counter() - t
-    total = time.perf_counter() - t0
+    tm["map"], cpu["map"] = time.perf_counter() - t, time.process_time() - c
+    total, total_cpu = time.perf_counter() - t0, time.process_time() - c0
     names, c2ws = [], []
     if recs:
         rec = max(recs.values(), key=lambda r: r.num_reg_images())
@@ -119,42 +161,102 @@ def run_pycolmap_default(images: Path, work: Path, threads: int) -> dict:
             im = rec.images[i]
             names.append(im.name)
             c2ws.append(C.c2w_opencv_from_w2c(im.cam_from_world().matrix()))
-    return {"timings": tm, "total": total, "names": names, "c2w": c2ws, "matcher": "exhaustive", "features": 8192}
+    return {"timings": tm, "cpu": cpu, "total": total, "total_cpu": total_cpu, "names": names, "c2w": c2ws,
+            "matcher": "exhaustive", "features": ext.sift.max_num_features, "first_octave": ext.sift.first_octave,
+            "error": ""}
+
+
+RUNNERS = {"ours": run_ours, "ours_exhaustive": run_ours_exhaustive, "pycolmap_default": run_pycolmap_default}
+RUN_FIELDS = ["method", "images", "repeat", "width", "height", "subset", "matcher", "max_features", "sift_first_octave",
+              *[f"{s}_s" for s in STAGES], "total_s", *[f"{s}_cpu_s" for s in STAGES], "total_cpu_s",
+              "registered", "median_rot_deg", "median_centre_pct_radius", "load_1min", "error"]
+SUMMARY_FIELDS = ["method", "images", "repeats", "width", "height", "subset", "matcher", "max_features",
+                  "sift_first_octave", *[f"{s}_s" for s in STAGES], "total_s", "total_cpu_s", "time_ratio",
+                  "cpu_ratio", "registered", "median_rot_deg", "median_centre_pct_radius", "accurate", "load_1min"]
+
+
+def _write(path: Path, fields: list[str], rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _accurate(row: dict) -> bool:
+    reg, n = (int(x) for x in row["registered"].split("/"))
+    return reg == n and row["median_rot_deg"] < 0.5 and row["median_centre_pct_radius"] < 1.0
+
+
+def summarize(runs: list[dict]) -> list[dict]:
+    """Medians per (method, images); ratios against pycolmap_default's medians of the same size."""
+    med = statistics.median
+    out = []
+    for key in dict.fromkeys((r["method"], r["images"]) for r in runs):
+        rs = [r for r in runs if (r["method"], r["images"]) == key]
+        first = rs[0]
+        row = {k: first[k] for k in ("method", "images", "width", "height", "subset", "matcher", "max_features",
+                                     "sift_first_octave")}
+        row["repeats"] = len(rs)
+        for s in STAGES:
+            row[f"{s}_s"] = round(med(r[f"{s}_s"] for r in rs), 3)
+        row["total_s"] = round(med(r["total_s"] for r in rs), 3)
+        row["total_cpu_s"] = round(med(r["total_cpu_s"] for r in rs), 3)
+        regs = sorted({r["registered"] for r in rs})
+        row["registered"] = regs[0] if len(regs) == 1 else "|".join(regs)
+        row["median_rot_deg"] = round(med(r["median_rot_deg"] for r in rs), 4)
+        row["median_centre_pct_radius"] = round(med(r["median_centre_pct_radius"] for r in rs), 4)
+        row["accurate"] = all(_accurate(r) for r in rs)
+        row["load_1min"] = round(med(r["load_1min"] for r in rs), 2)
+        out.append(row)
+    for row in out:
+        base = [b for b in out if b["method"] == "pycolmap_default" and b["images"] == row["images"]]
+        row["time_ratio"] = round(row["total_s"] / base[0]["total_s"], 3) if base else ""
+        row["cpu_ratio"] = round(row["total_cpu_s"] / base[0]["total_cpu_s"], 3) if base else ""
+    return out
 
 
 def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in RUNNERS]
+    if unknown:
+        raise SystemExit(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(RUNNERS)}")
     t = time.perf_counter()
     truth = _render(out, args)
     print(f"ring of {args.views} views at {args.width}x{args.height} ready ({time.perf_counter() - t:.0f}s)")
-    rows = []
-    csv_path = out / "bench_capture.csv"
-    fields = ["method", "images", "width", "height", "matcher", "max_features", *[f"{s}_s" for s in STAGES],
-              "total_s", "registered", "median_rot_deg", "median_centre_pct_radius"]
-    methods = {"ours": run_ours, "pycolmap_default": run_pycolmap_default}
+    runs: list[dict] = []
+    runs_path, summary_path = out / "bench_capture_runs.csv", out / "bench_capture.csv"
     for n in (int(s) for s in args.sizes.split(",")):
-        images = out / "capture_subsets" / f"n{n}"
-        _subset(truth, n, images)
-        for m in args.methods.split(","):
-            r = methods[m](images, out / "capture_work" / f"{m}_n{n}", args.threads)
-            rot, cen = _errors(r["names"], r["c2w"], truth)
-            row = {"method": m, "images": n, "width": args.width, "height": args.height, "matcher": r["matcher"],
-                   "max_features": r["features"],
-                   **{f"{s}_s": round(r["timings"].get(s, 0.0), 3) for s in STAGES},
-                   "total_s": round(r["total"], 3), "registered": f"{len(r['names'])}/{n}",
-                   "median_rot_deg": round(rot, 4), "median_centre_pct_radius": round(cen, 4)}
-            rows.append(row)
-            print(", ".join(f"{k}={v}" for k, v in row.items()), flush=True)
-            with open(csv_path, "w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=fields)
-                w.writeheader()
-                w.writerows(rows)
-    for n in sorted({r["images"] for r in rows}):
-        pair = {r["method"]: r for r in rows if r["images"] == n}
-        if len(pair) == 2:
-            ratio = pair["ours"]["total_s"] / pair["pycolmap_default"]["total_s"]
-            print(f"{n} images: ours {pair['ours']['total_s']:.1f}s vs pycolmap default "
-                  f"{pair['pycolmap_default']['total_s']:.1f}s -> {ratio:.2f}x the time")
-    print(f"wrote {csv_path}")
+        images = out / "capture_subsets" / f"{args.subset}{n}"
+        _subset(truth, n, images, args.subset)
+        for rep in range(args.repeats):
+            k = rep % len(methods)
+            for m in methods[k:] + methods[:k]:  # rotate the order from one repeat to the next
+                load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+                r = RUNNERS[m](images, out / "capture_work" / f"{m}_n{n}", args.threads)
+                rot, cen = _errors(r["names"], r["c2w"], truth)
+                row = {"method": m, "images": n, "repeat": rep, "width": args.width, "height": args.height,
+                       "subset": args.subset, "matcher": r["matcher"], "max_features": r["features"],
+                       "sift_first_octave": r["first_octave"],
+                       **{f"{s}_s": round(r["timings"].get(s, 0.0), 3) for s in STAGES},
+                       "total_s": round(r["total"], 3),
+                       **{f"{s}_cpu_s": round(r["cpu"].get(s, 0.0), 3) for s in STAGES},
+                       "total_cpu_s": round(r["total_cpu"], 3), "registered": f"{len(r['names'])}/{n}",
+                       "median_rot_deg": round(rot, 4), "median_centre_pct_radius": round(cen, 4),
+                       "load_1min": round(load, 2), "error": r["error"]}
+                runs.append(row)
+                print(f"{m} n={n} rep {rep}: total {row['total_s']:.1f}s (cpu {row['total_cpu_s']:.1f}s) "
+                      + " ".join(f"{s} {row[f'{s}_s']:.1f}" for s in ("extract", "match", "map"))
+                      + f", {row['registered']} registered, rot {rot:.3f} deg, centre {cen:.3f}% R, load {load:.1f}"
+                      + (f", error: {r['error']}" if r["error"] else ""), flush=True)
+                _write(runs_path, RUN_FIELDS, runs)
+                _write(summary_path, SUMMARY_FIELDS, summarize(runs))
+    print(f"\nmedians over {args.repeats} repeats ({args.subset} subsets, threads {args.threads}):")
+    for row in summarize(runs):
+        print(f"  {row['method']:17s} n={row['images']:3d}  total {row['total_s']:6.1f}s  cpu {row['total_cpu_s']:6.1f}s  "
+              f"extract {row['extract_s']:5.1f}  match {row['match_s']:5.1f}  map {row['map_s']:5.1f}  "
+              f"ratio {row['time_ratio']} (cpu {row['cpu_ratio']})  {row['registered']}  rot {row['median_rot_deg']:.3f}  "
+              f"centre {row['median_centre_pct_radius']:.3f}%  accurate {row['accurate']}  load {row['load_1min']}")
+    print(f"wrote {summary_path} and {runs_path}")
     return 0

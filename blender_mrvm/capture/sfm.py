@@ -15,7 +15,8 @@ Stages and what they check (each failure is one line naming the problem):
              the image is upsampled 2x first (first octave -1) only below ``upsample_below`` px
 3. match     exhaustive, or sequential for numbered frames (``matcher="auto"``); no verified pair
              means the photos do not overlap
-4. map       incremental mapping; the largest model is kept; registering fewer than
+4. map       (a shared camera first gets its focal length from the view graph, ``estimate_focal``)
+             incremental mapping; the largest model is kept; registering fewer than
              ``min_registered_fraction`` of the photos is an error (the partial model is kept and
              named in the message, ``colmap/report.json`` lists what registered)
 5. undistort when the camera model has distortion (SIMPLE_RADIAL, RADIAL, OPENCV)
@@ -305,6 +306,13 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
 
     # 4. map
     t, c = time.perf_counter(), time.process_time()
+    focal_from_view_graph = cfg.estimate_focal and cfg.shared_camera and len(names) >= 3
+    if focal_from_view_graph:
+        vgc = pycolmap.ViewGraphCalibrationOptions()
+        vgc.random_seed = cfg.seed
+        focal_from_view_graph = yield from _run_in_thread(
+            lambda: pycolmap.calibrate_view_graph(db_path, vgc), token, "estimating the focal length",
+            _STAGE_END["match"])
     need = max(cfg.required_images, math.ceil(cfg.min_registered_fraction * len(names)))
     mopt = pycolmap.IncrementalPipelineOptions()
     mopt.num_threads = threads
@@ -397,7 +405,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "kind": "capture", "version": FORMAT_VERSION, "source": str(images_dir.resolve()),
         "registered": len(reg_names), "total": len(names), "unregistered": unregistered,
         "camera_model": cfg.camera_model, "undistorted": cfg.has_distortion, "matcher": matcher,
-        "sift_first_octave": first_octave,
+        "sift_first_octave": first_octave, "focal_from_view_graph": bool(focal_from_view_graph),
         "num_points": int(len(xyz)), "mean_reprojection_error_px": reproj,
         "normalization": norm_json, "timings_s": timings, "cpu_timings_s": cpu_timings,
         "config": asdict(cfg),
