@@ -540,6 +540,12 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
     (tmp_path / "junk.safetensors").write_bytes(b"junk" * 8)
     p.checkpoint = str(tmp_path / "junk.safetensors")
     _fails("checkpoint .*junk.safetensors does not load")
+    import torch
+    from safetensors.torch import save_file
+
+    save_file({"w": torch.zeros(2)}, str(tmp_path / "other.safetensors"), metadata={"format": "someone.else"})
+    p.checkpoint = str(tmp_path / "other.safetensors")
+    _fails("other.safetensors is not a blender_mrvm model checkpoint")
     p.checkpoint = str(tmp_path / "run")
     # The plane behind the camera's far clip.
     p.plane_distance = 5000.0

@@ -236,3 +236,30 @@ def test_blend_has_cameras_and_planes_on_their_frusta(setup, tmp_path, addon):
         assert all(o.data.background_images[0].image is not None for o in refs)
     finally:
         bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_orbit_and_target_views_without_a_targets_file(setup, tmp_path, capsys):
+    from blender_mrvm.datasets.novel_views import read_targets
+
+    root, obj, ck, _ = setup
+    base = ["synthesize", "--references", str(obj), "--views", "0", "1", "--checkpoint", str(ck),
+            "--device", "cpu", "--threads", "1"]
+    assert main(base + ["--orbit", "3", "--orbit-size", "20", "--orbit-elevation", "35", "--out", str(tmp_path / "o")]) == 0
+    targets, _ = read_targets(tmp_path / "o" / "targets.json")
+    refs = S.load_references(obj, (0, 1))
+    centre = 0.5 * (refs.bbox[0] + refs.bbox[1])
+    radius = np.median([np.linalg.norm(c[:3, 3] - centre) for c in refs.c2w])
+    assert [t.name for t in targets] == ["orbit 000", "orbit 001", "orbit 002"] and all(t.generated for t in targets)
+    for i, t in enumerate(targets):
+        eye = t.c2w_opencv[:3, 3] - centre
+        assert np.isclose(np.linalg.norm(eye), radius) and np.isclose(np.degrees(np.arcsin(eye[2] / radius)), 35.0)
+        assert np.allclose(t.c2w_opencv[:3, 2], -eye / radius)  # looks at the centre
+        assert (t.intrinsics.width, t.intrinsics.height) == (20, 20)
+        assert np.isclose(t.intrinsics.fov_x, refs.intrinsics[0].fov_x, rtol=1e-3)
+        assert F.read_png(tmp_path / "o" / t.rgb_path(i)).shape == (20, 20, 4)
+    assert main(base + ["--target-views", "2,3", "--out", str(tmp_path / "v")]) == 0
+    targets, _ = read_targets(tmp_path / "v" / "targets.json")
+    assert [t.name for t in targets] == ["view 002", "view 003"]
+    capsys.readouterr()
+    assert main(base + ["--target-views", "7", "--out", str(tmp_path / "w")]) == 2
+    assert "view 7 does not exist" in capsys.readouterr().err and not (tmp_path / "w").exists()

@@ -1,12 +1,14 @@
 """Synthesize novel views from posed reference images with a trained checkpoint.
 
 References are an object folder of our dataset format (a rendered object, a recovered capture, or
-scene cameras exported by the add-on); targets are a targets.json (see datasets/novel_views.py).
-Writes OUT/rgb/NNNNNN.png (RGBA, alpha = the model's opacity), OUT/depth/NNNNNN.exr with --depth
-(planar z-depth) and OUT/synthesis.json; nothing is written when anything fails. With --blend it
-also writes a .blend holding the target cameras and their image planes (needs the bpy module).
+scene cameras exported by the add-on). Targets are a targets.json (see datasets/novel_views.py), the
+cameras of views of the reference folder (--target-views, to compare with their images), or an
+orbit around the object (--orbit N). Writes OUT/rgb/NNNNNN.png (RGBA, alpha = the model's opacity),
+OUT/depth/NNNNNN.exr with --depth (planar z-depth), OUT/targets.json and OUT/synthesis.json;
+nothing is written when anything fails. With --blend it also writes a .blend holding the target
+cameras and their image planes (needs the bpy module).
 
-  python -m blender_mrvm synthesize --references data/chair/obj --views 3,15 --targets targets.json --out novel
+  python -m blender_mrvm synthesize --references data/chair/obj --views 3,15 --orbit 8 --out novel --blend novel/scene.blend
 """
 
 from __future__ import annotations
@@ -18,7 +20,13 @@ from pathlib import Path
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--references", type=Path, required=True, help="object folder with rgb/ + pose/ (render or capture)")
     p.add_argument("--views", nargs="+", default=None, help="reference view indices, e.g. 0,1 or 0 1 (default: all, at most 10)")
-    p.add_argument("--targets", type=Path, required=True, help="targets.json naming the cameras to synthesize")
+    tg = p.add_mutually_exclusive_group(required=True)
+    tg.add_argument("--targets", type=Path, help="targets.json naming the cameras to synthesize")
+    tg.add_argument("--target-views", nargs="+", help="synthesize these views of the reference folder, e.g. 0,5,9")
+    tg.add_argument("--orbit", type=int, metavar="N", help="synthesize N views on a circle around the object")
+    p.add_argument("--orbit-elevation", type=float, default=20.0, help="orbit elevation in degrees (default 20)")
+    p.add_argument("--orbit-radius", type=float, default=None, help="orbit radius (default: the references' distance)")
+    p.add_argument("--orbit-size", type=int, default=0, help="orbit images' longer side in pixels (default: the references')")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="model file, checkpoint folder or run folder (default: the shipped model)")
     p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda (default auto)")
@@ -45,19 +53,43 @@ def run(args) -> int:
     bbox = parse_bbox(args.bbox) if args.bbox is not None else None
     if args.blend is not None:
         _check_blend_path(args.blend)
-    cfg = SynthesisConfig(references=args.references, targets=args.targets, out=args.out, views=views,
-                          checkpoint=args.checkpoint, device=args.device, depth=args.depth, chunk_rays=args.chunk,
-                          ref_size=args.ref_size, bbox=bbox, threads=args.threads)
-    summary = run_with_tqdm(synthesize_views(cfg), desc="synthesize", unit="ray")
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="mrvm_targets_") as tmp:
+        targets = args.targets if args.targets is not None else _make_targets(args, views, bbox, Path(tmp))
+        cfg = SynthesisConfig(references=args.references, targets=targets, out=args.out, views=views,
+                              checkpoint=args.checkpoint, device=args.device, depth=args.depth, chunk_rays=args.chunk,
+                              ref_size=args.ref_size, bbox=bbox, threads=args.threads)
+        summary = run_with_tqdm(synthesize_views(cfg), desc="synthesize", unit="ray")
     if args.blend is not None:
         from ..scene.novel_views import write_blend
 
-        blend = write_blend(args.blend, args.targets, args.out, references=args.references,
+        blend = write_blend(args.blend, args.out / "targets.json", args.out, references=args.references,
                             reference_views=tuple(int(v) for v in summary.references[1]),
                             plane_distance=args.plane_distance, bbox=summary.bbox)
         print(f"wrote {blend}")
     print(json_line(summary))
     return 0
+
+
+def _make_targets(args, views, bbox, tmp: Path) -> Path:
+    """targets.json for --target-views or --orbit, written into ``tmp``."""
+    from ..datasets.novel_views import write_targets
+    from ..errors import InputError
+    from ..training.synthesize import load_references, orbit_targets, targets_from_views
+
+    if args.target_views:
+        try:
+            ids = [int(v) for v in " ".join(args.target_views).replace(",", " ").split()]
+        except ValueError:
+            raise InputError(f"--target-views must be view numbers like 0,5,9, got {' '.join(args.target_views)!r}") from None
+        targets = targets_from_views(args.references, ids)
+    else:
+        if args.orbit < 1:
+            raise InputError(f"--orbit needs at least one view, got {args.orbit}")
+        refs = load_references(args.references, views, args.ref_size, bbox)
+        targets = orbit_targets(refs, args.orbit, args.orbit_elevation, args.orbit_radius, args.orbit_size)
+    return write_targets(tmp / "targets.json", targets)
 
 
 def _check_blend_path(path: Path) -> None:

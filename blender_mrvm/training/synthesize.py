@@ -14,7 +14,8 @@ runs that command in the worker process). :func:`synthesize_views` is a progress
 3. writes, for target i, ``rgb/<i:06d>.png`` (RGBA: straight colour, alpha = the model's
    accumulated opacity, so compositing over white gives back the model's output) and, when asked,
    ``depth/<i:06d>.exr`` (planar z-depth in scene units along the camera axis, channel "Y", 0 where
-   the accumulated opacity is below one half), plus ``synthesis.json`` (what was run). Everything is
+   the accumulated opacity is below one half), plus ``synthesis.json`` (what was run) and a copy of
+   ``targets.json`` (the cameras). Everything is
    written into a temporary folder beside ``out`` and moved into place at the end: an error or a
    cancel leaves ``out`` as it was.
 
@@ -437,6 +438,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                     "evaluated_rays": res["evaluated"], "seconds": time.perf_counter() - ts})
         summary.seconds = time.perf_counter() - t0
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg))
+        if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
+            shutil.copyfile(cfg.targets, tmp / "targets.json")  # the cameras, beside their images
         _move_into(tmp, out)
     finally:
         if tmp.exists():
@@ -467,6 +470,24 @@ def targets_from_views(folder: Path, views: Sequence[int]) -> list[Target]:
         intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
         out.append(Target(f"view {v:03d}", intr, C.as_pose(ov.c2w_opencv[k])))
     return out
+
+
+def orbit_targets(refs: References, count: int, elevation_deg: float = 20.0, radius: float | None = None,
+                  size: int = 0) -> list[Target]:
+    """``count`` targets on a circle around the object's box centre, looking at it, with the first
+    reference's field of view (unshifted) at ``size`` pixels on the longer side (0 = the references' size).
+    ``radius`` defaults to the references' median distance from the centre."""
+    from ..geometry.rigs import orbit_poses
+
+    centre = 0.5 * (np.asarray(refs.bbox[0]) + np.asarray(refs.bbox[1]))
+    if radius is None:
+        radius = float(np.median([np.linalg.norm(c[:3, 3] - centre) for c in refs.c2w]))
+    k = refs.intrinsics[0]
+    s = size / max(k.width, k.height) if size and size > 0 else 1.0
+    w, h = max(1, round(k.width * s)), max(1, round(k.height * s))
+    intr = C.Intrinsics(k.fx * w / k.width, k.fy * h / k.height, w / 2.0, h / 2.0, w, h)
+    poses = orbit_poses(count, radius, elevation_deg, centre)
+    return [Target(f"orbit {i:03d}", intr, p, generated=True) for i, p in enumerate(poses)]
 
 
 def json_line(summary: SynthesisSummary) -> str:
