@@ -61,8 +61,21 @@ def progress_json(event: Progress, desc: str = "") -> str:
 
 
 def _run_with_json(gen: ProgressGen, desc: str) -> Any:
+    """Cancel is cooperative here: SIGINT (the worker runner's cancel) only sets a flag, checked
+    between progress events, so the generator is closed at a unit boundary. A KeyboardInterrupt
+    raised at a random bytecode could land inside a Python callback that Blender runs during a
+    render and be swallowed there (the child then ran to the end), or abort a unit half-written."""
+    import signal
+    import threading
+
+    interrupted: list[int] = []
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
     try:
         while True:
+            if interrupted:
+                raise KeyboardInterrupt
             try:
                 event = next(gen)
             except StopIteration as stop:
@@ -72,6 +85,9 @@ def _run_with_json(gen: ProgressGen, desc: str) -> Any:
     except KeyboardInterrupt:
         gen.close()
         raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: bool | None = None) -> Any:
