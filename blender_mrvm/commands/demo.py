@@ -339,12 +339,12 @@ def _populate(scene, source: str, norm, centre, cam_dist: float) -> None:
     bg.inputs["Strength"].default_value = 1.0
     scene.world = world
     # Overview camera: higher and farther than the ring, looking at the object.
-    el, az = math.radians(42.0), math.radians(-60.0)
-    d = 2.4 * cam_dist
+    el, az = math.radians(52.0), math.radians(-60.0)  # above the ring: the near planes do not hide the object
+    d = 2.2 * cam_dist
     eye = centre + d * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
     _plane_frames(scene, coll)
     cam = scam.new_camera("MRVM overview", coll)
-    cam.data.lens = 40.0
+    cam.data.lens = 44.0
     cam.data.clip_start, cam.data.clip_end = 0.01, 100.0
     scam.apply_pose(cam, C.look_at_opencv(eye, centre))
     scene.camera = cam
