@@ -6,8 +6,8 @@ the matching ``target_views_*``), else from pixelNeRF's fixed SRN ids (64 / 64, 
 be given. Reports PSNR, SSIM and LPIPS-VGG per category and overall (means over all scored views),
 plus the two trivial baselines the acceptance criterion compares against: the nearest reference
 view shown as the answer (by camera direction), and the mean colour of the reference images, and
-the model's PSNR margin over the better of the two. Writes a JSON report and a PNG grid (one row
-per category: references | ground truth | prediction).
+the model's PSNR margin over the better of the two. Writes a JSON report, the same figures as a
+Markdown table (``eval.md``) and a PNG grid (one row per category: references | ground truth | prediction).
 """
 
 from __future__ import annotations
@@ -146,6 +146,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     if out_dir is not None:
         out_dir = Path(out_dir)
         F.atomic_write_json(out_dir / "eval.json", {**report, "views": records})
+        F.atomic_write_text(out_dir / "eval.md", markdown_table(report))
         if grid_rows:
             F.write_png(out_dir / "eval_grid.png", make_grid(grid_rows))
             report["grid"] = str(out_dir / "eval_grid.png")
@@ -200,3 +201,20 @@ def make_grid(rows: list[list[np.ndarray]], pad: int = 2) -> np.ndarray:
 
 def report_json(report: dict) -> str:
     return json.dumps(report, indent=2)
+
+
+def markdown_table(report: dict) -> str:
+    """The report as a Markdown table: per category and overall, model vs. both trivial baselines."""
+    def f(v, nd):
+        return "-" if v is None else f"{v:.{nd}f}"
+
+    head = ("| category | views | PSNR | SSIM | LPIPS | nearest-view PSNR / SSIM / LPIPS | mean-colour PSNR / SSIM / LPIPS "
+            "| PSNR gain over better baseline |\n|---|---:|---:|---:|---:|---:|---:|---:|\n")
+    rows = []
+    for name, b in [*report["per_category"].items(), ("**overall**", report["overall"])]:
+        bn, bm = b["baseline_nearest"], b["baseline_mean"]
+        rows.append(f"| {name} | {b['n']} | {f(b['psnr'], 2)} | {f(b['ssim'], 3)} | {f(b['lpips'], 3)} "
+                    f"| {f(bn['psnr'], 2)} / {f(bn['ssim'], 3)} / {f(bn['lpips'], 3)} "
+                    f"| {f(bm['psnr'], 2)} / {f(bm['ssim'], 3)} / {f(bm['lpips'], 3)} "
+                    f"| {f(b.get('psnr_gain_over_best_baseline'), 2)} |")
+    return head + "\n".join(rows) + "\n"
