@@ -254,9 +254,10 @@ def run(args) -> int:
                 _write(summary_path, SUMMARY_FIELDS, summarize(runs))
     print(f"\nmedians over {args.repeats} repeats ({args.subset} subsets, threads {args.threads}):")
     for row in summarize(runs):
-        print(f"  {row['method']:17s} n={row['images']:3d}  total {row['total_s']:6.1f}s  cpu {row['total_cpu_s']:6.1f}s  "
-              f"extract {row['extract_s']:5.1f}  match {row['match_s']:5.1f}  map {row['map_s']:5.1f}  "
-              f"ratio {row['time_ratio']} (cpu {row['cpu_ratio']})  {row['registered']}  rot {row['median_rot_deg']:.3f}  "
-              f"centre {row['median_centre_pct_radius']:.3f}%  accurate {row['accurate']}  load {row['load_1min']}")
+        print(f"  {row['method']:17s} n={row['images']:3d}  total {row['total_s']:6.1f}s  "
+              f"cpu {row['total_cpu_s']:6.1f}s  extract {row['extract_s']:5.1f}  match {row['match_s']:5.1f}  "
+              f"map {row['map_s']:5.1f}  ratio {row['time_ratio']} (cpu {row['cpu_ratio']})  {row['registered']}  "
+              f"rot {row['median_rot_deg']:.3f}  centre {row['median_centre_pct_radius']:.3f}%  "
+              f"accurate {row['accurate']}  load {row['load_1min']}")
     print(f"wrote {summary_path} and {runs_path}")
     return 0

@@ -19,7 +19,7 @@ class CaptureConfig:
     camera_model: str = "SIMPLE_PINHOLE"
     """COLMAP model: SIMPLE_PINHOLE (default: phones undistort in-camera), PINHOLE, or SIMPLE_RADIAL, RADIAL, OPENCV (undistorted on export)."""
     single_camera: bool = False
-    """One shared camera for all photos; off by default: COLMAP verifies shared-camera pairs ~3x slower (bench capture)."""
+    """One shared camera for all photos; off by default: COLMAP verifies shared-camera pairs ~2x slower (CPU)."""
     estimate_focal: bool = True
     """A shared camera gets its initial focal length from the view graph (GLOMAP calibration) instead of COLMAP's 1.2 x width guess."""
     matcher: str = "auto"
