@@ -111,6 +111,14 @@ def test_eval_command_uses_dataset_protocol(two_category_set, checkpoint, tmp_pa
     grid = F.read_png(out / "eval_grid.png")  # one row per category first: red and blue, then the 3rd object
     assert grid.shape[0] == 3 * (16 + 2) + 2 and grid.shape[1] == 4 * (16 + 2) + 2
 
+    # paired comparison with another evaluation (here: the same checkpoint -> zero differences)
+    out2 = tmp_path / "ev2"
+    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--no-lpips",
+                 "--out", str(out2), "--threads", "1", "--compare-to", str(out / "eval.json")]) == 0
+    cmp = json.loads((out2 / "compare.json").read_text())
+    assert cmp["overall"]["views"] == 9 and cmp["overall"]["psnr"]["diff"] == pytest.approx(0.0, abs=1e-9)
+    assert cmp["overall"]["psnr"]["objects"] == 3 and "lpips" not in cmp["overall"]
+
     # 1-view protocol and one object per category
     out1 = tmp_path / "ev1"
     assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--n-inputs", "1",
@@ -127,3 +135,23 @@ def test_eval_bad_protocol_request(two_category_set, checkpoint, tmp_path, capsy
     assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(tmp_path / "nope"), "--no-lpips",
                  "--out", str(tmp_path / "e")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_compare_reports_pairs_views_and_uses_objects_as_units():
+    from blender_mrvm.training.evaluate import compare_reports
+
+    def rep(vals):
+        return {"views": [{"category": c, "object": o, "view": v, "psnr": p, "ssim": 0.5, "lpips": lp}
+                          for (c, o, v, p, lp) in vals]}
+    a = rep([("x", "o1", 0, 20.0, 0.1), ("x", "o1", 1, 22.0, 0.1), ("x", "o2", 0, 18.0, 0.3), ("y", "o3", 0, 30.0, 0.2)])
+    b = rep([("x", "o1", 0, 19.0, 0.2), ("x", "o1", 1, 19.0, 0.2), ("x", "o2", 0, 19.0, 0.2), ("y", "o3", 0, 29.0, 0.2),
+             ("y", "o9", 0, 99.0, 0.0)])  # o9 is scored only in b: ignored
+    c = compare_reports(a, b)
+    o = c["overall"]
+    assert o["views"] == 4 and o["psnr"]["objects"] == 3
+    d = np.array([2.0, -1.0, 1.0])  # per-object mean differences: o1 (1+3)/2, o2, o3
+    assert o["psnr"]["diff"] == pytest.approx(d.mean()) and o["psnr"]["se_objects"] == pytest.approx(d.std(ddof=1) / 3 ** 0.5)
+    assert o["psnr"]["wins"] == pytest.approx(2 / 3) and o["lpips"]["wins"] == pytest.approx(1 / 3)  # lower is better
+    assert c["per_category"]["y"]["psnr"]["se_objects"] is None and c["per_category"]["x"]["ssim"]["diff"] == 0.0
+    with pytest.raises(InputError):
+        compare_reports(a, rep([("z", "q", 0, 1.0, 0.0)]))

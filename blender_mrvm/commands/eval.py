@@ -4,7 +4,8 @@ The input views default to the dataset's own protocol (``splits/eval_views.json`
 ``make-shapenet``: ``--n-inputs 1`` or ``2``), or pixelNeRF's ids for SRN folders; ``--input-views``
 overrides them. The checkpoint defaults to the shipped model. Writes <out>/eval.json (PSNR, SSIM,
 LPIPS-VGG per category and overall, with the nearest-reference and mean-colour baselines and the
-margin over the better one) and <out>/eval_grid.png. LPIPS needs the offline weights
+margin over the better one), <out>/eval.md and <out>/eval_grid.png; --compare-to adds paired differences
+against another checkpoint's eval.json (<out>/compare.json). LPIPS needs the offline weights
 (`python -m blender_mrvm fetch-weights`); --no-lpips skips it explicitly.
 """
 
@@ -32,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
+                   "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
 
 
 def run(args) -> int:
@@ -41,10 +44,15 @@ def run(args) -> int:
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
-    from ..training.evaluate import evaluate, per_category, protocol_views
+    from ..training.evaluate import compare_reports, evaluate, per_category, protocol_views
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    other = None
+    if args.compare_to is not None:
+        if not args.compare_to.is_file():
+            raise InputError(f"--compare-to {args.compare_to} does not exist")
+        other = json.loads(args.compare_to.read_text())
     if not args.data.exists():
         raise InputError(f"dataset {args.data} does not exist")
     fmt = args.fmt or detect_format(args.data)
@@ -82,4 +90,12 @@ def run(args) -> int:
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
                                     extra=extra), desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
+    if other is not None:
+        from ..datasets.format import atomic_write_json
+
+        this = json.loads((args.out / "eval.json").read_text())
+        cmp = {"this": str(args.checkpoint), "other": other.get("checkpoint", {}).get("path"),
+               **compare_reports(this, other)}
+        atomic_write_json(args.out / "compare.json", cmp)
+        print(json.dumps({"this minus other": cmp["overall"]}, indent=2))
     return 0

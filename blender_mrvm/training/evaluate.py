@@ -218,3 +218,35 @@ def markdown_table(report: dict) -> str:
                     f"| {f(bm['psnr'], 2)} / {f(bm['ssim'], 3)} / {f(bm['lpips'], 3)} "
                     f"| {f(b.get('psnr_gain_over_best_baseline'), 2)} |")
     return head + "\n".join(rows) + "\n"
+
+
+def compare_reports(a: dict, b: dict) -> dict:
+    """Paired difference a - b of two evaluations of the same views (``eval.json`` dicts with 'views').
+
+    Per metric: the mean difference over the common views, and its standard error computed over
+    objects (the views of one object are correlated, so the object is the unit), overall and per
+    category; ``wins``: share of objects on which a is better (higher PSNR/SSIM, lower LPIPS)."""
+    key = lambda r: (r["category"], r["object"], r["view"])  # noqa: E731
+    va, vb = {key(r): r for r in a["views"]}, {key(r): r for r in b["views"]}
+    common = sorted(set(va) & set(vb))
+    if not common:
+        raise InputError("the two evaluations share no scored view")
+
+    def stats(keys):
+        out = {"views": len(keys)}
+        for m in METRICS:
+            per_obj = defaultdict(list)
+            for k in keys:
+                x, y = va[k].get(m), vb[k].get(m)
+                if x is not None and y is not None and np.isfinite(x) and np.isfinite(y):
+                    per_obj[k[:2]].append(x - y)
+            if not per_obj:
+                continue
+            d = np.array([np.mean(v) for v in per_obj.values()])
+            se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else None
+            better = d < 0 if m == "lpips" else d > 0
+            out[m] = {"diff": float(d.mean()), "se_objects": se, "objects": len(d), "wins": float(better.mean())}
+        return out
+
+    cats = sorted({k[0] for k in common})
+    return {"overall": stats(common), "per_category": {c: stats([k for k in common if k[0] == c]) for c in cats}}
