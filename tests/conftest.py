@@ -49,3 +49,20 @@ def bpy_empty():
     bpy.ops.wm.read_homefile(use_empty=True)
     yield bpy.context.scene
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+@pytest.fixture(scope="session")
+def ring(tmp_path_factory):
+    """The synthetic capture of issue 6, rendered once per session for test_capture*.py: (images dir, truth dict).
+
+    24 views of a procedurally textured scene on a ring, 320x240, Cycles (about 10 s on 2 cores).
+    """
+    import json
+
+    import bpy  # noqa: F401
+
+    from blender_mrvm.scene.capture import render_textured_ring
+
+    d = tmp_path_factory.mktemp("capture_ring")
+    render_textured_ring(d, n_views=24, width=320, height=240, samples=4, threads=2)
+    return d / "images", json.loads((d / "truth.json").read_text())

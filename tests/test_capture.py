@@ -24,20 +24,8 @@ from blender_mrvm.errors import Cancelled, InputError, OutputError  # noqa: E402
 from blender_mrvm.geometry import cameras as C  # noqa: E402
 from blender_mrvm.progress import run_to_end  # noqa: E402
 
-N_VIEWS, W, H = 24, 320, 240
+N_VIEWS, W, H = 24, 320, 240  # the session fixture `ring` (conftest.py), shared with test_capture_undistort.py
 CFG = CaptureConfig(num_threads=2, single_camera=True)  # one rendering camera: share it (tighter focal)
-
-
-@pytest.fixture(scope="session")
-def ring(tmp_path_factory):
-    """The rendered synthetic capture: (images dir, truth dict)."""
-    import bpy  # noqa: F401
-
-    from blender_mrvm.scene.capture import render_textured_ring
-
-    d = tmp_path_factory.mktemp("capture_ring")
-    render_textured_ring(d, n_views=N_VIEWS, width=W, height=H, samples=4, threads=2)
-    return d / "images", json.loads((d / "truth.json").read_text())
 
 
 @pytest.fixture(scope="session")
