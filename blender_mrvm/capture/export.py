@@ -8,7 +8,9 @@
     <out>/transforms.json       nerfstudio format; each frame names its photo in ``original_name``
                                 and carries its own fl_x/fl_y/cx/cy
     <out>/meta.json             kind "capture", registered/total, unregistered photos, timings,
-                                camera model, matcher, normalization, intrinsics
+                                camera model, matcher, normalization, intrinsics; colmap_model (the
+                                kept model) and colmap_export_model (the one matching rgb/: the
+                                undistorted model when the camera model has distortion)
     <out>/points.ply            sparse points (normalized world), binary PLY, xyz float32 + rgb uchar
     <out>/colmap/               database.db, sparse/<k>/ models, undistorted/ (kept for inspection)
 

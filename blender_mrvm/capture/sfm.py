@@ -19,7 +19,8 @@ Stages and what they check (each failure is one line naming the problem):
              incremental mapping; the largest model is kept; registering fewer than
              ``min_registered_fraction`` of the photos is an error (the partial model is kept and
              named in the message, ``colmap/report.json`` lists what registered)
-5. undistort when the camera model has distortion (SIMPLE_RADIAL, RADIAL, OPENCV)
+5. undistort when the camera model has distortion (SIMPLE_RADIAL, RADIAL, OPENCV): pinhole images
+             and intrinsics, per-photo cameras all at one size (:func:`undistort_options`)
 6. export    up / centre / scale normalization and the dataset folder (``capture.export``)
 """
 
@@ -361,18 +362,22 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
 
     # 5. undistort
-    image_root = images_dir
+    image_root, und_model = images_dir, None
     if cfg.has_distortion:
         t, c = time.perf_counter(), time.process_time()
         und = work / "undistorted"
         if und.exists():
             shutil.rmtree(und)
-        uopts = pycolmap.UndistortCameraOptions()
+        uopts = undistort_options([rec.cameras[rec.images[i].camera_id] for i in rec.reg_image_ids()])
         yield from _run_in_thread(lambda: pycolmap.undistort_images(
             und, model_dir, images_dir, image_names=reg_names, output_type="COLMAP", undistort_options=uopts,
             num_threads=threads, cancellation_token=token), token, "undistorting", _STAGE_END["map"])
         rec = pycolmap.Reconstruction(str(und / "sparse"))
-        image_root = und / "images"
+        sizes = sorted({(cam.width, cam.height) for cam in (rec.cameras[im.camera_id] for im in rec.images.values())})
+        if len(sizes) > 1:
+            raise OutputError(f"undistorted photos came out in {len(sizes)} sizes {sizes[:3]}; a capture has one "
+                              f"resolution (model kept in {und / 'sparse'})")
+        image_root, und_model = und / "images", und / "sparse"
         timings["undistort"], cpu_timings["undistort"] = time.perf_counter() - t, time.process_time() - c
         yield Progress(_STAGE_END["undistort"], 100, "undistorted")
 
@@ -410,12 +415,37 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "normalization": norm_json, "timings_s": timings, "cpu_timings_s": cpu_timings,
         "config": asdict(cfg),
         "colmap_model": str(model_dir.relative_to(out_dir)),
+        # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
+        "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),
     }
     write_capture(out_dir, views, xyz, rgb, meta)
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
     return CaptureResult(out_dir, reg_names, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
                          cpu_timings, c2ws, intrs)
+
+
+def undistort_options(cameras: list) -> Any:
+    """COLMAP's undistortion options, set so that every camera comes out at one image size.
+
+    COLMAP sizes each undistorted camera after its own distortion (the largest frame with no blank
+    pixels), so per-photo cameras (SIMPLE_RADIAL / RADIAL without ``single_camera``) came out a few
+    pixels apart (330x243 ... 335x245 for 24 views of the 320x240 test ring), while a dataset and a
+    Blender scene have one resolution. With several cameras every one is scaled by the smallest of
+    their no-blank scales (x and y; ``min_scale = max_scale``): one size, no blank pixels, each
+    camera keeps its focal length. One camera keeps COLMAP's own (per-axis) sizing.
+    """
+    import pycolmap
+
+    opts = pycolmap.UndistortCameraOptions()
+    cams = list({c.camera_id: c for c in cameras}.values())
+    if len(cams) > 1:
+        scales = []
+        for c in cams:
+            u = pycolmap.undistort_camera(opts, c)
+            scales += [u.width / c.width, u.height / c.height]
+        opts.min_scale = opts.max_scale = min(scales)
+    return opts
 
 
 def _write_report(work: Path, names: list[str], registered: list[str], model_dir: Path | None,
