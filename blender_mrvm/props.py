@@ -90,6 +90,15 @@ class MRVM_PG_capture(bpy.types.PropertyGroup):
     ], default="auto")
     max_features: IntProperty(name="Features", default=2048, min=64, soft_max=16384,
                               description="SIFT features per image")
+    upsample_below: IntProperty(name="Upsample below", default=640, min=0, soft_max=4096, subtype="PIXEL",
+                                description="SIFT upsamples photos 2x first only when their longer side is below "
+                                            "this (0 = never; larger photos: about 3x faster extraction)")
+    single_camera: BoolProperty(name="Shared camera", default=False,
+                                description="All photos share one camera (one set of intrinsics; about 2x the "
+                                            "matching CPU). Pinhole and OpenCV models always share one")
+    estimate_focal: BoolProperty(name="Focal from views", default=True,
+                                 description="A shared camera starts from the focal length the view graph implies "
+                                             "instead of COLMAP's 1.2 x width guess")
     allow_pair: BoolProperty(name="Stereo pair", default=False, description="Accept exactly two photos")
     force: BoolProperty(name="Overwrite", default=False, description="Overwrite an output folder that holds files")
     running: BoolProperty(default=False, options={"SKIP_SAVE"})

@@ -378,3 +378,65 @@ def test_undistort_options_give_one_size():
     one = undistort_options([cams[1]])
     assert (one.min_scale, one.max_scale) == (pycolmap.UndistortCameraOptions().min_scale,
                                               pycolmap.UndistortCameraOptions().max_scale)
+
+
+# --------------------------------------------------------------------------------------------
+# The Capture panel's settings reach CaptureConfig
+# --------------------------------------------------------------------------------------------
+
+class _Layout:
+    """Records the properties a draw() shows, with whether they are shown active (not greyed out)."""
+
+    def __init__(self, log: list):
+        self.log, self.active, self.enabled = log, True, True
+        self.use_property_split = self.use_property_decorate = False
+
+    def _child(self, *a, **k):
+        return _Layout(self.log)
+
+    column = row = box = _child
+
+    def prop(self, data, name, **k):
+        self.log.append((name, self.active))
+
+    def operator(self, *a, **k):
+        pass
+
+    label = progress = separator = operator
+
+
+def test_capture_panel_settings_reach_capture_config(empty_scene, tmp_path):
+    import types
+
+    import bpy
+
+    from blender_mrvm.operators.capture import config_from_props
+    from blender_mrvm.panels.capture import MRVM_PT_capture
+
+    p = empty_scene.mrvm_capture
+    d = CaptureConfig()
+    assert (p.upsample_below, p.single_camera, p.estimate_focal, p.max_features, p.camera_model, p.matcher) == \
+        (d.upsample_below, d.single_camera, d.estimate_focal, d.max_num_features, d.camera_model, d.matcher)
+    p.images_dir, p.output_dir = str(tmp_path / "photos"), str(tmp_path / "cap")
+    p.upsample_below, p.single_camera, p.estimate_focal, p.camera_model = 0, True, False, "OPENCV"
+    _, out, cfg = config_from_props(bpy.context)
+    assert out == tmp_path / "cap"
+    assert (cfg.upsample_below, cfg.single_camera, cfg.estimate_focal, cfg.camera_model) == (0, True, False, "OPENCV")
+    assert cfg.sift_first_octave(320, 240) == 0 and cfg.has_distortion
+    p.upsample_below, p.single_camera, p.estimate_focal, p.camera_model = 100000, False, True, "SIMPLE_RADIAL"
+    cfg = config_from_props(bpy.context)[2]
+    assert (cfg.upsample_below, cfg.single_camera, cfg.estimate_focal) == (100000, False, True)
+    assert cfg.sift_first_octave(4000, 3000) == -1 and not cfg.shared_camera
+
+    def drawn() -> dict:
+        log: list = []
+        MRVM_PT_capture.draw(types.SimpleNamespace(layout=_Layout(log)), bpy.context)
+        return dict(log)
+
+    shown = drawn()
+    assert {"upsample_below", "single_camera", "estimate_focal"} <= set(shown)
+    assert shown["estimate_focal"] is False  # greyed out: per-photo SIMPLE_RADIAL cameras get no focal estimate
+    p.single_camera = True
+    assert drawn()["estimate_focal"] is True
+    p.single_camera, p.camera_model = False, "OPENCV"  # two-focal models always share one camera
+    assert drawn()["estimate_focal"] is True

@@ -31,7 +31,8 @@ def config_from_props(context):
     if out.startswith("//") and not bpy.data.filepath:
         raise MRVMError("save the .blend first or choose an absolute output folder (// is relative to the .blend)")
     cfg = CaptureConfig(camera_model=p.camera_model, matcher=p.matcher, max_num_features=p.max_features,
-                        allow_pair=p.allow_pair, force=p.force).validate()
+                        upsample_below=p.upsample_below, single_camera=p.single_camera,
+                        estimate_focal=p.estimate_focal, allow_pair=p.allow_pair, force=p.force).validate()
     return Path(bpy.path.abspath(p.images_dir)), Path(bpy.path.abspath(out)), cfg
 
 

@@ -29,6 +29,11 @@ class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
         col.prop(p, "camera_model")
         col.prop(p, "matcher")
         col.prop(p, "max_features")
+        col.prop(p, "upsample_below")
+        col.prop(p, "single_camera")
+        sub = col.column()
+        sub.active = shares_camera(p)  # the focal estimate is for a shared camera only
+        sub.prop(p, "estimate_focal")
         col.prop(p, "allow_pair")
         col.prop(p, "force")
         row = layout.row()
@@ -39,6 +44,14 @@ class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
         elif p.status:
             for line in _wrap(p.status, 48):
                 layout.label(text=line)
+
+
+def shares_camera(p) -> bool:
+    """Whether these settings give the photos one shared camera (``CaptureConfig.shared_camera``)."""
+    from ..capture.config import CaptureConfig
+
+    return CaptureConfig(camera_model=p.camera_model, single_camera=p.single_camera,
+                         allow_pair=p.allow_pair).shared_camera
 
 
 def _wrap(text: str, width: int) -> list[str]:
