@@ -87,7 +87,8 @@ def patch_shifts(image: np.ndarray, k_image: np.ndarray, render: np.ndarray, k_r
     Both are pinhole images from one camera centre and orientation, so image pixel p shows the
     render at q(p) = K_render K_image^-1 p if ``k_image`` is right. Per textured patch (centre
     x, y in image pixels) the shift d (image pixels) with image(p) = render(q(p + d)) is found by
-    phase correlation (integer start) and Lucas-Kanade (sub-pixel), on lightly blurred images.
+    phase correlation (integer start) and Lucas-Kanade (sub-pixel), on lightly blurred images;
+    patches where Lucas-Kanade does not converge are left out.
     """
     from scipy import ndimage
     from skimage.registration import phase_cross_correlation
@@ -115,14 +116,14 @@ def patch_shifts(image: np.ndarray, k_image: np.ndarray, render: np.ndarray, k_r
                 coeffs, [qv + s[1] * d[1], qu + s[0] * d[0]], order=3, prefilter=False, mode="nearest")
             shift, _, _ = phase_cross_correlation(tgt, sample(np.zeros(2)))
             d = -np.array([shift[1], shift[0]], dtype=np.float64)
-            for _ in range(10):
+            for _ in range(12):
                 sm = sample(d)
                 gy, gx = np.gradient(sm)
                 step = np.linalg.lstsq(np.stack([gx.ravel(), gy.ravel()], 1), (tgt - sm).ravel(), rcond=None)[0]
                 d += step
                 if np.abs(step).max() < 1e-3:
-                    break
-            rows.append((left + patch / 2, top + patch / 2, d[0], d[1]))
+                    rows.append((left + patch / 2, top + patch / 2, d[0], d[1]))
+                    break  # (a patch that does not converge is left out)
     return np.array(rows)
 
 
@@ -294,7 +295,7 @@ def test_opencv_exported_images_are_undistorted(lens, opencv_capture):
                                                     k_render), k_photo)[0] for i in views])
     print(f"control (distorted photos as pinhole): residual median {np.median(bent):.2f} p95 "
           f"{np.percentile(bent, 95):.2f} max {bent.max():.2f} px")
-    assert np.median(bent) > 0.4 and np.percentile(bent, 95) > 1.5 and bent.max() > 4.0
+    assert np.median(bent) > 0.4 and np.percentile(bent, 95) > max(1.0, 5 * np.percentile(allres, 95))
 
 
 @pytest.mark.slow
@@ -322,6 +323,38 @@ def test_written_cameras_reproject_the_points(opencv_capture):
     e = np.concatenate(errs)
     print(f"{len(e)} observations: reprojection median {np.median(e):.3f} p95 {np.percentile(e, 95):.3f} px")
     assert np.median(e) < 0.5 and np.percentile(e, 95) < 1.0
+
+
+@pytest.mark.slow
+def test_blender_import_of_the_undistorted_capture(opencv_capture, empty_scene):
+    """Blender cameras (fx != fy: pixel aspect) project the points like COLMAP's undistorted cameras (< 1e-3 px)."""
+    import pycolmap
+
+    from blender_mrvm.scene import camera as scam
+    from blender_mrvm.scene.capture import import_capture
+
+    res, meta = opencv_capture
+    made = import_capture(res.out_dir, empty_scene)
+    assert len(made["cameras"]) == len(res.registered)
+    assert tuple(made["cameras"][0].data.background_images[0].image.size) == \
+        (meta["intrinsics"]["w"], meta["intrinsics"]["h"])
+    rec = pycolmap.Reconstruction(str(res.out_dir / meta["colmap_export_model"]))
+    norm = meta["normalization"]
+    s, r, c = norm["scale"], np.array(norm["rotation"]), np.array(norm["centre"])
+    by_name = {im.name: im for im in rec.images.values()}
+    worst = 0.0
+    for obj in made["cameras"][::4]:
+        im = by_name[obj["mrvm_original_name"]]
+        cam = rec.cameras[im.camera_id]
+        assert cam.model == pycolmap.CameraModelId.PINHOLE and abs(cam.params[0] / cam.params[1] - 1) > 1e-4
+        intr, c2w = scam.read_camera(obj, empty_scene)
+        xyz = np.array([rec.points3D[p.point3D_id].xyz for p in im.points2D if p.has_point3D()])
+        uv_colmap = np.array([cam.img_from_cam(im.cam_from_world() * x) for x in xyz])
+        uv_blender, z = C.project(intr.K, C.invert_pose(c2w), s * (xyz - c) @ r.T)
+        assert (z > 0).all()
+        worst = max(worst, float(np.abs(uv_blender - uv_colmap).max()))
+    print(f"worst Blender-vs-COLMAP (undistorted) difference {worst:.2e} px")
+    assert worst < 1e-3
 
 
 # --------------------------------------------------------------------------------------------
