@@ -43,7 +43,7 @@ def test_demo_with_a_model(tmp_path, addon, capsys):
     ck = _tiny_checkpoint(tmp_path / "run")
     out = tmp_path / "demo_out"
     args = ["demo", "--out", str(out), "--checkpoint", str(ck), "--objects", "1", "--views", "8", "--resolution", "24",
-            "--scene-resolution", "32", "--threads", "1", "--no-picture"]
+            "--scene-resolution", "24", "--threads", "1", "--no-picture"]
     if not HAVE_WEIGHTS:
         args.append("--no-lpips")
     assert main(args) == 0
@@ -74,7 +74,7 @@ def test_demo_with_a_model(tmp_path, addon, capsys):
         assert len(planes) == 6
         for pl in planes:
             img = bpy.data.images[pl["mrvm_image"]]
-            assert tuple(img.size) == (32, 32) and Path(bpy.path.abspath(img.filepath)).is_file()
+            assert tuple(img.size) == (24, 24) and Path(bpy.path.abspath(img.filepath)).is_file()
         assert len(bpy.data.collections["MRVM references"].objects) == 2
         meshes = [o for o in bpy.data.collections["MRVM demo object"].all_objects if o.type == "MESH"]
         assert meshes, "the object is in the scene"
@@ -82,6 +82,21 @@ def test_demo_with_a_model(tmp_path, addon, capsys):
         hi = np.max([np.array(o.matrix_world) @ np.append(np.array(c), 1.0) for o in meshes for c in o.bound_box], axis=0)
         meta = json.loads((obj / "meta.json").read_text())
         assert np.allclose(lo[:3], meta["bbox"][0], atol=1e-3) and np.allclose(hi[:3], meta["bbox"][1], atol=1e-3)
+        # Seen through target camera "MRVM view 00" (planes hidden), the object covers the pixels the
+        # dataset's part mask of view 0 marks: object, cameras and planes share one frame.
+        for o in sc.objects:
+            if o.get(IP.PLANE_TAG) or o.name.startswith("MRVM frame"):
+                o.hide_render = True
+        sc.camera = bpy.data.objects["MRVM view 00"]
+        r = sc.render
+        r.engine, r.film_transparent, r.filepath = "CYCLES", True, str(tmp_path / "view00.png")
+        sc.cycles.samples, sc.cycles.device = 4, "CPU"
+        r.image_settings.file_format, r.image_settings.color_mode = "PNG", "RGBA"
+        bpy.ops.render.render(write_still=True)
+        sil = F.read_png(tmp_path / "view00.png")[..., 3] > 127
+        mask = F.read_png(obj / "mask" / "000000.png") > 0
+        iou = (sil & mask).sum() / (sil | mask).sum()
+        assert mask.sum() > 20 and iou > 0.85, iou
     finally:
         bpy.ops.wm.read_homefile(use_empty=True)
 
