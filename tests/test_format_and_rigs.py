@@ -43,6 +43,16 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_atomic_files_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    F.atomic_write_text(tmp_path / "a.txt", "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o666 & ~mask
+
+
 def test_srn_files_round_trip(tmp_path):
     rng = np.random.default_rng(1)
     c2w = C.look_at_opencv(rng.normal(size=3) * 2)

@@ -57,6 +57,15 @@ def view_complete(obj_dir: Path, index: int) -> bool:
 # Atomic file writing
 # --------------------------------------------------------------------------------------------
 
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
+
+
 def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = None) -> None:
     """Write a file through ``write(tmp_path)`` then rename it into place (never half-written)."""
     path = Path(path)
@@ -65,6 +74,7 @@ def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = 
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes files owner-only; give them ordinary permissions
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
