@@ -142,3 +142,58 @@ def test_operator_reports_errors_and_leaves_scene(empty_scene, tmp_path):
     with pytest.raises(RuntimeError, match="mesh file or folder not found"):
         bpy.ops.mrvm.render_dataset()
     assert (len(bpy.data.objects), len(bpy.data.scenes)) == n and not (tmp_path / "ds").exists()
+
+
+class _RecordingLayout:
+    """Stands in for bpy's UILayout (headless Blender draws no UI): records what a panel draws."""
+
+    def __init__(self, log):
+        self.log, self.enabled, self.active = log, True, True
+        self.use_property_split = self.use_property_decorate = False
+
+    def _child(self, *a, **k):
+        return _RecordingLayout(self.log)
+
+    column = row = box = split = _child
+
+    def prop(self, data, name, **k):
+        self.log.append(("prop", name))
+
+    def operator(self, idname, **k):
+        self.log.append(("operator", idname))
+        return type("OpProps", (), {})()
+
+    def label(self, text="", **k):
+        self.log.append(("label", text))
+
+    def progress(self, factor=0.0, text="", **k):
+        self.log.append(("progress", text))
+
+    def separator(self, *a, **k):
+        pass
+
+
+def test_every_panel_draws_idle_and_running(empty_scene):
+    import types
+
+    import bpy
+
+    panels = [c for c in bpy.types.Panel.__subclasses__() if c.__name__.startswith("MRVM_PT_")]
+    assert len(panels) >= 5
+    for running in (False, True):
+        for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train"):
+            props = getattr(empty_scene, name)
+            props.running, props.status = running, "halfway through a long job"
+        for cls in panels:
+            if hasattr(cls, "poll") and not cls.poll(bpy.context):
+                continue
+            log: list = []
+            cls.draw(types.SimpleNamespace(layout=_RecordingLayout(log)), bpy.context)
+            ops = [e[1] for e in log if e[0] == "operator"]
+            if running and cls.__name__ != "MRVM_PT_main":
+                assert ("label", "Press Esc to cancel") in log, cls.__name__
+                assert ("progress", "halfway through a long job") in log, cls.__name__
+            elif ops:
+                assert ("label", "halfway through a long job") in log, cls.__name__
+    for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train"):
+        getattr(empty_scene, name).running = False

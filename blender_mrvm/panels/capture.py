@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from .main import MRVMPanel
+from .main import MRVMPanel, draw_job
 
 
 class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
@@ -36,14 +36,7 @@ class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
         sub.prop(p, "estimate_focal")
         col.prop(p, "allow_pair")
         col.prop(p, "force")
-        row = layout.row()
-        row.enabled = not p.running
-        row.operator("mrvm.recover_poses", icon="CAMERA_DATA")
-        if p.running:
-            layout.progress(factor=p.progress, type="BAR", text=p.status or "Recovering poses")
-        elif p.status:
-            for line in _wrap(p.status, 48):
-                layout.label(text=line)
+        draw_job(layout, p, "mrvm.recover_poses", "CAMERA_DATA", "Recovering poses...")
 
 
 def shares_camera(p) -> bool:
@@ -52,17 +45,6 @@ def shares_camera(p) -> bool:
 
     return CaptureConfig(camera_model=p.camera_model, single_camera=p.single_camera,
                          allow_pair=p.allow_pair).shared_camera
-
-
-def _wrap(text: str, width: int) -> list[str]:
-    words, lines, cur = text.split(), [], ""
-    for w in words:
-        if cur and len(cur) + 1 + len(w) > width:
-            lines.append(cur)
-            cur = w
-        else:
-            cur = f"{cur} {w}" if cur else w
-    return lines + ([cur] if cur else [])
 
 
 classes = (MRVM_PT_capture,)

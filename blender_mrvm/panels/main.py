@@ -9,6 +9,30 @@ from __future__ import annotations
 import bpy
 
 
+def wrap_text(text: str, width: int = 48) -> list[str]:
+    """Split a status message into lines that fit the sidebar."""
+    words, lines, cur = text.split(), [], ""
+    for w in words:
+        if cur and len(cur) + 1 + len(w) > width:
+            lines.append(cur)
+            cur = w
+        else:
+            cur = f"{cur} {w}" if cur else w
+    return lines + ([cur] if cur else [])
+
+
+def draw_job(layout, props, operator: str, icon: str, running_text: str) -> None:
+    """The foot of every section that starts long work: its button and last status, or, while the
+    job runs, a progress bar and how to cancel."""
+    if props.running:
+        layout.progress(factor=props.progress, type="BAR", text=props.status or running_text)
+        layout.label(text="Press Esc to cancel", icon="INFO")
+        return
+    layout.operator(operator, icon=icon)
+    for line in wrap_text(props.status) if props.status else ():
+        layout.label(text=line)
+
+
 class MRVMPanel:
     """Base: where every MRVM panel lives."""
 
@@ -68,13 +92,7 @@ class MRVM_PT_dataset(MRVMPanel, bpy.types.Panel):
         col.prop(p, "seed")
         col.prop(p, "output_dir")
         col.prop(p, "force")
-        if p.running:
-            layout.progress(factor=p.progress, type="BAR", text=p.status or "Rendering...")
-            layout.label(text="Press Esc to cancel", icon="INFO")
-        else:
-            layout.operator("mrvm.render_dataset", icon="RENDER_STILL")
-            if p.status:
-                layout.label(text=p.status)
+        draw_job(layout, p, "mrvm.render_dataset", "RENDER_STILL", "Rendering...")
 
 
 classes = (MRVM_PT_main, MRVM_PT_dataset)

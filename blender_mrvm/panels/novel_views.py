@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import bpy
 
-from .main import MRVMPanel
+from .main import MRVMPanel, draw_job
 
 
 def _count(n: int, word: str) -> str:
@@ -20,13 +20,6 @@ def _torch_warning(layout, context) -> None:
         box = layout.box()
         box.label(text=rep.error or "torch is missing in the worker Python", icon="ERROR")
         box.label(text="See the add-on preferences for what to install")
-
-
-def _status(layout, text: str) -> None:
-    from .capture import _wrap
-
-    for line in _wrap(text, 48):
-        layout.label(text=line)
 
 
 class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
@@ -55,13 +48,7 @@ class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
         col.prop(p, "resume")
         col.prop(p, "use_for_synthesis")
         _torch_warning(layout, context)
-        if p.running:
-            layout.progress(factor=p.progress, type="BAR", text=p.status or "Training...")
-            layout.label(text="Press Esc to cancel", icon="INFO")
-        else:
-            layout.operator("mrvm.train", icon="MOD_NOISE")
-            if p.status:
-                _status(layout, p.status)
+        draw_job(layout, p, "mrvm.train", "MOD_NOISE", "Training...")
 
 
 class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
@@ -127,13 +114,7 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
         col.prop(p, "save_depth")
 
         _torch_warning(layout, context)
-        if p.running:
-            layout.progress(factor=p.progress, type="BAR", text=p.status or "Synthesizing...")
-            layout.label(text="Press Esc to cancel", icon="INFO")
-        else:
-            layout.operator("mrvm.synthesize", icon="RENDER_RESULT")
-            if p.status:
-                _status(layout, p.status)
+        draw_job(layout, p, "mrvm.synthesize", "RENDER_RESULT", "Synthesizing...")
 
 
 classes = (MRVM_PT_model, MRVM_PT_novel_views)
