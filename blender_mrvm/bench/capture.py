@@ -31,7 +31,6 @@ method and size, with the time ratio to ``pycolmap_default``).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import shutil
@@ -40,6 +39,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from . import write_csv
 
 STAGES = ("scan", "extract", "match", "map", "undistort", "export")
 METHODS = ("ours", "ours_exhaustive", "pycolmap_default")
@@ -175,13 +176,6 @@ SUMMARY_FIELDS = ["method", "images", "repeats", "width", "height", "subset", "m
                   "cpu_ratio", "registered", "median_rot_deg", "median_centre_pct_radius", "accurate", "load_1min"]
 
 
-def _write(path: Path, fields: list[str], rows: list[dict]) -> None:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
-        w.writeheader()
-        w.writerows(rows)
-
-
 def _accurate(row: dict) -> bool:
     reg, n = (int(x) for x in row["registered"].split("/"))
     return reg == n and row["median_rot_deg"] < 0.5 and row["median_centre_pct_radius"] < 1.0
@@ -250,8 +244,8 @@ def run(args) -> int:
                       + " ".join(f"{s} {row[f'{s}_s']:.1f}" for s in ("extract", "match", "map"))
                       + f", {row['registered']} registered, rot {rot:.3f} deg, centre {cen:.3f}% R, load {load:.1f}"
                       + (f", error: {r['error']}" if r["error"] else ""), flush=True)
-                _write(runs_path, RUN_FIELDS, runs)
-                _write(summary_path, SUMMARY_FIELDS, summarize(runs))
+                write_csv(runs_path, runs, RUN_FIELDS)
+                write_csv(summary_path, summarize(runs), SUMMARY_FIELDS)
     print(f"\nmedians over {args.repeats} repeats ({args.subset} subsets, threads {args.threads}):")
     for row in summarize(runs):
         print(f"  {row['method']:17s} n={row['images']:3d}  total {row['total_s']:6.1f}s  "

@@ -12,11 +12,12 @@ The issue's target: ``balanced``, 128 x 128, 2 reference views, about 1 s on 2 C
 from __future__ import annotations
 
 import argparse
-import csv
 import platform
 import statistics
 import time
 from pathlib import Path
+
+from . import write_csv
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -74,10 +75,5 @@ def run(args) -> int:
                     "cpu": platform.processor() or platform.machine(), "torch": torch.__version__,
                 })
                 print(f"{preset:9s} {size}px {nv} ref(s): {sec:.3f} s/view, {res['evaluated']}/{res['rays']} rays evaluated")
-    path = out / "bench_model.csv"
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {path}")
+    write_csv(out / "bench_model.csv", rows)
     return 0

@@ -9,11 +9,12 @@ renders: colour + 1-sample data passes). Figures go to ``<out>/bench_render.csv`
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import tempfile
 import time
 from pathlib import Path
+
+from . import write_csv
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -110,10 +111,5 @@ def run(args) -> int:
                     rows.append(row)
                     print(f"{engine:18s} {res:4d}px {method:15s} {views:3d} views {sec:7.2f} s "
                           f"{views / sec:7.2f} views/s", flush=True)
-    path = out / "bench_render.csv"
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(f"wrote {path}")
+    write_csv(out / "bench_render.csv", rows)
     return 0
