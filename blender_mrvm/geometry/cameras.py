@@ -76,6 +76,11 @@ def blender_from_opencv(c2w_opencv: np.ndarray) -> np.ndarray:
     return as_pose(c2w_opencv) @ _FLIP_YZ
 
 
+def blender_from_opencv_camera_points(pts: np.ndarray) -> np.ndarray:
+    """Points in OpenCV camera coordinates (..., 3) -> the same points in Blender camera coordinates."""
+    return np.asarray(pts, dtype=np.float64) @ _FLIP_YZ[:3, :3]
+
+
 # OpenGL/NeRF camera axes are Blender's: the names say which file format a pose is for.
 opengl_from_opencv = blender_from_opencv
 opencv_from_opengl = opencv_from_blender

@@ -30,6 +30,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+from ..datasets.format import atomic_write
 from ..errors import InputError, OutputError
 from ..geometry import cameras as C
 from . import camera as scam
@@ -119,12 +120,12 @@ FACES = [(0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)]
 def plane_vertices_camera(intr: C.Intrinsics, distance: float) -> np.ndarray:
     """(5, 3) plane vertices at planar depth ``distance`` in Blender camera-local axes.
 
-    Pixel (u, v) maps to OpenCV camera coordinates d * ((u - cx) / fx, (v - cy) / fy, 1); Blender's
-    camera axes flip y and z.
+    Pixel (u, v) maps to OpenCV camera coordinates d * ((u - cx) / fx, (v - cy) / fy, 1), then to
+    Blender's camera axes through ``geometry/cameras.py``.
     """
     uv = plane_pixels(intr)
     pts = np.stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy, np.ones(len(uv))], axis=1) * distance
-    return pts * np.array([1.0, -1.0, -1.0])
+    return C.blender_from_opencv_camera_points(pts)
 
 
 def plane_uvs(intr: C.Intrinsics) -> np.ndarray:
@@ -170,19 +171,10 @@ class Transaction:
             self._backups.append((path, Path(bak)))
         else:
             self._new_files.append(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-        os.close(fd)
         try:
-            writer(tmp)
-            mask = os.umask(0)
-            os.umask(mask)
-            os.chmod(tmp, 0o666 & ~mask)  # an ordinary file, not mkstemp's private 0600
-            os.replace(tmp, path)
+            atomic_write(path, writer)
         except OSError as e:
             raise OutputError(f"cannot write {path}: {e.strerror or e}") from e
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
         return path
 
     def rollback(self) -> None:
