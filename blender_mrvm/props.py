@@ -139,6 +139,14 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
         ("CPU", "CPU", "Always the CPU"),
         ("CUDA", "CUDA", "An NVIDIA GPU"),
     ], default="AUTO")
+    reference_sizing: EnumProperty(name="Reference size", items=[
+        ("AUTO", "Auto", "Shrink references larger than the model's training images to that size (the model's "
+                         "features are tuned to it; photos also encode much faster)"),
+        ("NATIVE", "As they are", "Give the model the references at their own size"),
+        ("CUSTOM", "Custom", "Resize the references to a chosen size"),
+    ], default="AUTO")
+    reference_size: IntProperty(name="Size", default=128, min=1, soft_max=2048, subtype="PIXEL",
+                                description="Longer side of the references, in pixels")
     plane_distance: FloatProperty(name="Plane distance", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")
     output: EnumProperty(name="Images", items=[
@@ -162,6 +170,15 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
                              description="Root of a rendered dataset (ours, SRN, NMR/DVR or NeRF-synthetic)")
     run_dir: StringProperty(name="Run folder", subtype="DIR_PATH", default="//mrvm_runs/run",
                             description="Folder for checkpoints and the metrics log; a run there is continued")
+    start_from: EnumProperty(name="Start from", items=[
+        ("SHIPPED", "Shipped model", "Fine-tune the model shipped with the add-on on this dataset (no masking phase, "
+                                     "lower learning rate): the quickest way to a model of your objects"),
+        ("CHECKPOINT", "Checkpoint", "Fine-tune another trained checkpoint (a model file, checkpoint or run folder)"),
+        ("NEW", "New model", "Train a model of the chosen size from a random start (MRVM pretraining, then finetuning)"),
+    ], default="SHIPPED")
+    init_checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
+                                    description="The checkpoint to fine-tune: a model .safetensors file, a checkpoint "
+                                                "folder or a run folder")
     preset: EnumProperty(name="Model", items=[
         ("fast", "Fast", "Smallest model: quick experiments"),
         ("balanced", "Balanced", "The shipped model's size (about a second per 128 px view on 2 CPU cores)"),

@@ -155,8 +155,8 @@ def test_registered_and_panel_draws_each_mode(empty_scene):
     log = _draw(MRVM_PT_novel_views)
     props = [e[1] for e in log if e[0] == "prop"]
     assert {"dataset_dir", "reference_views", "orbit_count", "orbit_elevation", "orbit_radius", "checkpoint",
-            "device", "plane_distance", "output_dir", "save_depth"} <= set(props)
-    assert ("operator", "mrvm.synthesize") in log
+            "device", "reference_sizing", "plane_distance", "output_dir", "save_depth"} <= set(props)
+    assert ("operator", "mrvm.synthesize") in log and "reference_size" not in props
 
     p.reference_source, p.target_source, p.output = "SCENE", "SELECTED", "PACK"
     cam = _camera(empty_scene, "Cam", (3.0, 0.0, 1.0))
@@ -497,7 +497,13 @@ def test_operator_writes_the_job_for_the_worker(ready, tmp_path):
     assert depth and [t.name for t in targets] == ["MRVM orbit 000", "MRVM orbit 001", "MRVM orbit 002"]
     assert args == ["--references", str(tmp_path / "job" / "references"), "--views", "0", "1",
                     "--targets", str(tmp_path / "job" / "targets.json"), "--checkpoint", p.checkpoint,
-                    "--device", "auto", "--out", str(tmp_path / "job" / "out")]
+                    "--device", "auto", "--ref-size", "0", "--out", str(tmp_path / "job" / "out")]
+    # Reference size: auto (0, the model's training size for larger references), as they are (-1), custom.
+    for sizing, want in [("NATIVE", "-1"), ("CUSTOM", "96")]:
+        p.reference_sizing, p.reference_size = sizing, 96
+        args = S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / f"job_{sizing}")
+        assert args[args.index("--ref-size") + 1] == want
+    p.reference_sizing = "AUTO"
 
 
 def test_operator_bad_input(ready, tmp_path, prefs, bare_python):

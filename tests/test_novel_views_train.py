@@ -23,7 +23,7 @@ def train_ready(empty_scene, tmp_path, addon):
     pr.python_path, pr.checkpoint_dir, pr.device = "", "", "CPU"
     data = make_sphere_dataset(tmp_path / "data", n_objects=2, n_views=4, resolution=16, seed=3)
     p = empty_scene.mrvm_train
-    p.data_dir, p.run_dir, p.preset = str(data), str(tmp_path / "run"), "fast"
+    p.data_dir, p.run_dir, p.preset, p.start_from = str(data), str(tmp_path / "run"), "fast", "NEW"
     p.iterations, p.checkpoint_every, p.rays_per_object = 2, 1, 32
     yield empty_scene
     pr.python_path, pr.checkpoint_dir, pr.device = saved
@@ -36,8 +36,12 @@ def test_panel_draws_the_model_section(train_ready):
 
     log = _draw(MRVM_PT_model)
     props = {e[1] for e in log if e[0] == "prop"}
-    assert {"data_dir", "run_dir", "preset", "iterations", "checkpoint_every", "resume", "use_for_synthesis"} <= props
+    assert {"data_dir", "run_dir", "start_from", "preset", "iterations", "checkpoint_every", "resume",
+            "use_for_synthesis"} <= props
     assert ("operator", "mrvm.train") in log
+    train_ready.mrvm_train.start_from = "CHECKPOINT"  # the size comes from the checkpoint: no preset
+    props = {e[1] for e in _draw(MRVM_PT_model) if e[0] == "prop"}
+    assert "init_checkpoint" in props and "preset" not in props
 
 
 def test_train_writes_checkpoints_that_synthesis_picks_and_continues(train_ready, tmp_path):
@@ -66,6 +70,55 @@ def test_train_writes_checkpoints_that_synthesis_picks_and_continues(train_ready
     # Already there: a clear message, not a silent success.
     with pytest.raises(RuntimeError, match="already at step 3; raise Iterations"):
         bpy.ops.mrvm.train()
+
+
+def test_fine_tune_the_shipped_model_then_continue(train_ready, tmp_path):
+    """Start from the shipped model: its config and weights, no masking phase, the fine-tuning learning
+    rate; continuing the run keeps that schedule."""
+    import bpy
+    import torch
+
+    from blender_mrvm.models.pretrained import default_checkpoint
+    from blender_mrvm.training.checkpoint import load_model
+
+    p = train_ready.mrvm_train
+    p.start_from, p.iterations = "SHIPPED", 1
+    assert bpy.ops.mrvm.train() == {"FINISHED"}
+    assert re.match(r"Trained to step 1 in \d+ s \(fine-tuned mrvm_shapenet13_all.safetensors\); checkpoint ", p.status), p.status
+    run = tmp_path / "run"
+    doc = json.loads((run / "config.json").read_text())
+    assert doc["train"]["init_checkpoint"] == str(default_checkpoint())
+    assert doc["train"]["pretrain_frac"] == 0.0 and doc["train"]["lr"] == 1e-4
+    tuned, cfg, _ = load_model(run)
+    shipped, cfg0, _ = load_model(default_checkpoint())
+    assert cfg == cfg0  # the shipped model's own config, not the "fast" preset chosen for new runs
+    diff = max(float((a - b).abs().max()) for a, b in zip(tuned.state_dict().values(), shipped.state_dict().values()))
+    assert 0 < diff < 1e-3, diff  # one small AdamW step away from the shipped weights
+    p.iterations = 2  # continue: same model and schedule, from step 1
+    assert bpy.ops.mrvm.train() == {"FINISHED"}
+    assert "(continued from step 1)" in p.status
+    doc = json.loads((run / "config.json").read_text())
+    assert doc["train"]["lr"] == 1e-4 and doc["train"]["pretrain_frac"] == 0.0
+    assert torch.is_tensor(next(iter(load_model(run)[0].state_dict().values())))
+
+
+def test_fine_tune_bad_checkpoints(train_ready, tmp_path):
+    import bpy
+
+    p = train_ready.mrvm_train
+    p.start_from = "CHECKPOINT"
+    p.init_checkpoint = ""
+    with pytest.raises(RuntimeError, match="choose the checkpoint to fine-tune"):
+        bpy.ops.mrvm.train()
+    p.init_checkpoint = str(tmp_path / "missing.safetensors")
+    with pytest.raises(RuntimeError, match="the checkpoint to fine-tune does not exist"):
+        bpy.ops.mrvm.train()
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"\x05" * 40)
+    p.init_checkpoint = str(junk)
+    with pytest.raises(RuntimeError, match="junk.safetensors does not load"):
+        bpy.ops.mrvm.train()
+    assert not (tmp_path / "run").exists()  # nothing started
 
 
 def test_train_bad_settings(train_ready, tmp_path):

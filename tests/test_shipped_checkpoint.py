@@ -38,6 +38,7 @@ def test_default_checkpoint_file_format_and_config():
     assert cfg.name == "balanced" and cfg.mrvm.enabled  # MRVM pretraining, then finetuning
     train = json.loads(meta["train_config"])
     assert train == run["train"] and int(meta["step"]) == train["iterations"]  # the finished run, not a snapshot
+    assert meta["train_image_size"] == "64"  # the data command's --resolution: synthesis shrinks larger references to it
     assert train["data"].endswith("shapenet13_all")
     assert (ASSET_DIR / "RECIPE.md").is_file()
 

@@ -99,6 +99,34 @@ def test_same_numbers_as_the_models_renderer_and_png_round_trip(setup, tmp_path)
     assert np.array_equal(rgba[..., 3], F.to_uint8(res["acc"]) / 255.0)
 
 
+def test_references_shrink_to_the_trained_size_by_default(setup, tmp_path, capsys):
+    """--ref-size 0 (auto) shrinks references larger than the checkpoint's train_image_size to it (never
+    enlarges them); -1 keeps them; N resizes to N; a checkpoint without the key keeps them."""
+    from blender_mrvm.models.config import model_config
+    from blender_mrvm.models.model import GeneralizableNeRF
+    from blender_mrvm.training.checkpoint import save_checkpoint
+
+    root, obj, ck, tg = setup
+    cfg = model_config("fast", TINY)
+    small = save_checkpoint(tmp_path / "small", 1, GeneralizableNeRF(cfg), cfg, None, {"train_image_size": "8"})
+    big = save_checkpoint(tmp_path / "big", 1, GeneralizableNeRF(cfg), cfg, None, {"train_image_size": "64"})
+    assert S.reference_sizes(0, small) == (0, 8) and S.reference_sizes(0, ck) == (0, 0)
+    assert S.reference_sizes(-1, small) == (0, 0) and S.reference_sizes(12, small) == (12, 0)
+    assert S.reference_sizes(0, tmp_path / "missing") == (0, 0)  # reported later, when it is loaded
+    for c, extra, size in [(small, (), 8), (small, ("--ref-size", "-1"), 16), (small, ("--ref-size", "12"), 12),
+                           (big, (), 16), (ck, (), 16)]:
+        out = tmp_path / f"out_{c.parent.parent.name}_{size}"
+        assert main(_args(root, obj, c, out, *extra)) == 0
+        js = json.loads((out / "synthesis.json").read_text())
+        assert js["references"]["size"] == [size, size], (c, extra)
+        assert F.read_png(out / "rgb" / "000002.png").shape == (24, 24, 4)  # targets keep their own size
+    refs = S.load_references(obj, (0, 1), 0, None, max_size=8)
+    k = S.load_references(obj, (0, 1)).intrinsics[0]
+    assert refs.images.shape == (2, 8, 8, 3) and refs.intrinsics[0].fx == pytest.approx(k.fx / 2)
+    assert refs.intrinsics[0].cx == pytest.approx(k.cx / 2)  # pixel-centre exact scaling
+    capsys.readouterr()
+
+
 def test_depth_is_planar_z_in_world_units(tmp_path, setup):
     """An opaque model (density bias 30) stops every ray at the box entry: the planar depth unprojects onto
     the padded box's surface, and equals the model's own along-ray depth times the ray's z component."""

@@ -16,7 +16,7 @@ from blender_mrvm.datasets.loaders import load_dataset
 from blender_mrvm.models.config import model_config
 from blender_mrvm.progress import run_to_end
 from blender_mrvm.training import checkpoint as ckpt
-from blender_mrvm.training.config import TrainConfig, load_run_config
+from blender_mrvm.training.config import TrainConfig, load_run_config, replace
 from blender_mrvm.training.synthetic import make_sphere_dataset
 from blender_mrvm.training.trainer import RayBatcher, lr_at, train
 
@@ -116,6 +116,50 @@ def test_exact_resume(tmp_path, data):
     sa = ckpt.load_trainer_state(ckpt.find_checkpoint(tmp_path / "a"))
     sb = ckpt.load_trainer_state(ckpt.find_checkpoint(tmp_path / "b"))
     assert sa["rng"][0]["numpy"] == sb["rng"][0]["numpy"]
+
+
+def test_init_checkpoint_finetunes_from_given_weights(tmp_path, data):
+    """Fine-tuning starts from a checkpoint's weights (lr 0: they come back unchanged), takes the
+    checkpoint's model config when the run config names none, refuses another architecture, and a
+    run folder's own checkpoint still wins (resume)."""
+    from blender_mrvm.errors import InputError
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "a", root)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    a, _, meta = ckpt.load_model(tmp_path / "a")
+    assert meta["train_image_size"] == "16"  # synthesis resizes larger references to this
+    # the config comes from the checkpoint when the run config has no model section
+    p = tmp_path / "ft.json"
+    p.write_text(json.dumps({"train": {"init_checkpoint": str(tmp_path / "a")}}))
+    m2, t2 = load_run_config(p)
+    assert m2 == mcfg and t2.init_checkpoint == str(tmp_path / "a")
+    _, tb = _cfgs(tmp_path / "b", root, iterations=1, lr=0.0, pretrain_frac=0.0, ckpt_every=1,
+                  init_checkpoint=str(tmp_path / "a" / "checkpoints"), seed=9)
+    s = run_to_end(train(m2, tb, scenes=scenes))
+    assert s["initialized_from"].endswith("model.safetensors") and s["resumed_from"] == 0
+    b, _, _ = ckpt.load_model(tmp_path / "b")
+    for (k, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert torch.equal(x, y), k
+    # without init_checkpoint the same seed-9 run starts elsewhere
+    _, tc = _cfgs(tmp_path / "c", root, iterations=1, lr=0.0, pretrain_frac=0.0, ckpt_every=1, seed=9)
+    run_to_end(train(mcfg, tc, scenes=scenes))
+    c, _, _ = ckpt.load_model(tmp_path / "c")
+    assert not all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), c.state_dict().values()))
+    # the run folder's own checkpoint wins over init_checkpoint
+    s = run_to_end(train(m2, replace(tb, iterations=2), scenes=scenes))
+    assert s["resumed_from"] == 1 and s["initialized_from"] is None
+    # another architecture, a missing path, the shipped alias
+    other = model_config("fast", {**TINY, "nerformer": {"d_model": 24, "n_heads": 2}})
+    with pytest.raises(InputError, match="do not fit"):
+        run_to_end(train(other, replace(tb, out_dir=str(tmp_path / "d")), scenes=scenes))
+    with pytest.raises(InputError, match="does not exist"):
+        run_to_end(train(mcfg, replace(tb, out_dir=str(tmp_path / "e"), init_checkpoint=str(tmp_path / "nope")),
+                         scenes=scenes))
+    assert not (tmp_path / "d").exists() and not (tmp_path / "e").exists()  # nothing written on refusal
+    from blender_mrvm.training.config import resolve_init_checkpoint
+    from blender_mrvm.models.pretrained import default_checkpoint
+    assert resolve_init_checkpoint("shipped") == default_checkpoint()
 
 
 def test_lr_schedule_and_config_file(tmp_path):

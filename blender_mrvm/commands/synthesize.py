@@ -34,8 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", action="store_true", default=None, help="also write depth maps (EXR); "
                    "default: as targets.json says")
     p.add_argument("--chunk", type=int, default=0, help="rays per forward pass (0 = the model's setting)")
-    p.add_argument("--ref-size", type=int, default=0, help="resize references to this longer side in pixels "
-                   "(0 = the first reference's size)")
+    p.add_argument("--ref-size", type=int, default=0, help="resize references to this longer side in pixels; "
+                   "0 (default) shrinks references larger than the model's training images to that size; "
+                   "-1 keeps the first reference's size")
     p.add_argument("--bbox", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                    help="object box in world units (default: from the reference folder)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
@@ -87,7 +88,8 @@ def _make_targets(args, views, bbox, tmp: Path) -> Path:
     else:
         if args.orbit < 1:
             raise InputError(f"--orbit needs at least one view, got {args.orbit}")
-        refs = load_references(args.references, views, args.ref_size, bbox)
+        # the orbit's size: the references' own (or --ref-size), not the model's auto size
+        refs = load_references(args.references, views, max(0, args.ref_size), bbox)
         targets = orbit_targets(refs, args.orbit, args.orbit_elevation, args.orbit_radius, args.orbit_size)
     return write_targets(tmp / "targets.json", targets)
 

@@ -2,6 +2,7 @@
 
 Single process:  python -m blender_mrvm train --config run.json
 Data-parallel:   torchrun --nproc_per_node N -m blender_mrvm train --config run.json
+Fine-tune:       python -m blender_mrvm train --init shipped --data my_dataset --out runs/ft
 Resumes from the run folder's latest checkpoint unless --no-resume.
 """
 
@@ -18,6 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", default=None, help="dataset root (overrides train.data)")
     p.add_argument("--out", dest="out_dir", default=None, help="run folder (overrides train.out_dir)")
     p.add_argument("--iterations", type=int, default=None, help="overrides train.iterations")
+    p.add_argument("--init", dest="init_checkpoint", default=None,
+                   help="fine-tune: start from this checkpoint's weights ('shipped' = the default model) "
+                        "instead of a random initialisation (overrides train.init_checkpoint)")
     p.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
 
 
@@ -28,7 +32,8 @@ def run(args) -> int:
     from ..training.trainer import train
 
     mcfg, tcfg = load_run_config(args.config, {"data": args.data, "out_dir": args.out_dir,
-                                               "iterations": args.iterations})
+                                               "iterations": args.iterations,
+                                               "init_checkpoint": args.init_checkpoint})
     if args.preset:
         from ..models.config import model_config
 
@@ -44,5 +49,5 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / f"summary_rank{summary['rank']}.json").write_text(json.dumps(summary, indent=2) + "\n")
     if rank == 0:
-        print(json.dumps({k: summary[k] for k in ("step", "checkpoint", "resumed_from", "world_size")}))
+        print(json.dumps({k: summary[k] for k in ("step", "checkpoint", "resumed_from", "initialized_from", "world_size")}))
     return 0

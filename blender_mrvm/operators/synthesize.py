@@ -55,6 +55,8 @@ class SynthesisJob:
     """``scene.image_planes.PlaneConfig`` for the results."""
     depth: bool
     """Also synthesize and save depth maps (EXR)."""
+    ref_size: int = 0
+    """The synthesize command's --ref-size: 0 auto, -1 as they are, N pixels on the longer side."""
 
 
 def default_checkpoint() -> Path | None:
@@ -144,8 +146,9 @@ def plan_from_props(context) -> SynthesisJob:
         if obj is not None and not (obj.data.clip_start < cfg.distance < obj.data.clip_end):
             raise InputError(f"plane distance {cfg.distance:g} is outside camera {t.name!r}'s clip range "
                              f"({obj.data.clip_start:g}..{obj.data.clip_end:g})")
+    ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
-                        p.save_depth)
+                        p.save_depth, ref_size)
 
 
 def prepare(context, job: SynthesisJob):
@@ -173,7 +176,8 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
         ref_dir, views = NV.export_scene_references(context.scene, cams, job_dir / "references")
     write_targets(job_dir / "targets.json", list(job.targets), depth=job.depth)
     return ["--references", str(ref_dir), "--views", *map(str, views), "--targets", str(job_dir / "targets.json"),
-            "--checkpoint", str(job.checkpoint), "--device", job.device, "--out", str(job_dir / "out")]
+            "--checkpoint", str(job.checkpoint), "--device", job.device, "--ref-size", str(job.ref_size),
+            "--out", str(job_dir / "out")]
 
 
 @dataclass

@@ -5,8 +5,11 @@ command a cluster job runs), driven by ``operators/_modal.ProgressOperator``: mo
 the step, loss and PSNR in the panel and status bar, Esc interrupts the worker (checkpoints written
 so far are kept, and training again continues from the last one); ``execute`` runs it to the end.
 
-"Fine-tune" means continuing a run: with "Continue run" on, the trainer resumes from the run
-folder's last checkpoint (weights, optimizer, schedule and random state) and trains up to the
+A new run starts from the shipped model (the default), from another checkpoint, or from a random
+start ("Start from"). Starting from a checkpoint fine-tunes it: its model config and weights, no
+MRVM masking phase (the paper pretrains with masking, then finetunes without), and a lower peak
+learning rate (:data:`FINETUNE_LR`). With "Continue run" on and a run already in the run folder,
+the trainer resumes it instead (weights, optimizer, schedule and random state) and trains up to the
 iteration count, on whatever dataset is chosen now. When it finishes, the run folder is picked as
 the Synthesize novel views checkpoint (the synthesis loads its latest checkpoint).
 """
@@ -29,6 +32,14 @@ if TYPE_CHECKING:
     from ..progress import ProgressGen
 
 TRAIN_COMMAND = "train"
+FINETUNE_LR = 1e-4
+"""Peak learning rate when fine-tuning a checkpoint (a new run uses the trainer's 5e-4)."""
+FINETUNE_WARMUP = 50
+"""Warm-up steps when fine-tuning (at most a tenth of the run)."""
+CONTINUED_SETTINGS = ("init_checkpoint", "pretrain_frac", "lr", "lr_warmup", "lr_final_frac", "weight_decay", "seed",
+                      "min_ref_views", "max_ref_views", "objects_per_step", "bbox_sampling_frac", "grad_clip",
+                      "coarse_weight", "amp", "keep_checkpoints")
+"""Train settings a continued run keeps from its config.json (the panel does not set them)."""
 
 
 @dataclass(frozen=True)
@@ -40,7 +51,14 @@ class TrainJob:
     run_dir: Path
     """Run folder (checkpoints/, metrics.jsonl, config.json)."""
     preset: str
-    """Model preset."""
+    """Model preset name (of the run continued or the checkpoint fine-tuned, when there is one)."""
+    model: dict
+    """The run config's model section: a preset, a full config (continuing a run), or empty (the
+    fine-tuned checkpoint's own)."""
+    init_checkpoint: Path | None
+    """Fine-tune this model file (None: a random start, or continuing a run)."""
+    continued: dict
+    """Train settings of the run being continued that the new job keeps (its schedule)."""
     iterations: int
     """Steps in all."""
     checkpoint_every: int
@@ -62,15 +80,42 @@ def _abs(p: str, what: str) -> Path:
     return Path(bpy.path.abspath(raw))
 
 
-def run_model_name(run_dir: Path) -> str | None:
-    """The model preset a run folder was trained with (its config.json), or None when it has no run."""
+def run_config(run_dir: Path) -> dict | None:
+    """The run config a run folder was trained with (its config.json: model config and train section),
+    or None when it holds no run."""
     cfg = Path(run_dir) / "config.json"
     if not cfg.is_file():
         return None
     try:
-        return str(json.loads(cfg.read_text())["model"]["config"]["name"])
+        doc = json.loads(cfg.read_text())
+        str(doc["model"]["config"]["name"])
+        if not isinstance(doc.get("train", {}), dict):
+            return None
+        return doc
     except (ValueError, KeyError, TypeError):
         return None
+
+
+def run_model_name(run_dir: Path) -> str | None:
+    """The model preset a run folder was trained with, or None when it has no run."""
+    doc = run_config(run_dir)
+    return None if doc is None else str(doc["model"]["config"]["name"])
+
+
+def init_checkpoint(p) -> Path:
+    """The model file to fine-tune (Start from: shipped model or checkpoint), checked without torch."""
+    from ..models.checkpoint_files import checked_header
+    from .synthesize import default_checkpoint
+
+    if p.start_from == "SHIPPED":
+        ck = default_checkpoint()
+        if ck is None:
+            raise InputError("this copy of the add-on ships no trained model: start from a checkpoint or a new model")
+    else:
+        ck = _abs(p.init_checkpoint, "checkpoint to fine-tune")
+        if not ck.exists():
+            raise InputError(f"the checkpoint to fine-tune does not exist: {ck}")
+    return checked_header(ck)[0]
 
 
 def plan_from_props(context) -> TrainJob:
@@ -84,15 +129,26 @@ def plan_from_props(context) -> TrainJob:
     run_dir = _abs(p.run_dir, "run folder")
     if run_dir.exists() and not run_dir.is_dir():
         raise InputError(f"run folder {run_dir} is a file")
-    if p.resume:
-        name = run_model_name(run_dir)
-        if name is not None and name != p.preset:
+    init, base = None, {}
+    running = run_config(run_dir) if p.resume else None
+    if running is not None:  # continue the run in the folder: its model and its schedule
+        name = str(running["model"]["config"]["name"])
+        if p.start_from == "NEW" and name != p.preset:
             raise InputError(f"the run folder holds a {name!r} model; choose that model to continue it, "
                              "a new run folder, or turn off Continue run")
+        model = {"config": running["model"]["config"]}
+        base = {k: v for k, v in running.get("train", {}).items() if k in CONTINUED_SETTINGS}
+    elif p.start_from != "NEW":
+        init = init_checkpoint(p)  # fine-tune: the checkpoint's own model
+        from ..models.checkpoint_files import checked_header, model_name
+
+        name, model = model_name(checked_header(init)[1]) or "?", {}
+    else:
+        name, model = p.preset, {"preset": p.preset}
     pr = P.get(context)
     dev = (pr.device if pr else "AUTO").lower()
-    return TrainJob(data, run_dir, p.preset, int(p.iterations), int(p.checkpoint_every), int(p.rays_per_object),
-                    bool(p.resume), dev)
+    return TrainJob(data, run_dir, name, model, init, base, int(p.iterations), int(p.checkpoint_every),
+                    int(p.rays_per_object), bool(p.resume), dev)
 
 
 def prepare(context):
@@ -108,13 +164,19 @@ def prepare(context):
 
 def write_job(job: TrainJob, job_dir: Path) -> list[str]:
     """Write the run config for ``train --config``; return the worker's arguments."""
-    train = {"data": str(job.data), "out_dir": str(job.run_dir), "iterations": job.iterations,
+    train = {**job.continued, "data": str(job.data), "out_dir": str(job.run_dir), "iterations": job.iterations,
              "ckpt_every": job.checkpoint_every, "rays_per_object": job.rays_per_object,
              "log_every": max(1, min(10, job.checkpoint_every))}
     if job.device != "auto":
         train["device"] = job.device
+    if job.init_checkpoint is not None:  # used only when the run folder has no checkpoint to resume
+        train.update(init_checkpoint=str(job.init_checkpoint), pretrain_frac=0.0, lr=FINETUNE_LR,
+                     lr_warmup=min(FINETUNE_WARMUP, max(1, job.iterations // 10)))
+    doc = {"train": train}
+    if job.model:
+        doc["model"] = job.model
     cfg = job_dir / "train.json"
-    cfg.write_text(json.dumps({"model": {"preset": job.preset}, "train": train}, indent=2) + "\n")
+    cfg.write_text(json.dumps(doc, indent=2) + "\n")
     args = ["--config", str(cfg)]
     if not job.resume:
         args.append("--no-resume")
@@ -161,6 +223,8 @@ def on_train_result(context, run: TrainRun) -> str:
     msg = f"Trained to step {run.summary.get('step')} in {run.seconds:.0f} s"
     if run.summary.get("resumed_from"):
         msg += f" (continued from step {run.summary['resumed_from']})"
+    elif run.summary.get("initialized_from"):
+        msg += f" (fine-tuned {Path(run.summary['initialized_from']).name})"
     msg += f"; checkpoint {ck}"
     nv = getattr(context.scene, "mrvm_novel_views", None)
     if p.use_for_synthesis and nv is not None:

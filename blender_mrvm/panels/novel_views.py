@@ -22,6 +22,15 @@ def _torch_warning(layout, context) -> None:
         box.label(text="See the add-on preferences for what to install")
 
 
+def _holds_run(run_dir: str) -> bool:
+    raw = run_dir.strip()
+    if not raw or (raw.startswith("//") and not bpy.data.filepath):
+        return False
+    from pathlib import Path
+
+    return (Path(bpy.path.abspath(raw)) / "config.json").is_file()
+
+
 class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
     bl_label = "Model"
     bl_idname = "MRVM_PT_model"
@@ -41,12 +50,18 @@ class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
         col.enabled = not p.running
         col.prop(p, "data_dir")
         col.prop(p, "run_dir")
-        col.prop(p, "preset")
+        col.prop(p, "start_from")
+        if p.start_from == "CHECKPOINT":
+            col.prop(p, "init_checkpoint")
+        elif p.start_from == "NEW":
+            col.prop(p, "preset")
         col.prop(p, "iterations")
         col.prop(p, "checkpoint_every")
         col.prop(p, "rays_per_object")
         col.prop(p, "resume")
         col.prop(p, "use_for_synthesis")
+        if p.resume and _holds_run(p.run_dir):
+            col.label(text="The run folder holds a run: training continues it", icon="INFO")
         _torch_warning(layout, context)
         draw_job(layout, p, "mrvm.train", "MOD_NOISE", "Training...")
 
@@ -107,6 +122,9 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
             else:
                 col.label(text="No shipped model in this copy: choose a checkpoint", icon="ERROR")
         col.prop(p, "device")
+        col.prop(p, "reference_sizing")
+        if p.reference_sizing == "CUSTOM":
+            col.prop(p, "reference_size")
         col.prop(p, "plane_distance")
         col.prop(p, "output")
         if p.output == "FILES":

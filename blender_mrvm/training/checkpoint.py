@@ -24,12 +24,9 @@ from typing import Any
 import torch
 
 from ..errors import InputError
+from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
+                                       find_checkpoint, model_file_of, read_header_meta)
 from ..models.config import ModelConfig, from_dict, to_dict
-
-FORMAT = "blender_mrvm.generalizable_nerf"
-FORMAT_VERSION = 1
-MODEL_FILE = "model.safetensors"
-STATE_FILE = "trainer_state.pt"
 
 
 def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg: ModelConfig,
@@ -67,48 +64,41 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
     return final
 
 
-def find_checkpoint(path: Path) -> Path | None:
-    """A checkpoint folder from a run folder, a checkpoints/ folder, a checkpoint folder or a model file."""
-    path = Path(path)
-    if path.is_file() and path.name.endswith(".safetensors"):
-        return path.parent if (path.parent / STATE_FILE).exists() or path.name == MODEL_FILE else path
-    for base in (path / "checkpoints", path):
-        latest = base / "latest"
-        if latest.is_file():
-            c = base / latest.read_text().strip()
-            if (c / MODEL_FILE).is_file():
-                return c
-    if (path / MODEL_FILE).is_file():
-        return path
-    return None
-
-
 def read_meta(model_file: Path) -> dict[str, str]:
-    from safetensors import safe_open
+    """A model file's safetensors metadata (unchecked)."""
+    return read_header_meta(model_file)
 
-    with safe_open(str(model_file), framework="pt") as f:
-        return dict(f.metadata() or {})
+
+def checked_meta(model_file: Path) -> dict[str, str]:
+    """The metadata of a model file, after checking it is ours and of a format version this code reads."""
+    return checked_header(model_file)[1]
+
+
+def read_model_config(model_file: Path) -> ModelConfig:
+    """The model config stored in a model file."""
+    return from_dict(ModelConfig, json.loads(checked_meta(model_file)["model_config"]))
+
+
+def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") -> None:
+    """Load a model file's weights into ``model``; InputError naming the mismatch when they do not fit."""
+    from safetensors.torch import load_model as st_load
+
+    try:
+        st_load(model, str(model_file), strict=True, device=device)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"checkpoint {model_file} does not match its model config: {first[:300]}") from None
 
 
 def load_model(path: Path, device: str = "cpu"):
     """(model, model_cfg, meta) from a checkpoint (any form :func:`find_checkpoint` accepts)."""
-    from safetensors.torch import load_model as st_load
-
     from ..models.model import GeneralizableNeRF
 
-    path = Path(path)
-    ck = find_checkpoint(path)
-    model_file = path if path.is_file() else (ck / MODEL_FILE if ck else None)
-    if model_file is None or not Path(model_file).is_file():
-        raise InputError(f"no checkpoint found at {path}")
-    meta = read_meta(model_file)
-    if meta.get("format") != FORMAT:
-        raise InputError(f"{model_file} is not a blender_mrvm model checkpoint (format {meta.get('format')!r})")
-    if int(meta.get("format_version", -1)) > FORMAT_VERSION:
-        raise InputError(f"{model_file} has format version {meta['format_version']}, newer than this code ({FORMAT_VERSION})")
+    model_file = model_file_of(path)
+    meta = checked_meta(model_file)
     cfg = from_dict(ModelConfig, json.loads(meta["model_config"]))
     model = GeneralizableNeRF(cfg)
-    st_load(model, str(model_file), strict=True, device=device)
+    load_weights(model, model_file, device)
     return model.to(device), cfg, meta
 
 

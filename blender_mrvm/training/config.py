@@ -71,6 +71,11 @@ class TrainConfig:
     """torch CPU threads per process (0 = torch's default)."""
     device: str = "cpu"
     """'cpu' or 'cuda' (under torchrun each rank takes cuda:LOCAL_RANK)."""
+    init_checkpoint: str = ""
+    """Fine-tune: start from these weights (a model file, checkpoint or run folder, or 'shipped' for the
+    add-on's default model) instead of a random initialisation. The optimizer, schedule and step start
+    afresh; the model config is the checkpoint's unless the run config names one (it must match).
+    Ignored when the run folder already has a checkpoint to resume from."""
 
 
 def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) -> tuple[ModelConfig, TrainConfig]:
@@ -88,15 +93,42 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) 
     if unknown:
         raise InputError(f"{path}: unknown top-level keys {sorted(unknown)} (expected 'model' and 'train')")
     m = data.get("model", {})
-    if "config" in m:  # a full config (as saved in a checkpoint)
-        mcfg = from_dict(ModelConfig, m["config"])
-    else:
-        mcfg = model_config(m.get("preset", "balanced"), m.get("overrides"))
     tcfg = from_dict(TrainConfig, data.get("train", {}))
     if overrides:
         tcfg = merge(tcfg, {k: v for k, v in overrides.items() if v is not None})
     validate(tcfg)
+    if "config" in m:  # a full config (as saved in a checkpoint)
+        mcfg = from_dict(ModelConfig, m["config"])
+    elif not m and tcfg.init_checkpoint:  # fine-tuning: the checkpoint's own model
+        mcfg = init_model_config(tcfg.init_checkpoint)
+    else:
+        mcfg = model_config(m.get("preset", "balanced"), m.get("overrides"))
     return mcfg, tcfg
+
+
+def resolve_init_checkpoint(name: str) -> Path:
+    """The model file or checkpoint folder ``init_checkpoint`` names ('shipped' = the default model)."""
+    from ..models import pretrained
+    from .checkpoint import find_checkpoint
+
+    if name.strip().lower() == "shipped":
+        return pretrained.default_checkpoint()
+    p = Path(name).expanduser()
+    if not p.exists():
+        raise InputError(f"init_checkpoint {p} does not exist")
+    if p.is_file():
+        return p
+    ck = find_checkpoint(p)
+    if ck is None:
+        raise InputError(f"init_checkpoint {p} holds no checkpoint (model.safetensors)")
+    return ck
+
+
+def init_model_config(name: str) -> ModelConfig:
+    """The model config stored in the checkpoint ``init_checkpoint`` names."""
+    from .checkpoint import model_file_of, read_model_config
+
+    return read_model_config(model_file_of(resolve_init_checkpoint(name)))
 
 
 def validate(c: TrainConfig) -> None:

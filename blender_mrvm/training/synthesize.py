@@ -69,7 +69,9 @@ class SynthesisConfig:
     chunk_rays: int = 0
     """Rays per forward pass (0 = the model config's ``render.chunk_rays``)."""
     ref_size: int = 0
-    """Resize the references so their longer side has this many pixels (0 = the first view's size)."""
+    """Reference size: N > 0 resizes them so their longer side has N pixels; 0 (auto) shrinks references
+    larger than the images the model was trained on (the checkpoint's ``train_image_size``) to that
+    size, since its convolutional features are tuned to that scale; -1 keeps the first view's size."""
     bbox: tuple | None = None
     """Object box ((min x, y, z), (max x, y, z)) in world units; None = from the references."""
     threads: int = 0
@@ -189,8 +191,35 @@ def _resize(img: np.ndarray, w: int, h: int) -> np.ndarray:
     return out[0].permute(1, 2, 0).clamp(0, 1).numpy()
 
 
-def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None) -> References:
-    """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong."""
+def trained_size(checkpoint: Path | None) -> int:
+    """The longer image side a checkpoint was trained on (its ``train_image_size``), 0 when unknown."""
+    from ..models.checkpoint_files import read_header_meta, model_file_of
+
+    try:
+        if checkpoint is None:
+            from ..models.pretrained import default_checkpoint
+
+            checkpoint = default_checkpoint()
+        return max(0, int(read_header_meta(model_file_of(Path(checkpoint))).get("train_image_size", 0)))
+    except (InputError, ValueError, OSError):
+        return 0  # a bad checkpoint is reported when it is loaded
+
+
+def reference_sizes(ref_size: int, checkpoint: Path | None) -> tuple[int, int]:
+    """``(ref_size, max_size)`` for :func:`load_references` from a :class:`SynthesisConfig` ``ref_size``."""
+    if ref_size > 0:
+        return int(ref_size), 0
+    if ref_size == 0:
+        return 0, trained_size(checkpoint)
+    return 0, 0
+
+
+def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None,
+                    max_size: int = 0) -> References:
+    """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong.
+
+    All references take one size: the first view's, or ``ref_size`` pixels on the longer side when it is
+    given, or at most ``max_size`` pixels on the longer side (shrinking only)."""
     from ..datasets.loaders import to_float_rgb
 
     folder = Path(folder)
@@ -240,6 +269,8 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
         poses.append(C.as_pose(ov.c2w_opencv[k]))
     # One size for all references: the first view's, or the longer side ref_size.
     w0, h0 = intrs[0].width, intrs[0].height
+    if not (ref_size and ref_size > 0) and max_size and max_size > 0 and max(w0, h0) > max_size:
+        ref_size = max_size
     if ref_size and ref_size > 0:
         s = ref_size / max(w0, h0)
         w0, h0 = max(1, round(w0 * s)), max(1, round(h0 * s))
@@ -352,6 +383,8 @@ class SynthesisSummary:
     bbox: list = field(default_factory=list)
     bbox_source: str = ""
     references: list = field(default_factory=list)
+    reference_size: list = field(default_factory=list)
+    """[width, height] of the references as the model saw them."""
 
 
 def _check_out(out: Path) -> None:
@@ -398,7 +431,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         torch.set_num_threads(cfg.threads)
     targets, depth_wanted = read_targets(Path(cfg.targets))
     depth = depth_wanted if cfg.depth is None else bool(cfg.depth)
-    refs = load_references(Path(cfg.references), tuple(cfg.views), cfg.ref_size, cfg.bbox)
+    size, max_size = reference_sizes(cfg.ref_size, cfg.checkpoint)
+    refs = load_references(Path(cfg.references), tuple(cfg.views), size, cfg.bbox, max_size)
     device = resolve_device(cfg.device)
     model, mcfg, meta, ck_path = load_checkpoint(cfg.checkpoint, device)
     if len(refs.views) > mcfg.max_ref_views:
@@ -409,7 +443,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
-                               bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)])
+                               bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
+                               reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height])
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
     ctx, ns = encode_references(model, refs, device)
     base = out.parent if str(out.parent) else Path(".")
@@ -451,7 +486,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
 def _summary_json(s: SynthesisSummary, meta: dict, mcfg) -> dict[str, Any]:
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
-            "model": mcfg.name, "device": s.device, "references": {"folder": s.references[0], "views": s.references[1]},
+            "model": mcfg.name, "device": s.device,
+            "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
             "rgb": "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)",
             "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}"}

@@ -170,11 +170,10 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
     gen = torch.Generator().manual_seed(cfg.seed * 104729 + dd.rank)
     torch.manual_seed(cfg.seed + dd.rank)
     start = 0
+    init_from = None
     found = ckpt.find_checkpoint(run_dir) if resume else None
     if found is not None and (found / ckpt.STATE_FILE).is_file():
-        from safetensors.torch import load_model as st_load
-
-        st_load(model, str(found / ckpt.MODEL_FILE), strict=True, device=device)
+        ckpt.load_weights(model, found / ckpt.MODEL_FILE, device)
         state = ckpt.load_trainer_state(found)
         if state.get("world_size", 1) != dd.world:
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
@@ -182,11 +181,15 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
         opt.load_state_dict(state["optimizer"])
         _set_rng_state(batcher, gen, state["rng"][dd.rank])
         start = int(state["step"])
-    elif dd.world > 1:
-        _broadcast_params(model)
+    else:
+        if cfg.init_checkpoint:
+            init_from = init_weights(model, model_cfg, cfg.init_checkpoint, device)
+        if dd.world > 1:
+            _broadcast_params(model)
     if dd.main:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.json").write_text(json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
+    image_size = train_image_size(scenes)
     pretrain_steps = int(round(cfg.pretrain_frac * cfg.iterations)) if model_cfg.mrvm.enabled else 0
     bbox_steps = int(round(cfg.bbox_sampling_frac * cfg.iterations))
     log = open(run_dir / "metrics.jsonl", "a", encoding="utf-8") if dd.main else None
@@ -253,13 +256,36 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
                 log.write(json.dumps(last) + "\n")
                 log.flush()
             if done % cfg.ckpt_every == 0 or done == cfg.iterations:
-                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd)
+                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size)
             yield Progress(done, cfg.iterations, f"loss {tot['loss']:.4f} psnr {last['psnr_fine']:.2f}")
     finally:
         if log:
             log.close()
     return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
-            "resumed_from": start, "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
+            "resumed_from": start, "initialized_from": str(init_from) if init_from else None, "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
+
+
+def init_weights(model: torch.nn.Module, model_cfg: ModelConfig, name: str, device: str) -> Path:
+    """Load the weights ``init_checkpoint`` names into a fresh model (fine-tuning); its model file.
+    InputError, naming both models, when the checkpoint holds another architecture."""
+    from .config import resolve_init_checkpoint
+
+    model_file = ckpt.model_file_of(resolve_init_checkpoint(name))
+    theirs = ckpt.read_model_config(model_file)
+    try:
+        ckpt.load_weights(model, model_file, device)
+    except InputError:
+        raise InputError(f"init_checkpoint {model_file} holds a {theirs.name!r} model whose weights do not fit "
+                         f"the run config's {model_cfg.name!r} model; leave the run config's model section out "
+                         "to use the checkpoint's own") from None
+    return model_file
+
+
+def train_image_size(scenes: list[ObjectScene]) -> int:
+    """Median longer image side of the training views (recorded in checkpoints: synthesis resizes larger
+    references to it)."""
+    sides = [max(s.intrinsics[0].width, s.intrinsics[0].height) for s in scenes if len(s)]
+    return int(np.median(sides)) if sides else 0
 
 
 def param_digest(model: torch.nn.Module) -> str:
@@ -273,7 +299,7 @@ def param_digest(model: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
-def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist):
+def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, image_size: int = 0):
     my = _rng_state(batcher, gen)
     if dd.world > 1:
         import torch.distributed as dist
@@ -286,7 +312,8 @@ def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist):
     if dd.main:
         state = {"step": step, "optimizer": opt.state_dict(), "rng": states, "world_size": dd.world}
         path = ckpt.save_checkpoint(run_dir, step, model, model_cfg, state,
-                                    {"train_config": json.dumps(run_config_dict(model_cfg, cfg)["train"])},
+                                    {"train_config": json.dumps(run_config_dict(model_cfg, cfg)["train"]),
+                                     "train_image_size": str(image_size)},
                                     keep=cfg.keep_checkpoints)
     if dd.world > 1:
         import torch.distributed as dist

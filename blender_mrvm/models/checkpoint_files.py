@@ -1,0 +1,91 @@
+"""Where a checkpoint's files are and what its header says, without torch (bpy-free, torch-free).
+
+The add-on's main thread uses this to check a checkpoint the user picked (is it ours, which model)
+before a worker with torch is started; ``training/checkpoint.py`` builds on the same names.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+from ..errors import InputError
+
+FORMAT = "blender_mrvm.generalizable_nerf"
+FORMAT_VERSION = 1
+MODEL_FILE = "model.safetensors"
+STATE_FILE = "trainer_state.pt"
+MAX_HEADER = 100 * 1024 * 1024
+"""safetensors caps its JSON header at 100 MB; a larger length means the file is not one."""
+
+
+def find_checkpoint(path: Path) -> Path | None:
+    """A checkpoint folder from a run folder, a checkpoints/ folder, a checkpoint folder or a model file."""
+    path = Path(path)
+    if path.is_file() and path.name.endswith(".safetensors"):
+        return path.parent if (path.parent / STATE_FILE).exists() or path.name == MODEL_FILE else path
+    for base in (path / "checkpoints", path):
+        latest = base / "latest"
+        if latest.is_file():
+            c = base / latest.read_text().strip()
+            if (c / MODEL_FILE).is_file():
+                return c
+    if (path / MODEL_FILE).is_file():
+        return path
+    return None
+
+
+def model_file_of(path: Path) -> Path:
+    """The model file of a checkpoint (any form :func:`find_checkpoint` accepts); InputError if none."""
+    path = Path(path)
+    ck = find_checkpoint(path)
+    model_file = path if path.is_file() else (ck / MODEL_FILE if ck else None)
+    if model_file is None or not Path(model_file).is_file():
+        raise InputError(f"no checkpoint found at {path}")
+    return Path(model_file)
+
+
+def read_header_meta(model_file: Path) -> dict[str, str]:
+    """The ``__metadata__`` of a safetensors file, read from its header (8-byte length + JSON)."""
+    model_file = Path(model_file)
+    try:
+        with open(model_file, "rb") as f:
+            head = f.read(8)
+            if len(head) < 8:
+                raise ValueError("file too short")
+            (n,) = struct.unpack("<Q", head)
+            if n > MAX_HEADER:
+                raise ValueError("header too large")
+            raw = f.read(n)
+            if len(raw) < n:
+                raise ValueError("truncated header")
+        header = json.loads(raw.decode("utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"checkpoint {model_file} does not load: {e}") from None
+    meta = header.get("__metadata__") if isinstance(header, dict) else None
+    return dict(meta) if isinstance(meta, dict) else {}
+
+
+def checked_header(path: Path) -> tuple[Path, dict[str, str]]:
+    """(model file, metadata) of a checkpoint after checking it is a blender_mrvm model of a format
+    version this code reads; InputError naming what is wrong."""
+    model_file = model_file_of(path)
+    meta = read_header_meta(model_file)
+    if meta.get("format") != FORMAT:
+        raise InputError(f"{model_file} is not a blender_mrvm model checkpoint (format {meta.get('format')!r})")
+    try:
+        version = int(meta.get("format_version", -1))
+    except ValueError:
+        version = -1
+    if version > FORMAT_VERSION:
+        raise InputError(f"{model_file} has format version {meta['format_version']}, newer than this code ({FORMAT_VERSION})")
+    return model_file, meta
+
+
+def model_name(meta: dict[str, str]) -> str:
+    """The model preset name recorded in a checkpoint's metadata ('' when unreadable)."""
+    try:
+        return str(json.loads(meta["model_config"])["name"])
+    except (KeyError, ValueError, TypeError):
+        return ""
