@@ -201,3 +201,23 @@ def test_ddp_two_cpu_processes(tmp_path, data):
     state = ckpt.load_trainer_state(ckpt.find_checkpoint(tmp_path / "ddp"))
     assert state["world_size"] == 2 and len(state["rng"]) == 2
     assert state["rng"][0]["numpy"] != state["rng"][1]["numpy"]  # each rank drew its own batches
+
+
+def test_cli_init_flag(tmp_path, data, capsys):
+    """`train --init` reaches the trainer: a missing checkpoint is a one-line error, a good one fine-tunes."""
+    from blender_mrvm.cli import main
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "a", root, iterations=1, ckpt_every=1)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    assert main(["train", "--init", str(tmp_path / "nope"), "--data", str(root), "--out", str(tmp_path / "b")]) == 2
+    assert "init_checkpoint" in capsys.readouterr().err and not (tmp_path / "b").exists()
+    cfg = tmp_path / "ft.json"
+    cfg.write_text(json.dumps({"train": {"iterations": 1, "rays_per_object": 16, "objects_per_step": 1, "threads": 1,
+                                         "max_ref_views": 2, "lr": 0.0}}))
+    assert main(["train", "--config", str(cfg), "--init", str(tmp_path / "a"), "--data", str(root),
+                 "--out", str(tmp_path / "c")]) == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["initialized_from"].endswith("model.safetensors") and line["step"] == 1
+    assert json.loads((tmp_path / "c" / "config.json").read_text())["model"]["config"] == \
+        json.loads((tmp_path / "a" / "config.json").read_text())["model"]["config"]

@@ -40,6 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--views", type=int, default=24, help="turntable views per object (the test split has 24)")
     p.add_argument("--resolution", type=int, default=64, help="image size in pixels (the training set's, 64)")
     p.add_argument("--scene-resolution", type=int, default=128, help="size of the image planes' views in scene.blend")
+    p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model: 0 (default) shrinks "
+                   "references larger than the model's training images to that size, -1 keeps them, N pixels")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default: all cores)")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
@@ -134,7 +136,7 @@ def novel_views_demo(args) -> int:
         targets = targets_from_views(obj, target_views)
         write_targets(job / "targets.json", targets)
         syn = SynthesisConfig(references=obj, targets=job / "targets.json", out=job / "out", views=tuple(refs),
-                              checkpoint=ck, device=args.device, depth=False)
+                              checkpoint=ck, device=args.device, depth=False, ref_size=args.ref_size)
         run_with_tqdm(synthesize_views(syn), desc=f"synthesize {cat}", unit="ray")
         ov = F.read_object(obj)
         pos = {v: k for k, v in enumerate(ov.indices)}
@@ -154,7 +156,7 @@ def novel_views_demo(args) -> int:
     report.update({"checkpoint": str(ck), "checkpoint_step": meta.get("step"), "model": mcfg.name,
                    "objects": list(sources), "protocol": {"views": args.views, "input_views": refs,
                                                           "target_views": target_views},
-                   "resolution": args.resolution, "seconds": {"render": t_render, "synthesis_and_scores": t_synth}})
+                   "resolution": args.resolution, "ref_size": args.ref_size, "seconds": {"render": t_render, "synthesis_and_scores": t_synth}})
     _print_table(report, lpips is not None)
 
     # 4. Contact sheet, scene.blend, picture.
