@@ -53,6 +53,9 @@ class ObjectScene:
     """(min xyz, max xyz) float64 of the object."""
     view_ids: list = field(default_factory=list)
     """Index of each view in its source (file number)."""
+    masks: np.ndarray | None = None
+    """(N, H, W) bool object masks (True = object) when the source has them for every view (our
+    renders' mask/ part ids > 0), else None."""
 
     def __len__(self) -> int:
         return self.images.shape[0]
@@ -115,9 +118,14 @@ def load_ours(obj_dir: Path) -> ObjectScene:
     for intr in intrs:
         if (intr.width, intr.height) != (w, h):
             raise InputError(f"{obj_dir}: intrinsics say {intr.width}x{intr.height}, images are {w}x{h}")
+    masks = None
+    if all(F.view_paths(obj_dir, v)["mask"].is_file() for v in ov.indices):
+        masks = np.stack([np.asarray(ov.mask(i)) > 0 for i in range(len(ov.indices))])
+        if masks.shape != images.shape[:3]:
+            raise InputError(f"{obj_dir}: masks are {masks.shape[2]}x{masks.shape[1]}, images {w}x{h}")
     return ObjectScene(str(meta.get("object_id", Path(obj_dir).name)), str(meta.get("category", Path(obj_dir).parent.name)),
                        images, np.stack(ov.c2w_opencv), intrs,
-                       (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices))
+                       (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices), masks)
 
 
 def list_ours(root: Path, split: str | None = None) -> list[Path]:

@@ -59,6 +59,10 @@ class TrainConfig:
     """Global gradient-norm clip (0 = off)."""
     coarse_weight: float = 1.0
     """Weight of the coarse branch's photometric loss."""
+    opacity_weight: float = 0.0
+    """Weight of a binary cross-entropy between each branch's accumulated opacity and the object mask
+    (needs masks: our renders have them). Colour over white alone leaves faint white density in empty
+    space, a haze in the alpha of image planes; this loss removes it. 0 = off."""
     amp: str = "none"
     """Autocast: 'none', 'bf16' (CPU/GPU) or 'fp16' (GPU, with a grad scaler)."""
     log_every: int = 10
@@ -140,6 +144,8 @@ def validate(c: TrainConfig) -> None:
         raise InputError(f"amp must be none, bf16 or fp16, got {c.amp!r}")
     if not 0.0 <= c.pretrain_frac <= 1.0 or not 0.0 <= c.bbox_sampling_frac <= 1.0:
         raise InputError("pretrain_frac and bbox_sampling_frac must be in [0, 1]")
+    if not c.opacity_weight >= 0.0:
+        raise InputError(f"opacity_weight must be >= 0, got {c.opacity_weight}")
     if c.rays_per_object < 1 or c.objects_per_step < 1:
         raise InputError("rays_per_object and objects_per_step must be >= 1")
 

@@ -110,6 +110,11 @@ class RayBatcher:
         self.padding = model_cfg.sampler.box_padding
         self.rng = np.random.default_rng(seed)
         self._boxes = [s.foreground_boxes() for s in scenes]
+        if cfg.opacity_weight > 0:
+            bare = [f"{s.category}/{s.name}" for s in scenes if s.masks is None]
+            if bare:
+                raise InputError(f"opacity_weight needs object masks, and {len(bare)} training object(s) have none "
+                                 f"(e.g. {bare[0]}); our rendered datasets have them, or set opacity_weight to 0")
 
     def draw(self, bbox_phase: bool) -> dict[str, Any]:
         c, rng = self.cfg, self.rng
@@ -127,7 +132,8 @@ class RayBatcher:
         py = rng.integers(y0, y1, c.rays_per_object)
         rays = make_rays(intr, ns.pose(s.c2w[tgt]), np.stack([px + 0.5, py + 0.5], -1), box=ns.box)
         gt = torch.from_numpy(s.images[tgt][py, px].astype(np.float32))
-        return {"images": images, "cams": cams, "rays": rays, "gt": gt, "n_refs": k}
+        mask = torch.from_numpy(s.masks[tgt][py, px].astype(np.float32)) if s.masks is not None else None
+        return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k}
 
 
 # ------------------------------------------------------------------------------------------- training
@@ -205,7 +211,7 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
             masking = step < pretrain_steps
             lam = lambda_at(step, pretrain_steps, model_cfg.mrvm)
             opt.zero_grad(set_to_none=True)
-            tot = {"loss": 0.0, "mse_fine": 0.0, "mse_coarse": 0.0, "mrvm": 0.0, "hit": 0.0}
+            tot = {"loss": 0.0, "mse_fine": 0.0, "mse_coarse": 0.0, "mrvm": 0.0, "opacity": 0.0, "hit": 0.0}
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
                 rays, gt = b["rays"], b["gt"].to(device)
@@ -225,6 +231,11 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
                         mse_f = (sse_f + miss_err) / (3 * n)
                         mse_c = (sse_c + miss_err) / (3 * n)
                         loss = mse_f + cfg.coarse_weight * mse_c
+                        if cfg.opacity_weight > 0:
+                            opa = opacity_loss(out["fine"]["acc"], b["mask"].to(device), hit.to(device)) + \
+                                cfg.coarse_weight * opacity_loss(out["coarse"]["acc"], b["mask"].to(device), hit.to(device))
+                            loss = loss + cfg.opacity_weight * opa
+                            tot["opacity"] += float(opa.detach()) / cfg.objects_per_step
                         if out["mrvm_loss"] is not None:
                             loss = loss + lam * out["mrvm_loss"]
                             tot["mrvm"] += float(out["mrvm_loss"].detach()) / cfg.objects_per_step
@@ -263,6 +274,18 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
             log.close()
     return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
             "resumed_from": start, "initialized_from": str(init_from) if init_from else None, "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
+
+
+def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of the accumulated opacity of the rays that hit the box (``acc``, one per
+    True in ``hit``) against the object mask of all rays (``mask``); averaged over all rays, since a ray
+    that misses the box has opacity 0 and no loss when the mask agrees (else the constant log(eps))."""
+    eps = 1e-4
+    a = acc.float().clamp(eps, 1 - eps)
+    m = mask[hit]
+    bce = -(m * torch.log(a) + (1 - m) * torch.log1p(-a)).sum()
+    missed_fg = mask[~hit].sum() * -math.log(eps)  # constant: object pixels outside the box (box too small)
+    return (bce + missed_fg) / mask.numel()
 
 
 def init_weights(model: torch.nn.Module, model_cfg: ModelConfig, name: str, device: str) -> Path:
