@@ -60,6 +60,11 @@ def test_demo_with_a_model(tmp_path, addon, capsys):
     gt = to_float_rgb(F.read_png(obj / "rgb" / "000003.png"))
     assert v["view"] == 3 and abs(float(psnr(torch.from_numpy(pred), torch.from_numpy(gt))[0]) - v["psnr"]) < 1e-4
     assert 0 < v["ssim"] <= 1 and 3 < v["psnr"] < 60 and (not HAVE_WEIGHTS or 0 <= v["lpips"] < 1.5)
+    a = v["alpha"]  # the written alpha against the rendered mask
+    alpha = F.read_png(out / "novel" / "chair" / "out" / "rgb" / "000002.png")[..., 3] / 255.0
+    mask = F.read_png(obj / "mask" / "000003.png") > 0
+    assert a["background"] == pytest.approx(float(alpha[~mask].mean())) and 0 <= a["iou"] <= 1
+    assert "alpha (opacity) vs object masks" in text
     o = rep["overall"]
     assert abs(o["psnr_gain_over_best_baseline"]
                - (o["psnr"] - max(o["baseline_nearest"]["psnr"], o["baseline_mean"]["psnr"]))) < 1e-9

@@ -105,9 +105,10 @@ def test_eval_command_uses_dataset_protocol(two_category_set, checkpoint, tmp_pa
     assert o["psnr_gain_over_best_baseline"] == pytest.approx(o["psnr"] - best)
     if HAVE_WEIGHTS:
         assert 0 <= o["lpips"] < 1 and 0 <= o["baseline_mean"]["lpips"] < 1
-    md = (out / "eval.md").read_text().splitlines()
+    md = [l for l in (out / "eval.md").read_text().splitlines() if l.startswith("|")]
     assert len(md) == 2 + 2 + 1 and md[-1].startswith("| **overall** | 9 | ")  # header, red, blue, overall
     assert f"| {o['psnr_gain_over_best_baseline']:.2f} |" in md[-1]
+    assert f"background pixels" in (out / "eval.md").read_text()  # the sets have masks: the opacity line
     grid = F.read_png(out / "eval_grid.png")  # one row per category first: red and blue, then the 3rd object
     assert grid.shape[0] == 3 * (16 + 2) + 2 and grid.shape[1] == 4 * (16 + 2) + 2
 

@@ -29,6 +29,19 @@ def test_summarize_per_category_and_overall():
     assert g.shape == (6, 16, 3) and g.dtype == np.uint8 and g[1, 1, 0] == 0 and g[1, 6, 0] == 255
 
 
+def test_alpha_scores():
+    from blender_mrvm.training.evaluate import alpha_scores
+
+    mask = np.zeros((4, 4), bool)
+    mask[1:3, 1:3] = True
+    assert alpha_scores(mask.astype(float), mask) == {"background": 0.0, "object": 1.0, "iou": 1.0}
+    haze = np.where(mask, 0.9, 0.2)
+    a = alpha_scores(haze, mask)
+    assert a["background"] == pytest.approx(0.2) and a["object"] == pytest.approx(0.9) and a["iou"] == 1.0
+    a = alpha_scores(np.full((4, 4), 0.6), mask)  # everything opaque: IoU = object share
+    assert a["iou"] == pytest.approx(4 / 16)
+
+
 def test_train_then_eval_commands(tmp_path, capsys):
     data = make_sphere_dataset(tmp_path / "data", n_objects=2, n_views=4, resolution=16, seed=2)
     cfg = {"model": {"preset": "fast", "overrides": {"encoder": {"widths": [8, 8, 8], "out_dim": 8},
@@ -49,6 +62,9 @@ def test_train_then_eval_commands(tmp_path, capsys):
     if HAVE_WEIGHTS:
         assert 0 <= o["lpips"] < 1
     assert {v["view"] for v in rep["views"]} == {2, 3}
+    a = o["alpha"]  # the sphere set has masks: opacity against them
+    assert 0 <= a["background"] <= 1 and 0 <= a["object"] <= 1 and 0 <= a["iou"] <= 1
+    assert "Opacity (the image planes' alpha)" in (tmp_path / "ev" / "eval.md").read_text()
     from blender_mrvm.datasets.format import read_png
 
     grid = read_png(tmp_path / "ev" / "eval_grid.png")

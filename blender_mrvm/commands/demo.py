@@ -99,6 +99,7 @@ def novel_views_demo(args) -> int:
     from ..progress import run_with_tqdm
     from ..scene.render import RenderConfig, render_dataset
     from ..training.synthesize import SynthesisConfig, load_checkpoint, synthesize_views, targets_from_views
+    from ..training.evaluate import alpha_scores, summarize
     from .make_shapenet import eval_views
 
     t_start = time.perf_counter()
@@ -146,13 +147,15 @@ def novel_views_demo(args) -> int:
             pred = to_float_rgb(F.read_png(job / "out" / tg.rgb_path(i)))  # the written RGBA over white
             gt = to_float_rgb(ov.rgb(pos[v]))
             near = ref_imgs[_nearest(ov, [pos[r] for r in refs], pos[v])]
+            alpha = F.read_png(job / "out" / tg.rgb_path(i))[..., 3].astype(np.float64) / 255.0
             rec = {"category": cat, "object": obj.name, "view": v, **_scores(pred, gt, lpips),
+                   "alpha": alpha_scores(alpha, np.asarray(ov.mask(pos[v])) > 0),
                    "baseline_nearest": _scores(near, gt, lpips),
                    "baseline_mean": _scores(np.broadcast_to(mean, gt.shape).astype(np.float32), gt, lpips)}
             records.append(rec)
             rows.append((cat, v, ref_imgs, pred, gt, rec["psnr"]))
     t_synth = time.perf_counter() - t
-    report = _summary(records)
+    report = summarize(records)
     report.update({"checkpoint": str(ck), "checkpoint_step": meta.get("step"), "model": mcfg.name,
                    "objects": list(sources), "protocol": {"views": args.views, "input_views": refs,
                                                           "target_views": target_views},
@@ -194,27 +197,6 @@ def _scores(pred, gt, lpips) -> dict:
     return out
 
 
-def _summary(records: list[dict]) -> dict:
-    import numpy as np
-
-    def block(recs):
-        b = {}
-        for k in ("psnr", "ssim", "lpips"):
-            vals = [r[k] for r in recs if k in r and np.isfinite(r[k])]
-            b[k] = float(np.mean(vals)) if vals else None
-        for base in ("baseline_nearest", "baseline_mean"):
-            b[base] = {k: (float(np.mean([r[base][k] for r in recs if k in r[base]])) if k in recs[0][base] else None)
-                       for k in ("psnr", "ssim", "lpips")}
-        best = max(b["baseline_nearest"]["psnr"], b["baseline_mean"]["psnr"])
-        b["psnr_gain_over_best_baseline"] = b["psnr"] - best
-        b["n"] = len(recs)
-        return b
-
-    cats = sorted({r["category"] for r in records}, key=[r["category"] for r in records].index)
-    return {"overall": block(records), "per_category": {c: block([r for r in records if r["category"] == c])
-                                                        for c in cats}}
-
-
 def _print_table(report: dict, with_lpips: bool) -> None:
     def f(v, fmt):
         return format(v, fmt) if v is not None else "-"
@@ -228,6 +210,10 @@ def _print_table(report: dict, with_lpips: bool) -> None:
     o = report["overall"]
     print(f"{o['n']} synthesized views from 2 references each; PSNR {o['psnr_gain_over_best_baseline']:+.2f} dB "
           f"over the better trivial baseline")
+    a = o.get("alpha")
+    if a:
+        print(f"alpha (opacity) vs object masks: {a['background']:.3f} mean on background, {a['object']:.3f} on the "
+              f"object, IoU {a['iou']:.3f}")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -85,6 +85,17 @@ def _scores(pred: torch.Tensor, gt: torch.Tensor, lpips) -> dict[str, float]:
     return out
 
 
+def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """How well the accumulated opacity (the image planes' alpha) matches the object mask: mean opacity
+    on background and on object pixels, and the IoU of opacity > 0.5 with the mask."""
+    acc, mask = np.asarray(acc, np.float64), np.asarray(mask, bool)
+    pred = acc > 0.5
+    union = np.logical_or(pred, mask).sum()
+    return {"background": float(acc[~mask].mean()) if (~mask).any() else 0.0,
+            "object": float(acc[mask].mean()) if mask.any() else 0.0,
+            "iou": float(np.logical_and(pred, mask).sum() / union) if union else 1.0}
+
+
 def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips=None, max_targets: int = 0,
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None):
@@ -128,6 +139,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}
+            if s.masks is not None:
+                rec["alpha"] = alpha_scores(out["acc"].numpy(), s.masks[t])
             near = torch.from_numpy(s.images[_nearest_ref(s, refs, t)])
             if near.shape == gt.shape:
                 rec["baseline_nearest"] = _scores(near, gt, lpips)
@@ -169,6 +182,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         b["n"] = len(recs)
         b["baseline_nearest"] = {m: _mean(recs, m, "baseline_nearest") for m in METRICS}
         b["baseline_mean"] = {m: _mean(recs, m, "baseline_mean") for m in METRICS}
+        alphas = [r["alpha"] for r in recs if "alpha" in r]
+        if alphas:
+            b["alpha"] = {k: float(np.mean([a[k] for a in alphas])) for k in ("background", "object", "iou")}
         base = {k: b[k]["psnr"] for k in ("baseline_nearest", "baseline_mean") if b[k]["psnr"] is not None}
         if base and b["psnr"] is not None:
             best = max(base, key=base.get)
@@ -217,7 +233,13 @@ def markdown_table(report: dict) -> str:
                     f"| {f(bn['psnr'], 2)} / {f(bn['ssim'], 3)} / {f(bn['lpips'], 3)} "
                     f"| {f(bm['psnr'], 2)} / {f(bm['ssim'], 3)} / {f(bm['lpips'], 3)} "
                     f"| {f(b.get('psnr_gain_over_best_baseline'), 2)} |")
-    return head + "\n".join(rows) + "\n"
+    text = head + "\n".join(rows) + "\n"
+    a = report["overall"].get("alpha")
+    if a:
+        text += (f"\nOpacity (the image planes' alpha) against the object masks: mean {a['background']:.3f} on "
+                 f"background pixels, {a['object']:.3f} on object pixels; IoU of opacity > 0.5 with the mask "
+                 f"{a['iou']:.3f}.\n")
+    return text
 
 
 def compare_reports(a: dict, b: dict) -> dict:
