@@ -79,6 +79,12 @@ def test_cli_writes_finite_rgba_and_depth_of_each_target(setup, capsys):
     assert [r["name"] for r in rep["targets"]] == ["view 002", "view 003", "wide"]
     assert all(0 < r["evaluated_rays"] <= r["rays"] for r in rep["targets"])
     assert not list(root.glob(".out.partial-*"))
+    import os
+
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (out.stat().st_mode & 0o777) == 0o777 & ~umask  # a new folder, not tempfile's owner-only one
+    assert ((out / "rgb").stat().st_mode & 0o777) == 0o777 & ~umask
 
 
 def test_same_numbers_as_the_models_renderer_and_png_round_trip(setup, tmp_path):

@@ -89,6 +89,10 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path, data):
     for (k, a), (_, b) in zip(m.state_dict().items(), m2.state_dict().items()):
         assert torch.equal(a, b), k
     assert not list((tmp_path / "checkpoints").glob(".step_*"))  # no temp folders left
+    umask = os.umask(0)
+    os.umask(umask)
+    for f in [path, path / ckpt.MODEL_FILE, tmp_path / "checkpoints" / "latest"]:  # not owner-only (tempfile's)
+        assert (f.stat().st_mode & 0o777) == ((0o777 if f.is_dir() else 0o666) & ~umask), f
     with pytest.raises(InputError, match="no checkpoint"):
         ckpt.load_model(tmp_path / "nothing")
     from safetensors.torch import save_file

@@ -66,6 +66,16 @@ def _current_umask() -> int:
 _UMASK = _current_umask()
 
 
+def ordinary_permissions(path: Path) -> None:
+    """Give a file, or a folder and everything in it, the permissions a plain create would (umask
+    applied): tempfile's mkstemp/mkdtemp make them owner-only, which other users (a render farm, a
+    shared checkpoint folder) then cannot read."""
+    path = Path(path)
+    items = [path, *path.rglob("*")] if path.is_dir() else [path]
+    for p in items:
+        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~_UMASK)
+
+
 def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = None) -> None:
     """Write a file through ``write(tmp_path)`` then rename it into place (never half-written)."""
     path = Path(path)
@@ -74,7 +84,7 @@ def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = 
     os.close(fd)
     try:
         write(tmp)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes files owner-only; give them ordinary permissions
+        ordinary_permissions(Path(tmp))
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 
+from ..datasets.format import atomic_write_text, ordinary_permissions
 from ..errors import InputError
 from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
                                        find_checkpoint, model_file_of, read_header_meta)
@@ -46,6 +47,7 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
         save_model(model, str(tmp / MODEL_FILE), metadata=meta)
         if trainer_state is not None:
             torch.save(trainer_state, tmp / STATE_FILE)
+        ordinary_permissions(tmp)
         final = ck_root / name
         if final.exists():
             shutil.rmtree(final)
@@ -53,10 +55,7 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    fd, ltmp = tempfile.mkstemp(prefix=".latest.", dir=ck_root)
-    with os.fdopen(fd, "w") as f:
-        f.write(name + "\n")
-    os.replace(ltmp, ck_root / "latest")
+    atomic_write_text(ck_root / "latest", name + "\n")
     done = sorted(p for p in ck_root.glob("step_*") if p.is_dir())
     for old in done[:-keep] if keep > 0 else []:
         if old.name != name:

@@ -475,6 +475,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg))
         if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
             shutil.copyfile(cfg.targets, tmp / "targets.json")  # the cameras, beside their images
+        F.ordinary_permissions(tmp)
         _move_into(tmp, out)
     finally:
         if tmp.exists():
