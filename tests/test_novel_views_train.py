@@ -89,6 +89,7 @@ def test_fine_tune_the_shipped_model_then_continue(train_ready, tmp_path):
     doc = json.loads((run / "config.json").read_text())
     assert doc["train"]["init_checkpoint"] == str(default_checkpoint())
     assert doc["train"]["pretrain_frac"] == 0.0 and doc["train"]["lr"] == 1e-4
+    assert doc["train"]["opacity_weight"] == 0.1  # our renders have masks: keep the alpha clean
     tuned, cfg, _ = load_model(run)
     shipped, cfg0, _ = load_model(default_checkpoint())
     assert cfg == cfg0  # the shipped model's own config, not the "fast" preset chosen for new runs
@@ -173,3 +174,24 @@ def test_train_modal_escape_stops_the_worker(train_ready, tmp_path, monkeypatch)
     assert procs[0].poll() is not None
     assert op.reports[-1] == ("WARNING", "Training cancelled; checkpoints written so far are kept (train again to continue)")
     assert not train_ready.mrvm_train.running
+
+
+def test_write_job_opacity_loss_only_with_masks(train_ready, tmp_path):
+    """New runs add the opacity loss on our renders (manifest: masks present), not on other formats;
+    a continued run keeps whatever it was started with."""
+    import bpy
+
+    from blender_mrvm.operators import train as T
+
+    job = T.plan_from_props(bpy.context)
+    doc = lambda d: json.loads((d / "train.json").read_text())["train"]  # noqa: E731
+    for d in "abc":
+        (tmp_path / d).mkdir()
+    T.write_job(job, tmp_path / "a")
+    assert doc(tmp_path / "a")["opacity_weight"] == T.OPACITY_WEIGHT
+    srn = tmp_path / "srn"
+    srn.mkdir()
+    T.write_job(T.TrainJob(**{**job.__dict__, "data": srn}), tmp_path / "b")
+    assert doc(tmp_path / "b")["opacity_weight"] == 0.0
+    T.write_job(T.TrainJob(**{**job.__dict__, "continued": {"opacity_weight": 0.0, "lr": 5e-4}}), tmp_path / "c")
+    assert doc(tmp_path / "c")["opacity_weight"] == 0.0 and doc(tmp_path / "c")["lr"] == 5e-4

@@ -8,7 +8,8 @@ so far are kept, and training again continues from the last one); ``execute`` ru
 A new run starts from the shipped model (the default), from another checkpoint, or from a random
 start ("Start from"). Starting from a checkpoint fine-tunes it: its model config and weights, no
 MRVM masking phase (the paper pretrains with masking, then finetunes without), and a lower peak
-learning rate (:data:`FINETUNE_LR`). With "Continue run" on and a run already in the run folder,
+learning rate (:data:`FINETUNE_LR`). New runs on our rendered datasets (which carry object masks)
+add the opacity loss (:data:`OPACITY_WEIGHT`). With "Continue run" on and a run already in the run folder,
 the trainer resumes it instead (weights, optimizer, schedule and random state) and trains up to the
 iteration count, on whatever dataset is chosen now. When it finishes, the run folder is picked as
 the Synthesize novel views checkpoint (the synthesis loads its latest checkpoint).
@@ -36,9 +37,12 @@ FINETUNE_LR = 1e-4
 """Peak learning rate when fine-tuning a checkpoint (a new run uses the trainer's 5e-4)."""
 FINETUNE_WARMUP = 50
 """Warm-up steps when fine-tuning (at most a tenth of the run)."""
+OPACITY_WEIGHT = 0.1
+"""Opacity (mask) loss weight for new runs on our rendered datasets (they have object masks; the
+shipped model was fine-tuned with it, which keeps the image planes' alpha free of haze)."""
 CONTINUED_SETTINGS = ("init_checkpoint", "pretrain_frac", "lr", "lr_warmup", "lr_final_frac", "weight_decay", "seed",
                       "min_ref_views", "max_ref_views", "objects_per_step", "bbox_sampling_frac", "grad_clip",
-                      "coarse_weight", "amp", "keep_checkpoints")
+                      "coarse_weight", "opacity_weight", "amp", "keep_checkpoints")
 """Train settings a continued run keeps from its config.json (the panel does not set them)."""
 
 
@@ -169,6 +173,10 @@ def write_job(job: TrainJob, job_dir: Path) -> list[str]:
              "log_every": max(1, min(10, job.checkpoint_every))}
     if job.device != "auto":
         train["device"] = job.device
+    if not job.continued:
+        from ..datasets.format import ROOT_MANIFEST
+
+        train["opacity_weight"] = OPACITY_WEIGHT if (job.data / ROOT_MANIFEST).is_file() else 0.0
     if job.init_checkpoint is not None:  # used only when the run folder has no checkpoint to resume
         train.update(init_checkpoint=str(job.init_checkpoint), pretrain_frac=0.0, lr=FINETUNE_LR,
                      lr_warmup=min(FINETUNE_WARMUP, max(1, job.iterations // 10)))
