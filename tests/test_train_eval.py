@@ -65,6 +65,15 @@ def test_train_then_eval_commands(tmp_path, capsys):
     a = o["alpha"]  # the sphere set has masks: opacity against them
     assert 0 <= a["background"] <= 1 and 0 <= a["object"] <= 1 and 0 <= a["iou"] <= 1
     assert "Opacity (the image planes' alpha)" in (tmp_path / "ev" / "eval.md").read_text()
+    # References as synthesis gives them: trained at 16 px, so 16 px references stay; --ref-size 8 halves them
+    # for the model only (baselines stay at the dataset's size).
+    assert rep["protocol"]["reference_sizes"] == [[16, 16]]
+    assert main(["eval", "--checkpoint", str(tmp_path / "run"), "--data", str(data), "--input-views", "0,1",
+                 "--no-lpips", "--ref-size", "8", "--out", str(tmp_path / "ev8"), "--threads", "1"]) == 0
+    rep8 = json.loads((tmp_path / "ev8" / "eval.json").read_text())
+    assert rep8["protocol"]["reference_sizes"] == [[8, 8]]
+    assert rep8["overall"]["baseline_nearest"]["psnr"] == pytest.approx(o["baseline_nearest"]["psnr"])
+    assert rep8["overall"]["psnr"] != pytest.approx(o["psnr"], abs=1e-6)
     from blender_mrvm.datasets.format import read_png
 
     grid = read_png(tmp_path / "ev" / "eval_grid.png")

@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model, as in synthesize: "
+                   "0 (default) shrinks references larger than the model's training images to that size, -1 keeps "
+                   "them, N pixels (baselines and ground truth stay at the dataset's size)")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
 
@@ -73,6 +76,9 @@ def run(args) -> int:
 
         args.checkpoint = default_checkpoint()
     model, _, meta = load_model(args.checkpoint)
+    from ..training.synthesize import reference_sizes
+
+    ref_size, max_ref_size = reference_sizes(args.ref_size, args.checkpoint)
     lpips = None
     if not args.no_lpips:
         from ..models.metrics import LPIPS
@@ -88,7 +94,8 @@ def run(args) -> int:
              "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
                       "max_objects_per_category": args.max_objects_per_category}}
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
-                                    extra=extra), desc="eval", unit="view")
+                                    extra=extra, ref_size=ref_size, max_ref_size=max_ref_size),
+                           desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:
         from ..datasets.format import atomic_write_json

@@ -268,23 +268,37 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
         intrs.append(intr)
         poses.append(C.as_pose(ov.c2w_opencv[k]))
     # One size for all references: the first view's, or the longer side ref_size.
-    w0, h0 = intrs[0].width, intrs[0].height
-    if not (ref_size and ref_size > 0) and max_size and max_size > 0 and max(w0, h0) > max_size:
-        ref_size = max_size
-    if ref_size and ref_size > 0:
-        s = ref_size / max(w0, h0)
-        w0, h0 = max(1, round(w0 * s)), max(1, round(h0 * s))
+    w0, h0 = reference_shape(intrs[0], ref_size, max_size)
     for i, (img, intr) in enumerate(zip(imgs, intrs)):
         if (intr.width, intr.height) != (w0, h0):
             if abs(intr.height * w0 / intr.width - h0) > 1.0:
                 raise InputError(f"reference views {views[0]} and {views[i]} have different aspect ratios "
                                  f"({intrs[0].width}x{intrs[0].height} and {intr.width}x{intr.height})")
-            imgs[i], intrs[i] = _resize(img, w0, h0), _scale_to(intr, w0, h0)
+            imgs[i], intrs[i] = resize_view(img, intr, w0, h0)
     if bbox is not None:
         box, src = parse_bbox([*bbox[0], *bbox[1]]), "given"
     else:
         box, src = object_box(ov.meta, poses)
     return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src)
+
+
+def reference_shape(intr: C.Intrinsics, ref_size: int = 0, max_size: int = 0) -> tuple[int, int]:
+    """(width, height) the references take: ``intr``'s size, or ``ref_size`` pixels on the longer side
+    when given, or at most ``max_size`` pixels on the longer side (shrinking only)."""
+    w, h = intr.width, intr.height
+    if not (ref_size and ref_size > 0) and max_size and max_size > 0 and max(w, h) > max_size:
+        ref_size = max_size
+    if ref_size and ref_size > 0:
+        s = ref_size / max(w, h)
+        w, h = max(1, round(w * s)), max(1, round(h * s))
+    return int(w), int(h)
+
+
+def resize_view(img: np.ndarray, intr: C.Intrinsics, w: int, h: int) -> tuple[np.ndarray, C.Intrinsics]:
+    """An image and its camera at ``w`` x ``h`` (unchanged when already that size)."""
+    if (intr.width, intr.height) == (w, h):
+        return img, intr
+    return _resize(img, w, h), _scale_to(intr, w, h)
 
 
 def _scale_to(intr: C.Intrinsics, w: int, h: int) -> C.Intrinsics:
