@@ -106,8 +106,8 @@ def run_model_name(run_dir: Path) -> str | None:
     return None if doc is None else str(doc["model"]["config"]["name"])
 
 
-def init_checkpoint(p) -> Path:
-    """The model file to fine-tune (Start from: shipped model or checkpoint), checked without torch."""
+def init_checkpoint(p) -> tuple[Path, dict]:
+    """(model file, metadata) to fine-tune (Start from: shipped model or checkpoint), checked without torch."""
     from ..models.checkpoint_files import checked_header
     from .synthesize import default_checkpoint
 
@@ -119,7 +119,7 @@ def init_checkpoint(p) -> Path:
         ck = _abs(p.init_checkpoint, "checkpoint to fine-tune")
         if not ck.exists():
             raise InputError(f"the checkpoint to fine-tune does not exist: {ck}")
-    return checked_header(ck)[0]
+    return checked_header(ck)
 
 
 def plan_from_props(context) -> TrainJob:
@@ -143,10 +143,10 @@ def plan_from_props(context) -> TrainJob:
         model = {"config": running["model"]["config"]}
         base = {k: v for k, v in running.get("train", {}).items() if k in CONTINUED_SETTINGS}
     elif p.start_from != "NEW":
-        init = init_checkpoint(p)  # fine-tune: the checkpoint's own model
-        from ..models.checkpoint_files import checked_header, model_name
+        from ..models.checkpoint_files import model_name
 
-        name, model = model_name(checked_header(init)[1]) or "?", {}
+        init, meta = init_checkpoint(p)  # fine-tune: the checkpoint's own model
+        name, model = model_name(meta) or "?", {}
     else:
         name, model = p.preset, {"preset": p.preset}
     pr = P.get(context)

@@ -26,7 +26,7 @@ import torch
 from ..datasets.format import atomic_write_text, ordinary_permissions
 from ..errors import InputError
 from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
-                                       find_checkpoint, model_file_of, read_header_meta)
+                                       find_checkpoint, model_file_of, read_header_meta)  # noqa: F401 (re-exported)
 from ..models.config import ModelConfig, from_dict, to_dict
 
 
@@ -63,19 +63,13 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
     return final
 
 
-def read_meta(model_file: Path) -> dict[str, str]:
-    """A model file's safetensors metadata (unchecked)."""
-    return read_header_meta(model_file)
-
-
-def checked_meta(model_file: Path) -> dict[str, str]:
-    """The metadata of a model file, after checking it is ours and of a format version this code reads."""
-    return checked_header(model_file)[1]
+read_meta = read_header_meta
+"""A model file's safetensors metadata (unchecked)."""
 
 
 def read_model_config(model_file: Path) -> ModelConfig:
     """The model config stored in a model file."""
-    return from_dict(ModelConfig, json.loads(checked_meta(model_file)["model_config"]))
+    return from_dict(ModelConfig, json.loads(checked_header(model_file)[1]["model_config"]))
 
 
 def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") -> None:
@@ -93,8 +87,7 @@ def load_model(path: Path, device: str = "cpu"):
     """(model, model_cfg, meta) from a checkpoint (any form :func:`find_checkpoint` accepts)."""
     from ..models.model import GeneralizableNeRF
 
-    model_file = model_file_of(path)
-    meta = checked_meta(model_file)
+    model_file, meta = checked_header(path)
     cfg = from_dict(ModelConfig, json.loads(meta["model_config"]))
     model = GeneralizableNeRF(cfg)
     load_weights(model, model_file, device)

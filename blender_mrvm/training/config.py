@@ -111,28 +111,23 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) 
 
 
 def resolve_init_checkpoint(name: str) -> Path:
-    """The model file or checkpoint folder ``init_checkpoint`` names ('shipped' = the default model)."""
+    """The model file ``init_checkpoint`` names ('shipped' = the default model); InputError if none."""
     from ..models import pretrained
-    from .checkpoint import find_checkpoint
+    from ..models.checkpoint_files import model_file_of
 
     if name.strip().lower() == "shipped":
         return pretrained.default_checkpoint()
     p = Path(name).expanduser()
     if not p.exists():
         raise InputError(f"init_checkpoint {p} does not exist")
-    if p.is_file():
-        return p
-    ck = find_checkpoint(p)
-    if ck is None:
-        raise InputError(f"init_checkpoint {p} holds no checkpoint (model.safetensors)")
-    return ck
+    return model_file_of(p)
 
 
 def init_model_config(name: str) -> ModelConfig:
     """The model config stored in the checkpoint ``init_checkpoint`` names."""
-    from .checkpoint import model_file_of, read_model_config
+    from .checkpoint import read_model_config
 
-    return read_model_config(model_file_of(resolve_init_checkpoint(name)))
+    return read_model_config(resolve_init_checkpoint(name))
 
 
 def validate(c: TrainConfig) -> None:

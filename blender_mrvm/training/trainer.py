@@ -232,8 +232,9 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
                         mse_c = (sse_c + miss_err) / (3 * n)
                         loss = mse_f + cfg.coarse_weight * mse_c
                         if cfg.opacity_weight > 0:
-                            opa = opacity_loss(out["fine"]["acc"], b["mask"].to(device), hit.to(device)) + \
-                                cfg.coarse_weight * opacity_loss(out["coarse"]["acc"], b["mask"].to(device), hit.to(device))
+                            m, h = b["mask"].to(device), hit.to(device)
+                            opa = opacity_loss(out["fine"]["acc"], m, h) + \
+                                cfg.coarse_weight * opacity_loss(out["coarse"]["acc"], m, h)
                             loss = loss + cfg.opacity_weight * opa
                             tot["opacity"] += float(opa.detach()) / cfg.objects_per_step
                         if out["mrvm_loss"] is not None:
@@ -273,7 +274,8 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
         if log:
             log.close()
     return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
-            "resumed_from": start, "initialized_from": str(init_from) if init_from else None, "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
+            "resumed_from": start, "initialized_from": str(init_from) if init_from else None,
+            "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
 
 
 def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
@@ -293,7 +295,7 @@ def init_weights(model: torch.nn.Module, model_cfg: ModelConfig, name: str, devi
     InputError, naming both models, when the checkpoint holds another architecture."""
     from .config import resolve_init_checkpoint
 
-    model_file = ckpt.model_file_of(resolve_init_checkpoint(name))
+    model_file = resolve_init_checkpoint(name)
     theirs = ckpt.read_model_config(model_file)
     try:
         ckpt.load_weights(model, model_file, device)
