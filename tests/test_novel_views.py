@@ -348,7 +348,7 @@ def _reference_synthesis(job, tmp_path) -> np.ndarray:
     from blender_mrvm.datasets.format import read_png
     from blender_mrvm.datasets.novel_views import write_targets
     from blender_mrvm.progress import run_to_end
-    from blender_mrvm.training.synthesize import SynthesisConfig, synthesize_views
+    from blender_mrvm.synthesis import SynthesisConfig, synthesize_views
 
     write_targets(tmp_path / "check" / "targets.json", list(job.targets))
     run_to_end(synthesize_views(SynthesisConfig(job.reference_dir, tmp_path / "check" / "targets.json",

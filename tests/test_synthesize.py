@@ -17,7 +17,7 @@ from blender_mrvm.datasets.novel_views import Target, write_targets
 from blender_mrvm.errors import InputError
 from blender_mrvm.geometry import cameras as C
 from blender_mrvm.progress import run_to_end
-from blender_mrvm.training import synthesize as S
+from blender_mrvm import synthesis as S
 from blender_mrvm.training.synthetic import make_sphere_dataset
 
 torch.set_num_threads(1)

@@ -42,7 +42,7 @@ def _cfgs(tmp, data_root, **kw):
 
 
 def _fixed_batch_mse(model, scenes, mcfg, tcfg):
-    b = RayBatcher(scenes, tcfg, mcfg, seed=123)
+    b = RayBatcher(scenes, tcfg, mcfg.sampler.box_padding, seed=123)
     err = []
     torch.manual_seed(0)
     with torch.no_grad():
@@ -255,7 +255,7 @@ def test_opacity_loss_and_masks(tmp_path, data):
     mcfg, tcfg = _cfgs(tmp_path / "o", root, iterations=2, opacity_weight=1.0, pretrain_frac=0.0)
     torch.manual_seed(3)
     model = GeneralizableNeRF(mcfg).eval()
-    d = RayBatcher(scenes, tcfg, mcfg, seed=7).draw(False)
+    d = RayBatcher(scenes, tcfg, mcfg.sampler.box_padding, seed=7).draw(False)
     idx = torch.nonzero(d["rays"].hit).flatten()
     assert 0 < float(d["mask"][d["rays"].hit].mean()) < 1
 

@@ -98,7 +98,7 @@ def novel_views_demo(args) -> int:
     from ..datasets.novel_views import write_targets
     from ..progress import run_with_tqdm
     from ..scene.render import RenderConfig, render_dataset
-    from ..training.synthesize import SynthesisConfig, load_checkpoint, synthesize_views, targets_from_views
+    from ..synthesis import SynthesisConfig, load_checkpoint, synthesize_views, targets_from_views
     from ..training.evaluate import alpha_scores, summarize
     from .make_shapenet import eval_views
 
@@ -268,7 +268,7 @@ def build_scene(args, obj_dir: Path, source: str, refs: list[int], ck: Path, out
     from ..datasets.novel_views import write_targets
     from ..progress import run_with_tqdm
     from ..scene.novel_views import write_blend
-    from ..training.synthesize import SynthesisConfig, synthesize_views, targets_from_views
+    from ..synthesis import SynthesisConfig, synthesize_views, targets_from_views
 
     ov = F.read_object(obj_dir)
     n = len(ov.indices)

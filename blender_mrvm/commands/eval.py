@@ -71,12 +71,11 @@ def run(args) -> int:
         if args.n_inputs < 1:
             raise InputError(f"--n-inputs must be at least 1, got {args.n_inputs}")
         views, targets, source = protocol_views(args.data, args.n_inputs, fmt)
-    if args.checkpoint is None:
-        from ..models.pretrained import default_checkpoint
+    from ..models.pretrained import resolve_checkpoint
 
-        args.checkpoint = default_checkpoint()
+    args.checkpoint = resolve_checkpoint(args.checkpoint)
     model, _, meta = load_model(args.checkpoint)
-    from ..training.synthesize import reference_sizes
+    from ..synthesis import reference_sizes
 
     ref_size, max_ref_size = reference_sizes(args.ref_size, args.checkpoint)
     lpips = None

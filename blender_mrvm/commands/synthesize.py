@@ -48,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     from ..datasets.novel_views import parse_views
     from ..progress import run_with_tqdm
-    from ..training.synthesize import SynthesisConfig, json_line, parse_bbox, synthesize_views
+    from ..synthesis import SynthesisConfig, json_line, parse_bbox, synthesize_views
 
     views = parse_views(" ".join(args.views)) if args.views else ()
     bbox = parse_bbox(args.bbox) if args.bbox is not None else None
@@ -77,7 +77,7 @@ def _make_targets(args, views, bbox, tmp: Path) -> Path:
     """targets.json for --target-views or --orbit, written into ``tmp``."""
     from ..datasets.novel_views import write_targets
     from ..errors import InputError
-    from ..training.synthesize import load_references, orbit_targets, targets_from_views
+    from ..synthesis import load_references, orbit_targets, targets_from_views
 
     if args.target_views:
         try:

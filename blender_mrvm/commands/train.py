@@ -1,4 +1,4 @@
-"""Train the generalizable NeRF (MRVM pretraining, then finetuning) from a JSON run config.
+"""Train a model of any kind (NeRFormer+MRVM: pretraining then finetuning; GPNR) from a JSON run config.
 
 Single process:  python -m blender_mrvm train --config run.json
 Data-parallel:   torchrun --nproc_per_node N -m blender_mrvm train --config run.json
@@ -15,7 +15,10 @@ from pathlib import Path
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, default=None, help="run config JSON ({'model': ..., 'train': ...})")
-    p.add_argument("--preset", default=None, help="model preset (fast, balanced, accurate) when the config names none")
+    p.add_argument("--model", dest="kind", default=None,
+                   help="model kind when the config names none: nerformer_mrvm (default) or gpnr")
+    p.add_argument("--preset", default=None,
+                   help="model preset (fast, balanced, accurate, ...) when the config names none")
     p.add_argument("--data", default=None, help="dataset root (overrides train.data)")
     p.add_argument("--out", dest="out_dir", default=None, help="run folder (overrides train.out_dir)")
     p.add_argument("--iterations", type=int, default=None, help="overrides train.iterations")
@@ -33,11 +36,8 @@ def run(args) -> int:
 
     mcfg, tcfg = load_run_config(args.config, {"data": args.data, "out_dir": args.out_dir,
                                                "iterations": args.iterations,
-                                               "init_checkpoint": args.init_checkpoint})
-    if args.preset:
-        from ..models.config import model_config
-
-        mcfg = model_config(args.preset)
+                                               "init_checkpoint": args.init_checkpoint},
+                                  kind=args.kind, preset=args.preset)
     if not tcfg.data:
         raise InputError("no dataset: give --data or train.data in the config")
     import os

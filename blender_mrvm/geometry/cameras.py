@@ -210,7 +210,16 @@ class Intrinsics:
 
     def scaled(self, factor: float) -> "Intrinsics":
         """Intrinsics of the same camera at ``factor`` times the resolution (pixel-centre exact)."""
-        w, h = round(self.width * factor), round(self.height * factor)
+        return self.resized(round(self.width * factor), round(self.height * factor))
+
+    def resized(self, width: int, height: int) -> "Intrinsics":
+        """The same camera at ``width`` x ``height`` pixels: every pixel coordinate scales with the size
+        (pixel-centre exact; x and y scale separately, so a changed aspect ratio stretches the image)."""
+        w, h = int(width), int(height)
+        if w < 1 or h < 1:
+            raise CameraConventionError(f"image size must be positive, got {w}x{h}")
+        if (w, h) == (self.width, self.height):
+            return self
         sx, sy = w / self.width, h / self.height
         return replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy,
                        skew=self.skew * sx, width=w, height=h)
@@ -335,6 +344,11 @@ def pixel_centers(width: int, height: int) -> np.ndarray:
     """(H, W, 2) pixel-centre coordinates (i + 0.5, j + 0.5)."""
     i, j = np.meshgrid(np.arange(width, dtype=np.float64) + 0.5, np.arange(height, dtype=np.float64) + 0.5)
     return np.stack([i, j], axis=-1)
+
+
+def camera_up(c2w_opencv: np.ndarray) -> np.ndarray:
+    """The world-space up vector of an OpenCV camera (its image's up: minus the camera's y axis)."""
+    return -as_pose(c2w_opencv)[:3, 1].copy()
 
 
 def rays_opencv(intr: Intrinsics, c2w_opencv: np.ndarray, pixels: np.ndarray | None = None,

@@ -83,6 +83,13 @@ def checked_header(path: Path) -> tuple[Path, dict[str, str]]:
     return model_file, meta
 
 
+def model_kind(meta: dict[str, str]) -> str:
+    """The model kind recorded in a checkpoint's metadata (checkpoints without one are NeRFormer+MRVM)."""
+    from .registry import DEFAULT_KIND
+
+    return str(meta.get("model_kind") or DEFAULT_KIND)
+
+
 def model_name(meta: dict[str, str]) -> str:
     """The model preset name recorded in a checkpoint's metadata ('' when unreadable)."""
     try:

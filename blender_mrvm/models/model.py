@@ -23,10 +23,11 @@ from ..geometry import cameras
 from . import samplers
 from .config import ModelConfig
 from .encoder import ImageEncoder
-from .mrvm import MRVMHead, make_mask
+from .base import NormalizedScene, RayModel, TrainPhase, normalized_scene, ref_cameras  # noqa: F401 (re-exported)
+from .mrvm import MRVMHead, lambda_at, make_mask
 from .nerformer import NeRFormerBranch, activate_density, harmonic
 from .projection import RefCameras, project_samples, rays_in_cameras, sample_maps
-from .rays import RayBundle, make_rays, normalization, normalize_pose
+from .rays import RayBundle
 from .renderer import volume_render
 
 
@@ -42,31 +43,11 @@ class Context:
     """Reference cameras."""
 
 
-@dataclass
-class NormalizedScene:
-    """A scene moved into the model's frame: box centred, longest half-side 1."""
+class GeneralizableNeRF(RayModel):
+    """The NeRFormer+MRVM radiance field (model kind ``nerformer_mrvm``)."""
 
-    centre: np.ndarray
-    scale: float
-    box: float
-    """Half-size of the (padded) cube rays are clipped to, in normalised units."""
+    kind = "nerformer_mrvm"
 
-    def pose(self, c2w: np.ndarray) -> np.ndarray:
-        return normalize_pose(c2w, self.centre, self.scale)
-
-
-def normalized_scene(bbox_min, bbox_max, padding: float) -> NormalizedScene:
-    c, s = normalization(bbox_min, bbox_max)
-    return NormalizedScene(c, s, 1.0 + padding)
-
-
-def ref_cameras(c2w_norm: Sequence[np.ndarray], intr: Sequence[cameras.Intrinsics]) -> RefCameras:
-    w2c = np.stack([cameras.invert_pose(c) for c in c2w_norm])
-    K = np.stack([i.K for i in intr])
-    return RefCameras(torch.from_numpy(w2c), torch.from_numpy(K), int(intr[0].width), int(intr[0].height))
-
-
-class GeneralizableNeRF(nn.Module):
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.cfg = cfg
@@ -74,6 +55,29 @@ class GeneralizableNeRF(nn.Module):
         self.coarse = NeRFormerBranch(cfg.nerformer, cfg.encoder.out_dim)
         self.fine = self.coarse if cfg.nerformer.share_coarse_fine else NeRFormerBranch(cfg.nerformer, cfg.encoder.out_dim)
         self.mrvm = MRVMHead(cfg.nerformer.d_model, cfg.mrvm)
+
+    @property
+    def box_padding(self) -> float:
+        return self.cfg.sampler.box_padding
+
+    @property
+    def white_background(self) -> bool:
+        return self.cfg.render.white_background
+
+    @property
+    def chunk_rays(self) -> int:
+        return self.cfg.render.chunk_rays
+
+    def train_phase(self, step: int, train_cfg) -> TrainPhase:
+        """MRVM pretraining (masking, lambda ramp) for the first ``train_cfg.pretrain_frac`` of the run."""
+        pretrain_steps = int(round(train_cfg.pretrain_frac * train_cfg.iterations)) if self.cfg.mrvm.enabled else 0
+        masking = step < pretrain_steps
+        lam = lambda_at(step, pretrain_steps, self.cfg.mrvm)
+        return TrainPhase({"mask_views": masking}, {"mrvm": lam}, {"lambda": lam, "masking": masking})
+
+    def after_step(self, phase: TrainPhase) -> None:
+        if phase.kwargs.get("mask_views"):
+            self.mrvm.update_target()
 
     # -- reference views -------------------------------------------------------------------------
 
@@ -138,41 +142,9 @@ class GeneralizableNeRF(nn.Module):
         off = rays.depth_offset.float()
         for k in ("coarse", "fine"):
             out[k]["depth_cam"] = out[k]["depth"] + off
-        return out
-
-    # -- images ------------------------------------------------------------------------------------
-
-    @torch.no_grad()
-    def render_image(self, ctx: Context, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,
-                     chunk: int | None = None) -> dict:
-        """Render a full view (normalised frame) in chunks of rays; misses are background, not evaluated."""
-        rays = make_rays(intr, c2w_norm, box=box)
-        n = len(rays)
-        bg = 1.0 if self.cfg.render.white_background else 0.0
-        color = torch.full((n, 3), bg)
-        depth = torch.zeros(n)
-        acc = torch.zeros(n)
-        idx = torch.nonzero(rays.hit).flatten()
-        chunk = chunk or self.cfg.render.chunk_rays
-        for s in range(0, idx.numel(), chunk):
-            sel = idx[s:s + chunk]
-            o = self.render_rays(ctx, rays.select(sel))["fine"]
-            color[sel] = o["color"].float()
-            depth[sel] = o["depth_cam"].float()
-            acc[sel] = o["acc"].float()
-        H, W = intr.height, intr.width
-        return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W),
-                "rays": n, "evaluated": int(idx.numel())}
-
-    @torch.no_grad()
-    def synthesize(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
-                   bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None) -> dict:
-        """Novel view in world units: ref_images (V, H, W, 3) float in [0, 1] on white; OpenCV c2w poses;
-        bbox = (min xyz, max xyz) of the object. Depth is returned along the ray in world units."""
-        ns = normalized_scene(bbox[0], bbox[1], self.cfg.sampler.box_padding)
-        cams = ref_cameras([ns.pose(c) for c in ref_c2w], ref_intr)
-        imgs = torch.as_tensor(np.asarray(ref_images, np.float32)).permute(0, 3, 1, 2).contiguous()
-        ctx = self.encode(imgs, cams)
-        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk)
-        out["depth"] = out["depth"] * ns.scale
+        f = out["fine"]
+        out["color"], out["acc"] = f["color"], f["acc"]
+        out["depth"] = (f["weights"].float() * f["t"].float()).sum(-1) / f["acc"].float().clamp_min(1e-8)
+        out["aux_heads"] = {"coarse": out["coarse"]} if sc.n_fine > 0 else {}
+        out["aux_losses"] = {"mrvm": out["mrvm_loss"]} if out["mrvm_loss"] is not None else {}
         return out

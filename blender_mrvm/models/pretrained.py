@@ -30,3 +30,14 @@ def default_checkpoint() -> Path:
 def default_run_config() -> Path:
     """The run config (model + train sections) the default checkpoint was trained with."""
     return ASSET_DIR / f"{DEFAULT_NAME}.json"
+
+
+def resolve_checkpoint(path) -> Path:
+    """The one fallback rule for a checkpoint argument: None, '' or 'shipped' = the shipped default model
+    (:func:`default_checkpoint`); anything else is that path, which must exist. InputError otherwise."""
+    if path is None or str(path).strip() == "" or str(path).strip().lower() == "shipped":
+        return default_checkpoint()
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise InputError(f"checkpoint {p} does not exist")
+    return p

@@ -85,12 +85,20 @@ class RayBundle:
     """(R,) bool: the ray crosses the box (others are background and not evaluated)."""
     depth_offset: torch.Tensor
     """(R,) float64 distance from the camera centre to the entry point (to report depth)."""
+    up: torch.Tensor | None = None
+    """(R, 3) float64 up vector of the camera each ray belongs to (GPNR's canonical frame), or None."""
 
     def __len__(self) -> int:
         return self.origins.shape[0]
 
     def select(self, idx) -> "RayBundle":
-        return RayBundle(self.origins[idx], self.dirs[idx], self.far[idx], self.hit[idx], self.depth_offset[idx])
+        return RayBundle(self.origins[idx], self.dirs[idx], self.far[idx], self.hit[idx], self.depth_offset[idx],
+                         None if self.up is None else self.up[idx])
+
+    def to(self, device) -> "RayBundle":
+        """The same rays on ``device``."""
+        return RayBundle(self.origins.to(device), self.dirs.to(device), self.far.to(device), self.hit.to(device),
+                         self.depth_offset.to(device), None if self.up is None else self.up.to(device))
 
 
 def make_rays(intr: cameras.Intrinsics, c2w_norm: np.ndarray, pixels: np.ndarray | None = None,
@@ -105,4 +113,5 @@ def make_rays(intr: cameras.Intrinsics, c2w_norm: np.ndarray, pixels: np.ndarray
     far = np.where(hit, tf - tn, 0.0)
     entry = o + tn[:, None] * d
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
-    return RayBundle(t(entry), t(d), t(far), t(hit), t(tn))
+    up = np.broadcast_to(cameras.camera_up(c2w_norm), d.shape)
+    return RayBundle(t(entry), t(d), t(far), t(hit), t(tn), t(up))

@@ -41,21 +41,12 @@ ORBIT_PREFIX = "MRVM orbit"
 # ---------------------------------------------------------------------------------------------
 
 def check_reference_folder(folder: Path, views: tuple[int, ...]) -> tuple[Path, tuple[int, ...]]:
-    """An object folder (render or capture) whose ``views`` all have an image and a pose."""
-    from ..datasets.format import read_object, view_paths
+    """An object folder (render or capture) whose ``views`` all have an image and a pose (the
+    synthesis package owns the rule; this reads no image)."""
+    from ..synthesis import check_reference_folder as check
 
     folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(f"reference folder {folder} does not exist")
-    ov = read_object(folder)
-    for v in views:
-        if v in ov.indices:
-            continue
-        paths = view_paths(folder, v)
-        if paths["rgb"].is_file():
-            raise InputError(f"reference view {v} of {folder} has no pose ({paths['pose'].name} missing)")
-        raise InputError(f"reference view {v} does not exist in {folder} (it has views "
-                         f"{', '.join(map(str, ov.indices[:12]))}{' ...' if len(ov.indices) > 12 else ''})")
+    check(folder, views)
     return folder, tuple(views)
 
 
@@ -118,8 +109,7 @@ def _export(scene, cams, out_dir: Path, tmp: Path) -> tuple[Path, tuple[int, ...
         if abs(h - intr.height * w / intr.width) > 1.0:
             raise InputError(f"camera {cam.name!r}: its image is {w}x{h} but the camera frame is "
                              f"{intr.width}x{intr.height} (different aspect ratio)")
-        k = C.Intrinsics(intr.fx * w / intr.width, intr.fy * h / intr.height, intr.cx * w / intr.width,
-                         intr.cy * h / intr.height, w, h)
+        k = intr.resized(w, h)
         views.append(CaptureView(cam.name, path, k, c2w))
     write_capture(out_dir, views, np.zeros((0, 3)), np.zeros((0, 3), np.uint8),
                   {"kind": "scene cameras", "cameras": [c.name for c in cams]})

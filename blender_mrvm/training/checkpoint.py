@@ -27,10 +27,11 @@ from ..datasets.format import atomic_write_text, ordinary_permissions
 from ..errors import InputError
 from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
                                        find_checkpoint, model_file_of, read_header_meta)  # noqa: F401 (re-exported)
-from ..models.config import ModelConfig, from_dict, to_dict
+from ..models import registry
+from ..models.config import to_dict
 
 
-def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg: ModelConfig,
+def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg: Any,
                     trainer_state: dict[str, Any] | None, extra_meta: dict[str, Any] | None = None,
                     keep: int = 2) -> Path:
     from safetensors.torch import save_model
@@ -41,7 +42,7 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=ck_root))
     try:
         meta = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "step": str(step),
-                "model_config": json.dumps(to_dict(model_cfg))}
+                "model_kind": registry.kind_of(model_cfg), "model_config": json.dumps(to_dict(model_cfg))}
         for k, v in (extra_meta or {}).items():
             meta[k] = v if isinstance(v, str) else json.dumps(v)
         save_model(model, str(tmp / MODEL_FILE), metadata=meta)
@@ -67,9 +68,26 @@ read_meta = read_header_meta
 """A model file's safetensors metadata (unchecked)."""
 
 
-def read_model_config(model_file: Path) -> ModelConfig:
-    """The model config stored in a model file."""
-    return from_dict(ModelConfig, json.loads(checked_header(model_file)[1]["model_config"]))
+def config_from_meta(meta: dict[str, str], where: Path | str) -> Any:
+    """The model config (of the recorded kind) in a checkpoint's metadata; one-line InputError when it
+    is missing, not JSON, or not a valid config of that kind."""
+    kind = registry.kind_from_meta(meta)
+    try:
+        data = json.loads(meta["model_config"])
+    except KeyError:
+        raise InputError(f"checkpoint {where} has no model config in its metadata") from None
+    except ValueError as e:
+        raise InputError(f"checkpoint {where} has an unreadable model config ({e})") from None
+    try:
+        return registry.config_from_dict(kind, data)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"checkpoint {where} has an unreadable {kind} model config ({e})") from None
+
+
+def read_model_config(model_file: Path) -> Any:
+    """The model config (of any kind) stored in a model file."""
+    model_file, meta = checked_header(model_file)
+    return config_from_meta(meta, model_file)
 
 
 def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") -> None:
@@ -84,12 +102,10 @@ def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") 
 
 
 def load_model(path: Path, device: str = "cpu"):
-    """(model, model_cfg, meta) from a checkpoint (any form :func:`find_checkpoint` accepts)."""
-    from ..models.model import GeneralizableNeRF
-
+    """(model, model_cfg, meta) from a checkpoint of any kind (any form :func:`find_checkpoint` accepts)."""
     model_file, meta = checked_header(path)
-    cfg = from_dict(ModelConfig, json.loads(meta["model_config"]))
-    model = GeneralizableNeRF(cfg)
+    cfg = config_from_meta(meta, model_file)
+    model = registry.build_model(cfg)
     load_weights(model, model_file, device)
     return model.to(device), cfg, meta
 

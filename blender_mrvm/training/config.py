@@ -2,8 +2,11 @@
 
 A run config file is JSON::
 
-    {"model": {"preset": "balanced", "overrides": {...}},
+    {"model": {"kind": "nerformer_mrvm", "preset": "balanced", "overrides": {...}},
      "train": {"data": "path/to/dataset", "iterations": 20000, ...}}
+
+``kind`` is a model kind of ``models/registry.py`` (default ``nerformer_mrvm``); instead of a preset
+the model section may hold a whole ``config`` (as saved in checkpoints and run folders).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..models.config import ModelConfig, from_dict, merge, model_config, to_dict
+from ..models.config import from_dict, merge, to_dict
 
 
 @dataclass(frozen=True)
@@ -82,8 +85,11 @@ class TrainConfig:
     Ignored when the run folder already has a checkpoint to resume from."""
 
 
-def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) -> tuple[ModelConfig, TrainConfig]:
-    """Read a run-config JSON (or none) and apply ``overrides`` to the train section."""
+def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
+                    kind: str | None = None, preset: str | None = None) -> tuple[Any, TrainConfig]:
+    """Read a run-config JSON (or none) and apply ``overrides`` to the train section. ``kind`` and
+    ``preset`` (the command line's) choose the model where the config names none; a config that
+    names its own model wins, and naming another kind or preset beside it is an InputError."""
     data: dict[str, Any] = {}
     if path is not None:
         path = Path(path)
@@ -97,33 +103,42 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) 
     if unknown:
         raise InputError(f"{path}: unknown top-level keys {sorted(unknown)} (expected 'model' and 'train')")
     m = data.get("model", {})
+    if not isinstance(m, dict):
+        raise InputError(f"{path}: 'model' must be a mapping")
     tcfg = from_dict(TrainConfig, data.get("train", {}))
     if overrides:
         tcfg = merge(tcfg, {k: v for k, v in overrides.items() if v is not None})
     validate(tcfg)
+    from ..models import registry
+
+    named_kind = registry.kind(m["kind"]).name if m.get("kind") else None
+    if kind and named_kind and registry.kind(kind).name != named_kind:
+        raise InputError(f"{path} trains a {named_kind} model; --model {kind} contradicts it (leave one out)")
+    if preset and ("preset" in m or "config" in m) and preset != m.get("preset", m.get("config", {}).get("name")):
+        raise InputError(f"{path} names its own model ({m.get('preset') or m['config'].get('name')!r}); "
+                         f"--preset {preset} contradicts it (leave one out)")
+    k = named_kind or kind
     if "config" in m:  # a full config (as saved in a checkpoint)
-        mcfg = from_dict(ModelConfig, m["config"])
-    elif not m and tcfg.init_checkpoint:  # fine-tuning: the checkpoint's own model
+        mcfg = registry.config_from_dict(k, m["config"])
+    elif not m and tcfg.init_checkpoint and not (kind or preset):  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
     else:
-        mcfg = model_config(m.get("preset", "balanced"), m.get("overrides"))
+        mcfg = registry.build_config(k, m.get("preset", preset), m.get("overrides"))
     return mcfg, tcfg
 
 
 def resolve_init_checkpoint(name: str) -> Path:
     """The model file ``init_checkpoint`` names ('shipped' = the default model); InputError if none."""
-    from ..models import pretrained
     from ..models.checkpoint_files import model_file_of
+    from ..models.pretrained import resolve_checkpoint
 
-    if name.strip().lower() == "shipped":
-        return pretrained.default_checkpoint()
-    p = Path(name).expanduser()
-    if not p.exists():
-        raise InputError(f"init_checkpoint {p} does not exist")
-    return model_file_of(p)
+    try:
+        return model_file_of(resolve_checkpoint(name))
+    except InputError as e:
+        raise InputError(f"init_checkpoint: {e}") from None
 
 
-def init_model_config(name: str) -> ModelConfig:
+def init_model_config(name: str) -> Any:
     """The model config stored in the checkpoint ``init_checkpoint`` names."""
     from .checkpoint import read_model_config
 
@@ -145,8 +160,10 @@ def validate(c: TrainConfig) -> None:
         raise InputError("rays_per_object and objects_per_step must be >= 1")
 
 
-def run_config_dict(mcfg: ModelConfig, tcfg: TrainConfig) -> dict:
-    return {"model": {"config": to_dict(mcfg)}, "train": to_dict(tcfg)}
+def run_config_dict(mcfg: Any, tcfg: TrainConfig) -> dict:
+    from ..models import registry
+
+    return {"model": {"kind": registry.kind_of(mcfg), "config": to_dict(mcfg)}, "train": to_dict(tcfg)}
 
 
 __all__ = ["TrainConfig", "load_run_config", "run_config_dict", "validate", "replace"]

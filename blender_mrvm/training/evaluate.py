@@ -25,7 +25,7 @@ from ..datasets.loaders import ObjectScene
 from ..errors import InputError
 from ..models.metrics import psnr, ssim
 from ..progress import Progress
-from .synthesize import reference_shape, resize_view
+from ..synthesis import reference_shape, resize_view
 
 METRICS = ("psnr", "ssim", "lpips")
 PROTOCOL_FILE = "eval_views.json"

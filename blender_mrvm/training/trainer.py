@@ -30,9 +30,8 @@ import torch
 
 from ..datasets.loaders import ObjectScene, load_dataset
 from ..errors import InputError
-from ..models.config import ModelConfig
-from ..models.model import GeneralizableNeRF, normalized_scene, ref_cameras
-from ..models.mrvm import lambda_at
+from ..models import registry
+from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
 from ..models.rays import make_rays
 from ..progress import Progress
 from . import checkpoint as ckpt
@@ -99,7 +98,7 @@ def lr_at(step: int, cfg: TrainConfig) -> float:
 class RayBatcher:
     """Draws (reference set, target rays) per object from a list of scenes with one numpy generator."""
 
-    def __init__(self, scenes: list[ObjectScene], cfg: TrainConfig, model_cfg: ModelConfig, seed: int):
+    def __init__(self, scenes: list[ObjectScene], cfg: TrainConfig, box_padding: float, seed: int):
         if not scenes:
             raise InputError("no training objects")
         for s in scenes:
@@ -107,7 +106,7 @@ class RayBatcher:
                 raise InputError(f"object {s.category}/{s.name} has {len(s)} view(s); training needs >= 2")
         self.scenes = scenes
         self.cfg = cfg
-        self.padding = model_cfg.sampler.box_padding
+        self.padding = float(box_padding)
         self.rng = np.random.default_rng(seed)
         self._boxes = [s.foreground_boxes() for s in scenes]
         if cfg.opacity_weight > 0:
@@ -155,7 +154,7 @@ def _set_rng_state(batcher: RayBatcher, gen: torch.Generator, st: dict[str, Any]
     torch.set_rng_state(st["torch_global"])
 
 
-def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None):
+def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None):
     """Progress generator; returns a summary dict (final step, last losses, checkpoint path)."""
     device = cfg.device
     dd = init_distributed(device)
@@ -168,11 +167,11 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
     if scenes is None:
         scenes = load_dataset(Path(cfg.data), cfg.split, cfg.data_format or None, cfg.max_objects or None)
     torch.manual_seed(cfg.seed)
-    model = GeneralizableNeRF(model_cfg).to(device)
+    model = registry.build_model(model_cfg).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     scaler = torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
-    batcher = RayBatcher(scenes, cfg, model_cfg, cfg.seed * 7919 + dd.rank)
+    batcher = RayBatcher(scenes, cfg, model.box_padding, cfg.seed * 7919 + dd.rank)
     gen = torch.Generator().manual_seed(cfg.seed * 104729 + dd.rank)
     torch.manual_seed(cfg.seed + dd.rank)
     start = 0
@@ -196,7 +195,6 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.json").write_text(json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
     image_size = train_image_size(scenes)
-    pretrain_steps = int(round(cfg.pretrain_frac * cfg.iterations)) if model_cfg.mrvm.enabled else 0
     bbox_steps = int(round(cfg.bbox_sampling_frac * cfg.iterations))
     log = open(run_dir / "metrics.jsonl", "a", encoding="utf-8") if dd.main else None
     last: dict[str, float] = {}
@@ -208,46 +206,20 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
             lr = lr_at(step, cfg)
             for g in opt.param_groups:
                 g["lr"] = lr
-            masking = step < pretrain_steps
-            lam = lambda_at(step, pretrain_steps, model_cfg.mrvm)
+            phase = model.train_phase(step, cfg)
             opt.zero_grad(set_to_none=True)
-            tot = {"loss": 0.0, "mse_fine": 0.0, "mse_coarse": 0.0, "mrvm": 0.0, "opacity": 0.0, "hit": 0.0}
+            tot = {"loss": 0.0, "mse_fine": 0.0, "mse_coarse": 0.0, "opacity": 0.0, "hit": 0.0,
+                   **{k: 0.0 for k in phase.loss_weights}}
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
-                rays, gt = b["rays"], b["gt"].to(device)
-                hit = rays.hit
-                n = gt.shape[0]
-                bg = 1.0 if model_cfg.render.white_background else 0.0
-                miss_err = ((bg - gt[~hit.to(device)]) ** 2).sum()
                 with _autocast(cfg, device):
-                    ctx = model.encode(b["images"].to(device), b["cams"])
-                    loss = torch.zeros((), device=device)
-                    if hit.any():
-                        out = model.render_rays(ctx, rays.select(torch.nonzero(hit).flatten()), train=True,
-                                                mask_views=masking, generator=gen)
-                        g_hit = gt[hit.to(device)]
-                        sse_f = ((out["fine"]["color"].float() - g_hit) ** 2).sum()
-                        sse_c = ((out["coarse"]["color"].float() - g_hit) ** 2).sum()
-                        mse_f = (sse_f + miss_err) / (3 * n)
-                        mse_c = (sse_c + miss_err) / (3 * n)
-                        loss = mse_f + cfg.coarse_weight * mse_c
-                        if cfg.opacity_weight > 0:
-                            m, h = b["mask"].to(device), hit.to(device)
-                            opa = opacity_loss(out["fine"]["acc"], m, h) + \
-                                cfg.coarse_weight * opacity_loss(out["coarse"]["acc"], m, h)
-                            loss = loss + cfg.opacity_weight * opa
-                            tot["opacity"] += float(opa.detach()) / cfg.objects_per_step
-                        if out["mrvm_loss"] is not None:
-                            loss = loss + lam * out["mrvm_loss"]
-                            tot["mrvm"] += float(out["mrvm_loss"].detach()) / cfg.objects_per_step
-                        tot["mse_fine"] += float(mse_f.detach()) / cfg.objects_per_step
-                        tot["mse_coarse"] += float(mse_c.detach()) / cfg.objects_per_step
-                    else:
-                        tot["mse_fine"] += float(miss_err / (3 * n)) / cfg.objects_per_step
-                    tot["hit"] += float(hit.float().mean()) / cfg.objects_per_step
+                    loss, parts = object_loss(model, b, cfg, phase, gen, device)
+                for k, v in parts.items():
+                    tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
                 tot["loss"] += float(loss.detach())
-                (scaler.scale(loss) if scaler else loss).backward()
+                if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
+                    (scaler.scale(loss) if scaler else loss).backward()
             if dd.world > 1:
                 _allreduce_grads(params, dd.world)
             if scaler:
@@ -258,10 +230,9 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
                 scaler.update()
             else:
                 opt.step()
-            if masking:
-                model.mrvm.update_target()
+            model.after_step(phase)
             done = step + 1
-            last = {"step": done, "lr": lr, "lambda": lam, "masking": masking, "grad_norm": float(gnorm),
+            last = {"step": done, "lr": lr, **phase.logs, "grad_norm": float(gnorm),
                     "psnr_fine": -10 * math.log10(max(tot["mse_fine"], 1e-10)), **tot,
                     "time_s": time.perf_counter() - t0}
             if log and (done % cfg.log_every == 0 or done == cfg.iterations or done == start + 1):
@@ -278,6 +249,50 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
             "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
 
 
+def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: TrainPhase,
+                gen: torch.Generator, device) -> tuple[torch.Tensor, dict[str, float]]:
+    """The loss of one object's batch and its parts, for any model kind.
+
+    Photometric MSE over all drawn rays (rays that miss the box are predicted as the background and
+    cost nothing to evaluate), the same for each auxiliary head (``coarse_weight``), the opacity BCE
+    against the object mask when ``opacity_weight`` > 0, and the model's auxiliary losses with the
+    weights of its training phase (e.g. MRVM's lambda)."""
+    rays, gt = b["rays"], b["gt"].to(device)
+    hit = rays.hit.to(device)
+    n = gt.shape[0]
+    bg = 1.0 if model.white_background else 0.0
+    miss_err = ((bg - gt[~hit]) ** 2).sum()
+    parts = {"hit": float(hit.float().mean())}
+    cams = b["cams"]
+    cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)
+    ctx = model.encode(b["images"].to(device), cams)
+    if not bool(hit.any()):
+        parts["mse_fine"] = float(miss_err / (3 * n))
+        return torch.zeros((), device=device), parts
+    sel = torch.nonzero(rays.hit).flatten()
+    out = model.render_rays(ctx, rays_to(rays.select(sel), device), train=True, generator=gen, **phase.kwargs)
+    g_hit = gt[hit]
+    mse = ((out["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
+    loss = mse
+    parts["mse_fine"] = float(mse.detach())
+    m = b["mask"].to(device) if b.get("mask") is not None else None
+    opa = opacity_loss(out["acc"], m, hit) if cfg.opacity_weight > 0 else None
+    for name, head in out.get("aux_heads", {}).items():
+        mse_h = ((head["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
+        loss = loss + cfg.coarse_weight * mse_h
+        parts[f"mse_{name}"] = float(mse_h.detach())
+        if opa is not None:
+            opa = opa + cfg.coarse_weight * opacity_loss(head["acc"], m, hit)
+    if opa is not None:
+        loss = loss + cfg.opacity_weight * opa
+        parts["opacity"] = float(opa.detach())
+    for name, value in out.get("aux_losses", {}).items():
+        if value is not None:
+            loss = loss + phase.loss_weights.get(name, 0.0) * value
+            parts[name] = float(value.detach())
+    return loss, parts
+
+
 def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
     """Binary cross-entropy of the accumulated opacity of the rays that hit the box (``acc``, one per
     True in ``hit``) against the object mask of all rays (``mask``); averaged over all rays, since a ray
@@ -290,13 +305,17 @@ def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> to
     return (bce + missed_fg) / mask.numel()
 
 
-def init_weights(model: torch.nn.Module, model_cfg: ModelConfig, name: str, device: str) -> Path:
+def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str) -> Path:
     """Load the weights ``init_checkpoint`` names into a fresh model (fine-tuning); its model file.
     InputError, naming both models, when the checkpoint holds another architecture."""
     from .config import resolve_init_checkpoint
 
     model_file = resolve_init_checkpoint(name)
     theirs = ckpt.read_model_config(model_file)
+    if registry.kind_of(theirs) != registry.kind_of(model_cfg):
+        raise InputError(f"init_checkpoint {model_file} holds a {registry.kind_of(theirs)} model, the run config a "
+                         f"{registry.kind_of(model_cfg)} model; leave the run config's model section out to use the "
+                         "checkpoint's own")
     try:
         ckpt.load_weights(model, model_file, device)
     except InputError:

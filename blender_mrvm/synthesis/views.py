@@ -123,15 +123,10 @@ def resolve_device(name: str):
 def load_checkpoint(path: Path | None, device="cpu"):
     """(model in eval mode, model config, metadata, path) from a checkpoint; one-line InputError when it
     does not load, is not a blender_mrvm model, has a newer format version, or does not match its config."""
+    from ..models.pretrained import resolve_checkpoint
     from ..training.checkpoint import load_model
 
-    if path is None:
-        from ..models.pretrained import default_checkpoint
-
-        path = default_checkpoint()
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"checkpoint {path} does not exist")
+    path = resolve_checkpoint(path)
     try:
         model, cfg, meta = load_model(path, "cpu")
     except InputError:
@@ -195,12 +190,10 @@ def trained_size(checkpoint: Path | None) -> int:
     """The longer image side a checkpoint was trained on (its ``train_image_size``), 0 when unknown."""
     from ..models.checkpoint_files import read_header_meta, model_file_of
 
-    try:
-        if checkpoint is None:
-            from ..models.pretrained import default_checkpoint
+    from ..models.pretrained import resolve_checkpoint
 
-            checkpoint = default_checkpoint()
-        return max(0, int(read_header_meta(model_file_of(Path(checkpoint))).get("train_image_size", 0)))
+    try:
+        return max(0, int(read_header_meta(model_file_of(resolve_checkpoint(checkpoint))).get("train_image_size", 0)))
     except (InputError, ValueError, OSError):
         return 0  # a bad checkpoint is reported when it is loaded
 
@@ -214,14 +207,12 @@ def reference_sizes(ref_size: int, checkpoint: Path | None) -> tuple[int, int]:
     return 0, 0
 
 
-def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None,
-                    max_size: int = 0) -> References:
-    """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong.
-
-    All references take one size: the first view's, or ``ref_size`` pixels on the longer side when it is
-    given, or at most ``max_size`` pixels on the longer side (shrinking only)."""
-    from ..datasets.loaders import to_float_rgb
-
+def check_reference_folder(folder: Path, views: Sequence[int] = ()) -> tuple[Any, tuple[int, ...]]:
+    """(the folder read by ``datasets.format.read_object``, the chosen view indices) after checking an
+    object folder (render, recovered capture or exported scene cameras): it exists, every chosen view
+    has an image and a pose, the views are distinct and at most ``MAX_REFERENCES``; no view given =
+    every view of the folder. Reads no image. The one owner of these rules (the add-on's panel checks
+    through it too)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"reference folder {folder} does not exist")
@@ -241,15 +232,29 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
         raise InputError(f"at most {MAX_REFERENCES} reference views, got {len(views)}")
     if len(set(views)) != len(views):
         raise InputError(f"reference views must be distinct, got {list(views)}")
-    pos = {v: k for k, v in enumerate(ov.indices)}
+    have = set(ov.indices)
     for v in views:
-        if v in pos:
+        if v in have:
             continue
         paths = F.view_paths(folder, v)
         if paths["rgb"].is_file():
             raise InputError(f"reference view {v} of {folder} has no pose ({paths['pose'].name} missing)")
         shown = ", ".join(map(str, ov.indices[:12])) + (" ..." if len(ov.indices) > 12 else "")
         raise InputError(f"reference view {v} does not exist in {folder} (it has views {shown})")
+    return ov, views
+
+
+def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None,
+                    max_size: int = 0) -> References:
+    """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong.
+
+    All references take one size: the first view's, or ``ref_size`` pixels on the longer side when it is
+    given, or at most ``max_size`` pixels on the longer side (shrinking only)."""
+    from ..datasets.loaders import to_float_rgb
+
+    folder = Path(folder)
+    ov, views = check_reference_folder(folder, views)
+    pos = {v: k for k, v in enumerate(ov.indices)}
     imgs, intrs, poses = [], [], []
     for v in views:
         k = pos[v]
@@ -263,7 +268,7 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
             if abs(img.shape[0] - intr.height * img.shape[1] / intr.width) > 1.0:
                 raise InputError(f"reference view {v}: image is {img.shape[1]}x{img.shape[0]} but its camera is "
                                  f"{intr.width}x{intr.height} (different aspect ratio)")
-            intr = _scale_to(intr, img.shape[1], img.shape[0])
+            intr = intr.resized(img.shape[1], img.shape[0])
         imgs.append(img)
         intrs.append(intr)
         poses.append(C.as_pose(ov.c2w_opencv[k]))
@@ -298,72 +303,35 @@ def resize_view(img: np.ndarray, intr: C.Intrinsics, w: int, h: int) -> tuple[np
     """An image and its camera at ``w`` x ``h`` (unchanged when already that size)."""
     if (intr.width, intr.height) == (w, h):
         return img, intr
-    return _resize(img, w, h), _scale_to(intr, w, h)
-
-
-def _scale_to(intr: C.Intrinsics, w: int, h: int) -> C.Intrinsics:
-    """The same camera at ``w`` x ``h`` pixels (pixel-centre exact: coordinates scale with the size)."""
-    sx, sy = w / intr.width, h / intr.height
-    return C.Intrinsics(intr.fx * sx, intr.fy * sy, intr.cx * sx, intr.cy * sy, int(w), int(h), intr.skew * sx)
+    return _resize(img, w, h), intr.resized(w, h)
 
 
 # ---------------------------------------------------------------------------------------------
 # Rendering
 # ---------------------------------------------------------------------------------------------
 
-def encode_references(model, refs: References, device):
-    """(context, normalised scene) for ``refs``: the references encoded once for every target."""
-    import torch
-
-    from ..models.model import normalized_scene, ref_cameras
-
-    ns = normalized_scene(refs.bbox[0], refs.bbox[1], model.cfg.sampler.box_padding)
-    cams = ref_cameras([ns.pose(c) for c in refs.c2w], refs.intrinsics)
-    cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)
-    imgs = torch.from_numpy(refs.images).permute(0, 3, 1, 2).contiguous().to(device)
-    with torch.no_grad():
-        ctx = model.encode(imgs, cams)
-    return ctx, ns
+def encode_references(model, refs: References, device=None):
+    """(context, normalised scene) for ``refs``: the references encoded once for every target (on the
+    model's device)."""
+    return model.encode_world(refs.images, refs.c2w, refs.intrinsics, refs.bbox)
 
 
-def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device):
+def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device=None):
     """Progress generator over one view: yields rays finished, returns dict(color (H, W, 3) on white,
     acc (H, W), depth_z (H, W) planar z-depth in world units, evaluated rays).
 
-    The same computation as ``GeneralizableNeRF.render_image`` (box-clipped rays, misses are
-    background), chunk by chunk so a caller can report progress and stop between chunks."""
+    ``model.image_chunks`` of any model kind (box-clipped rays, misses are background), chunk by chunk
+    so a caller can report progress and stop between chunks."""
     import torch
 
-    from ..models.rays import make_rays
-
-    rays = make_rays(intr, ns.pose(c2w), box=ns.box)
-    n = len(rays)
-    bg = 1.0 if model.cfg.render.white_background else 0.0
-    color = torch.full((n, 3), bg)
-    acc = torch.zeros(n)
-    dist = torch.zeros(n)
-    idx = torch.nonzero(rays.hit).flatten()
-    yield n - idx.numel()
-    for s in range(0, idx.numel(), chunk):
-        sel = idx[s:s + chunk]
-        sub = rays.select(sel)
-        sub = type(sub)(*(getattr(sub, f).to(device) for f in ("origins", "dirs", "far", "hit", "depth_offset")))
-        with torch.no_grad():
-            out = model.render_rays(ctx, sub)["fine"]
-        w, t = out["weights"].float(), out["t"].float()
-        a = out["acc"].float()
-        surf = (w * t).sum(-1) / a.clamp_min(1e-8)  # expected termination given the ray stops
-        color[sel] = out["color"].float().cpu()
-        acc[sel] = a.cpu()
-        dist[sel] = (surf + sub.depth_offset.float()).cpu()
-        yield sel.numel()
-    H, W = intr.height, intr.width
+    res = yield from model.image_chunks(ctx, intr, ns.pose(c2w), ns.box, chunk)
     # Distance along the ray (normalised units) -> planar z in world units: z = dist * scale * d_cam.z.
     _, d = C.rays_opencv(intr, np.eye(4))
-    zdir = torch.from_numpy(d[..., 2].reshape(-1).astype(np.float32))
-    depth_z = torch.where(acc >= ALPHA_DEPTH_THRESHOLD, dist * float(ns.scale) * zdir, torch.zeros(n))
-    return {"color": color.view(H, W, 3).clamp(0, 1).numpy(), "acc": acc.view(H, W).clamp(0, 1).numpy(),
-            "depth_z": depth_z.view(H, W).numpy(), "evaluated": int(idx.numel()), "rays": n}
+    zdir = torch.from_numpy(d[..., 2].astype(np.float32))
+    acc = res["acc"]
+    depth_z = torch.where(acc >= ALPHA_DEPTH_THRESHOLD, res["depth"] * float(ns.scale) * zdir, torch.zeros_like(acc))
+    return {"color": res["color"].numpy(), "acc": acc.numpy(), "depth_z": depth_z.numpy(),
+            "evaluated": res["evaluated"], "rays": res["rays"]}
 
 
 def rgba_image(color_on_white: np.ndarray, acc: np.ndarray) -> np.ndarray:
@@ -449,9 +417,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     refs = load_references(Path(cfg.references), tuple(cfg.views), size, cfg.bbox, max_size)
     device = resolve_device(cfg.device)
     model, mcfg, meta, ck_path = load_checkpoint(cfg.checkpoint, device)
-    if len(refs.views) > mcfg.max_ref_views:
-        raise InputError(f"the model takes at most {mcfg.max_ref_views} reference views, got {len(refs.views)}")
-    chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(mcfg.render.chunk_rays)
+    model.check_reference_count(len(refs.views))
+    chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
     out = Path(cfg.out)
     _check_out(out)
     total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
@@ -498,10 +465,16 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     return summary
 
 
+def _kind(mcfg) -> str:
+    from ..models.registry import kind_of
+
+    return kind_of(mcfg)
+
+
 def _summary_json(s: SynthesisSummary, meta: dict, mcfg) -> dict[str, Any]:
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
-            "model": mcfg.name, "device": s.device,
+            "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
             "rgb": "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)",
@@ -534,9 +507,9 @@ def orbit_targets(refs: References, count: int, elevation_deg: float = 20.0, rad
     if radius is None:
         radius = float(np.median([np.linalg.norm(c[:3, 3] - centre) for c in refs.c2w]))
     k = refs.intrinsics[0]
-    s = size / max(k.width, k.height) if size and size > 0 else 1.0
-    w, h = max(1, round(k.width * s)), max(1, round(k.height * s))
-    intr = C.Intrinsics(k.fx * w / k.width, k.fy * h / k.height, w / 2.0, h / 2.0, w, h)
+    w, h = reference_shape(k, size)
+    k = k.resized(w, h)
+    intr = C.Intrinsics(k.fx, k.fy, w / 2.0, h / 2.0, w, h)  # unshifted
     poses = orbit_poses(count, radius, elevation_deg, centre)
     return [Target(f"orbit {i:03d}", intr, p, generated=True) for i, p in enumerate(poses)]
 

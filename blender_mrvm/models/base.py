@@ -1,0 +1,190 @@
+"""What every model kind shares: the object's normalised frame, reference cameras, and images rendered
+ray chunk by ray chunk from a kind's ``render_rays`` (the protocol in ``models/registry.py``).
+
+Usage (world units in, world units out), for any kind::
+
+    model = registry.build_model(registry.build_config("gpnr", "fast"))
+    out = model.synthesize(ref_images, ref_c2w, ref_intr, bbox, target_c2w, target_intr)
+
+Internally everything runs in the object's normalised frame: the box is [-1, 1] on its longest side,
+rays start at the box entry, rays that miss are background and are not evaluated, and large renders
+are evaluated ``chunk_rays`` rays at a time (bounded memory).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..geometry import cameras
+from .projection import RefCameras
+from .rays import RayBundle, make_rays, normalization, normalize_pose
+
+
+@dataclass
+class NormalizedScene:
+    """A scene moved into the model's frame: box centred, longest half-side 1."""
+
+    centre: np.ndarray
+    scale: float
+    box: float
+    """Half-size of the (padded) cube rays are clipped to, in normalised units."""
+
+    def pose(self, c2w: np.ndarray) -> np.ndarray:
+        return normalize_pose(c2w, self.centre, self.scale)
+
+
+def normalized_scene(bbox_min, bbox_max, padding: float) -> NormalizedScene:
+    c, s = normalization(bbox_min, bbox_max)
+    return NormalizedScene(c, s, 1.0 + padding)
+
+
+def ref_cameras(c2w_norm: Sequence[np.ndarray], intr: Sequence[cameras.Intrinsics]) -> RefCameras:
+    w2c = np.stack([cameras.invert_pose(c) for c in c2w_norm])
+    K = np.stack([i.K for i in intr])
+    return RefCameras(torch.from_numpy(w2c), torch.from_numpy(K), int(intr[0].width), int(intr[0].height))
+
+
+@dataclass
+class TrainPhase:
+    """What one training step of a model does (from ``model.train_phase``)."""
+
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    """Keyword arguments for ``render_rays`` (e.g. MRVM's ``mask_views``)."""
+    loss_weights: dict[str, float] = field(default_factory=dict)
+    """Weight of each of ``render_rays``' ``aux_losses``."""
+    logs: dict[str, Any] = field(default_factory=dict)
+    """Values written to metrics.jsonl."""
+
+
+def rays_to(rays: RayBundle, device) -> RayBundle:
+    """The same rays on ``device``."""
+    return rays.to(device)
+
+
+class RayModel(nn.Module):
+    """Base class of every model kind: the shared, kind-independent half of the protocol."""
+
+    kind: str = ""
+    """Registry key (``models/registry.py``)."""
+
+    # -- what the shared code needs to know of a kind (subclasses map these onto their config) --------
+
+    @property
+    def box_padding(self) -> float:
+        """The box is grown by this fraction of its half-size on each side before clipping rays."""
+        raise NotImplementedError
+
+    @property
+    def white_background(self) -> bool:
+        return True
+
+    @property
+    def chunk_rays(self) -> int:
+        """Rays per forward pass at inference."""
+        return 512
+
+    @property
+    def max_ref_views(self) -> int:
+        return int(getattr(self.cfg, "max_ref_views", 10))
+
+    @property
+    def min_ref_views(self) -> int:
+        return int(getattr(self.cfg, "min_ref_views", 1))
+
+    @property
+    def device(self) -> torch.device:
+        p = next(self.parameters(), None)
+        return p.device if p is not None else torch.device("cpu")
+
+    # -- the per-kind protocol -------------------------------------------------------------------------
+
+    def encode(self, images: torch.Tensor, cams: RefCameras):
+        raise NotImplementedError
+
+    def render_rays(self, ctx, rays: RayBundle, train: bool = False, generator: torch.Generator | None = None,
+                    **phase) -> dict:
+        raise NotImplementedError
+
+    def train_phase(self, step: int, train_cfg) -> TrainPhase:
+        return TrainPhase()
+
+    def after_step(self, phase: TrainPhase) -> None:
+        pass
+
+    # -- shared: reference sets and images ---------------------------------------------------------------
+
+    def check_reference_count(self, n: int) -> None:
+        """InputError when ``n`` reference views are fewer or more than this model takes."""
+        from ..errors import InputError
+
+        if n < self.min_ref_views:
+            raise InputError(f"this {self.kind} model needs at least {self.min_ref_views} reference views, got {n}")
+        if n > self.max_ref_views:
+            raise InputError(f"this {self.kind} model takes at most {self.max_ref_views} reference views, got {n}")
+
+    def encode_world(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray],
+                     ref_intr: Sequence[cameras.Intrinsics], bbox: tuple):
+        """(context, normalised scene) for references in world units: ref_images (V, H, W, 3) float in
+        [0, 1] on white; OpenCV c2w poses; bbox = (min xyz, max xyz) of the object."""
+        ns = normalized_scene(bbox[0], bbox[1], self.box_padding)
+        cams = ref_cameras([ns.pose(c) for c in ref_c2w], ref_intr)
+        dev = self.device
+        cams.w2c, cams.K = cams.w2c.to(dev), cams.K.to(dev)
+        imgs = torch.as_tensor(np.asarray(ref_images, np.float32)).permute(0, 3, 1, 2).contiguous().to(dev)
+        with torch.no_grad():
+            ctx = self.encode(imgs, cams)
+        return ctx, ns
+
+    @torch.no_grad()
+    def image_chunks(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float, chunk: int | None = None):
+        """Generator over one view in the normalised frame: yields the rays finished so far in each step
+        (misses first, then every chunk), returns dict(color (H, W, 3) on the background, acc (H, W),
+        depth (H, W) distance from the camera along the ray to the expected surface (0 where acc = 0),
+        rays, evaluated)."""
+        rays = make_rays(intr, c2w_norm, box=box)
+        n = len(rays)
+        bg = 1.0 if self.white_background else 0.0
+        color = torch.full((n, 3), bg)
+        depth = torch.zeros(n)
+        acc = torch.zeros(n)
+        idx = torch.nonzero(rays.hit).flatten()
+        chunk = int(chunk or self.chunk_rays)
+        yield n - idx.numel()
+        dev = self.device
+        for s in range(0, idx.numel(), chunk):
+            sel = idx[s:s + chunk]
+            sub = rays_to(rays.select(sel), dev)
+            o = self.render_rays(ctx, sub)
+            a = o["acc"].float()
+            color[sel] = o["color"].float().cpu()
+            acc[sel] = a.cpu()
+            depth[sel] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
+            yield sel.numel()
+        H, W = intr.height, intr.width
+        return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
+                "rays": n, "evaluated": int(idx.numel())}
+
+    @torch.no_grad()
+    def render_image(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,
+                     chunk: int | None = None) -> dict:
+        """A full view (normalised frame), chunk by chunk; misses are background, not evaluated."""
+        gen = self.image_chunks(ctx, intr, c2w_norm, box, chunk)
+        while True:
+            try:
+                next(gen)
+            except StopIteration as stop:
+                return stop.value
+
+    @torch.no_grad()
+    def synthesize(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
+                   bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None) -> dict:
+        """Novel view in world units (see :meth:`encode_world`). Depth is along the ray, world units."""
+        ctx, ns = self.encode_world(ref_images, ref_c2w, ref_intr, bbox)
+        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk)
+        out["depth"] = out["depth"] * ns.scale
+        return out

@@ -1,0 +1,138 @@
+"""The model kinds and the one protocol that training, evaluation, synthesis, the worker and the panel use.
+
+Several model kinds live side by side (``nerformer_mrvm``: the NeRFormer+MRVM radiance field;
+``gpnr``: the GPNR patch-based light-field transformer). Each kind is a config dataclass with named
+presets and a torch module implementing the protocol below; a checkpoint records its kind
+(``model_kind`` in its metadata), so any checkpoint trains, evaluates, synthesizes and fine-tunes
+through the same commands. This module is torch-free at import (the add-on reads it on the main
+thread); the model classes are imported only when a model is built.
+
+The protocol (what :class:`..models.base.RayModel` subclasses implement)::
+
+    ctx = model.encode(images (V, 3, H, W) in [0, 1] on white, cams: RefCameras)   # once per reference set
+    out = model.render_rays(ctx, rays: RayBundle, train=False, generator=None, **phase.kwargs)
+        # rays all hit the object's box (normalised frame); out["color"] (R, 3) on the background,
+        # out["acc"] (R,) opacity, out["depth"] (R,) expected distance from the box entry given the ray
+        # stops; for training also out["aux_heads"] {name: {"color", "acc"}} (weighted by
+        # train.coarse_weight) and out["aux_losses"] {name: scalar tensor}
+    phase = model.train_phase(step, train_cfg)   # what a training step does: kwargs, loss weights, logs
+    model.after_step(phase)                      # e.g. the MRVM target projector's EMA update
+
+Everything else (box normalisation, ray clipping, chunked images, world-unit depth) is shared in
+``models/base.py``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field, is_dataclass
+from typing import Any
+
+from ..errors import InputError
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One model kind: where its config and model classes live."""
+
+    name: str
+    """Registry key, stored in checkpoints as ``model_kind``."""
+    title: str
+    """Human-readable name (panel, reports)."""
+    config: str
+    """``module:Class`` of the config dataclass (relative to ``blender_mrvm.models``)."""
+    presets: str
+    """``module:NAME`` of the dict of named configs."""
+    model: str
+    """``module:Class`` of the torch module."""
+    default_preset: str = "balanced"
+    """Preset used when none is named."""
+    aliases: tuple[str, ...] = field(default_factory=tuple)
+    """Other names accepted on the command line."""
+
+
+KINDS: dict[str, Kind] = {
+    "nerformer_mrvm": Kind("nerformer_mrvm", "NeRFormer + MRVM", "config:ModelConfig", "config:PRESETS",
+                           "model:GeneralizableNeRF", aliases=("nerformer", "mrvm")),
+    "gpnr": Kind("gpnr", "GPNR", "gpnr.config:GPNRConfig", "gpnr.config:PRESETS", "gpnr.model:GPNR"),
+}
+"""Every model kind this version knows."""
+
+DEFAULT_KIND = "nerformer_mrvm"
+"""Kind of checkpoints that predate the ``model_kind`` key (and of run configs that name none)."""
+
+
+def _load(ref: str) -> Any:
+    mod, name = ref.split(":")
+    return getattr(importlib.import_module(f"{__package__}.{mod}"), name)
+
+
+def kind(name: str | None) -> Kind:
+    """The :class:`Kind` for a name or alias (None / '' = the default); InputError for an unknown one."""
+    n = (name or DEFAULT_KIND).strip().lower()
+    for k in KINDS.values():
+        if n == k.name or n in k.aliases:
+            return k
+    raise InputError(f"unknown model kind {name!r}; this version knows {', '.join(sorted(KINDS))}")
+
+
+def config_class(name: str | None) -> type:
+    return _load(kind(name).config)
+
+
+def presets(name: str | None) -> dict[str, Any]:
+    return _load(kind(name).presets)
+
+
+def kind_of(cfg: Any) -> str:
+    """The kind whose config class ``cfg`` is an instance of."""
+    for k in KINDS.values():
+        if type(cfg) is _load(k.config):
+            return k.name
+    raise TypeError(f"{type(cfg).__name__} is not the config of a known model kind")
+
+
+def build_config(name: str | None, preset: str | None = None, overrides: dict[str, Any] | None = None):
+    """A validated config of kind ``name``: its preset ``preset`` (default: the kind's) with nested overrides."""
+    from .config import merge
+
+    k = kind(name)
+    table = presets(k.name)
+    p = preset or k.default_preset
+    if p not in table:
+        raise InputError(f"unknown {k.name} preset {p!r}; choose one of {sorted(table)}")
+    cfg = merge(table[p], overrides or {})
+    validate(cfg)
+    return cfg
+
+
+def config_from_dict(name: str | None, data: dict[str, Any]):
+    """A validated config of kind ``name`` from a plain dict (as stored in checkpoints and run configs)."""
+    from .config import from_dict
+
+    cfg = from_dict(config_class(name), data)
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: Any) -> None:
+    """Raise InputError for a config that cannot work (each config module has its ``validate``)."""
+    if not is_dataclass(cfg):
+        raise TypeError(f"not a config: {cfg!r}")
+    mod = importlib.import_module(type(cfg).__module__)
+    mod.validate(cfg)
+
+
+def build_model(cfg: Any):
+    """A fresh torch module for ``cfg`` (any kind)."""
+    return _load(kind(kind_of(cfg)).model)(cfg)
+
+
+def kind_from_meta(meta: dict[str, str]) -> str:
+    """The model kind a checkpoint's metadata records (the default for checkpoints that predate the key);
+    InputError for a kind this version does not know."""
+    raw = meta.get("model_kind") or DEFAULT_KIND
+    if raw not in KINDS:
+        raise InputError(f"the checkpoint holds a model of kind {raw!r}, which this version does not know "
+                         f"(it knows {', '.join(sorted(KINDS))})")
+    return raw
