@@ -134,6 +134,13 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                              description="Field of view of the orbit cameras (along the longer image side)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
+    shipped_model: EnumProperty(name="Shipped model", items=[
+        ("nerformer_mrvm", "NeRFormer + MRVM", "Radiance field from a transformer across views and along rays (few views, "
+                                               "objects on white)"),
+        ("gpnr", "GPNR", "Patch-based light-field transformer: colours from epipolar patches of the references "
+                         "(shines with many nearby views)"),
+    ], default="nerformer_mrvm",
+                                description="Which shipped model synthesizes when no checkpoint is chosen")
     device: EnumProperty(name="Device", items=[
         ("AUTO", "Auto", "CUDA when available, else CPU"),
         ("CPU", "CPU", "Always the CPU"),
@@ -179,10 +186,18 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
     init_checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
                                     description="The checkpoint to fine-tune: a model .safetensors file, a checkpoint "
                                                 "folder or a run folder")
-    preset: EnumProperty(name="Model", items=[
-        ("fast", "Fast", "Smallest model: quick experiments"),
-        ("balanced", "Balanced", "The shipped model's size (about a second per 128 px view on 2 CPU cores)"),
-        ("accurate", "Accurate", "Largest model: slow on a CPU"),
+    model_kind: EnumProperty(name="Model", items=[
+        ("nerformer_mrvm", "NeRFormer + MRVM", "Radiance field from a transformer across views and along rays (few views, "
+                                               "objects on white)"),
+        ("gpnr", "GPNR", "Patch-based light-field transformer: colours from epipolar patches of the references "
+                         "(shines with many nearby views)"),
+    ], default="nerformer_mrvm",
+                             description="Kind of model to train (a new one) or to fine-tune (the shipped one)")
+    preset: EnumProperty(name="Size", items=[
+        ("fast", "Fast", "Smallest model: quick experiments (the shipped GPNR's size)"),
+        ("balanced", "Balanced", "The shipped NeRFormer+MRVM's size (about a second per 128 px view on 2 CPU cores)"),
+        ("accurate", "Accurate", "Large model: slow on a CPU"),
+        ("paper", "Paper (GPNR)", "GPNR at the paper's size (8 blocks, 256 wide): needs a GPU"),
     ], default="balanced")
     iterations: IntProperty(name="Iterations", default=2000, min=1, soft_max=200000,
                             description="Optimizer steps in all; a continued run trains up to this step")

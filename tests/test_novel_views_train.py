@@ -138,7 +138,7 @@ def test_train_bad_settings(train_ready, tmp_path):
     run.mkdir(exist_ok=True)
     (run / "config.json").write_text(json.dumps({"model": {"config": {"name": "balanced"}}}))
     p.data_dir = str(tmp_path / "data")
-    with pytest.raises(RuntimeError, match="the run folder holds a 'balanced' model"):
+    with pytest.raises(RuntimeError, match="the run folder holds a nerformer_mrvm 'balanced' model"):
         bpy.ops.mrvm.train()
 
 
@@ -195,3 +195,53 @@ def test_write_job_opacity_loss_only_with_masks(train_ready, tmp_path):
     assert doc(tmp_path / "b")["opacity_weight"] == 0.0
     T.write_job(T.TrainJob(**{**job.__dict__, "continued": {"opacity_weight": 0.0, "lr": 5e-4}}), tmp_path / "c")
     assert doc(tmp_path / "c")["opacity_weight"] == 0.0 and doc(tmp_path / "c")["lr"] == 5e-4
+
+
+def test_cli_and_panel_fine_tune_with_one_policy(train_ready, tmp_path):
+    """The panel's "Start from: shipped" job and the CLI's ``train --init shipped`` give the same train
+    settings: the one fine-tuning policy (training.config.FINETUNE), not a copy in the operator."""
+    import bpy
+
+    from blender_mrvm.models.pretrained import default_checkpoint
+    from blender_mrvm.operators import train as T
+    from blender_mrvm.training.config import FINETUNE, load_run_config
+
+    p = train_ready.mrvm_train
+    p.start_from, p.iterations = "SHIPPED", 40
+    job = T.plan_from_props(bpy.context)
+    T.write_job(job, tmp_path)
+    m_panel, t_panel = load_run_config(tmp_path / "train.json")
+    m_cli, t_cli = load_run_config(None, {"data": p.data_dir, "out_dir": str(tmp_path / "run"), "iterations": 40,
+                                          "init_checkpoint": "shipped"})
+    assert m_panel == m_cli
+    for k in FINETUNE:
+        assert getattr(t_panel, k) == getattr(t_cli, k), k
+    assert t_cli.pretrain_frac == 0.0 and t_cli.lr == FINETUNE["lr"] and t_cli.lr_warmup == 4  # a tenth of 40
+    assert t_panel.init_checkpoint == str(default_checkpoint())
+    # a run config that names its own learning rate keeps it
+    (tmp_path / "own.json").write_text(json.dumps({"train": {"lr": 3e-4, "init_checkpoint": "shipped"}}))
+    assert load_run_config(tmp_path / "own.json")[1].lr == 3e-4
+
+
+def test_panel_new_gpnr_run_and_shipped_model_choice(train_ready, tmp_path):
+    """The Model section trains a new model of the chosen kind; a size the kind lacks is one clear error;
+    the Novel views section offers the shipped models."""
+    import bpy
+
+    from blender_mrvm.operators import train as T
+    from blender_mrvm.panels.novel_views import MRVM_PT_model
+    from test_novel_views import _draw
+
+    p = train_ready.mrvm_train
+    p.model_kind, p.preset = "gpnr", "fast"
+    job = T.plan_from_props(bpy.context)
+    assert job.model == {"kind": "gpnr", "preset": "fast"}
+    T.write_job(job, tmp_path)
+    from blender_mrvm.training.config import load_run_config
+
+    mcfg, _ = load_run_config(tmp_path / "train.json")
+    assert type(mcfg).__name__ == "GPNRConfig" and mcfg.name == "fast"
+    assert "model_kind" in {e[1] for e in _draw(MRVM_PT_model) if e[0] == "prop"}
+    p.model_kind, p.preset = "nerformer_mrvm", "paper"
+    with pytest.raises(Exception, match="has no 'paper' size"):
+        T.plan_from_props(bpy.context)

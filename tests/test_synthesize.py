@@ -106,8 +106,9 @@ def test_same_numbers_as_the_models_renderer_and_png_round_trip(setup, tmp_path)
 
 
 def test_references_shrink_to_the_trained_size_by_default(setup, tmp_path, capsys):
-    """--ref-size 0 (auto) shrinks references larger than the checkpoint's train_image_size to it (never
-    enlarges them); -1 keeps them; N resizes to N; a checkpoint without the key keeps them."""
+    """--ref-size 0 (auto) shrinks references larger than the checkpoint's train_image_size to it, and refuses
+    smaller ones with one line (nothing written); -1 keeps them; N resizes to N; a checkpoint without the key
+    keeps them."""
     from blender_mrvm.models.config import model_config
     from blender_mrvm.models.model import GeneralizableNeRF
     from blender_mrvm.training.checkpoint import save_checkpoint
@@ -120,12 +121,17 @@ def test_references_shrink_to_the_trained_size_by_default(setup, tmp_path, capsy
     assert S.reference_sizes(-1, small) == (0, 0) and S.reference_sizes(12, small) == (12, 0)
     assert S.reference_sizes(0, tmp_path / "missing") == (0, 0)  # reported later, when it is loaded
     for c, extra, size in [(small, (), 8), (small, ("--ref-size", "-1"), 16), (small, ("--ref-size", "12"), 12),
-                           (big, (), 16), (ck, (), 16)]:
+                           (big, ("--ref-size", "-1"), 16), (ck, (), 16)]:
         out = tmp_path / f"out_{c.parent.parent.name}_{size}"
         assert main(_args(root, obj, c, out, *extra)) == 0
         js = json.loads((out / "synthesis.json").read_text())
         assert js["references"]["size"] == [size, size], (c, extra)
         assert F.read_png(out / "rgb" / "000002.png").shape == (24, 24, 4)  # targets keep their own size
+    refused = tmp_path / "refused"
+    capsys.readouterr()
+    assert main(_args(root, obj, big, refused)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "smaller than the 64 px" in err[0] and not refused.exists()
     refs = S.load_references(obj, (0, 1), 0, None, max_size=8)
     k = S.load_references(obj, (0, 1)).intrinsics[0]
     assert refs.images.shape == (2, 8, 8, 3) and refs.intrinsics[0].fx == pytest.approx(k.fx / 2)
@@ -297,3 +303,40 @@ def test_orbit_and_target_views_without_a_targets_file(setup, tmp_path, capsys):
     capsys.readouterr()
     assert main(base + ["--target-views", "7", "--out", str(tmp_path / "w")]) == 2
     assert "view 7 does not exist" in capsys.readouterr().err and not (tmp_path / "w").exists()
+
+
+def test_gpnr_checkpoint_synthesizes_through_the_same_command(setup, tmp_path, capsys):
+    """A GPNR checkpoint goes through ``synthesize`` like any other kind; given more references than it
+    uses, each target gets its nearest ones; fewer than it needs is one line, nothing written."""
+    from blender_mrvm.models import registry
+    from blender_mrvm.training.checkpoint import save_checkpoint
+
+    root, obj, _, tg = setup
+    cfg = registry.build_config("gpnr", "fast", {"patch_dim": 4, "n_samples": 6, "d_model": 8, "n_heads": 2,
+                                                 "n_blocks": 1, "min_ref_views": 2, "max_ref_views": 2})
+    torch.manual_seed(0)
+    ck = save_checkpoint(tmp_path / "gpnr", 1, registry.build_model(cfg), cfg, None)
+    out = tmp_path / "out"
+    args = _args(root, obj, ck, out)
+    args[args.index("0,1")] = "0,1,3"
+    assert main(args) == 0
+    rep = json.loads((out / "synthesis.json").read_text())
+    assert rep["model_kind"] == "gpnr"
+    for r, t in zip(rep["targets"], tg):
+        ref_c2w = [F.read_object(obj).c2w_opencv[F.read_object(obj).indices.index(v)] for v in (0, 1, 3)]
+        want = S.nearest_views(ref_c2w, t.c2w_opencv, np.mean(rep["bbox"], 0), 2)
+        assert r["reference_views"] == [[0, 1, 3][k] for k in want] and len(r["reference_views"]) == 2
+    assert 3 in rep["targets"][1]["reference_views"]  # view 003 is its own nearest reference
+    capsys.readouterr()
+    args = _args(root, obj, ck, tmp_path / "few")
+    args[args.index("0,1")] = "1"
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "at least 2 reference views" in err[0] and not (tmp_path / "few").exists()
+
+
+def test_nearest_views_by_angle_and_distance():
+    eye = lambda p: C.look_at_opencv(np.asarray(p, float))  # noqa: E731
+    refs = [eye([3, 0, 0]), eye([0, 3, 0]), eye([-3, 0, 0]), eye([30, 0.5, 0]), eye([2.9, 0.3, 0.2])]
+    assert S.nearest_views(refs, eye([3, 0.2, 0]), np.zeros(3), 2) == (0, 4)
+    assert S.nearest_views(refs, eye([0.2, 3, 0]), np.zeros(3), 1) == (1,)

@@ -16,15 +16,48 @@ ASSET_DIR = Path(__file__).resolve().parents[1] / "assets" / "checkpoints"
 """Folder of the shipped checkpoints (inside the package, so the extension zip carries it)."""
 DEFAULT_NAME = "mrvm_shapenet13_all"
 """Stem of the default checkpoint: ``<stem>.safetensors`` (weights + config) and ``<stem>.json`` (run config)."""
+SHIPPED = {"nerformer_mrvm": DEFAULT_NAME, "gpnr": "gpnr_shapenet13_all"}
+"""Stem of the shipped checkpoint of each model kind (the first is the default)."""
+
+
+FIGURES = {
+    "nerformer_mrvm": "20.5 dB / LPIPS 0.245 with 2 views (64 px test objects); ~1 s per 128 px view on 2 CPU cores",
+}
+"""What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details)."""
+
+
+def shipped_checkpoint(kind: str | None = None) -> Path:
+    """Path of the shipped model file of ``kind`` (None = the default model); :class:`InputError` if this copy
+    of the package lacks it or ships no model of that kind."""
+    from .registry import kind as kind_of_name
+
+    k = kind_of_name(kind).name
+    if k not in SHIPPED:
+        raise InputError(f"no {k} model is shipped; pass --checkpoint or train one with `python -m blender_mrvm train`")
+    p = ASSET_DIR / f"{SHIPPED[k]}.safetensors"
+    if not p.is_file():
+        what = "default checkpoint" if k == "nerformer_mrvm" else f"{k} checkpoint"
+        raise InputError(f"the shipped {what} {p} is missing (a partial install?); "
+                         f"pass --checkpoint or train one with `python -m blender_mrvm train`")
+    return p
+
+
+def shipped_or_none(kind: str | None = None) -> Path | None:
+    """:func:`shipped_checkpoint`, or None when this copy lacks it (for the panel and the add-on's checks)."""
+    try:
+        return shipped_checkpoint(kind)
+    except InputError:
+        return None
+
+
+def shipped_kinds() -> list[str]:
+    """The model kinds whose shipped checkpoint this copy of the package has."""
+    return [k for k, stem in SHIPPED.items() if (ASSET_DIR / f"{stem}.safetensors").is_file()]
 
 
 def default_checkpoint() -> Path:
     """Path of the shipped default model file; :class:`InputError` if this copy of the package lacks it."""
-    p = ASSET_DIR / f"{DEFAULT_NAME}.safetensors"
-    if not p.is_file():
-        raise InputError(f"the shipped default checkpoint {p} is missing (a partial install?); "
-                         f"pass --checkpoint or train one with `python -m blender_mrvm train`")
-    return p
+    return shipped_checkpoint(None)
 
 
 def default_run_config() -> Path:
@@ -34,9 +67,13 @@ def default_run_config() -> Path:
 
 def resolve_checkpoint(path) -> Path:
     """The one fallback rule for a checkpoint argument: None, '' or 'shipped' = the shipped default model
-    (:func:`default_checkpoint`); anything else is that path, which must exist. InputError otherwise."""
-    if path is None or str(path).strip() == "" or str(path).strip().lower() == "shipped":
+    (:func:`default_checkpoint`), 'shipped:<kind>' = the shipped model of that kind (e.g. shipped:gpnr);
+    anything else is that path, which must exist. InputError otherwise."""
+    raw = "" if path is None else str(path).strip()
+    if raw == "" or raw.lower() == "shipped":
         return default_checkpoint()
+    if raw.lower().startswith("shipped:"):
+        return shipped_checkpoint(raw.split(":", 1)[1])
     p = Path(path).expanduser()
     if not p.exists():
         raise InputError(f"checkpoint {p} does not exist")

@@ -59,14 +59,12 @@ class SynthesisJob:
     """The synthesize command's --ref-size: 0 auto, -1 as they are, N pixels on the longer side."""
 
 
-def default_checkpoint() -> Path | None:
-    """The model shipped with the add-on (``models.pretrained``), or None when this copy has none."""
-    from ..models import pretrained
+def default_checkpoint(kind: str | None = None) -> Path | None:
+    """The model of ``kind`` shipped with the add-on (``models.pretrained``; None = the default model), or
+    None when this copy has none."""
+    from ..models.pretrained import shipped_or_none
 
-    try:
-        return pretrained.default_checkpoint()
-    except InputError:
-        return None
+    return shipped_or_none(kind)
 
 
 def model_available() -> bool:
@@ -94,10 +92,10 @@ def _checkpoint(context, p) -> Path:
         if not ck.exists():
             raise InputError(f"the checkpoint folder set in the add-on preferences does not exist: {ck}")
         return ck
-    ck = default_checkpoint()
+    ck = default_checkpoint(p.shipped_model)
     if ck is None:
-        raise InputError("no checkpoint chosen, and this version ships no trained model yet: pick a checkpoint "
-                         "(model.safetensors written by `python -m blender_mrvm train`)")
+        raise InputError(f"no checkpoint chosen, and this copy ships no {p.shipped_model} model: pick a checkpoint "
+                         "(model.safetensors written by `python -m blender_mrvm train`) or another shipped model")
     return ck
 
 

@@ -6,9 +6,9 @@ the step, loss and PSNR in the panel and status bar, Esc interrupts the worker (
 so far are kept, and training again continues from the last one); ``execute`` runs it to the end.
 
 A new run starts from the shipped model (the default), from another checkpoint, or from a random
-start ("Start from"). Starting from a checkpoint fine-tunes it: its model config and weights, no
-MRVM masking phase (the paper pretrains with masking, then finetunes without), and a lower peak
-learning rate (:data:`FINETUNE_LR`). New runs on our rendered datasets (which carry object masks)
+start ("Start from"). Starting from a checkpoint fine-tunes it: its model config and weights, with
+the trainer's fine-tuning policy (``training.config.FINETUNE``: no MRVM masking phase, a lower peak
+learning rate), the same as ``train --init`` on the command line. New runs on our rendered datasets (which carry object masks)
 add the opacity loss (:data:`OPACITY_WEIGHT`). With "Continue run" on and a run already in the run folder,
 the trainer resumes it instead (weights, optimizer, schedule and random state) and trains up to the
 iteration count, on whatever dataset is chosen now. When it finishes, the run folder is picked as
@@ -33,10 +33,6 @@ if TYPE_CHECKING:
     from ..progress import ProgressGen
 
 TRAIN_COMMAND = "train"
-FINETUNE_LR = 1e-4
-"""Peak learning rate when fine-tuning a checkpoint (a new run uses the trainer's 5e-4)."""
-FINETUNE_WARMUP = 50
-"""Warm-up steps when fine-tuning (at most a tenth of the run)."""
 OPACITY_WEIGHT = 0.1
 """Opacity (mask) loss weight for new runs on our rendered datasets (they have object masks; the
 shipped model was fine-tuned with it, which keeps the image planes' alpha free of haze)."""
@@ -109,12 +105,11 @@ def run_model_name(run_dir: Path) -> str | None:
 def init_checkpoint(p) -> tuple[Path, dict]:
     """(model file, metadata) to fine-tune (Start from: shipped model or checkpoint), checked without torch."""
     from ..models.checkpoint_files import checked_header
-    from .synthesize import default_checkpoint
 
     if p.start_from == "SHIPPED":
-        ck = default_checkpoint()
-        if ck is None:
-            raise InputError("this copy of the add-on ships no trained model: start from a checkpoint or a new model")
+        from ..models.pretrained import shipped_checkpoint
+
+        ck = shipped_checkpoint(p.model_kind)
     else:
         ck = _abs(p.init_checkpoint, "checkpoint to fine-tune")
         if not ck.exists():
@@ -137,10 +132,11 @@ def plan_from_props(context) -> TrainJob:
     running = run_config(run_dir) if p.resume else None
     if running is not None:  # continue the run in the folder: its model and its schedule
         name = str(running["model"]["config"]["name"])
-        if p.start_from == "NEW" and name != p.preset:
-            raise InputError(f"the run folder holds a {name!r} model; choose that model to continue it, "
+        kind = str(running["model"].get("kind") or "nerformer_mrvm")
+        if p.start_from == "NEW" and (name != p.preset or kind != p.model_kind):
+            raise InputError(f"the run folder holds a {kind} {name!r} model; choose that model to continue it, "
                              "a new run folder, or turn off Continue run")
-        model = {"config": running["model"]["config"]}
+        model = {"kind": kind, "config": running["model"]["config"]}
         base = {k: v for k, v in running.get("train", {}).items() if k in CONTINUED_SETTINGS}
     elif p.start_from != "NEW":
         from ..models.checkpoint_files import model_name
@@ -148,7 +144,12 @@ def plan_from_props(context) -> TrainJob:
         init, meta = init_checkpoint(p)  # fine-tune: the checkpoint's own model
         name, model = model_name(meta) or "?", {}
     else:
-        name, model = p.preset, {"preset": p.preset}
+        from ..models import registry
+
+        if p.preset not in registry.presets(p.model_kind):
+            raise InputError(f"the {registry.kind(p.model_kind).title} model has no {p.preset!r} size; choose one of "
+                             f"{', '.join(registry.presets(p.model_kind))}")
+        name, model = p.preset, {"kind": p.model_kind, "preset": p.preset}
     pr = P.get(context)
     dev = (pr.device if pr else "AUTO").lower()
     return TrainJob(data, run_dir, name, model, init, base, int(p.iterations), int(p.checkpoint_every),
@@ -178,8 +179,7 @@ def write_job(job: TrainJob, job_dir: Path) -> list[str]:
 
         train["opacity_weight"] = OPACITY_WEIGHT if (job.data / ROOT_MANIFEST).is_file() else 0.0
     if job.init_checkpoint is not None:  # used only when the run folder has no checkpoint to resume
-        train.update(init_checkpoint=str(job.init_checkpoint), pretrain_frac=0.0, lr=FINETUNE_LR,
-                     lr_warmup=min(FINETUNE_WARMUP, max(1, job.iterations // 10)))
+        train["init_checkpoint"] = str(job.init_checkpoint)  # the trainer's fine-tuning policy applies
     doc = {"train": train}
     if job.model:
         doc["model"] = job.model

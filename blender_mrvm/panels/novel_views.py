@@ -53,8 +53,10 @@ class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
         col.prop(p, "start_from")
         if p.start_from == "CHECKPOINT":
             col.prop(p, "init_checkpoint")
-        elif p.start_from == "NEW":
-            col.prop(p, "preset")
+        else:
+            col.prop(p, "model_kind")
+            if p.start_from == "NEW":
+                col.prop(p, "preset")
         col.prop(p, "iterations")
         col.prop(p, "checkpoint_every")
         col.prop(p, "rays_per_object")
@@ -112,15 +114,20 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
         col.prop(p, "checkpoint")
         if not p.checkpoint.strip():
             from .. import prefs as P
-            from ..operators.synthesize import default_checkpoint
+            from ..models.pretrained import shipped_or_none
 
             pr = P.get(context)
             if pr is not None and pr.checkpoint_dir.strip():
                 col.label(text="Model: the checkpoint set in the preferences", icon="INFO")
-            elif default_checkpoint() is not None:
-                col.label(text=f"Model: shipped ({default_checkpoint().stem})", icon="INFO")
             else:
-                col.label(text="No shipped model in this copy: choose a checkpoint", icon="ERROR")
+                from ..models.pretrained import FIGURES
+
+                col.prop(p, "shipped_model")
+                ck = shipped_or_none(p.shipped_model)
+                if ck is not None:
+                    col.label(text=f"{ck.stem}: {FIGURES.get(p.shipped_model, 'not measured')}", icon="INFO")
+                else:
+                    col.label(text="Not in this copy: choose a checkpoint or the other model", icon="ERROR")
         col.prop(p, "device")
         col.prop(p, "reference_sizing")
         if p.reference_sizing == "CUSTOM":

@@ -96,6 +96,28 @@ class References:
     bbox_source: str
     """Where the box came from."""
 
+    def subset(self, keep: Sequence[int]) -> "References":
+        """The references at positions ``keep``."""
+        keep = list(keep)
+        return References(self.folder, tuple(self.views[k] for k in keep), self.images[keep],
+                          [self.c2w[k] for k in keep], [self.intrinsics[k] for k in keep], self.bbox, self.bbox_source)
+
+
+def nearest_views(ref_c2w: Sequence[np.ndarray], target_c2w: np.ndarray, centre, k: int) -> tuple[int, ...]:
+    """Positions (sorted) of the ``k`` reference cameras nearest the target: by the angle between their
+    directions from the object's centre, plus the log-ratio of their distances to it (a view from the
+    same side at the same distance is nearest)."""
+    c = np.asarray(centre, np.float64)
+    tv = C.as_pose(target_c2w)[:3, 3] - c
+    td = np.linalg.norm(tv)
+    scores = []
+    for i, p in enumerate(ref_c2w):
+        rv = C.as_pose(p)[:3, 3] - c
+        rd = np.linalg.norm(rv)
+        cos = float(np.clip(rv @ tv / max(rd * td, 1e-12), -1.0, 1.0))
+        scores.append((np.arccos(cos) + abs(np.log(max(rd, 1e-12) / max(td, 1e-12))), i))
+    return tuple(sorted(i for _, i in sorted(scores)[:k]))
+
 
 # ---------------------------------------------------------------------------------------------
 # Inputs
@@ -415,9 +437,16 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     depth = depth_wanted if cfg.depth is None else bool(cfg.depth)
     size, max_size = reference_sizes(cfg.ref_size, cfg.checkpoint)
     refs = load_references(Path(cfg.references), tuple(cfg.views), size, cfg.bbox, max_size)
+    side = max(refs.intrinsics[0].width, refs.intrinsics[0].height)
+    if cfg.ref_size == 0 and max_size and side < max_size:
+        raise InputError(f"the reference images are {refs.intrinsics[0].width}x{refs.intrinsics[0].height}, smaller than "
+                         f"the {max_size} px this model was trained on; pass --ref-size {max_size} to upsample them "
+                         "or --ref-size -1 to use them as they are")
     device = resolve_device(cfg.device)
     model, mcfg, meta, ck_path = load_checkpoint(cfg.checkpoint, device)
-    model.check_reference_count(len(refs.views))
+    if len(refs.views) < model.min_ref_views:
+        model.check_reference_count(len(refs.views))
+    per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
     chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
     out = Path(cfg.out)
     _check_out(out)
@@ -427,7 +456,17 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
                                reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height])
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
-    ctx, ns = encode_references(model, refs, device)
+    encoded: dict[tuple[int, ...], Any] = {}
+
+    def context_for(target):
+        keep = tuple(range(len(refs.views)))
+        if per_target:
+            keep = nearest_views(refs.c2w, target.c2w_opencv, 0.5 * (refs.bbox[0] + refs.bbox[1]), model.max_ref_views)
+        if keep not in encoded:
+            encoded.clear()
+            encoded[keep] = encode_references(model, refs.subset(keep))
+        return encoded[keep], keep
+
     base = out.parent if str(out.parent) else Path(".")
     base.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=base))
@@ -435,6 +474,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     try:
         for i, t in enumerate(targets):
             ts = time.perf_counter()
+            (ctx, ns), used = context_for(t)
             gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device)
             msg = f"view {i + 1}/{len(targets)} ({t.name})"
             while True:
@@ -451,7 +491,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                 files["depth"] = t.depth_path(i)
             summary.targets.append({"name": t.name, **files, "width": t.intrinsics.width,
                                     "height": t.intrinsics.height, "rays": res["rays"],
-                                    "evaluated_rays": res["evaluated"], "seconds": time.perf_counter() - ts})
+                                    "evaluated_rays": res["evaluated"], "seconds": time.perf_counter() - ts,
+                                    "reference_views": [int(refs.views[k]) for k in used]})
         summary.seconds = time.perf_counter() - t0
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg))
         if Path(cfg.targets).resolve() != (out / "targets.json").resolve():

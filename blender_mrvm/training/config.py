@@ -105,9 +105,12 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     m = data.get("model", {})
     if not isinstance(m, dict):
         raise InputError(f"{path}: 'model' must be a mapping")
-    tcfg = from_dict(TrainConfig, data.get("train", {}))
-    if overrides:
-        tcfg = merge(tcfg, {k: v for k, v in overrides.items() if v is not None})
+    section = data.get("train", {})
+    tcfg = from_dict(TrainConfig, section)
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    if given:
+        tcfg = merge(tcfg, given)
+    tcfg = finetune_policy(tcfg, set(section) | set(given))
     validate(tcfg)
     from ..models import registry
 
@@ -125,6 +128,23 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     else:
         mcfg = registry.build_config(k, m.get("preset", preset), m.get("overrides"))
     return mcfg, tcfg
+
+
+FINETUNE = {"pretrain_frac": 0.0, "lr": 1e-4, "lr_warmup": 50}
+"""The fine-tuning policy: a run that starts from a checkpoint (``init_checkpoint``) has no MRVM masking
+phase (the paper pretrains with masking, then finetunes without), a lower peak learning rate, and a
+short warm-up (at most a tenth of the run). Settings a run config names itself win."""
+
+
+def finetune_policy(tcfg: TrainConfig, named: set[str] = frozenset()) -> TrainConfig:
+    """``tcfg`` with the fine-tuning policy (:data:`FINETUNE`) applied to the settings not in ``named``,
+    when it fine-tunes a checkpoint; unchanged otherwise. The one owner of the policy: the CLI's
+    ``train --init`` and the panel's "Start from" both go through it."""
+    if not tcfg.init_checkpoint:
+        return tcfg
+    pol = dict(FINETUNE)
+    pol["lr_warmup"] = min(FINETUNE["lr_warmup"], max(1, tcfg.iterations // 10))
+    return replace(tcfg, **{k: v for k, v in pol.items() if k not in named})
 
 
 def resolve_init_checkpoint(name: str) -> Path:

@@ -208,7 +208,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 g["lr"] = lr
             phase = model.train_phase(step, cfg)
             opt.zero_grad(set_to_none=True)
-            tot = {"loss": 0.0, "mse_fine": 0.0, "mse_coarse": 0.0, "opacity": 0.0, "hit": 0.0,
+            tot = {"loss": 0.0, "mse_fine": 0.0, "opacity": 0.0, "hit": 0.0,
                    **{k: 0.0 for k in phase.loss_weights}}
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
