@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 import pytest
+import numpy as np
 import torch
 
 from blender_mrvm.errors import InputError
@@ -30,6 +31,24 @@ def test_psnr_ssim_known_values():
     # constant images: SSIM reduces to the luminance term (2 m1 m2 + c1) / (m1^2 + m2^2 + c1)
     a, b = torch.full((16, 16, 3), 0.2), torch.full((16, 16, 3), 0.6)
     assert ssim(a, b).item() == pytest.approx((2 * 0.12 + 1e-4) / (0.04 + 0.36 + 1e-4), rel=3e-4)
+
+
+def test_ssim_matches_scikit_image_defaults_and_gauss_is_labelled():
+    """The headline SSIM is scikit-image's structural_similarity with its defaults (pixelNeRF's call); the
+    Gaussian one matches scikit-image's gaussian_weights=True, sigma 1.5, population covariance."""
+    from skimage.metrics import structural_similarity
+
+    from blender_mrvm.models.metrics import ssim_gauss
+
+    rng = np.random.default_rng(3)
+    for shape in ((64, 64, 3), (40, 57, 3)):
+        a = rng.random(shape).astype(np.float32)
+        b = np.clip(a + rng.normal(0, 0.1, shape), 0, 1).astype(np.float32)
+        ref = structural_similarity(a, b, channel_axis=-1, data_range=1.0)
+        assert ssim(torch.from_numpy(a), torch.from_numpy(b)).item() == pytest.approx(ref, abs=2e-5)
+        ref_g = structural_similarity(a, b, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5,
+                                      use_sample_covariance=False)
+        assert ssim_gauss(torch.from_numpy(a), torch.from_numpy(b)).item() == pytest.approx(ref_g, abs=2e-5)
 
 
 def test_missing_weights_error_names_setup_command(tmp_path, monkeypatch):

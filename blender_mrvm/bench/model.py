@@ -22,7 +22,8 @@ from . import write_csv
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="bench_out", help="folder for bench_model.csv")
-    p.add_argument("--presets", default="fast,balanced,accurate", help="comma-separated model presets")
+    p.add_argument("--presets", default="fast,balanced,accurate",
+                   help="comma-separated model presets; KIND:PRESET for another model kind (e.g. gpnr:fast)")
     p.add_argument("--views", default="1,2", help="comma-separated reference-view counts")
     p.add_argument("--sizes", default="128", help="comma-separated square render sizes")
     p.add_argument("--repeats", type=int, default=3, help="timed renders per configuration (median reported)")
@@ -34,8 +35,7 @@ def run(args) -> int:
     import torch
 
     from ..geometry import cameras
-    from ..models.config import model_config
-    from ..models.model import GeneralizableNeRF
+    from ..models import registry
 
     torch.set_num_threads(args.threads)
     out = Path(args.out)
@@ -45,9 +45,10 @@ def run(args) -> int:
                                                                    [-0.8, -0.5, 0.2])]
     bbox = (np.full(3, -0.4), np.full(3, 0.4))
     for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
-        cfg = model_config(preset)
+        kind, _, name = preset.rpartition(":")
+        cfg = registry.build_config(kind or None, name)
         torch.manual_seed(0)
-        model = GeneralizableNeRF(cfg).eval()
+        model = registry.build_model(cfg).eval()
         n_params = sum(p.numel() for p in model.parameters())
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
@@ -62,10 +63,9 @@ def run(args) -> int:
                     res = model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)
                     times.append(time.perf_counter() - t0)
                 sec = statistics.median(times)
-                sc = cfg.sampler
-                pts_ray = sc.n_coarse + sc.n_fine + (sc.n_coarse if sc.fine_includes_coarse else 0)
+                pts_ray = points_per_ray(cfg)
                 rows.append({
-                    "preset": preset, "size": size, "ref_views": nv, "threads": args.threads, "params": n_params,
+                    "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_views": nv, "threads": args.threads, "params": n_params,
                     "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4),
                     "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
                     "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
@@ -77,3 +77,12 @@ def run(args) -> int:
                 print(f"{preset:9s} {size}px {nv} ref(s): {sec:.3f} s/view, {res['evaluated']}/{res['rays']} rays evaluated")
     write_csv(out / "bench_model.csv", rows)
     return 0
+
+
+def points_per_ray(cfg) -> int:
+    """Samples each evaluated ray costs: coarse + fine (+ coarse again) for NeRFormer, the epipolar depths
+    for GPNR (each projected into every reference view)."""
+    if hasattr(cfg, "sampler"):
+        sc = cfg.sampler
+        return sc.n_coarse + sc.n_fine + (sc.n_coarse if sc.fine_includes_coarse else 0)
+    return int(cfg.n_samples)

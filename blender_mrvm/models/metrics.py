@@ -1,4 +1,9 @@
-"""Image metrics: PSNR, SSIM (Gaussian 11x11, sigma 1.5, as skimage/pixelNeRF) and LPIPS-VGG (v0.1).
+"""Image metrics: PSNR, SSIM and LPIPS-VGG (v0.1).
+
+SSIM comes in two conventions. :func:`ssim` is pixelNeRF's (it calls scikit-image's
+``structural_similarity`` with its defaults: 7x7 uniform window, sample covariance, data range 1), the
+headline figure in reports; :func:`ssim_gauss` is Wang et al.'s Gaussian 11x11 window (sigma 1.5,
+population covariance), reported as ``ssim_gauss``. They differ by about 0.02 on typical renders.
 
 LPIPS uses the standard ImageNet VGG16 backbone and the LPIPS v0.1 linear layers, both loaded from
 the offline weight cache (``python -m blender_mrvm fetch-weights``); a missing cache raises an
@@ -33,12 +38,27 @@ def _gauss(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
     return g / g.sum()
 
 
-def ssim(pred, gt, size: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Per-image mean SSIM (N,) over RGB channels (valid-region Gaussian windows, data range 1)."""
-    p, g = _nchw(pred), _nchw(gt)
-    C = p.shape[1]
+def ssim(pred, gt, size: int = 7) -> torch.Tensor:
+    """Per-image mean SSIM (N,) over RGB channels in scikit-image's default convention (pixelNeRF's):
+    uniform ``size`` x ``size`` window, sample covariance (N / (N - 1)), data range 1, the mean over the
+    valid region (scikit-image's crop of the padded border)."""
+    p = _nchw(pred)
     size = min(size, p.shape[-1], p.shape[-2])
-    k = _gauss(size, sigma)
+    k = torch.full((size,), 1.0 / size)
+    return _ssim(p, _nchw(gt), k, size * size / max(size * size - 1, 1))
+
+
+def ssim_gauss(pred, gt, size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Per-image mean SSIM (N,) with Wang et al.'s Gaussian window (11x11, sigma 1.5), population
+    covariance, valid region, data range 1."""
+    p = _nchw(pred)
+    size = min(size, p.shape[-1], p.shape[-2])
+    return _ssim(p, _nchw(gt), _gauss(size, sigma), 1.0)
+
+
+def _ssim(p: torch.Tensor, g: torch.Tensor, k: torch.Tensor, cov_norm: float) -> torch.Tensor:
+    C = p.shape[1]
+    size = k.numel()
     win = (k[:, None] * k[None, :]).expand(C, 1, size, size).contiguous()
 
     def filt(x):
@@ -46,9 +66,9 @@ def ssim(pred, gt, size: int = 11, sigma: float = 1.5) -> torch.Tensor:
 
     c1, c2 = 0.01 ** 2, 0.03 ** 2
     mu_p, mu_g = filt(p), filt(g)
-    s_pp = filt(p * p) - mu_p ** 2
-    s_gg = filt(g * g) - mu_g ** 2
-    s_pg = filt(p * g) - mu_p * mu_g
+    s_pp = cov_norm * (filt(p * p) - mu_p ** 2)
+    s_gg = cov_norm * (filt(g * g) - mu_g ** 2)
+    s_pg = cov_norm * (filt(p * g) - mu_p * mu_g)
     m = ((2 * mu_p * mu_g + c1) * (2 * s_pg + c2)) / ((mu_p ** 2 + mu_g ** 2 + c1) * (s_pp + s_gg + c2))
     return m.flatten(1).mean(1)
 

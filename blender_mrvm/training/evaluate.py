@@ -23,11 +23,13 @@ import torch
 from ..datasets import format as F
 from ..datasets.loaders import ObjectScene
 from ..errors import InputError
-from ..models.metrics import psnr, ssim
+from ..models.metrics import psnr, ssim, ssim_gauss
 from ..progress import Progress
 from ..synthesis import reference_shape, resize_view
 
-METRICS = ("psnr", "ssim", "lpips")
+METRICS = ("psnr", "ssim", "lpips", "ssim_gauss")
+"""Reported metrics: ``ssim`` is pixelNeRF's convention (scikit-image's defaults), ``ssim_gauss`` the
+Gaussian-window SSIM (what reports before session 3 called ``ssim``)."""
 PROTOCOL_FILE = "eval_views.json"
 """Protocol file under ``<root>/splits/`` (written by ``make-shapenet``)."""
 SRN_INPUT_VIEWS = {1: [64], 2: [64, 104]}
@@ -80,7 +82,7 @@ def _nearest_ref(scene: ObjectScene, refs: Sequence[int], tgt: int) -> int:
 
 
 def _scores(pred: torch.Tensor, gt: torch.Tensor, lpips) -> dict[str, float]:
-    out = {"psnr": float(psnr(pred, gt)[0]), "ssim": float(ssim(pred, gt)[0])}
+    out = {"psnr": float(psnr(pred, gt)[0]), "ssim": float(ssim(pred, gt)[0]), "ssim_gauss": float(ssim_gauss(pred, gt)[0])}
     if lpips is not None:
         out["lpips"] = float(lpips(pred, gt)[0])
     return out
@@ -234,16 +236,20 @@ def markdown_table(report: dict) -> str:
     def f(v, nd):
         return "-" if v is None else f"{v:.{nd}f}"
 
-    head = ("| category | views | PSNR | SSIM | LPIPS | nearest-view PSNR / SSIM / LPIPS | mean-colour PSNR / SSIM / LPIPS "
-            "| PSNR gain over better baseline |\n|---|---:|---:|---:|---:|---:|---:|---:|\n")
+    head = ("| category | views | PSNR | SSIM | LPIPS | SSIM (Gaussian) | nearest-view PSNR / SSIM / LPIPS "
+            "| mean-colour PSNR / SSIM / LPIPS | PSNR gain over better baseline |\n"
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n")
     rows = []
     for name, b in [*report["per_category"].items(), ("**overall**", report["overall"])]:
         bn, bm = b["baseline_nearest"], b["baseline_mean"]
         rows.append(f"| {name} | {b['n']} | {f(b['psnr'], 2)} | {f(b['ssim'], 3)} | {f(b['lpips'], 3)} "
+                    f"| {f(b.get('ssim_gauss'), 3)} "
                     f"| {f(bn['psnr'], 2)} / {f(bn['ssim'], 3)} / {f(bn['lpips'], 3)} "
                     f"| {f(bm['psnr'], 2)} / {f(bm['ssim'], 3)} / {f(bm['lpips'], 3)} "
                     f"| {f(b.get('psnr_gain_over_best_baseline'), 2)} |")
     text = head + "\n".join(rows) + "\n"
+    text += ("\nSSIM: scikit-image's defaults (7x7 uniform window, sample covariance), as pixelNeRF reports it; "
+             "SSIM (Gaussian): 11x11 Gaussian window, sigma 1.5.\n")
     a = report["overall"].get("alpha")
     if a:
         text += (f"\nOpacity (the image planes' alpha) against the object masks: mean {a['background']:.3f} on "
