@@ -131,7 +131,8 @@ class GeneralizableNeRF(RayModel):
             g = self._gather(ctx, o_c, d_c, dirs, t_all)
             point_mask = view_mask = None
             if mask_views:
-                point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), self.cfg.mrvm, generator)
+                point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), self.cfg.mrvm, generator,
+                                                      device=t_all.device)
             fine = self._branch(self.fine, g, t_all, far, view_mask)
             out["fine"] = fine
             if mask_views:

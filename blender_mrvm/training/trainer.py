@@ -172,7 +172,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     scaler = torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
     batcher = RayBatcher(scenes, cfg, model.box_padding, cfg.seed * 7919 + dd.rank)
-    gen = torch.Generator().manual_seed(cfg.seed * 104729 + dd.rank)
+    # The sampling generator lives where the model samples (a CPU generator cannot feed CUDA tensors).
+    gen = torch.Generator(device=torch.device(device)).manual_seed(cfg.seed * 104729 + dd.rank)
     torch.manual_seed(cfg.seed + dd.rank)
     start = 0
     init_from = None
