@@ -113,5 +113,5 @@ def make_rays(intr: cameras.Intrinsics, c2w_norm: np.ndarray, pixels: np.ndarray
     far = np.where(hit, tf - tn, 0.0)
     entry = o + tn[:, None] * d
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
-    up = np.broadcast_to(cameras.camera_up(c2w_norm), d.shape)
+    up = np.broadcast_to(cameras.camera_up(c2w_norm), d.shape).copy()
     return RayBundle(t(entry), t(d), t(far), t(hit), t(tn), t(up))
