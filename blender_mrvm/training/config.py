@@ -19,7 +19,9 @@ from ..models.config import ModelConfig, from_dict, merge, model_config, to_dict
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """One training run."""
+    """One training run (checked when built: a bad value is a one-line InputError naming the field)."""
+
+    config_label = "train"  # not a field: how messages name the fields ("train.lr")
 
     data: str = ""
     """Dataset root (ours, SRN, NMR/DVR or NeRF-synthetic)."""
@@ -81,9 +83,14 @@ class TrainConfig:
     afresh; the model config is the checkpoint's unless the run config names one (it must match).
     Ignored when the run folder already has a checkpoint to resume from."""
 
+    def __post_init__(self) -> None:
+        validate(self)
 
-def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) -> tuple[ModelConfig, TrainConfig]:
-    """Read a run-config JSON (or none) and apply ``overrides`` to the train section."""
+
+def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
+                    preset: str | None = None) -> tuple[ModelConfig, TrainConfig]:
+    """Read a run-config JSON (or none) and apply ``overrides`` to the train section. ``preset`` (the
+    CLI's ``--preset``) names the model when the config names none; InputError when it names another."""
     data: dict[str, Any] = {}
     if path is not None:
         path = Path(path)
@@ -97,6 +104,16 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None) 
     if unknown:
         raise InputError(f"{path}: unknown top-level keys {sorted(unknown)} (expected 'model' and 'train')")
     m = data.get("model", {})
+    if not isinstance(m, dict) or not isinstance(data.get("train", {}), dict):
+        raise InputError(f"{path}: 'model' and 'train' must be JSON objects")
+    if preset:
+        full = m.get("config") if isinstance(m.get("config"), dict) else {}
+        named = m.get("preset") or full.get("name")
+        if m and named != preset:
+            raise InputError(f"--preset {preset} conflicts with the config's own model "
+                             f"({named or 'a custom model section'}); drop --preset or the config's model section")
+        if not m:
+            m = {"preset": preset}
     tcfg = from_dict(TrainConfig, data.get("train", {}))
     if overrides:
         tcfg = merge(tcfg, {k: v for k, v in overrides.items() if v is not None})
@@ -131,6 +148,23 @@ def init_model_config(name: str) -> ModelConfig:
 
 
 def validate(c: TrainConfig) -> None:
+    """Types, then ranges (``TrainConfig.__post_init__`` runs it; kept callable for old callers)."""
+    from .. import validation as V
+
+    V.check_types(c)
+    for name in ("iterations", "log_every", "ckpt_every"):
+        V.at_least(c, name, 1)
+    for name in ("max_objects", "seed", "lr_warmup", "keep_checkpoints", "threads"):
+        V.at_least(c, name, 0)
+    V.at_least(c, "lr", 0.0)  # 0 is a frozen run (tests); NaN/inf are refused by check_types
+    V.in_range(c, "lr_final_frac", 0.0, 1.0)
+    for name in ("weight_decay", "grad_clip", "coarse_weight"):
+        V.at_least(c, name, 0.0)
+    V.check_device_name("train.device", c.device, allow_auto=False)
+    if c.data_format not in ("", "ours", "srn", "nmr", "nerf"):
+        raise InputError(f"train.data_format must be '', ours, srn, nmr or nerf, got {c.data_format!r}")
+    if not c.split.strip():
+        raise InputError("train.split is empty")
     if c.iterations < 1:
         raise InputError(f"iterations must be >= 1, got {c.iterations}")
     if not 1 <= c.min_ref_views <= c.max_ref_views:

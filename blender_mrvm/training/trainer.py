@@ -155,9 +155,14 @@ def _set_rng_state(batcher: RayBatcher, gen: torch.Generator, st: dict[str, Any]
     torch.set_rng_state(st["torch_global"])
 
 
-def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None):
-    """Progress generator; returns a summary dict (final step, last losses, checkpoint path)."""
+def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None,
+          force: bool = False):
+    """Progress generator; returns a summary dict (final step, last losses, checkpoint path).
+    ``force`` lets a run without ``resume`` replace the run folder's old run (``run_folder.resume_point``)."""
+    from . import run_folder
+
     device = cfg.device
+    run_folder.check_device(device)
     dd = init_distributed(device)
     if device.startswith("cuda") and dd.world > 1:
         device = f"cuda:{dd.local_rank}"
@@ -177,10 +182,9 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
     torch.manual_seed(cfg.seed + dd.rank)
     start = 0
     init_from = None
-    found = ckpt.find_checkpoint(run_dir) if resume else None
-    if found is not None and (found / ckpt.STATE_FILE).is_file():
+    found, state = run_folder.resume_point(run_dir, resume, force, dd.main)
+    if found is not None:
         ckpt.load_weights(model, found / ckpt.MODEL_FILE, device)
-        state = ckpt.load_trainer_state(found)
         if state.get("world_size", 1) != dd.world:
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
                              f"resume with the same number (got {dd.world})")
@@ -247,6 +251,7 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
                     tot["hit"] += float(hit.float().mean()) / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
                 tot["loss"] += float(loss.detach())
+                run_folder.check_loss(tot["loss"], step + 1, saved or found)
                 (scaler.scale(loss) if scaler else loss).backward()
             if dd.world > 1:
                 _allreduce_grads(params, dd.world)
