@@ -138,3 +138,31 @@ def check_count(label: str, value: int, low: int = 0, high: int | None = None) -
     if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
         rng = f"at least {low}" if high is None else f"between {low} and {high}"
         raise InputError(f"{label} must be {rng}, got {value!r}")
+
+
+def check_types_deep(obj: Any) -> None:
+    """:func:`check_types` on a dataclass and every dataclass nested in it."""
+    from dataclasses import is_dataclass
+
+    check_types(obj)
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if is_dataclass(v) and not isinstance(v, type):
+            check_types_deep(v)
+
+
+def check_sizes(obj: Any, label: str = "") -> None:
+    """Every int field of a (nested) config dataclass is >= 0 (sizes and counts), every int in an int
+    tuple >= 1 (layer widths); InputError naming the first that is not."""
+    from dataclasses import is_dataclass
+
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        name = f"{label}{f.name}"
+        if is_dataclass(v) and not isinstance(v, type):
+            check_sizes(v, name + ".")
+        elif isinstance(v, int) and not isinstance(v, bool) and v < 0:
+            raise InputError(f"model {name} must be at least 0, got {v}")
+        elif isinstance(v, tuple) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v) \
+                and min(v) < 1:
+            raise InputError(f"model {name} must hold sizes of at least 1, got {list(v)}")

@@ -116,6 +116,10 @@ def model_file_of(path: Path) -> Path:
     ck = find_checkpoint(path)
     model_file = path if path.is_file() else (ck / MODEL_FILE if ck else None)
     if model_file is None or not Path(model_file).is_file():
+        damaged = [c for base in (path / "checkpoints", path) for c in checkpoint_folders(base)]
+        if damaged:
+            raise InputError(f"no complete checkpoint at {path}: {damaged[0].name} is damaged "
+                             f"({checkpoint_problem(damaged[0], need_state=False)})")
         raise InputError(f"no checkpoint found at {path}")
     return Path(model_file)
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..models.config import ModelConfig, from_dict, merge, model_config, to_dict
+from ..models.config import validate as validate_model
 
 
 @dataclass(frozen=True)
@@ -100,6 +101,9 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
             data = json.loads(path.read_text())
         except json.JSONDecodeError as e:
             raise InputError(f"{path}: not valid JSON ({e})") from e
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: a run config is a JSON object ({{'model': ..., 'train': ...}}), got a "
+                         f"{type(data).__name__}")
     unknown = set(data) - {"model", "train"}
     if unknown:
         raise InputError(f"{path}: unknown top-level keys {sorted(unknown)} (expected 'model' and 'train')")
@@ -120,6 +124,7 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     validate(tcfg)
     if "config" in m:  # a full config (as saved in a checkpoint)
         mcfg = from_dict(ModelConfig, m["config"])
+        validate_model(mcfg)
     elif not m and tcfg.init_checkpoint:  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
     else:

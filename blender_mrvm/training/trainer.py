@@ -304,7 +304,7 @@ def init_weights(model: torch.nn.Module, model_cfg: ModelConfig, name: str, devi
     theirs = ckpt.read_model_config(model_file)
     try:
         ckpt.load_weights(model, model_file, device)
-    except InputError:
+    except ckpt.WeightsMismatch:
         raise InputError(f"init_checkpoint {model_file} holds a {theirs.name!r} model whose weights do not fit "
                          f"the run config's {model_cfg.name!r} model; leave the run config's model section out "
                          "to use the checkpoint's own") from None
