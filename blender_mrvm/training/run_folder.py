@@ -152,7 +152,7 @@ def check_device(name: str) -> None:
         raise InputError(f"device {name}: torch sees only {torch.cuda.device_count()} CUDA GPU(s)")
 
 
-def check_loss(loss: float, step: int, last_checkpoint: Path | None) -> None:
+def check_loss(loss: float, step: int, last_checkpoint: Path | None, what: str = "loss") -> None:
     """Stop training at the first step whose loss is not finite (NaN weights, NaN poses, a diverging
     learning rate): going on would only write NaN checkpoints over good ones."""
     import math
@@ -162,5 +162,5 @@ def check_loss(loss: float, step: int, last_checkpoint: Path | None) -> None:
     from ..errors import TrainingStopped
 
     kept = f"the last checkpoint ({Path(last_checkpoint).name}) is kept" if last_checkpoint else "no checkpoint was written"
-    raise TrainingStopped(f"training stopped at step {step}: the loss is {loss} (NaN or infinite weights, poses or "
+    raise TrainingStopped(f"training stopped at step {step}: the {what} is {loss} (NaN or infinite weights, poses or "
                           f"images, or a learning rate that diverges); {kept}")

@@ -251,13 +251,17 @@ def train(model_cfg: ModelConfig, cfg: TrainConfig, resume: bool = True, scenes:
                     tot["hit"] += float(hit.float().mean()) / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
                 tot["loss"] += float(loss.detach())
-                run_folder.check_loss(tot["loss"], step + 1, saved or found)
                 (scaler.scale(loss) if scaler else loss).backward()
             if dd.world > 1:
                 _allreduce_grads(params, dd.world)
             if scaler:
                 scaler.unscale_(opt)
             gnorm = torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip) if cfg.grad_clip > 0 else torch.tensor(0.0)
+            # before the update: a NaN never reaches the weights (under torchrun the all-reduced gradient
+            # norm, the same on every rank, so all stop together; fp16's scaler skips inf steps itself)
+            by_norm = dd.world > 1 and scaler is None and cfg.grad_clip > 0
+            run_folder.check_loss(float(gnorm) if by_norm else tot["loss"], step + 1, saved or found,
+                                  "gradient norm" if by_norm else "loss")
             if scaler:
                 scaler.step(opt)
                 scaler.update()
