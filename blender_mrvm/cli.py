@@ -36,8 +36,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with the CLI's one-line errors: ``error: <what>`` (and where the help is), exit 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m blender_mrvm", description=__doc__.splitlines()[0])
+    parser = Parser(prog="python -m blender_mrvm", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, (module, help_text) in COMMANDS.items():
@@ -59,6 +66,29 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted; finished work is kept", file=sys.stderr)
         return 130
+    except OSError as e:
+        msg = os_error_message(e)
+        if msg is None:
+            raise
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+
+
+DISK_ERRNOS = ("ENOSPC", "EDQUOT", "EROFS", "EFBIG")
+"""Errors of the place a command writes to, not bugs: reported in one line (files are written
+atomically, so what was finished before is whole)."""
+
+
+def os_error_message(e: OSError) -> str | None:
+    """One line for an OSError the user can fix (a full disk, a quota, a read-only file system, a
+    permission), None for others (bugs keep their traceback)."""
+    import errno
+
+    codes = {getattr(errno, n) for n in DISK_ERRNOS if hasattr(errno, n)} | {errno.EACCES, errno.EPERM}
+    if e.errno not in codes:
+        return None
+    where = f" ({e.filename})" if e.filename else ""
+    return f"{e.strerror or e}{where}; what was finished before is kept"
 
 
 def main_blender() -> int:

@@ -31,3 +31,7 @@ class Cancelled(MRVMError):
     """The user cancelled long work; what was finished is kept."""
 
     exit_code = 130
+
+
+class TrainingStopped(MRVMError):
+    """Training cannot go on (a NaN loss); the checkpoints written so far are kept."""

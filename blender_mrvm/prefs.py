@@ -9,15 +9,53 @@ from bpy.props import EnumProperty, StringProperty
 ADDON_ID = __package__
 
 
-def dependency_status(context=None):
+_status: dict = {}
+"""The last dependency report per ``python_path`` preference (``draw()`` reads only this)."""
+
+
+def _python_path(context=None) -> str:
+    prefs = get(context)
+    return prefs.python_path if prefs else ""
+
+
+def dependency_status(context=None, cached: bool = False):
     """What the worker's Python (see ``worker.choose_interpreter``) has and lacks: a ``DependencyReport``.
 
-    Probed once per interpreter file (cached; "Check again" clears the cache), without importing torch.
+    Probing starts a process (up to 30 s), so it runs at register time (in a thread), when the
+    preference changes and from "Check Again", never from ``draw()``: with ``cached`` (what panels and
+    the preferences' draw pass) this only reads the last report, a "checking" one until it is there.
     """
-    from .worker import dependency_report
+    from .worker import DependencyReport, dependency_report
 
-    prefs = get(context)
-    return dependency_report(prefs.python_path if prefs else "")
+    path = _python_path(context)
+    rep = _status.get(path)
+    if rep is None and cached:
+        return DependencyReport(None, error="", pending=True)
+    if rep is None:
+        rep = _status[path] = dependency_report(path)
+    return rep
+
+
+def refresh_dependency_status(context=None, background: bool = False) -> None:
+    """Probe the worker's Python again (now, or in a thread for register time) and cache the report."""
+    import threading
+
+    from .worker import clear_probe_cache, dependency_report
+
+    path = _python_path(context)
+
+    def work() -> None:
+        _status[path] = dependency_report(path)
+
+    clear_probe_cache()
+    if background:
+        threading.Thread(target=work, name="mrvm-dependency-probe", daemon=True).start()
+    else:
+        work()
+
+
+def _python_path_changed(self, context) -> None:
+    refresh_dependency_status(context, background=True)
 
 
 class MRVM_OT_check_dependencies(bpy.types.Operator):
@@ -27,9 +65,7 @@ class MRVM_OT_check_dependencies(bpy.types.Operator):
     bl_label = "Check Again"
 
     def execute(self, context):
-        from .worker import clear_probe_cache
-
-        clear_probe_cache()
+        refresh_dependency_status(context)
         rep = dependency_status(context)
         if rep.error or rep.missing:
             self.report({"WARNING"}, rep.error or f"missing in {rep.interpreter.path}: {', '.join(rep.missing)}")
@@ -63,7 +99,8 @@ class MRVM_AddonPreferences(bpy.types.AddonPreferences):
         ("CUDA", "CUDA", "An NVIDIA GPU"),
     ], default="AUTO")
     python_path: StringProperty(name="Worker Python", subtype="FILE_PATH", default="",
-                                description="Interpreter with torch for training and synthesis; empty = auto-detect a project .venv")
+                                description="Interpreter with torch for training and synthesis; empty = auto-detect a project .venv",
+                                update=_python_path_changed)
     checkpoint_dir: StringProperty(name="Checkpoints", subtype="DIR_PATH", default="")
     cache_dir: StringProperty(name="Cache", subtype="DIR_PATH", default="")
 
@@ -74,7 +111,7 @@ class MRVM_AddonPreferences(bpy.types.AddonPreferences):
         layout.prop(self, "checkpoint_dir")
         layout.prop(self, "cache_dir")
         box = layout.box()
-        rep = dependency_status(context)
+        rep = dependency_status(context, cached=True)  # draw() never starts a process
         for text, ok in rep.lines():
             box.label(text=text, icon="CHECKMARK" if ok else "ERROR")
         row = box.row()
@@ -96,6 +133,11 @@ classes = (MRVM_AddonPreferences, MRVM_OT_check_dependencies, MRVM_OT_copy_insta
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
+    _status.clear()
+    try:
+        refresh_dependency_status(background=True)  # panels show the report once the probe is back
+    except Exception:  # preferences not there yet (registered by hand): the first real call probes
+        pass
 
 
 def unregister() -> None:

@@ -3,7 +3,8 @@
 Long-running core functions are generators that yield :class:`Progress` events after each unit of
 work. Callers choose how to drive them:
 
-- the CLI iterates to the end with a ``tqdm`` bar (:func:`run_with_tqdm`);
+- the CLI iterates to the end with a ``tqdm`` bar (:func:`run_with_tqdm`), or, when stderr is a file
+  or a pipe (where tqdm prints nothing), with plain progress lines (:func:`progress_line`);
 - a Blender modal operator advances the generator one step per timer tick, so the UI stays
   responsive, and cancels by calling ``gen.close()``; the generator's ``finally`` blocks then
   restore whatever it changed.
@@ -100,6 +101,10 @@ def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: b
 
     if os.environ.get(PROGRESS_ENV, "").lower() == "json":
         return _run_with_json(gen, desc)
+    if disable is None and not _is_tty(sys.stderr):
+        # tqdm stays silent when stderr is a file or a pipe: print plain lines there instead
+        quiet = os.environ.get("TQDM_DISABLE", "").lower() in ("1", "true", "yes")
+        return _run_with_lines(gen, desc, unit, quiet)
     from tqdm import tqdm
 
     bar = None
@@ -122,6 +127,52 @@ def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: b
     finally:
         if bar is not None:
             bar.close()
+
+
+def _is_tty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+LINE_INTERVAL_S = 30.0
+"""Plain progress lines (output to a file or a pipe): at most one per this many seconds, plus one per 10%."""
+
+
+def progress_line(event: Progress, desc: str, unit: str, elapsed: float) -> str:
+    """``desc: 120/480 view (25%) message, 42 s`` (one line of a log)."""
+    total = f"/{event.total}" if event.total else ""
+    pct = f" ({100.0 * event.done / event.total:.0f}%)" if event.total else ""
+    msg = f" {event.message}" if event.message else ""
+    return f"{desc or 'progress'}: {event.done}{total} {unit}{pct}{msg}, {elapsed:.0f} s"
+
+
+def _run_with_lines(gen: ProgressGen, desc: str, unit: str, quiet: bool = False) -> Any:
+    """Drive ``gen`` printing :func:`progress_line` at the first event, every 10% and at least every
+    LINE_INTERVAL_S seconds, and once at the end (nothing when ``quiet``)."""
+    import time
+
+    t0 = time.monotonic()
+    last_t, last_decile, event = -1e9, -1, None
+    try:
+        while True:
+            try:
+                event = next(gen)
+            except StopIteration as stop:
+                if event is not None and not quiet:
+                    sys.stderr.write(progress_line(event, desc, unit, time.monotonic() - t0) + " (done)\n")
+                    sys.stderr.flush()
+                return stop.value
+            now = time.monotonic()
+            decile = int(10 * event.done / event.total) if event.total else -1
+            if not quiet and (now - last_t >= LINE_INTERVAL_S or decile > last_decile):
+                sys.stderr.write(progress_line(event, desc, unit, now - t0) + "\n")
+                sys.stderr.flush()
+                last_t, last_decile = now, decile
+    except KeyboardInterrupt:
+        gen.close()
+        raise
 
 
 def iter_events(gen: ProgressGen) -> Iterator[Progress]:

@@ -207,6 +207,9 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
                                  description="Target rays per object per step")
     resume: BoolProperty(name="Continue run", default=True,
                          description="Continue from the run folder's last checkpoint (fine-tune); off starts afresh")
+    overwrite_run: BoolProperty(name="Replace the run", default=False, options={"SKIP_SAVE"},
+                                description="Continue run is off and the run folder holds a run: remove its "
+                                            "checkpoints and metrics and start over (nothing is removed without this)")
     use_for_synthesis: BoolProperty(name="Use for novel views", default=True,
                                     description="When training finishes, pick its checkpoint for Synthesize novel views")
     running: BoolProperty(default=False, options={"SKIP_SAVE"})

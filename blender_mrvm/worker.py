@@ -389,6 +389,8 @@ class DependencyReport:
     """Import name -> version, or None when missing."""
     error: str = ""
     """Why no interpreter could be checked (a bad preference path, a Python that does not run)."""
+    pending: bool = False
+    """Not checked yet (the add-on probes in the background at register time)."""
 
     @property
     def missing(self) -> list[str]:
@@ -400,6 +402,8 @@ class DependencyReport:
 
     def lines(self) -> list[tuple[str, bool]]:
         """(text, ok) lines for a status box: the interpreter, each dependency, the install command."""
+        if self.pending:
+            return [("Checking the worker Python...", True)]
         if self.error:
             return [(self.error, False)]
         it = self.interpreter

@@ -321,7 +321,7 @@ def test_gpnr_trains_and_round_trips_through_checkpoints(tmp_path, spheres):
     nerf = model_config("fast", {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8}})
     with pytest.raises(InputError, match="gpnr model"):
         run_to_end(train(nerf, bad, scenes=scenes))
-    with pytest.raises(InputError, match="contradicts"):
+    with pytest.raises(InputError, match="conflicts with the config"):
         load_run_config(tmp_path / "run" / "config.json", kind="nerformer_mrvm")
 
 

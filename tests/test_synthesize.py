@@ -4,6 +4,7 @@ leave nothing behind; --blend writes a .blend whose planes sit on their cameras'
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import torch
 from blender_mrvm.cli import main
 from blender_mrvm.datasets import format as F
 from blender_mrvm.datasets.novel_views import Target, write_targets
-from blender_mrvm.errors import InputError
+from blender_mrvm.errors import InputError, OutputError
 from blender_mrvm.geometry import cameras as C
 from blender_mrvm.progress import run_to_end
 from blender_mrvm import synthesis as S
@@ -233,7 +234,10 @@ def test_cancel_leaves_nothing_and_existing_output_keeps_other_files(setup, tmp_
     assert not out.exists() and not list(tmp_path.glob(".out.partial-*"))
     out.mkdir()
     (out / "keep.txt").write_text("mine")
-    summary = run_to_end(S.synthesize_views(cfg))
+    with pytest.raises(OutputError, match="already holds files"):  # nothing is written over without force
+        run_to_end(S.synthesize_views(cfg))
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+    summary = run_to_end(S.synthesize_views(dataclasses.replace(cfg, force=True)))
     assert (out / "keep.txt").read_text() == "mine" and (out / "rgb" / "000002.png").is_file()
     assert len(summary.targets) == 3 and (out / "depth").is_dir()  # depth: as targets.json asks
     with pytest.raises(InputError, match="at most 10 reference views"):

@@ -51,7 +51,23 @@ class CaptureConfig:
     force: bool = False
     """Overwrite an output folder that already holds files."""
 
+    config_label = "capture"  # not a field: how messages name the fields
+
+    def __post_init__(self) -> None:
+        self.validate()
+
     def validate(self) -> "CaptureConfig":
+        """Types and ranges (run when the config is built); returns the config."""
+        from .. import validation as V
+
+        V.check_types(self)
+        if self.num_threads != -1:
+            V.at_least(self, "num_threads", 1)
+        V.at_least(self, "seed", 0)
+        V.at_least(self, "sequential_overlap", 1)
+        V.at_least(self, "exhaustive_max_images", 2)
+        V.at_least(self, "min_images", 2)
+        V.at_least(self, "init_min_tri_angle", 0.0)
         if self.camera_model not in CAMERA_MODELS:
             raise InputError(f"unknown camera model {self.camera_model!r}; choose one of {', '.join(CAMERA_MODELS)}")
         if self.matcher not in MATCHERS:

@@ -148,7 +148,9 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
 
 
 def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
-    """Refuse an occupied output folder unless ``force``; with it, remove only what we write."""
+    """Refuse an occupied output folder unless ``force``; with it, remove only what we write. A folder
+    holding only an unfinished run of ours (no meta.json, which is written last) is continued: its
+    partial files are redone, as a resumed render redoes an unfinished view."""
     out, img = Path(out_dir).resolve(), Path(images_dir).resolve()
     if out == img or out in img.parents:
         raise OutputError(f"output folder {out_dir} contains the photos; choose another folder")
@@ -156,6 +158,9 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
         raise OutputError(f"output {out_dir} exists and is not a folder")
     if out.is_dir():
         present = sorted(p.name for p in out.iterdir())
+        unfinished = present and set(present) <= set(OUTPUT_ENTRIES) and "meta.json" not in present
+        if unfinished:  # a failed or killed run of ours (meta.json is written last): continue it
+            force = True
         if present:
             if not force:
                 shown = ", ".join(present[:3]) + (", ..." if len(present) > 3 else "")

@@ -46,12 +46,43 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default: all cores)")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--no-picture", action="store_true", help="do not render demo_out/scene.png")
-    p.add_argument("--force", action="store_true", help="re-render objects rendered with other settings")
+    p.add_argument("--force", action="store_true", help="re-render objects rendered with other settings and write "
+                   "into an --out folder holding files the demo did not write (or changed since)")
+
+
+DEMO_FILES = ("scene.blend", "scene.png", "contact_sheet.png", "metrics.json")
+"""What the demo writes at the top of --out (besides dataset/ and novel/)."""
+
+
+def demo_folder(out) -> "OwnedFolder":
+    from ..guards import OwnedFolder
+
+    return OwnedFolder(Path(out), "mrvm_demo.json", DEMO_FILES, ("dataset", "novel"))
+
+
+def check_args(args) -> None:
+    """Every number, the device and the output folder, before anything is rendered or written."""
+    from .. import validation as V
+    from ..errors import InputError
+
+    V.check_count("--views", args.views, 3, 360)
+    V.check_image_side("--resolution", args.resolution, 8, 1024)
+    V.check_image_side("--scene-resolution", args.scene_resolution, 8, 4096)
+    if args.ref_size not in (0, -1):
+        V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    V.check_count("--threads", args.threads, 0, 4096)
+    V.check_device_name("--device", args.device)
+    if not 1 <= args.objects <= len(DEMO_CATEGORIES):
+        raise InputError(f"--objects must be between 1 and {len(DEMO_CATEGORIES)}, got {args.objects}")
+    if args.checkpoint is not None and not Path(args.checkpoint).exists():
+        raise InputError(f"checkpoint {args.checkpoint} does not exist")
+    demo_folder(args.out).check(args.force)
 
 
 def run(args) -> int:
     from ..errors import InputError
 
+    check_args(args)
     if args.checkpoint is None:
         from ..models.pretrained import default_checkpoint
 
@@ -61,8 +92,6 @@ def run(args) -> int:
             print(f"note: {e}")
             print("note: without a model the demo renders the dataset and its contact sheet only")
             return dataset_only(args)
-    if not 1 <= args.objects <= len(DEMO_CATEGORIES):
-        raise InputError(f"--objects must be between 1 and {len(DEMO_CATEGORIES)}, got {args.objects}")
     return novel_views_demo(args)
 
 
@@ -76,10 +105,13 @@ def dataset_only(args) -> int:
     from ..scene.render import RenderConfig, render_dataset
 
     out = Path(args.out)
+    owned = demo_folder(out)
+    owned.claim()
     cfg = RenderConfig(out=out / "dataset", sources=DATASET_ONLY_OBJECTS, views=DATASET_ONLY_VIEWS,
                        resolution=(DATASET_ONLY_RESOLUTION, DATASET_ONLY_RESOLUTION), force=args.force)
     summary = run_with_tqdm(render_dataset(cfg), desc="render", unit="view")
     sheet = dataset_contact_sheet(out / "dataset", out / "contact_sheet.png")
+    owned.wrote("contact_sheet.png")
     print(f"rendered {summary.views_rendered} views ({summary.views_skipped} already done) of "
           f"{len(summary.objects)} objects in {summary.seconds:.1f} s -> {cfg.out}")
     print(f"contact sheet: {sheet}")
@@ -113,6 +145,8 @@ def novel_views_demo(args) -> int:
     cats = DEMO_CATEGORIES[:args.objects]
     sources = tuple(f"procedural:{c}:{DEMO_SEED + i}" for i, c in enumerate(cats))
     _, mcfg, meta, ck = load_checkpoint(args.checkpoint)  # fail early, before rendering, on a bad checkpoint
+    owned = demo_folder(out)
+    owned.claim()
     lpips = None
     if not args.no_lpips:
         from ..models.metrics import LPIPS
@@ -137,7 +171,8 @@ def novel_views_demo(args) -> int:
         targets = targets_from_views(obj, target_views)
         write_targets(job / "targets.json", targets)
         syn = SynthesisConfig(references=obj, targets=job / "targets.json", out=job / "out", views=tuple(refs),
-                              checkpoint=ck, device=args.device, depth=False, ref_size=args.ref_size)
+                              checkpoint=ck, device=args.device, depth=False, ref_size=args.ref_size,
+                              force=True)  # novel/ is the demo's own working folder
         run_with_tqdm(synthesize_views(syn), desc=f"synthesize {cat}", unit="ray")
         ov = F.read_object(obj)
         pos = {v: k for k, v in enumerate(ov.indices)}
@@ -164,11 +199,16 @@ def novel_views_demo(args) -> int:
 
     # 4. Contact sheet, scene.blend, picture.
     sheet = contact_sheet(rows, out / "contact_sheet.png", per_object=3)
+    owned.wrote("contact_sheet.png")
     t = time.perf_counter()
     blend, picture = build_scene(args, obj_dirs[0], sources[0], refs, ck, out, render_picture=not args.no_picture)
+    owned.wrote("scene.blend")
+    if picture:
+        owned.wrote("scene.png")
     report["seconds"]["scene"] = time.perf_counter() - t
     report["seconds"]["total"] = time.perf_counter() - t_start
     F.atomic_write_json(out / "metrics.json", {**report, "views": records})
+    owned.wrote("metrics.json")
     print(f"contact sheet: {sheet}")
     print(f"scene: {blend}" + (f" (rendered: {picture})" if picture else ""))
     print(f"metrics: {out / 'metrics.json'}  ({rs.views_rendered} views rendered, "
@@ -284,7 +324,8 @@ def build_scene(args, obj_dir: Path, source: str, refs: list[int], ck: Path, out
     job = out / "novel" / "scene"
     write_targets(job / "targets.json", targets)
     run_with_tqdm(synthesize_views(SynthesisConfig(obj_dir, job / "targets.json", job / "out", tuple(refs), ck,
-                                                   args.device, depth=False)), desc="synthesize scene", unit="ray")
+                                                   args.device, depth=False, force=True)),
+                  desc="synthesize scene", unit="ray")
     meta = ov.meta
     bbox = (np.asarray(meta["bbox"][0]), np.asarray(meta["bbox"][1]))
     centre = 0.5 * (bbox[0] + bbox[1])

@@ -36,8 +36,42 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model, as in synthesize: "
                    "0 (default) shrinks references larger than the model's training images to that size, -1 keeps "
                    "them, N pixels (baselines and ground truth stay at the dataset's size)")
+    p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
+
+
+def check_args(args) -> None:
+    """Every number and the output folder, before the checkpoint or the data is read."""
+    from .. import validation as V
+    from ..guards import check_output_folder
+
+    V.check_count("--threads", args.threads, 0, 4096)
+    V.check_count("--max-objects", args.max_objects, 0)
+    V.check_count("--max-objects-per-category", args.max_objects_per_category, 0)
+    V.check_count("--max-targets", args.max_targets, 0)
+    V.check_count("--n-inputs", args.n_inputs, 1, 10)
+    if args.ref_size not in (0, -1):
+        V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    check_output_folder(args.out, args.force, "eval output folder",
+                        ours=("eval.json", "eval.md", "eval_grid.png", "compare.json"))
+
+
+def read_compare_to(path: Path) -> dict:
+    """Another run's eval.json (``--compare-to``); InputError when it is missing or not one."""
+    from ..errors import InputError
+
+    if not path.is_file():
+        raise InputError(f"--compare-to {path} does not exist")
+    try:
+        other = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"--compare-to {path} is not valid JSON ({e})") from None
+    views = other.get("views") if isinstance(other, dict) else None
+    if not isinstance(views, list) or not all(isinstance(r, dict) and {"category", "object", "view"} <= set(r)
+                                              for r in views):
+        raise InputError(f"--compare-to {path} is not an eval.json written by `eval` (no per-view 'views' list)")
+    return other
 
 
 def run(args) -> int:
@@ -49,13 +83,12 @@ def run(args) -> int:
     from ..training.checkpoint import load_model
     from ..training.evaluate import compare_reports, evaluate, per_category, protocol_views
 
+    check_args(args)
     if args.threads:
         torch.set_num_threads(args.threads)
     other = None
     if args.compare_to is not None:
-        if not args.compare_to.is_file():
-            raise InputError(f"--compare-to {args.compare_to} does not exist")
-        other = json.loads(args.compare_to.read_text())
+        other = read_compare_to(args.compare_to)
     if not args.data.exists():
         raise InputError(f"dataset {args.data} does not exist")
     fmt = args.fmt or detect_format(args.data)

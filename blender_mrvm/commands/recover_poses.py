@@ -3,7 +3,8 @@ dataset format: undistorted images in rgb/, SRN poses, intrinsics.txt, transform
 names its photo in original_name), meta.json and the sparse points as points.ply.
 
 At least 3 photos of one size are needed; a stereo pair runs with --pair. The output folder must be
-empty unless --force is given (then only the capture's own files are replaced).
+empty unless --force is given (then only the capture's own files are replaced); a folder holding only
+an unfinished run (failed or killed: no meta.json yet) is continued without --force.
 """
 
 from __future__ import annotations

@@ -14,7 +14,10 @@ cameras and their image planes (needs the bpy module).
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
+
+from ..errors import InputError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="object box in world units (default: from the reference folder)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
     p.add_argument("--blend", type=Path, default=None, help="also write a .blend with the cameras and image planes")
+    p.add_argument("--force", action="store_true", help="write into an output folder that holds files and replace "
+                   "an existing --blend file (never the reference folder)")
     p.add_argument("--plane-distance", type=float, default=None,
                    help="image planes' distance from their cameras for --blend (default: through the object's centre)")
 
@@ -50,17 +55,38 @@ def run(args) -> int:
     from ..progress import run_with_tqdm
     from ..synthesis import SynthesisConfig, json_line, parse_bbox, synthesize_views
 
+    from dataclasses import replace
+
+    from .. import validation as V
+    from ..guards import check_new_file
+    from ..synthesis.views import _check_out
+
     views = parse_views(" ".join(args.views)) if args.views else ()
     bbox = parse_bbox(args.bbox) if args.bbox is not None else None
+    # Every argument is checked (the config validates itself) before anything is read or written.
+    cfg = SynthesisConfig(references=args.references, targets=args.targets or args.out / "targets.json",
+                          out=args.out, views=views, checkpoint=args.checkpoint, device=args.device, depth=args.depth,
+                          chunk_rays=args.chunk, ref_size=args.ref_size, bbox=bbox, threads=args.threads,
+                          force=args.force)
+    if args.orbit_size:
+        V.check_image_side("--orbit-size", args.orbit_size)
+    if args.orbit is not None:
+        V.check_count("--orbit", args.orbit, 1, 10000)
+        if args.orbit_radius is not None and not (math.isfinite(args.orbit_radius) and args.orbit_radius > 0):
+            raise InputError(f"--orbit-radius must be a positive distance, got {args.orbit_radius}")
+        if not (math.isfinite(args.orbit_elevation) and -90 < args.orbit_elevation < 90):
+            raise InputError(f"--orbit-elevation must be between -90 and 90 degrees, got {args.orbit_elevation}")
+    if args.plane_distance is not None and not (math.isfinite(args.plane_distance) and args.plane_distance > 0):
+        raise InputError(f"--plane-distance must be a positive distance, got {args.plane_distance}")
+    _check_out(args.out, cfg)
     if args.blend is not None:
         _check_blend_path(args.blend)
+        check_new_file(args.blend, args.force, ".blend file")
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="mrvm_targets_") as tmp:
         targets = args.targets if args.targets is not None else _make_targets(args, views, bbox, Path(tmp))
-        cfg = SynthesisConfig(references=args.references, targets=targets, out=args.out, views=views,
-                              checkpoint=args.checkpoint, device=args.device, depth=args.depth, chunk_rays=args.chunk,
-                              ref_size=args.ref_size, bbox=bbox, threads=args.threads)
+        cfg = replace(cfg, targets=targets)
         summary = run_with_tqdm(synthesize_views(cfg), desc="synthesize", unit="ray")
     if args.blend is not None:
         from ..scene.novel_views import write_blend

@@ -3,7 +3,8 @@
 Single process:  python -m blender_mrvm train --config run.json
 Data-parallel:   torchrun --nproc_per_node N -m blender_mrvm train --config run.json
 Fine-tune:       python -m blender_mrvm train --init shipped --data my_dataset --out runs/ft
-Resumes from the run folder's latest checkpoint unless --no-resume.
+Resumes from the run folder's newest complete checkpoint unless --no-resume (which refuses a run folder
+holding a run unless --force).
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", dest="init_checkpoint", default=None,
                    help="fine-tune: start from this checkpoint's weights ('shipped' = the default model) "
                         "instead of a random initialisation (overrides train.init_checkpoint)")
-    p.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
+    p.add_argument("--no-resume", action="store_true", help="start from scratch; a run folder that holds a run "
+                   "needs --force too (its checkpoints and metrics are then removed)")
+    p.add_argument("--force", action="store_true", help="with --no-resume: start over in a run folder that holds a run")
 
 
 def run(args) -> int:
@@ -43,7 +46,7 @@ def run(args) -> int:
     import os
 
     rank = int(os.environ.get("RANK", "0"))
-    summary = run_with_tqdm(train(mcfg, tcfg, resume=not args.no_resume), desc="train", unit="step",
+    summary = run_with_tqdm(train(mcfg, tcfg, resume=not args.no_resume, force=args.force), desc="train", unit="step",
                             disable=True if rank else None)
     out = Path(tcfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -133,10 +133,16 @@ def write_png(path: Path, arr: np.ndarray) -> None:
 
 
 def read_png(path: Path) -> np.ndarray:
+    """A PNG's pixels; InputError naming the file when it is missing, truncated or not an image."""
     from PIL import Image
 
-    with Image.open(path) as im:
-        return np.asarray(im).copy()
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im).copy()
+    except FileNotFoundError:
+        raise InputError(f"image {path} does not exist") from None
+    except (OSError, ValueError, SyntaxError) as e:  # PIL: truncated, not a PNG, decompression bomb
+        raise InputError(f"cannot read image {path}: {e}") from None
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
@@ -206,10 +212,27 @@ def write_srn_pose(path: Path, c2w_opencv: np.ndarray) -> None:
 
 def read_srn_pose(path: Path) -> np.ndarray:
     """SRN pose file (one line of 16 numbers, or 4 lines of 4) -> OpenCV camera-to-world."""
-    vals = np.array(Path(path).read_text().split(), dtype=np.float64)
+    try:
+        vals = np.array(Path(path).read_text().split(), dtype=np.float64)
+    except (ValueError, UnicodeDecodeError):
+        raise InputError(f"{path}: a pose file holds 16 numbers, found text that is not numbers") from None
     if vals.size != 16:
         raise InputError(f"{path}: a pose file holds 16 numbers, found {vals.size}")
-    return vals.reshape(4, 4)
+    pose = vals.reshape(4, 4)
+    check_pose(pose, path)
+    return pose
+
+
+def check_pose(c2w: np.ndarray, where: Path | str) -> None:
+    """InputError unless ``c2w`` is a finite rigid camera-to-world pose (rotation part orthonormal with
+    determinant +1 to 1e-3, last row 0 0 0 1): a NaN or singular pose gives NaN images downstream."""
+    c2w = np.asarray(c2w, dtype=np.float64)
+    if not np.all(np.isfinite(c2w)):
+        raise InputError(f"{where}: the pose holds NaN or infinite numbers")
+    r = c2w[:3, :3]
+    if (np.abs(r.T @ r - np.eye(3)).max() > 1e-3 or abs(np.linalg.det(r) - 1.0) > 1e-3
+            or np.abs(c2w[3] - [0, 0, 0, 1]).max() > 1e-6):
+        raise InputError(f"{where}: not a camera pose (its rotation is singular or not orthonormal)")
 
 
 def format_srn_intrinsics(intr: Intrinsics) -> str:
@@ -341,7 +364,12 @@ def read_object(obj_dir: Path) -> ObjectViews:
     meta_path = obj_dir / "meta.json"
     if not meta_path.is_file():
         raise InputError(f"{obj_dir} is not an object folder (no meta.json)")
-    meta = json.loads(meta_path.read_text())
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"{meta_path} is not valid JSON ({e})") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{meta_path} is not a JSON object")
     tf = obj_dir / "transforms.json"
     by_view: dict[int, Intrinsics] = {}
     if tf.is_file():

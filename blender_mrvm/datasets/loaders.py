@@ -263,6 +263,8 @@ def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> li
         if (root / "meta.json").is_file():
             return [("ours", root)]
         has_split = (root / "splits" / f"{split}.lst").is_file()
+        if not has_split:
+            _check_split_name(root, split)
         return [("ours", p) for p in list_ours(root, split if has_split else None)]
     if fmt == "srn":
         # pixelNeRF: <root>/<cat>_<split>/<object>/ or a folder of objects
@@ -293,8 +295,48 @@ def load_object(fmt: str, path: Path, split: str = "train") -> ObjectScene:
     raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
 
 
+def _check_split_name(root: Path, split: str) -> None:
+    """A split our dataset does not have is a typo, not 'every object' (training objects included)."""
+    lists = sorted(p.stem for p in (root / "splits").glob("*.lst")) if (root / "splits").is_dir() else []
+    if lists:
+        raise InputError(f"{root} has no split {split!r} (it has {', '.join(lists)})")
+    if split not in F.SPLITS:
+        raise InputError(f"unknown split {split!r}; choose one of {', '.join(F.SPLITS)}")
+
+
+def unfinished_objects(root: Path, split: str) -> tuple[list[str], int]:
+    """(objects of ``split`` that are listed but missing or not completely rendered, objects in all) of a
+    dataset root of our format; ([], n) for a finished one."""
+    root = Path(root)
+    if not (root / F.ROOT_MANIFEST).is_file():
+        return [], 0
+    entries = F.read_split(root, split)
+    dirs = {f"{p.parent.parent.name}/{p.parent.name}": p.parent for p in root.glob("*/*/meta.json")}
+    names = entries or sorted(dirs)
+    bad = []
+    for e in names:
+        d = dirs.get(e) or next((v for k, v in dirs.items() if k.split("/")[1] == e), None)
+        if d is None:
+            bad.append(e)
+            continue
+        try:
+            complete = json.loads((d / "meta.json").read_text()).get("complete", True)
+        except (ValueError, OSError, AttributeError):
+            complete = False
+        if complete is False:
+            bad.append(e)
+    return bad, len(names)
+
+
 def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit: int | None = None) -> list[ObjectScene]:
+    """The objects of ``split`` for training; InputError when the dataset is half-rendered (some objects of
+    the split missing or unfinished: training would quietly use the others)."""
     objs = list_objects(root, fmt, split)
     if not objs:
         raise InputError(f"{root}: no objects for split {split!r}")
+    if objs[0][0] == "ours":
+        bad, total = unfinished_objects(Path(root), split)
+        if bad:
+            raise InputError(f"{root} is half-rendered: {len(bad)} of {total} objects of split {split!r} are missing "
+                             f"or unfinished (e.g. {bad[0]}); finish it with render-dataset (a rerun resumes)")
     return [load_object(f, p, split) for f, p in objs[:limit]]

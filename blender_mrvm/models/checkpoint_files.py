@@ -20,16 +20,90 @@ MAX_HEADER = 100 * 1024 * 1024
 """safetensors caps its JSON header at 100 MB; a larger length means the file is not one."""
 
 
+def step_of(ck: Path) -> int:
+    """The step a checkpoint folder's name gives (``step_0001000`` -> 1000), -1 for other names."""
+    name = Path(ck).name
+    return int(name[5:]) if name.startswith("step_") and name[5:].isdigit() else -1
+
+
+def checkpoint_folders(base: Path) -> list[Path]:
+    """The ``step_*`` checkpoint folders under ``base`` (a checkpoints/ folder), newest first, damaged ones
+    included (temporary ``.step_*`` folders of an interrupted save are not checkpoints)."""
+    base = Path(base)
+    if not base.is_dir():
+        return []
+    return sorted((p for p in base.iterdir() if p.is_dir() and step_of(p) >= 0), key=step_of, reverse=True)
+
+
+def model_file_problem(model_file: Path) -> str:
+    """Why ``model_file`` is not a whole safetensors file ('' when it is): missing, empty, a header that
+    does not parse, or fewer bytes than its header's tensors need (a truncated copy or a full disk)."""
+    model_file = Path(model_file)
+    try:
+        size = model_file.stat().st_size
+        with open(model_file, "rb") as f:
+            head = f.read(8)
+            if len(head) < 8:
+                return "file too short"
+            (n,) = struct.unpack("<Q", head)
+            if n > MAX_HEADER or 8 + n > size:
+                return "truncated or not a safetensors file (header length beyond the end)"
+            header = json.loads(f.read(n).decode("utf-8"))
+    except FileNotFoundError:
+        return "missing"
+    except (OSError, ValueError, UnicodeDecodeError) as e:
+        return f"unreadable header ({e})"
+    if not isinstance(header, dict):
+        return "not a safetensors header"
+    end = 0
+    for k, v in header.items():
+        if k == "__metadata__":
+            continue
+        try:
+            end = max(end, int(v["data_offsets"][1]))
+        except (TypeError, KeyError, IndexError, ValueError):
+            return f"tensor {k!r} has no data offsets"
+    if size < 8 + n + end:
+        return f"truncated: {size} bytes, its tensors need {8 + n + end}"
+    return ""
+
+
+def checkpoint_problem(ck: Path, need_state: bool = True) -> str:
+    """Why a checkpoint folder cannot be resumed from ('' when its files are whole; the trainer state is
+    only looked at here, torch reads it)."""
+    ck = Path(ck)
+    why = model_file_problem(ck / MODEL_FILE)
+    if why:
+        return f"{MODEL_FILE}: {why}"
+    if need_state:
+        st = ck / STATE_FILE
+        if not st.is_file():
+            return f"{STATE_FILE}: missing"
+        if st.stat().st_size == 0:
+            return f"{STATE_FILE}: empty"
+    return ""
+
+
 def find_checkpoint(path: Path) -> Path | None:
-    """A checkpoint folder from a run folder, a checkpoints/ folder, a checkpoint folder or a model file."""
+    """A checkpoint folder from a run folder, a checkpoints/ folder, a checkpoint folder or a model file.
+
+    In a run folder the newest complete ``step_*`` checkpoint wins: the ``latest`` file is only a hint
+    (it may be empty, damaged or name a deleted step), used for folders without ``step_*`` names."""
     path = Path(path)
     if path.is_file() and path.name.endswith(".safetensors"):
         return path.parent if (path.parent / STATE_FILE).exists() or path.name == MODEL_FILE else path
     for base in (path / "checkpoints", path):
+        for ck in checkpoint_folders(base):
+            if not checkpoint_problem(ck, need_state=False):
+                return ck
+    for base in (path / "checkpoints", path):
         latest = base / "latest"
         if latest.is_file():
-            c = base / latest.read_text().strip()
-            if (c / MODEL_FILE).is_file():
+            try:
+                c = base / latest.read_text(errors="replace").strip()
+            except OSError:
+                continue
+            if latest.read_text(errors="replace").strip() and (c / MODEL_FILE).is_file():
                 return c
     if (path / MODEL_FILE).is_file():
         return path
@@ -42,6 +116,10 @@ def model_file_of(path: Path) -> Path:
     ck = find_checkpoint(path)
     model_file = path if path.is_file() else (ck / MODEL_FILE if ck else None)
     if model_file is None or not Path(model_file).is_file():
+        damaged = [c for base in (path / "checkpoints", path) for c in checkpoint_folders(base)]
+        if damaged:
+            raise InputError(f"no complete checkpoint at {path}: {damaged[0].name} is damaged "
+                             f"({checkpoint_problem(damaged[0], need_state=False)})")
         raise InputError(f"no checkpoint found at {path}")
     return Path(model_file)
 
@@ -72,6 +150,9 @@ def checked_header(path: Path) -> tuple[Path, dict[str, str]]:
     version this code reads; InputError naming what is wrong."""
     model_file = model_file_of(path)
     meta = read_header_meta(model_file)
+    why = model_file_problem(model_file)
+    if why:
+        raise InputError(f"checkpoint {model_file} does not load: {why}")
     if meta.get("format") != FORMAT:
         raise InputError(f"{model_file} is not a blender_mrvm model checkpoint (format {meta.get('format')!r})")
     try:

@@ -210,7 +210,13 @@ def model_config(preset: str = "balanced", overrides: dict[str, Any] | None = No
 
 def validate(cfg: ModelConfig) -> None:
     """Raise :class:`InputError` for configs that cannot work."""
+    from ..validation import check_sizes, check_types_deep
+
+    check_types_deep(cfg)  # "abc" for a size is a one-line error, not a TypeError in the model
+    check_sizes(cfg)
     n = cfg.nerformer
+    if n.n_heads < 1 or n.d_model < 1 or cfg.render.chunk_rays < 1 or cfg.max_ref_views < 1:
+        raise InputError("model nerformer.d_model, nerformer.n_heads, render.chunk_rays and max_ref_views must be >= 1")
     if n.d_model % n.n_heads:
         raise InputError(f"nerformer.d_model ({n.d_model}) must be divisible by n_heads ({n.n_heads})")
     if cfg.sampler.n_coarse < 1 or cfg.sampler.n_fine < 0:

@@ -100,7 +100,7 @@ def build_config(name: str | None, preset: str | None = None, overrides: dict[st
     table = presets(k.name)
     p = preset or k.default_preset
     if p not in table:
-        raise InputError(f"unknown {k.name} preset {p!r}; choose one of {sorted(table)}")
+        raise InputError(f"unknown model preset {p!r} for {k.name}; choose one of {sorted(table)}")
     cfg = merge(table[p], overrides or {})
     validate(cfg)
     return cfg

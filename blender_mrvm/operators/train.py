@@ -69,6 +69,8 @@ class TrainJob:
     """Continue from the run folder's last checkpoint."""
     device: str
     """The add-on preferences' device: cpu, cuda, or auto (the trainer's default, the CPU)."""
+    force: bool = False
+    """Not resuming: the user confirmed removing the run the folder holds (``train --force``)."""
 
 
 def _abs(p: str, what: str) -> Path:
@@ -128,6 +130,12 @@ def plan_from_props(context) -> TrainJob:
     run_dir = _abs(p.run_dir, "run folder")
     if run_dir.exists() and not run_dir.is_dir():
         raise InputError(f"run folder {run_dir} is a file")
+    from ..training.run_folder import holds_run
+
+    replace_run = not p.resume and holds_run(run_dir)
+    if replace_run and not p.overwrite_run:
+        raise InputError(f"the run folder {run_dir} holds a run: turn on Continue run, choose a new run folder, "
+                         "or tick Replace the run to remove it and start over")
     init, base = None, {}
     running = run_config(run_dir) if p.resume else None
     if running is not None:  # continue the run in the folder: its model and its schedule
@@ -153,7 +161,7 @@ def plan_from_props(context) -> TrainJob:
     pr = P.get(context)
     dev = (pr.device if pr else "AUTO").lower()
     return TrainJob(data, run_dir, name, model, init, base, int(p.iterations), int(p.checkpoint_every),
-                    int(p.rays_per_object), bool(p.resume), dev)
+                    int(p.rays_per_object), bool(p.resume), dev, force=replace_run)
 
 
 def prepare(context):
@@ -188,6 +196,8 @@ def write_job(job: TrainJob, job_dir: Path) -> list[str]:
     args = ["--config", str(cfg)]
     if not job.resume:
         args.append("--no-resume")
+        if job.force:
+            args.append("--force")
     return args
 
 

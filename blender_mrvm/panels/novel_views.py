@@ -15,7 +15,9 @@ def _count(n: int, word: str) -> str:
 def _torch_warning(layout, context) -> None:
     from .. import prefs as P
 
-    rep = P.dependency_status(context)
+    rep = P.dependency_status(context, cached=True)  # draw() never starts a process
+    if rep.pending:
+        return
     if rep.error or "torch" in rep.missing:
         box = layout.box()
         box.label(text=rep.error or "torch is missing in the worker Python", icon="ERROR")
@@ -61,6 +63,8 @@ class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
         col.prop(p, "checkpoint_every")
         col.prop(p, "rays_per_object")
         col.prop(p, "resume")
+        if not p.resume and _holds_run(p.run_dir):
+            col.prop(p, "overwrite_run")
         col.prop(p, "use_for_synthesis")
         if p.resume and _holds_run(p.run_dir):
             col.label(text="The run folder holds a run: training continues it", icon="INFO")

@@ -76,6 +76,27 @@ class SynthesisConfig:
     """Object box ((min x, y, z), (max x, y, z)) in world units; None = from the references."""
     threads: int = 0
     """torch CPU threads (0 = torch's default)."""
+    force: bool = False
+    """Write into an output folder that already holds files (same-named files are replaced)."""
+
+    config_label = "synthesis"  # not a field: how messages name the fields
+
+    def __post_init__(self) -> None:
+        _validate_config(self)
+
+
+def _validate_config(c: SynthesisConfig) -> None:
+    """One-line InputError for a value that cannot work, before anything is read or written."""
+    from .. import validation as V
+
+    V.check_types(c)
+    if any(v < 0 for v in c.views):
+        raise InputError(f"reference views must be view numbers >= 0, got {list(c.views)}")
+    V.check_device_name("synthesis.device", c.device)
+    if c.ref_size not in (0, -1):
+        V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
+    V.check_count("--threads (synthesis.threads)", c.threads, 0, 4096)
 
 
 @dataclass
@@ -391,9 +412,15 @@ class SynthesisSummary:
     """[width, height] of the references as the model saw them."""
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"output {out} exists and is not a folder")
+def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
+    from ..guards import check_not_input, check_output_folder
+
+    ours: tuple[str, ...] = ()
+    if cfg is not None:
+        check_not_input(out, {"reference": Path(cfg.references)})
+        if Path(cfg.targets).resolve() == (out / "targets.json").resolve():
+            ours = ("targets.json",)  # the targets file the run reads may sit in the output folder
+    check_output_folder(out, force=bool(cfg and cfg.force), ours=ours)
     parent = out.parent if out.parent != Path("") else Path(".")
     probe = parent
     while not probe.exists():
@@ -433,6 +460,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     t0 = time.perf_counter()
     if cfg.threads and cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out)
+    _check_out(out, cfg)
     targets, depth_wanted = read_targets(Path(cfg.targets))
     depth = depth_wanted if cfg.depth is None else bool(cfg.depth)
     size, max_size = reference_sizes(cfg.ref_size, cfg.checkpoint)
@@ -448,8 +477,6 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         model.check_reference_count(len(refs.views))
     per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
     chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
-    out = Path(cfg.out)
-    _check_out(out)
     total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],

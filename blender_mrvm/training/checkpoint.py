@@ -90,6 +90,10 @@ def read_model_config(model_file: Path) -> Any:
     return config_from_meta(meta, model_file)
 
 
+class WeightsMismatch(InputError):
+    """A model file's weights do not fit the model they are loaded into (another architecture)."""
+
+
 def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") -> None:
     """Load a model file's weights into ``model``; InputError naming the mismatch when they do not fit."""
     from safetensors.torch import load_model as st_load
@@ -98,7 +102,14 @@ def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") 
         st_load(model, str(model_file), strict=True, device=device)
     except RuntimeError as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise InputError(f"checkpoint {model_file} does not match its model config: {first[:300]}") from None
+        raise WeightsMismatch(f"checkpoint {model_file} does not match its model config: {first[:300]}") from None
+    except Exception as e:  # safetensors' own errors: a damaged file
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"checkpoint {model_file} does not load: {first[:300]}") from None
+    bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise InputError(f"checkpoint {model_file} holds NaN or infinite weights ({bad[0]}"
+                         f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''})")
 
 
 def load_model(path: Path, device: str = "cpu"):

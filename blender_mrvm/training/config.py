@@ -22,7 +22,9 @@ from ..models.config import from_dict, merge, to_dict
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """One training run."""
+    """One training run (checked when built: a bad value is a one-line InputError naming the field)."""
+
+    config_label = "train"  # not a field: how messages name the fields ("train.lr")
 
     data: str = ""
     """Dataset root (ours, SRN, NMR/DVR or NeRF-synthetic)."""
@@ -84,12 +86,15 @@ class TrainConfig:
     afresh; the model config is the checkpoint's unless the run config names one (it must match).
     Ignored when the run folder already has a checkpoint to resume from."""
 
+    def __post_init__(self) -> None:
+        validate(self)
+
 
 def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
                     kind: str | None = None, preset: str | None = None) -> tuple[Any, TrainConfig]:
     """Read a run-config JSON (or none) and apply ``overrides`` to the train section. ``kind`` and
-    ``preset`` (the command line's) choose the model where the config names none; a config that
-    names its own model wins, and naming another kind or preset beside it is an InputError."""
+    ``preset`` (the command line's ``--model`` and ``--preset``) choose the model where the config names
+    none; naming another kind or preset beside a config that names its own is an InputError."""
     data: dict[str, Any] = {}
     if path is not None:
         path = Path(path)
@@ -99,12 +104,23 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
             data = json.loads(path.read_text())
         except json.JSONDecodeError as e:
             raise InputError(f"{path}: not valid JSON ({e})") from e
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: a run config is a JSON object ({{'model': ..., 'train': ...}}), got a "
+                         f"{type(data).__name__}")
     unknown = set(data) - {"model", "train"}
     if unknown:
         raise InputError(f"{path}: unknown top-level keys {sorted(unknown)} (expected 'model' and 'train')")
     m = data.get("model", {})
-    if not isinstance(m, dict):
-        raise InputError(f"{path}: 'model' must be a mapping")
+    if not isinstance(m, dict) or not isinstance(data.get("train", {}), dict):
+        raise InputError(f"{path}: 'model' and 'train' must be JSON objects")
+    if preset:
+        full = m.get("config") if isinstance(m.get("config"), dict) else {}
+        named = m.get("preset") or full.get("name")
+        if m and named != preset:
+            raise InputError(f"--preset {preset} conflicts with the config's own model "
+                             f"({named or 'a custom model section'}); drop --preset or the config's model section")
+        if not m:
+            m = {"preset": preset}
     section = data.get("train", {})
     tcfg = from_dict(TrainConfig, section)
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
@@ -116,14 +132,12 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
 
     named_kind = registry.kind(m["kind"]).name if m.get("kind") else None
     if kind and named_kind and registry.kind(kind).name != named_kind:
-        raise InputError(f"{path} trains a {named_kind} model; --model {kind} contradicts it (leave one out)")
-    if preset and ("preset" in m or "config" in m) and preset != m.get("preset", m.get("config", {}).get("name")):
-        raise InputError(f"{path} names its own model ({m.get('preset') or m['config'].get('name')!r}); "
-                         f"--preset {preset} contradicts it (leave one out)")
+        raise InputError(f"--model {kind} conflicts with the config's own {named_kind} model; drop --model or the "
+                         "config's model section")
     k = named_kind or kind
     if "config" in m:  # a full config (as saved in a checkpoint)
         mcfg = registry.config_from_dict(k, m["config"])
-    elif not m and tcfg.init_checkpoint and not (kind or preset):  # fine-tuning: the checkpoint's own model
+    elif not m and tcfg.init_checkpoint and not kind:  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
     else:
         mcfg = registry.build_config(k, m.get("preset", preset), m.get("overrides"))
@@ -166,6 +180,23 @@ def init_model_config(name: str) -> Any:
 
 
 def validate(c: TrainConfig) -> None:
+    """Types, then ranges (``TrainConfig.__post_init__`` runs it; kept callable for old callers)."""
+    from .. import validation as V
+
+    V.check_types(c)
+    for name in ("iterations", "log_every", "ckpt_every"):
+        V.at_least(c, name, 1)
+    for name in ("max_objects", "seed", "lr_warmup", "keep_checkpoints", "threads"):
+        V.at_least(c, name, 0)
+    V.at_least(c, "lr", 0.0)  # 0 is a frozen run (tests); NaN/inf are refused by check_types
+    V.in_range(c, "lr_final_frac", 0.0, 1.0)
+    for name in ("weight_decay", "grad_clip", "coarse_weight"):
+        V.at_least(c, name, 0.0)
+    V.check_device_name("train.device", c.device, allow_auto=False)
+    if c.data_format not in ("", "ours", "srn", "nmr", "nerf"):
+        raise InputError(f"train.data_format must be '', ours, srn, nmr or nerf, got {c.data_format!r}")
+    if not c.split.strip():
+        raise InputError("train.split is empty")
     if c.iterations < 1:
         raise InputError(f"iterations must be >= 1, got {c.iterations}")
     if not 1 <= c.min_ref_views <= c.max_ref_views:

@@ -154,9 +154,14 @@ def _set_rng_state(batcher: RayBatcher, gen: torch.Generator, st: dict[str, Any]
     torch.set_rng_state(st["torch_global"])
 
 
-def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None):
-    """Progress generator; returns a summary dict (final step, last losses, checkpoint path)."""
+def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None,
+          force: bool = False):
+    """Progress generator; returns a summary dict (final step, last losses, checkpoint path).
+    ``force`` lets a run without ``resume`` replace the run folder's old run (``run_folder.resume_point``)."""
+    from . import run_folder
+
     device = cfg.device
+    run_folder.check_device(device)
     dd = init_distributed(device)
     if device.startswith("cuda") and dd.world > 1:
         device = f"cuda:{dd.local_rank}"
@@ -177,10 +182,9 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     torch.manual_seed(cfg.seed + dd.rank)
     start = 0
     init_from = None
-    found = ckpt.find_checkpoint(run_dir) if resume else None
-    if found is not None and (found / ckpt.STATE_FILE).is_file():
+    found, state = run_folder.resume_point(run_dir, resume, force, dd.main)
+    if found is not None:
         ckpt.load_weights(model, found / ckpt.MODEL_FILE, device)
-        state = ckpt.load_trainer_state(found)
         if state.get("world_size", 1) != dd.world:
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
                              f"resume with the same number (got {dd.world})")
@@ -226,6 +230,11 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             if scaler:
                 scaler.unscale_(opt)
             gnorm = torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip) if cfg.grad_clip > 0 else torch.tensor(0.0)
+            # before the update: a NaN never reaches the weights (under torchrun the all-reduced gradient
+            # norm, the same on every rank, so all stop together; fp16's scaler skips inf steps itself)
+            by_norm = dd.world > 1 and scaler is None and cfg.grad_clip > 0
+            run_folder.check_loss(float(gnorm) if by_norm else tot["loss"], step + 1, saved or found,
+                                  "gradient norm" if by_norm else "loss")
             if scaler:
                 scaler.step(opt)
                 scaler.update()
@@ -319,7 +328,7 @@ def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str)
                          "checkpoint's own")
     try:
         ckpt.load_weights(model, model_file, device)
-    except InputError:
+    except ckpt.WeightsMismatch:
         raise InputError(f"init_checkpoint {model_file} holds a {theirs.name!r} model whose weights do not fit "
                          f"the run config's {model_cfg.name!r} model; leave the run config's model section out "
                          "to use the checkpoint's own") from None

@@ -1,0 +1,132 @@
+"""Output guards: nothing that exists is overwritten or deleted without ``--force`` (bpy-free).
+
+Every command that writes somewhere a user named calls one of these before any work starts, so a
+refusal costs nothing and leaves everything as it was. The panel's operators write into fresh
+temporary folders or ask the user first.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .errors import OutputError
+
+
+def _shown(names: list[str]) -> str:
+    return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+
+
+def check_new_file(path: Path, force: bool = False, what: str = "file", flag: str = "--force") -> Path:
+    """``path`` may be written: it does not exist, or ``force`` allows replacing it; never a folder."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{what} {path} is a folder; name a file")
+    if path.exists() and not force:
+        raise OutputError(f"{what} {path} already exists; pass {flag} to replace it")
+    parent = path.parent if str(path.parent) else Path(".")
+    if parent.exists() and not parent.is_dir():
+        raise OutputError(f"cannot write {path}: {parent} is not a folder")
+    return path
+
+
+def check_output_folder(path: Path, force: bool = False, what: str = "output folder",
+                        flag: str = "--force", ours: tuple[str, ...] = ()) -> Path:
+    """``path`` may be written into: it does not exist, is empty, holds only ``ours`` (names this command
+    writes and may update), or ``force`` allows writing over what is there."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{what} {path} exists and is not a folder")
+    if path.is_dir() and not force:
+        present = sorted(p.name for p in path.iterdir() if p.name not in ours)
+        if present:
+            raise OutputError(f"{what} {path} already holds files ({_shown(present)}); choose another folder "
+                              f"or pass {flag} to write over them")
+    return path
+
+
+def check_not_input(out: Path, inputs: dict[str, Path | None]) -> None:
+    """An output folder must not be one of the inputs (writing there would replace them: a reference
+    object's ground truth by predictions), whatever ``--force`` says."""
+    o = Path(out).expanduser().resolve()
+    for what, p in inputs.items():
+        if p is not None and Path(p).expanduser().resolve() == o:
+            raise OutputError(f"the output folder {out} is the {what} folder; choose another folder")
+
+
+# ---------------------------------------------------------------------------------------------
+# Folders a command owns (demo_out): it may update its own files, never a user's
+# ---------------------------------------------------------------------------------------------
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+class OwnedFolder:
+    """An output folder a command owns and may rerun into (``demo --out``).
+
+    A manifest (``marker``) records the sha256 of every file the command wrote. A rerun may replace
+    those files while they are as it left them; a file the user changed since (a scene.blend edited and
+    saved), a file the manifest does not know, or a folder without the manifest that holds anything is
+    refused without ``force``. ``subfolders`` are the command's own working folders."""
+
+    def __init__(self, root: Path, marker: str, files: tuple[str, ...], subfolders: tuple[str, ...] = ()):
+        self.root, self.marker, self.files, self.subfolders = Path(root), marker, files, subfolders
+
+    def _manifest(self) -> dict:
+        import json
+
+        p = self.root / self.marker
+        try:
+            d = json.loads(p.read_text()) if p.is_file() else {}
+        except (ValueError, OSError):
+            d = {}
+        return d if isinstance(d, dict) and isinstance(d.get("files", {}), dict) else {}
+
+    def check(self, force: bool = False) -> None:
+        """OutputError (before any work) unless the folder is new, empty, or holds only this command's
+        unchanged files; ``force`` allows writing over anything there."""
+        root = self.root
+        if root.exists() and not root.is_dir():
+            raise OutputError(f"output {root} exists and is not a folder")
+        if force or not root.is_dir():
+            return
+        present = sorted(p.name for p in root.iterdir())
+        if not present:
+            return
+        man = self._manifest()
+        if not man:
+            raise OutputError(f"output folder {root} already holds files ({_shown(present)}) that this command did "
+                              "not write; choose another --out or pass --force to write over them")
+        known = set(self.files) | set(self.subfolders) | {self.marker}
+        foreign = [n for n in present if n not in known]
+        if foreign:
+            raise OutputError(f"output folder {root} holds files this command did not write ({_shown(foreign)}); "
+                              "move them or pass --force")
+        recorded = man.get("files", {})
+        changed = [n for n in self.files if (root / n).is_file() and recorded.get(n) != _sha256(root / n)]
+        if changed:
+            raise OutputError(f"{root / changed[0]} was changed since this command wrote it; move it away or pass "
+                              "--force to replace it")
+
+    def claim(self) -> None:
+        """Create the folder and its manifest (before the first file is written)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        if not (self.root / self.marker).is_file():
+            self._write({})
+
+    def wrote(self, name: str) -> None:
+        """Record a file the command just wrote."""
+        files = dict(self._manifest().get("files", {}))
+        files[name] = _sha256(self.root / name)
+        self._write(files)
+
+    def _write(self, files: dict) -> None:
+        from .datasets.format import atomic_write_json
+
+        atomic_write_json(self.root / self.marker, {"format": "blender_mrvm.owned_folder", "files": files})

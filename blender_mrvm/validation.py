@@ -1,0 +1,168 @@
+"""Checks shared by the frozen config dataclasses (bpy-free, torch-free).
+
+Configs are validated once, where they are built: each dataclass's ``__post_init__`` calls
+:func:`check_types` (every field has the type its annotation names: a JSON ``"abc"`` for an int is
+an :class:`InputError`, not a TypeError deep in training) and then its own range checks with the
+helpers below. ``from_dict``, ``merge``/``replace`` and the CLI all build configs through the
+constructor, so they all get the same checks and the same one-line messages.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+import typing
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from .errors import InputError
+
+MAX_IMAGE_SIDE = 8192
+"""Largest image side any command makes (render-dataset's limit too)."""
+MAX_REFERENCE_SIDE = 4096
+"""Largest side references are resized to (the encoder's features of one 4096 px view take ~1 GB)."""
+
+
+def _name(obj: Any, field: str) -> str:
+    """How a field is named in messages: ``<label>.<field>``, the label being the class attribute
+    ``config_label`` (e.g. "train", as in a run config) or the class name."""
+    return f"{getattr(type(obj), 'config_label', type(obj).__name__)}.{field}"
+
+
+def _coerce(value: Any, hint: Any, label: str) -> Any:
+    """``value`` as the type ``hint`` names, or InputError. Accepts int for float and integral floats
+    for int (JSON numbers); never bool for a number or a string for anything but str/Path."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(hint)
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _coerce(value, a, label)
+            except InputError as e:
+                errors.append(str(e))
+        raise InputError(errors[0] if errors else f"{label}: bad value {value!r}")
+    if origin is tuple or hint is tuple:
+        if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+            raise InputError(f"{label} must be a list, got {value!r}")
+        args = typing.get_args(hint)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], label) for v in value)
+        return tuple(value)
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise InputError(f"{label} must be true or false, got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{label} must be an integer, got {value!r}")
+        if isinstance(value, float):
+            if not math.isfinite(value) or value != int(value):
+                raise InputError(f"{label} must be an integer, got {value!r}")
+            return int(value)
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{label} must be a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise InputError(f"{label} must be a finite number, got {value!r}")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise InputError(f"{label} must be a string, got {value!r}")
+        return value
+    if hint is Path:
+        if not isinstance(value, (str, Path)):
+            raise InputError(f"{label} must be a path, got {value!r}")
+        return Path(value)
+    return value  # nested dataclasses and other types: their own __post_init__ checks them
+
+
+def check_types(obj: Any) -> None:
+    """Check (and coerce, e.g. 1 -> 1.0 for a float field) every field of a frozen dataclass against
+    its annotation; InputError naming the field."""
+    hints = typing.get_type_hints(type(obj))
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        new = _coerce(value, hints.get(f.name, Any), _name(obj, f.name))
+        if new is not value:
+            object.__setattr__(obj, f.name, new)
+
+
+def at_least(obj: Any, field: str, low: float) -> None:
+    v = getattr(obj, field)
+    if v < low:
+        raise InputError(f"{_name(obj, field)} must be at least {low}, got {v}")
+
+
+def in_range(obj: Any, field: str, low: float, high: float) -> None:
+    v = getattr(obj, field)
+    if not low <= v <= high:
+        raise InputError(f"{_name(obj, field)} must be between {low} and {high}, got {v}")
+
+
+def one_of(obj: Any, field: str, choices: tuple) -> None:
+    v = getattr(obj, field)
+    if v not in choices:
+        raise InputError(f"{_name(obj, field)} must be one of {', '.join(map(repr, choices))}, got {v!r}")
+
+
+def check_device_name(label: str, name: str, allow_auto: bool = True) -> None:
+    """'cpu', 'cuda', 'cuda:N' (and 'auto'): the spelling only; whether CUDA exists is checked when the
+    device is opened."""
+    n = (name or "").strip().lower()
+    ok = n in (("auto",) if allow_auto else ()) + ("cpu", "cuda")
+    if n.startswith("cuda:"):
+        ok = n[5:].isdigit()
+    if not ok:
+        choices = "auto, cpu or cuda[:N]" if allow_auto else "cpu or cuda[:N]"
+        raise InputError(f"{label}: unknown device {name!r}; choose {choices}")
+
+
+def check_image_side(label: str, value: int, low: int = 1, high: int = MAX_IMAGE_SIDE) -> None:
+    """A pixel size given on the command line (``--orbit-size``, ``--ref-size``, ...)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InputError(f"{label} must be a whole number of pixels, got {value!r}")
+    if not low <= value <= high:
+        raise InputError(f"{label} must be between {low} and {high} pixels, got {value}")
+
+
+def check_count(label: str, value: int, low: int = 0, high: int | None = None) -> None:
+    """A count given on the command line (``--views``, ``--objects``, ``--chunk``, ``--threads``)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
+        rng = f"at least {low}" if high is None else f"between {low} and {high}"
+        raise InputError(f"{label} must be {rng}, got {value!r}")
+
+
+def check_types_deep(obj: Any) -> None:
+    """:func:`check_types` on a dataclass and every dataclass nested in it."""
+    from dataclasses import is_dataclass
+
+    check_types(obj)
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if is_dataclass(v) and not isinstance(v, type):
+            check_types_deep(v)
+
+
+def check_sizes(obj: Any, label: str = "") -> None:
+    """Every int field of a (nested) config dataclass is >= 0 (sizes and counts), every int in an int
+    tuple >= 1 (layer widths); InputError naming the first that is not."""
+    from dataclasses import is_dataclass
+
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        name = f"{label}{f.name}"
+        if is_dataclass(v) and not isinstance(v, type):
+            check_sizes(v, name + ".")
+        elif isinstance(v, int) and not isinstance(v, bool) and v < 0:
+            raise InputError(f"model {name} must be at least 0, got {v}")
+        elif isinstance(v, tuple) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v) \
+                and min(v) < 1:
+            raise InputError(f"model {name} must hold sizes of at least 1, got {list(v)}")
