@@ -11,6 +11,14 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 
 from .scene.procedural._registry import CATEGORIES
 
+MODEL_KINDS = [
+    ("nerformer_mrvm", "NeRFormer + MRVM", "Radiance field from a transformer across views and along rays (few views, "
+                                           "objects on white)"),
+    ("gpnr", "GPNR", "Patch-based light-field transformer: colours from epipolar patches of the references "
+                     "(shines with many nearby views)"),
+]
+"""The model kinds (``models/registry.py``) the panel offers."""
+
 ENGINES = [
     ("CYCLES", "Cycles", "Path tracing on the CPU (default; all passes in one render)"),
     ("BLENDER_EEVEE", "EEVEE", "Rasterizer (slow on software GL); data passes from a 1-sample Cycles render"),
@@ -134,12 +142,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                              description="Field of view of the orbit cameras (along the longer image side)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
-    shipped_model: EnumProperty(name="Shipped model", items=[
-        ("nerformer_mrvm", "NeRFormer + MRVM", "Radiance field from a transformer across views and along rays (few views, "
-                                               "objects on white)"),
-        ("gpnr", "GPNR", "Patch-based light-field transformer: colours from epipolar patches of the references "
-                         "(shines with many nearby views)"),
-    ], default="nerformer_mrvm",
+    shipped_model: EnumProperty(name="Shipped model", items=MODEL_KINDS, default="nerformer_mrvm",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
     device: EnumProperty(name="Device", items=[
         ("AUTO", "Auto", "CUDA when available, else CPU"),
@@ -186,12 +189,7 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
     init_checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
                                     description="The checkpoint to fine-tune: a model .safetensors file, a checkpoint "
                                                 "folder or a run folder")
-    model_kind: EnumProperty(name="Model", items=[
-        ("nerformer_mrvm", "NeRFormer + MRVM", "Radiance field from a transformer across views and along rays (few views, "
-                                               "objects on white)"),
-        ("gpnr", "GPNR", "Patch-based light-field transformer: colours from epipolar patches of the references "
-                         "(shines with many nearby views)"),
-    ], default="nerformer_mrvm",
+    model_kind: EnumProperty(name="Model", items=MODEL_KINDS, default="nerformer_mrvm",
                              description="Kind of model to train (a new one) or to fine-tune (the shipped one)")
     preset: EnumProperty(name="Size", items=[
         ("fast", "Fast", "Smallest model: quick experiments (the shipped GPNR's size)"),

@@ -43,6 +43,7 @@ from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
 from .config import IMAGE_EXTENSIONS, CaptureConfig
+from ..datasets.format import remove_entries
 from .export import OUTPUT_ENTRIES, CaptureView, write_capture
 
 POLL_S = 0.1
@@ -165,12 +166,7 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
             if not force:
                 shown = ", ".join(present[:3]) + (", ..." if len(present) > 3 else "")
                 raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force to overwrite")
-            for e in OUTPUT_ENTRIES:
-                p = out / e
-                if p.is_dir():
-                    shutil.rmtree(p)
-                elif p.exists():
-                    p.unlink()
+            remove_entries(out, OUTPUT_ENTRIES)
     out.mkdir(parents=True, exist_ok=True)
 
 

@@ -92,6 +92,18 @@ def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = 
         raise
 
 
+def remove_entries(folder: Path, names) -> None:
+    """Remove the files and folders ``names`` of ``folder`` that exist (only those: what a command wrote)."""
+    import shutil
+
+    for name in names:
+        p = Path(folder) / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
 def atomic_write_text(path: Path, text: str) -> None:
     def w(tmp: str) -> None:
         with open(tmp, "w", encoding="utf-8") as f:

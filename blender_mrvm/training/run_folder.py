@@ -9,12 +9,11 @@ copy). The trainer calls :func:`resume_point` once before its first step.
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 from pathlib import Path
 from typing import Any
 
-from ..datasets.format import atomic_write_text
+from ..datasets.format import atomic_write_text, remove_entries
 from ..errors import InputError
 from ..models.checkpoint_files import STATE_FILE, checkpoint_folders, checkpoint_problem, step_of
 
@@ -67,14 +66,7 @@ def newest_complete(run_dir: Path) -> tuple[Path | None, dict[str, Any] | None, 
 def clear_run(run_dir: Path) -> None:
     """Remove what training wrote into ``run_dir`` (only that): --no-resume --force."""
     run_dir = Path(run_dir)
-    for name in RUN_FILES:
-        p = run_dir / name
-        if p.is_dir():
-            shutil.rmtree(p)
-        elif p.exists():
-            p.unlink()
-    for p in run_dir.glob("summary_rank*.json"):
-        p.unlink()
+    remove_entries(run_dir, [*RUN_FILES, *(p.name for p in run_dir.glob("summary_rank*.json"))])
 
 
 def resume_point(run_dir: Path, resume: bool = True, force: bool = False,
