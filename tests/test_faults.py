@@ -382,20 +382,17 @@ def test_recover_poses_resumes_finished_stages(ring, tmp_path, monkeypatch, caps
     resumed = json.loads((out / "meta.json").read_text())
     assert resumed["registered"] == 8 and not list((out / "colmap").glob("database.*.db"))
     monkeypatch.undo()
-    fresh = tmp_path / "fresh"
-    res = run_gen(sfm.recover_poses(photos, fresh, cfg))
-    a = [F.read_srn_pose(p) for p in sorted((out / "pose").glob("*.txt"))]
-    b = res.c2w_opencv
-    assert max(float(np.abs(x - y).max()) for x, y in zip(a, b)) < 1e-6  # same as an uninterrupted run
+    # As accurate as an uninterrupted run (test_capture.py's bound; COLMAP's multi-threaded mapping is not
+    # bit-identical from run to run, so the poses are compared with the truth, not with another run).
+    from blender_mrvm.capture import align
+
+    frames = json.loads((out / "transforms.json").read_text())["frames"]
+    truth = {v["name"]: np.array(v["c2w_opencv"]) for v in ring[1]["views"]}
+    got = [F.read_srn_pose(out / "pose" / f"{i:06d}.txt") for i in range(len(frames))]
+    err = align.pose_errors(got, [truth[f["original_name"]] for f in frames])
+    assert err.median_rotation_deg < 0.5 and err.median_centre < 0.01 * ring[1]["radius"]
     # Other settings: the stages are not reused (the log's stamp differs), colmap/ starts afresh.
     st = sfm.StageLog(out / "colmap", sfm.run_stamp(photos, sorted(p.name for p in photos.iterdir()),
                                                     CaptureConfig(max_num_features=1024)))
     assert st.done == set() and sorted(p.name for p in (out / "colmap").iterdir()) == ["stages.json"]
 
-
-def run_gen(gen):
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value
