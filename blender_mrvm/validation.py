@@ -10,6 +10,7 @@ constructor, so they all get the same checks and the same one-line messages.
 from __future__ import annotations
 
 import math
+import numbers
 import types
 import typing
 from dataclasses import fields
@@ -59,15 +60,14 @@ def _coerce(value: Any, hint: Any, label: str) -> Any:
             raise InputError(f"{label} must be true or false, got {value!r}")
         return value
     if hint is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise InputError(f"{label} must be an integer, got {value!r}")
-        if isinstance(value, float):
+        if not isinstance(value, numbers.Integral):
             if not math.isfinite(value) or value != int(value):
                 raise InputError(f"{label} must be an integer, got {value!r}")
-            return int(value)
-        return value
+        return value if type(value) is int else int(value)  # numpy integers and 3.0 become int
     if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise InputError(f"{label} must be a number, got {value!r}")
         value = float(value)
         if not math.isfinite(value):

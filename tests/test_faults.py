@@ -254,7 +254,8 @@ def test_contact_sheet_force_replaces_and_plain_run_writes(tmp_path, data, capsy
 
 def test_recover_poses_continues_an_unfinished_run(tmp_path):
     """A failed or killed run leaves colmap/ (no meta.json): the rerun goes on without --force; a folder
-    holding a finished capture or anything else still needs it."""
+    holding a finished capture or anything else still needs it. (The stages themselves:
+    test_recover_poses_resumes_finished_stages.)"""
     from blender_mrvm.capture.sfm import prepare_output
     from blender_mrvm.errors import OutputError
 
@@ -263,8 +264,13 @@ def test_recover_poses_continues_an_unfinished_run(tmp_path):
     out = tmp_path / "cap"
     (out / "colmap").mkdir(parents=True)
     (out / "colmap" / "database.db").write_bytes(b"partial")
-    prepare_output(out, photos, force=False)  # continues: the partial work is redone
-    assert not (out / "colmap").exists()
+    (out / "rgb").mkdir()
+    prepare_output(out, photos, force=False)  # continues: colmap/ is left to the stage log, the rest redone
+    assert (out / "colmap" / "database.db").is_file() and not (out / "rgb").exists()
+    from blender_mrvm.capture.sfm import StageLog
+
+    StageLog(out / "colmap", {"any": "stamp"})  # no log of finished stages: colmap/ starts afresh
+    assert sorted(p.name for p in (out / "colmap").iterdir()) == ["stages.json"]
     (out / "rgb").mkdir()
     (out / "meta.json").write_text("{}")
     with pytest.raises(OutputError, match="already holds files"):
@@ -341,3 +347,52 @@ def test_panels_never_probe_the_worker_from_draw(empty_scene, monkeypatch):
     monkeypatch.undo()
     P.refresh_dependency_status(ctx)  # what Check Again does
     assert not P.dependency_status(ctx, cached=True).pending
+
+
+def test_recover_poses_resumes_finished_stages(ring, tmp_path, monkeypatch, capsys):
+    """A run killed after matching: the rerun (no --force) restores the database as matching left it
+    and goes on from mapping, with the result of an uninterrupted run; other settings start afresh."""
+    import pycolmap
+
+    from blender_mrvm.capture import sfm
+    from blender_mrvm.capture.config import CaptureConfig
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for p in sorted(ring[0].iterdir())[:8]:
+        shutil.copy(p, photos / p.name)
+    cfg = CaptureConfig(num_threads=2, single_camera=True)
+    out = tmp_path / "cap"
+    gen = sfm.recover_poses(photos, out, cfg)
+    for ev in gen:  # killed once matching is done
+        if ev.done >= sfm._STAGE_END["match"]:
+            break
+    gen.close()
+    log = json.loads((out / "colmap" / "stages.json").read_text())
+    assert log["done"] == ["extract", "match"] and not (out / "meta.json").exists()
+
+    def not_again(*a, **k):
+        raise AssertionError("a finished stage ran again")
+
+    for name in ("extract_features", "match_exhaustive", "match_sequential"):
+        monkeypatch.setattr(pycolmap, name, not_again)
+    capsys.readouterr()
+    assert main(["recover-poses", "--images", str(photos), "--out", str(out), "--threads", "2",
+                 "--single-camera"]) == 0, capsys.readouterr().err
+    resumed = json.loads((out / "meta.json").read_text())
+    assert resumed["registered"] == 8 and not list((out / "colmap").glob("database.*.db"))
+    monkeypatch.undo()
+    # As accurate as an uninterrupted run (test_capture.py's bound; COLMAP's multi-threaded mapping is not
+    # bit-identical from run to run, so the poses are compared with the truth, not with another run).
+    from blender_mrvm.capture import align
+
+    frames = json.loads((out / "transforms.json").read_text())["frames"]
+    truth = {v["name"]: np.array(v["c2w_opencv"]) for v in ring[1]["views"]}
+    got = [F.read_srn_pose(out / "pose" / f"{i:06d}.txt") for i in range(len(frames))]
+    err = align.pose_errors(got, [truth[f["original_name"]] for f in frames])
+    assert err.median_rotation_deg < 0.5 and err.median_centre < 0.01 * ring[1]["radius"]
+    # Other settings: the stages are not reused (the log's stamp differs), colmap/ starts afresh.
+    st = sfm.StageLog(out / "colmap", sfm.run_stamp(photos, sorted(p.name for p in photos.iterdir()),
+                                                    CaptureConfig(max_num_features=1024)))
+    assert st.done == set() and sorted(p.name for p in (out / "colmap").iterdir()) == ["stages.json"]
+

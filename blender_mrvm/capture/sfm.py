@@ -150,8 +150,9 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
 
 def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
     """Refuse an occupied output folder unless ``force``; with it, remove only what we write. A folder
-    holding only an unfinished run of ours (no meta.json, which is written last) is continued: its
-    partial files are redone, as a resumed render redoes an unfinished view."""
+    holding only an unfinished run of ours (no meta.json, which is written last) is continued without
+    ``force``: its ``colmap/`` stays, and :func:`recover_poses` skips the stages it finished with the
+    same photos and settings (``colmap/stages.json``), as a resumed render skips finished views."""
     out, img = Path(out_dir).resolve(), Path(images_dir).resolve()
     if out == img or out in img.parents:
         raise OutputError(f"output folder {out_dir} contains the photos; choose another folder")
@@ -160,14 +161,81 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
     if out.is_dir():
         present = sorted(p.name for p in out.iterdir())
         unfinished = present and set(present) <= set(OUTPUT_ENTRIES) and "meta.json" not in present
-        if unfinished:  # a failed or killed run of ours (meta.json is written last): continue it
-            force = True
         if present:
-            if not force:
+            if not force and not unfinished:
                 shown = ", ".join(present[:3]) + (", ..." if len(present) > 3 else "")
                 raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force to overwrite")
-            remove_entries(out, OUTPUT_ENTRIES)
+            keep = {"colmap"} if unfinished and not force else set()  # a failed or killed run: resume its stages
+            remove_entries(out, [e for e in OUTPUT_ENTRIES if e not in keep])
     out.mkdir(parents=True, exist_ok=True)
+
+
+RESUMABLE_STAGES = ("extract", "match")
+"""Stages whose result (the database) a rerun of an unfinished run reuses."""
+
+
+def run_stamp(images_dir: Path, names: list[str], cfg: CaptureConfig) -> dict:
+    """What the database's content depends on: the photos (name, size, mtime) and the settings (not
+    --force or the thread count). A rerun reuses finished stages only when it is the same."""
+    photos = []
+    for n in names:
+        st = (Path(images_dir) / n).stat()
+        photos.append([n, st.st_size, st.st_mtime_ns])
+    settings = {k: v for k, v in asdict(cfg).items() if k not in ("force", "num_threads")}
+    return {"version": 1, "images": str(Path(images_dir).resolve()), "photos": photos, "settings": settings}
+
+
+class StageLog:
+    """``colmap/stages.json``: the resumable stages finished with one stamp, each with a snapshot of the
+    database as that stage left it (``database.<stage>.db``; later stages change the cameras). A rerun
+    with the same stamp restores the newest snapshot and skips those stages; another stamp (other photos
+    or settings), a damaged log or a missing snapshot starts ``colmap/`` afresh."""
+
+    def __init__(self, work: Path, stamp: dict):
+        self.work, self.path, self.stamp = Path(work), Path(work) / "stages.json", stamp
+        self.done: set[str] = set()
+        try:
+            log = json.loads(self.path.read_text()) if self.path.is_file() else None
+        except (ValueError, OSError):
+            log = None
+        if isinstance(log, dict) and log.get("stamp") == stamp:
+            done = [s for s in RESUMABLE_STAGES if s in log.get("done", [])]
+            done = done[:next((i for i, s in enumerate(RESUMABLE_STAGES) if s not in done), len(done))]
+            snap = self._snapshot(done[-1]) if done else None
+            if snap is not None and snap.is_file():
+                for p in list(self.work.iterdir()):  # everything but the snapshot and the log
+                    if p not in (snap, self.path):
+                        shutil.rmtree(p) if p.is_dir() else p.unlink()
+                shutil.copyfile(snap, self.work / "database.db")
+                self.done = set(done)
+        if not self.done:
+            if self.work.exists():
+                shutil.rmtree(self.work)
+            self.work.mkdir(parents=True, exist_ok=True)
+            self._write()
+
+    def _snapshot(self, stage: str) -> Path:
+        return self.work / f"database.{stage}.db"
+
+    def finish(self, stage: str) -> None:
+        """Record a finished stage (snapshot first, then the log: a kill in between loses only the stage)."""
+        from ..datasets.format import atomic_write
+
+        atomic_write(self._snapshot(stage), lambda tmp: shutil.copyfile(self.work / "database.db", tmp))
+        for old in self.done:
+            self._snapshot(old).unlink(missing_ok=True)
+        self.done.add(stage)
+        self._write()
+
+    def close(self) -> None:
+        """The run finished: its snapshots are not needed any more (the log stays, as a record)."""
+        for stage in RESUMABLE_STAGES:
+            self._snapshot(stage).unlink(missing_ok=True)
+
+    def _write(self) -> None:
+        from ..datasets.format import atomic_write_json
+
+        atomic_write_json(self.path, {"stamp": self.stamp, "done": sorted(self.done)})
 
 
 def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: Callable[[], str] | None = None,
@@ -256,11 +324,12 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     size = check_images(images_dir, names, cfg)
     prepare_output(out_dir, images_dir, cfg.force)
     work = out_dir / "colmap"
-    work.mkdir(parents=True, exist_ok=True)
+    stages = StageLog(work, run_stamp(images_dir, names, cfg))
     db_path = work / "database.db"
     matcher = choose_matcher(cfg, names)
     timings["scan"], cpu_timings["scan"] = time.perf_counter() - t, time.process_time() - c
-    yield Progress(_STAGE_END["scan"], 100, f"{len(names)} images, {matcher} matching")
+    resumed = f", resuming after {', '.join(sorted(stages.done))}" if stages.done else ""
+    yield Progress(_STAGE_END["scan"], 100, f"{len(names)} images, {matcher} matching{resumed}")
     token = pycolmap.CancellationToken()
     threads = cfg.num_threads
 
@@ -275,9 +344,11 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     first_octave = cfg.sift_first_octave(*size)
     ext.sift.first_octave = first_octave
     mode = pycolmap.CameraMode.SINGLE if cfg.shared_camera else pycolmap.CameraMode.PER_IMAGE
-    yield from _run_in_thread(lambda: pycolmap.extract_features(
-        db_path, images_dir, image_names=names, camera_mode=mode, reader_options=reader, extraction_options=ext,
-        device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
+    if "extract" not in stages.done:
+        yield from _run_in_thread(lambda: pycolmap.extract_features(
+            db_path, images_dir, image_names=names, camera_mode=mode, reader_options=reader, extraction_options=ext,
+            device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
+        stages.finish("extract")
     timings["extract"], cpu_timings["extract"] = time.perf_counter() - t, time.process_time() - c
 
     # 3. match
@@ -297,7 +368,9 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         fn = lambda: pycolmap.match_sequential(db_path, matching_options=mopts, pairing_options=pairing,  # noqa: E731
                                                verification_options=ver, device=pycolmap.Device.cpu,
                                                cancellation_token=token)
-    yield from _run_in_thread(fn, token, f"{matcher} matching", _STAGE_END["extract"])
+    if "match" not in stages.done:
+        yield from _run_in_thread(fn, token, f"{matcher} matching", _STAGE_END["extract"])
+        stages.finish("match")
     verified, tried, connected = _pair_stats(db_path, ver.min_num_inliers)
     timings["match"], cpu_timings["match"] = time.perf_counter() - t, time.process_time() - c
     if verified == 0:
@@ -420,6 +493,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),
     }
     write_capture(out_dir, views, xyz, rgb, meta)
+    stages.close()
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
     return CaptureResult(out_dir, reg_names, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,

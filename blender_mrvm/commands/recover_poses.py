@@ -4,7 +4,8 @@ names its photo in original_name), meta.json and the sparse points as points.ply
 
 At least 3 photos of one size are needed; a stereo pair runs with --pair. The output folder must be
 empty unless --force is given (then only the capture's own files are replaced); a folder holding only
-an unfinished run (failed or killed: no meta.json yet) is continued without --force.
+an unfinished run (failed or killed: no meta.json yet) is resumed without --force: feature extraction
+and matching that finished with the same photos and settings are not redone (colmap/stages.json).
 """
 
 from __future__ import annotations
