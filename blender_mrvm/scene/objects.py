@@ -179,6 +179,7 @@ def quiet_stdout():
 def _import_file(path: Path) -> list[bpy.types.Object]:
     """Import a mesh file with Blender's importers (trimesh for OFF); return the new objects."""
     ext = path.suffix.lower()
+    check_mesh_file(path)
     before = {o.as_pointer() for o in bpy.data.objects}
     try:
         with quiet_stdout():
@@ -192,6 +193,38 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
             bpy.data.objects.remove(o)
         raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
     return new
+
+
+_OBJ_NONFINITE = re.compile(rb"(?im)^[ \t]*v[ \t][^\n#]*?(?<![a-z0-9_.])[+-]?(nan|inf(inity)?)(?![a-z0-9_])")
+
+
+def check_mesh_file(path: Path) -> None:
+    """Refuse a mesh file with NaN or infinite vertex coordinates (InputError, one line).
+
+    Blender's importers silently replace them with 0 (mesh validation), so the object would be
+    rendered with vertices the file does not have; trimesh reads the numbers as they are. OBJ is
+    scanned as text (fast for big ShapeNet files); OFF is checked where trimesh imports it."""
+    ext = path.suffix.lower()
+    bad = 0
+    if ext == ".obj":
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return  # the importer reports it
+        bad = len(_OBJ_NONFINITE.findall(data))
+    elif ext in (".ply", ".stl", ".glb", ".gltf"):
+        import trimesh
+
+        try:
+            with quiet_stdout():
+                tm = trimesh.load(str(path), force="mesh", process=False)
+            verts = np.asarray(tm.vertices, dtype=np.float64)
+        except Exception:  # trimesh cannot read it: leave the verdict to Blender's importer
+            return
+        bad = int((~np.isfinite(verts).all(axis=1)).sum()) if verts.ndim == 2 else 0
+    if bad:
+        raise InputError(f"mesh file {path} has {bad} vertices that are not finite numbers (NaN or infinite); "
+                         "fix or re-export the mesh")
 
 
 def _run_importer(path: Path, ext: str) -> None:
@@ -221,6 +254,7 @@ def _import_with_trimesh(path: Path) -> None:
         raise InputError(f"cannot read mesh file {path}: {e}") from None
     if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
         raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
+    check_vertices(np.asarray(tm.vertices, dtype=np.float64), f"mesh file {path}")
     mesh = bpy.data.meshes.new(path.stem)
     mesh.from_pydata(np.asarray(tm.vertices, dtype=np.float64).tolist(), [], np.asarray(tm.faces).tolist())
     mesh.validate()

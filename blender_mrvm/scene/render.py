@@ -21,12 +21,15 @@ resume, and a finished view counts only if its files are intact (a truncated PNG
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import os
 import shutil
+import signal
 import tempfile
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -468,6 +471,29 @@ def shard_specs(specs: list[O.ObjectSpec], shard: tuple[int, int]) -> list[O.Obj
     return [s for k, s in enumerate(ordered) if k % n == i]
 
 
+@contextlib.contextmanager
+def _sigint_between_views():
+    """In a headless run, turn Ctrl-C (SIGINT) into a flag that is checked between views.
+
+    Python's default handler raises KeyboardInterrupt wherever the main thread happens to be; during
+    a render that is inside a Python callback Blender runs (Cycles' engine), which Blender catches
+    and prints, so the render went on to the end. The flag makes ``render_dataset`` raise
+    KeyboardInterrupt after the view in flight is written. Inside Blender's UI (not background)
+    SIGINT is left alone: the modal operator cancels with ``close()``."""
+    flag: list[int] = []
+    previous = None
+    if bpy.app.background and threading.current_thread() is threading.main_thread():
+        try:
+            previous = signal.signal(signal.SIGINT, lambda signum, frame: flag.append(signum))
+        except (ValueError, OSError):
+            previous = None
+    try:
+        yield flag
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
 def render_dataset(cfg: RenderConfig) -> ProgressGen:
     """Render every object of ``cfg.sources`` (this shard's share); yields Progress, returns RenderSummary."""
     cfg.validate()
@@ -481,12 +507,18 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
     t0 = time.perf_counter()
     done = 0
     yield Progress(0, total, "starting")
-    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
         for spec in specs:
-            for event in _render_object(cfg, spec, scene_cams, Path(tmp), summary):
-                done += 1
-                summary.seconds = time.perf_counter() - t0
-                yield Progress(done, total, event, skipped=summary.views_skipped)
+            views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
+            try:
+                for event in views:
+                    done += 1
+                    summary.seconds = time.perf_counter() - t0
+                    yield Progress(done, total, event, skipped=summary.views_skipped)
+                    if interrupted:
+                        raise KeyboardInterrupt  # between views: every reported view is on disk
+            finally:
+                views.close()
             summary.objects.append(spec.key)
     write_splits(Path(cfg.out))
     summary.seconds = time.perf_counter() - t0
