@@ -105,6 +105,12 @@ def test_pixel_box_bounds_the_projection():
     i0, i1, j0, j1 = box
     assert i0 <= xs.min() - 2 and i1 >= xs.max() + 2 and j0 <= ys.min() - 2 and j1 >= ys.max() + 2
     assert (i1 - i0 + 1) * (j1 - j0 + 1) < 16 * 12
+    # the convex hull's vertices bound the projection as all vertices do
+    rng = np.random.default_rng(0)
+    blob = _tris(rng.normal(size=(300, 3)) * 0.3 + [0, 0, 3])
+    c2w = C.look_at_opencv((0.5, -0.4, 0.0), target=(0, 0, 3))
+    pts = R.outline_points(blob)
+    assert len(pts) < 300 and R.pixel_box(pts, intr, c2w, 0) == R.pixel_box(blob, intr, c2w, 0)
     behind = _tris(_quad(-1, 1, -1, 1, -1.0) + _quad(-1, 1, -1, 1, 2.0))
     assert R.pixel_box(behind, intr, IDENTITY, margin=2) is None
 

@@ -252,14 +252,30 @@ def _raster_chunk(tri, counts, cam, px, py, z, area, i0, j0, nx, intr, clip_star
     best_b[p] = bz / bz.sum(axis=1, keepdims=True)
 
 
-def pixel_box(tris: Triangles, intr: Intrinsics, c2w_opencv: np.ndarray, margin: int) -> tuple[int, int, int, int] | None:
-    """Inclusive pixel ranges (i0, i1, j0, j1) of the image that the triangles' projection can reach,
-    widened by ``margin`` pixels (a pixel filter's reach); None when it cannot be bounded (geometry
-    at or behind the camera plane) and the whole image must be rendered."""
-    if not len(tris):
+def outline_points(tris: Triangles) -> np.ndarray:
+    """The few points whose projection bounds the projection of every triangle: the vertices of
+    the convex hull (a perspective projection keeps segments straight for points in front of the
+    camera, so image extremes lie at hull vertices). Computed once per object for :func:`pixel_box`."""
+    pts = tris.verts.reshape(-1, 3)
+    if len(pts) > 64:
+        try:
+            from scipy.spatial import ConvexHull
+
+            pts = pts[ConvexHull(pts).vertices]
+        except Exception:  # flat or degenerate geometry: keep every vertex
+            pass
+    return pts
+
+
+def pixel_box(points, intr: Intrinsics, c2w_opencv: np.ndarray, margin: int) -> tuple[int, int, int, int] | None:
+    """Inclusive pixel ranges (i0, i1, j0, j1) of the image that the projection of ``points`` (or of
+    :class:`Triangles`) can reach, widened by ``margin`` pixels (a pixel filter's reach); None when it
+    cannot be bounded (geometry at or behind the camera plane) or is empty: render the whole image."""
+    pts = points.verts.reshape(-1, 3) if isinstance(points, Triangles) else np.asarray(points, dtype=np.float64)
+    if not len(pts):
         return None
     w2c = _world_to_camera(c2w_opencv)
-    cam = tris.verts.reshape(-1, 3) @ w2c[:3, :3].T + w2c[:3, 3]
+    cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
     z = cam[:, 2]
     if not (z > 1e-9).all():
         return None

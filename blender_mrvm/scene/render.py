@@ -579,6 +579,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if len(labels) > 256:
             raise InputError(f"{spec.key} has more than 255 parts; the uint8 mask cannot hold them")
         tris = O.mesh_triangles(objs, vl)  # once per object: the data passes of every view
+        outline = raster.outline_points(tris)
 
         # Cameras.
         w, h = cfg.resolution
@@ -637,7 +638,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 apply_intrinsics(session.camera, session.scene, intr)
                 current_intr = intr
             apply_pose(session.camera, c2w)
-            box = raster.pixel_box(tris, intr, c2w, border_margin) if border_margin else None
+            box = raster.pixel_box(outline, intr, c2w, border_margin) if border_margin else None
             colour = session.render_colour(box)
             # Rasterized and written on the writer thread while the next view renders.
             writer.submit(_make_view, obj_dir, i, colour, tris, intr, c2w, clip, labelled, cfg.rgba)
