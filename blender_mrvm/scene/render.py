@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -360,14 +361,44 @@ def part_mask(data: raster.DataPasses, labelled_ids: np.ndarray) -> np.ndarray:
     return np.where(ob == 0, 0, np.where(is_labelled, ma, ob)).astype(np.uint8)
 
 
+_TMP_NAMES = itertools.count()
+
+
+def _replace_into(path: str, write) -> None:
+    """Write a file through ``write(tmp)`` under a hidden name beside it, then rename it into place.
+
+    The same promise as ``format.atomic_write`` (never half-written, ordinary permissions) with
+    less per-file work: the folders exist, the name is unique to this process, the file is created
+    with the umask's permissions. Five files a view made that the writer thread's largest cost."""
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".{name}.{os.getpid()}.{next(_TMP_NAMES)}{os.path.splitext(name)[1]}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _text_writer(text: str):
+    def w(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+    return w
+
+
 def write_view(obj_dir: Path, index: int, colour: dict, data: raster.DataPasses, labelled_ids: np.ndarray,
                rgba_out: bool, c2w_opencv: np.ndarray) -> None:
-    paths = F.view_paths(obj_dir, index)
-    F.write_png(paths["rgb"], rgb_image(_combined_rgba(colour), rgba_out))
-    F.write_depth(paths["depth"], data.depth.astype(np.float32))
-    F.write_normals(paths["normal"], data.normal.astype(np.float32))
-    F.write_png(paths["mask"], part_mask(data, labelled_ids))
-    F.write_srn_pose(paths["pose"], c2w_opencv)  # last: the view's commit point
+    """The five files of a view (the folders exist); the pose, written last, is its commit point."""
+    base, name = str(obj_dir), F.view_name(index)
+    path = {k: f"{base}/{k}/{name}{F.VIEW_EXT[k]}" for k in F.VIEW_DIRS}
+    _replace_into(path["rgb"], F.png_writer(rgb_image(_combined_rgba(colour), rgba_out)))
+    _replace_into(path["depth"], F.exr_writer({"Y": data.depth}))
+    n = data.normal
+    _replace_into(path["normal"], F.exr_writer({"R": n[..., 0], "G": n[..., 1], "B": n[..., 2]}))
+    _replace_into(path["mask"], F.png_writer(part_mask(data, labelled_ids)))
+    _replace_into(path["pose"], _text_writer(F.format_pose(c2w_opencv)))
 
 
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
@@ -626,6 +657,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if cam_names:
             meta["scene_cameras"] = cam_names
         F.atomic_write_json(meta_path, meta)
+        for k in F.VIEW_DIRS:
+            (obj_dir / k).mkdir(exist_ok=True)
 
         current_intr = None
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
