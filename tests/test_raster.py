@@ -189,3 +189,45 @@ def test_matches_a_pixel_centre_cycles_render(tmp_path, bpy_empty, source):
             # smooth shading: the interpolated normal; Cycles' pass averages its BSDF closures'
             # normals, which it bends on a few grazing pixels (measured: 1-2 %, at most 13 degrees)
             assert (cos > 0.9999).mean() > 0.95 and cos.min() > 0.95
+
+
+@pytest.mark.slow
+def test_border_render_is_the_full_render(tmp_path, bpy_empty):
+    """Cycles renders only the box the object can reach: the image is the full render, bit for bit;
+    a box that cuts the object (its outer ring not empty) falls back to the full render."""
+    import bpy
+
+    from blender_mrvm.geometry import rigs
+    from blender_mrvm.scene import objects as O
+    from blender_mrvm.scene.camera import apply_intrinsics, apply_pose
+    from blender_mrvm.scene.render import RenderConfig, RenderSession
+    from tests.helpers import write_mesh
+
+    mesh = write_mesh(tmp_path / "m.ply")
+    w, h = 64, 48
+    cfg = RenderConfig(out=tmp_path, sources=(str(mesh),), resolution=(w, h), samples=4)
+    session = RenderSession(cfg, tmp_path)
+    try:
+        objs = O.load_into(O.resolve_sources(cfg.sources)[0], session.coll)
+        vl = session.view_layer
+        O.apply_world_transform(objs, O.normalization_matrix(O.mesh_vertices_world(objs, vl)), vl)
+        tris = O.mesh_triangles(objs, vl)
+        intr = C.intrinsics_from_fov(math.radians(40), w, h)
+        apply_intrinsics(session.camera, session.scene, intr)
+        margin = int(math.ceil(session.scene.cycles.filter_width)) + 1
+
+        def rgba(passes):
+            c = passes["Combined"]
+            return np.stack([c["R"], c["G"], c["B"], c["A"]], axis=-1)
+
+        for c2w in rigs.rig_poses("sphere", 3, rigs.framing_distance(0.5, intr.fov_x), seed=2):
+            apply_pose(session.camera, c2w)
+            full = rgba(session.render_colour(None))
+            box = R.pixel_box(R.outline_points(tris), intr, c2w, margin)
+            i0, i1, j0, j1 = box
+            assert (i1 - i0 + 1) * (j1 - j0 + 1) < 0.9 * w * h, "the box saves work"
+            assert (rgba(session.render_colour(box)) == full).all()
+            cut = (i0 + 8, i1 - 8, j0 + 8, j1 - 8)  # inside the object: its ring is not empty
+            assert (rgba(session.render_colour(cut)) == full).all()
+    finally:
+        session.close()
