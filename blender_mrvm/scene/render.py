@@ -100,8 +100,10 @@ class RenderConfig:
             raise InputError(f"resolution {w}x{h} exceeds the maximum of {MAX_RESOLUTION}")
         if self.rig not in rigs.RIGS:
             raise InputError(f"unknown rig {self.rig!r}; choose one of {', '.join(rigs.RIGS)}")
-        if self.rig != "scene" and not (isinstance(self.views, int) and 1 <= self.views <= MAX_VIEWS):
-            raise InputError(f"number of views must be between 1 and {MAX_VIEWS}, got {self.views}")
+        if self.rig != "scene" and self.views < 1:
+            raise InputError(f"number of views must be at least 1, got {self.views}")
+        if self.rig != "scene" and self.views > MAX_VIEWS:
+            raise InputError(f"number of views must be at most {MAX_VIEWS} per object, got {self.views}")
         if self.engine not in ENGINES:
             raise InputError(f"unknown engine {self.engine!r}; choose one of {', '.join(ENGINES)}")
         if self.samples < 1:
