@@ -299,6 +299,7 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection) -> list[bpy.ty
             ob.parent = None
             ob.matrix_world = src.matrix_world.copy()
             ob.animation_data_clear()
+            render_evaluation(ob)
             collection.objects.link(ob)
             out.append(ob)
         return out
@@ -311,6 +312,17 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection) -> list[bpy.ty
         ob = procedural.build(spec.category, spec.seed, collection, **params)
         return [ob]
     raise InputError(f"unknown source kind {spec.kind!r}")
+
+
+def render_evaluation(ob: bpy.types.Object) -> None:
+    """Make a private copy evaluate as a render does: modifiers shown in renders only, subdivision
+    and multires at their render levels. Normalization and the data passes read the evaluated
+    mesh (a viewport evaluation); Cycles renders the render evaluation, and the two must agree."""
+    for m in ob.modifiers:
+        if m.show_viewport != m.show_render:
+            m.show_viewport = m.show_render
+        if m.type in ("SUBSURF", "MULTIRES") and m.levels != m.render_levels:
+            m.levels = m.render_levels
 
 
 def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
@@ -390,6 +402,10 @@ def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer
             me.loop_triangles.foreach_get("material_index", slot)
             cn = np.empty(len(me.loops) * 3, dtype=np.float64)
             me.corner_normals.foreach_get("vector", cn)
+            tp = np.empty(n, dtype=np.int64)
+            me.loop_triangles.foreach_get("polygon_index", tp)
+            smooth = np.empty(len(me.polygons), dtype=bool)
+            me.polygons.foreach_get("use_smooth", smooth)
             mats = [m.pass_index if m is not None else 0 for m in me.materials] or [0]
         finally:
             ev.to_mesh_clear()
@@ -402,8 +418,15 @@ def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer
         ng = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
         if np.linalg.det(lin) < 0:  # a mirrored object keeps its own normals' orientation
             ng = -ng
+        corner = nrm[tl.reshape(-1, 3)]
+        # Flat faces shade with their triangle's own normal (a non-planar quad's two triangles
+        # differ from the face normal), as Cycles does; smooth ones interpolate the corner normals.
+        flat = ~smooth[tp]
+        if flat.any():
+            unit = ng[flat] / np.maximum(np.linalg.norm(ng[flat], axis=1, keepdims=True), 1e-300)
+            corner[flat] = unit[:, None, :]
         mat_ids = np.asarray(mats, dtype=np.int64)[np.clip(slot, 0, len(mats) - 1)]
-        parts.append(Triangles(verts, nrm[tl.reshape(-1, 3)], ng, np.full(n, int(o.pass_index), np.int64), mat_ids))
+        parts.append(Triangles(verts, corner, ng, np.full(n, int(o.pass_index), np.int64), mat_ids))
     return concatenate(parts)
 
 
