@@ -222,7 +222,7 @@ def test_border_render_is_the_full_render(tmp_path, bpy_empty):
         tris = O.mesh_triangles(objs, vl)
         intr = C.intrinsics_from_fov(math.radians(40), w, h)
         apply_intrinsics(session.camera, session.scene, intr)
-        margin = int(math.ceil(session.scene.cycles.filter_width)) + 1
+        margin = int(math.ceil(session.scene.cycles.filter_width / 2)) + 1
 
         def rgba(passes):
             c = passes["Combined"]

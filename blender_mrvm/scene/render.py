@@ -630,8 +630,9 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         near, far = rigs.near_far(poses, radius)
         set_clip(session.camera, near, far)
         clip = (session.camera.data.clip_start, session.camera.data.clip_end)
-        # Cycles renders only the pixels the object can reach (the rest is transparent anyway).
-        border_margin = int(math.ceil(session.scene.cycles.filter_width)) + 1 if cfg.engine == "CYCLES" else 0
+        # Cycles renders only the pixels the object can reach (the rest is transparent anyway): its
+        # pixel filter spreads a pixel's samples over +-filter_width/2 pixels; one pixel more for safety.
+        border_margin = int(math.ceil(session.scene.cycles.filter_width / 2)) + 1 if cfg.engine == "CYCLES" else 0
 
         split = assign_split(cfg, spec.key)
         lo = O.mesh_vertices_world(objs, vl).min(axis=0)
