@@ -142,7 +142,7 @@ def _cycles_data_passes(bpy, scene, tmp: Path) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("source", ["mesh", "procedural:chair:3", "selected"])
+@pytest.mark.parametrize("source", ["mesh", "glb", "procedural:chair:3", "selected"])
 def test_matches_a_pixel_centre_cycles_render(tmp_path, bpy_empty, source):
     import bpy
 
@@ -154,7 +154,8 @@ def test_matches_a_pixel_centre_cycles_render(tmp_path, bpy_empty, source):
     scene = bpy_empty
     coll = bpy.data.collections.new("objs")
     scene.collection.children.link(coll)
-    src = str(write_mesh(tmp_path / "m.ply")) if source == "mesh" else source
+    src = str(write_mesh(tmp_path / f"m.{'ply' if source == 'mesh' else source}")) if source in ("mesh", "glb") \
+        else source
     if source == "selected":  # a user's object whose render differs from its viewport
         bpy.ops.mesh.primitive_monkey_add()
         monkey = bpy.context.active_object
