@@ -236,3 +236,122 @@ def test_rgba_and_workbench(tmp_path, bpy_empty):
     inner, outer = binary_erosion(mask > 0, iterations=2), binary_erosion(mask == 0, iterations=2)  # AA edges aside
     assert inner.sum() > 20 and (rgba[..., 3][outer] == 0).all() and (rgba[..., 3][inner] == 255).all()
     assert (F.read_depth(obj / "depth" / "000000.exr") > 0).sum() == (mask > 0).sum()
+
+
+# --------------------------------------------------------------------------------------------
+# Nothing lost, one clear line (issue 14)
+# --------------------------------------------------------------------------------------------
+
+def test_ctrl_c_stops_between_views_and_keeps_finished_ones(tmp_path, bpy_empty):
+    """SIGINT to a headless render-dataset stops it after the view in flight (Cycles used to
+    swallow the KeyboardInterrupt and render to the end); the finished views resume."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from blender_mrvm.scene.render import RenderConfig, render_dataset, view_intact
+
+    root = Path(__file__).resolve().parents[1]
+    mesh = write_mesh(tmp_path / "m.ply")
+    out = tmp_path / "d"
+    args = ["--source", str(mesh), "--views", "30", "--resolution", "64", "--samples", "32", "--out", str(out)]
+    env = dict(os.environ, PYTHONPATH=str(root), TQDM_DISABLE="1")
+    proc = subprocess.Popen([sys.executable, "-m", "blender_mrvm", "render-dataset", *args], cwd=root, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    poses = out / "custom" / "m" / "pose"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if poses.is_dir() and len(list(poses.glob("*.txt"))) >= 2:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the render ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    assert [line for line in err.splitlines() if line.startswith("error:")] == \
+        ["error: interrupted; finished work is kept"]
+    obj = out / "custom" / "m"
+    kept = sorted(p.name for p in poses.iterdir())
+    assert 2 <= len(kept) < 30, kept
+    assert kept == [f"{i:06d}.txt" for i in range(len(kept))]
+    assert all(view_intact(obj, i) for i in range(len(kept)))
+    assert not json.loads((obj / "meta.json").read_text())["complete"]
+    assert not list(obj.rglob(".*")), "no temporary files left behind"
+    s = run_to_end(render_dataset(RenderConfig(out=out, sources=(str(mesh),), views=30, resolution=(64, 64),
+                                               samples=32)))
+    assert (s.views_rendered, s.views_skipped) == (30 - len(kept), len(kept))
+
+
+def test_resume_renders_a_truncated_view_again(dataset, tmp_path):
+    root, _, mesh = dataset
+    work = tmp_path / "copy"
+    shutil.copytree(root, work)
+    obj = work / "custom" / "widget"
+    kw = dict(out=work, sources=(str(mesh),), views=8, rig="sphere", resolution=(96, 80), seed=3)
+    png = obj / "rgb" / "000003.png"
+    whole = png.read_bytes()
+    png.write_bytes(whole[: len(whole) // 2])  # a damaged copy: the file exists and is not empty
+    exr = obj / "depth" / "000006.exr"
+    exr.write_bytes(exr.read_bytes()[:-200])
+    s = _render(**kw)
+    assert (s.views_rendered, s.views_skipped) == (2, 6)
+    assert F.read_png(png).shape == (80, 96, 3) and F.read_depth(exr).shape == (80, 96)
+    assert json.loads((obj / "meta.json").read_text())["complete"]
+
+
+def test_resume_refuses_views_of_a_changed_source(tmp_path, bpy_empty):
+    from blender_mrvm.errors import OutputError
+    from tests.helpers import asymmetric_mesh
+
+    mesh = write_mesh(tmp_path / "thing.ply")
+    kw = dict(out=tmp_path / "d", sources=(str(mesh),), views=2, resolution=(16, 16), samples=1)
+    _render(**kw)
+    meta_path = tmp_path / "d" / "custom" / "thing" / "meta.json"
+    first = json.loads(meta_path.read_text())["source_hash"]
+    assert first.startswith("sha256:")
+    s = _render(**kw)
+    assert (s.views_rendered, s.views_skipped) == (0, 2), "same file: resumed"
+    changed = asymmetric_mesh()
+    changed.apply_scale((1.0, 1.5, 1.0))
+    write_mesh(mesh, changed)  # the same path, other content
+    with pytest.raises(OutputError, match="changed"):
+        _render(**kw)
+    s = _render(**kw, force=True)
+    assert s.views_rendered == 2 and json.loads(meta_path.read_text())["source_hash"] != first
+    # a dataset rendered before source hashes were kept still resumes
+    meta = json.loads(meta_path.read_text())
+    del meta["source_hash"]
+    meta_path.write_text(json.dumps(meta))
+    assert _render(**kw).views_skipped == 2
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "1e30"])
+@pytest.mark.parametrize("ext", [".obj", ".ply", ".off"])
+def test_mesh_with_broken_vertices_is_refused(tmp_path, bpy_empty, capsys, value, ext):
+    from blender_mrvm.cli import main
+    from tests.helpers import asymmetric_mesh
+
+    m = asymmetric_mesh()
+    v = m.vertices.copy()
+    v[5, 0] = float(value)
+    path = tmp_path / f"bad{ext}"
+    import trimesh
+
+    write_mesh(path, trimesh.Trimesh(v, m.faces, process=False))
+    out = tmp_path / "d"
+    rc = main(["render-dataset", "--source", str(path), "--views", "2", "--resolution", "16", "--samples", "1",
+               "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("error: ") and "bad" + ext in err[0], err
+    assert not list(out.glob("*/*/meta.json")), "no dataset recorded"
+
+
+def test_views_have_a_limit(tmp_path, capsys):
+    from blender_mrvm.cli import main
+
+    rc = main(["render-dataset", "--source", "procedural:chair:0", "--views", "100000", "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "views" in err[0] and "10000" in err[0], err
+    assert not (tmp_path / "d").exists()

@@ -2,8 +2,12 @@
 
 The naive loop is what the usual scripts do: one ``bpy.ops.render.render(write_still=True)`` per
 view with Blender writing a PNG (RGB only), in the same scene (object, light, world, engine,
-samples, resolution) as ours. ``render-dataset`` writes RGB, depth, normals, part mask and pose per view (two
-renders: colour + 1-sample data passes). Figures go to ``<out>/bench_render.csv``.
+samples, resolution) as ours. ``render-dataset`` writes RGB, depth, normals, part mask and pose per
+view plus the per-object files (one colour render per view, limited to the pixels the object can
+reach; the pixel-centre data passes rasterized and written on a thread while the next view renders),
+and its time includes loading the object. The two run side by side, alternating, ``--repeats``
+times; each row records the machine's load average, and ``render_dataset`` rows the ratio to the
+naive loop of the same repeat. Figures go to ``<out>/bench_render.csv``.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolutions", default="64,128")
     p.add_argument("--engines", default="CYCLES,BLENDER_WORKBENCH,BLENDER_EEVEE")
     p.add_argument("--samples", type=int, default=16)
+    p.add_argument("--repeats", type=int, default=1, help="side-by-side measurements per engine and resolution "
+                                                          "(the order alternates to cancel drift)")
 
 
 def _mesh(folder: Path) -> Path:
@@ -91,25 +97,44 @@ def ours(mesh: Path, out: Path, engine: str, res: int, views: int, samples: int)
 
 
 def run(args) -> int:
+    import os
+    import platform
+
+    from ..errors import InputError
+
+    if args.repeats < 1 or args.views < 1:
+        raise InputError("--repeats and --views must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
+    methods = (("naive_loop", naive_loop, "rgb png"),
+               ("render_dataset", ours, "rgb png, depth+normal exr, mask png, pose, intrinsics, transforms.json, meta"))
+    machine = f"{platform.machine()} {os.cpu_count()} cpu"
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         mesh = _mesh(tmp)
         for engine in [e.strip().upper() for e in args.engines.split(",") if e.strip()]:
             views = args.eevee_views if engine == "BLENDER_EEVEE" else args.views
             for res in [int(r) for r in args.resolutions.split(",")]:
-                for method, fn, outputs in (("naive_loop", naive_loop, "rgb png"),
-                                            ("render_dataset", ours, "rgb png, depth+normal exr, mask png, pose")):
-                    d = tmp / f"{engine}_{res}_{method}"
-                    d.mkdir()
-                    sec = fn(mesh, d, engine, res, views, args.samples)
-                    row = {"engine": engine, "resolution": res, "method": method, "views": views,
-                           "samples": args.samples, "seconds": round(sec, 3),
-                           "views_per_second": round(views / sec, 3), "outputs": outputs}
-                    rows.append(row)
-                    print(f"{engine:18s} {res:4d}px {method:15s} {views:3d} views {sec:7.2f} s "
-                          f"{views / sec:7.2f} views/s", flush=True)
+                for rep in range(args.repeats):
+                    vps = {}
+                    for method, fn, outputs in (methods if rep % 2 == 0 else methods[::-1]):
+                        d = tmp / f"{engine}_{res}_{method}_{rep}"
+                        d.mkdir()
+                        load = os.getloadavg()[0]
+                        sec = fn(mesh, d, engine, res, views, args.samples)
+                        vps[method] = views / sec
+                        row = {"engine": engine, "resolution": res, "method": method, "repeat": rep, "views": views,
+                               "samples": args.samples, "seconds": round(sec, 3),
+                               "views_per_second": round(views / sec, 3), "ratio_to_naive": "",
+                               "load_1min": round(load, 2), "machine": machine, "outputs": outputs}
+                        rows.append(row)
+                        print(f"{engine:18s} {res:4d}px {method:15s} {views:3d} views {sec:7.2f} s "
+                              f"{views / sec:7.2f} views/s  (load {load:.2f})", flush=True)
+                    ratio = vps["render_dataset"] / vps["naive_loop"]
+                    for row in rows[-2:]:
+                        if row["method"] == "render_dataset":
+                            row["ratio_to_naive"] = round(ratio, 3)
+                    print(f"{'':18s} {res:4d}px ratio render_dataset / naive_loop: {ratio:.2f}x", flush=True)
     write_csv(out / "bench_render.csv", rows)
     return 0

@@ -134,14 +134,19 @@ def to_uint8(x: np.ndarray) -> np.ndarray:
     return np.clip(np.round(np.asarray(x) * 255.0), 0, 255).astype(np.uint8)
 
 
-def write_png(path: Path, arr: np.ndarray) -> None:
-    """Write a uint8 (H, W), (H, W, 3) or (H, W, 4) array as PNG, atomically."""
+def png_writer(arr: np.ndarray) -> Callable[[str], None]:
+    """A function that writes a uint8 (H, W), (H, W, 3) or (H, W, 4) array as PNG to the path it is given."""
     from PIL import Image
 
     arr = np.ascontiguousarray(arr)
     if arr.dtype != np.uint8:
         raise TypeError(f"write_png expects uint8, got {arr.dtype}")
-    atomic_write(path, lambda tmp: Image.fromarray(arr).save(tmp, format="PNG"))
+    return lambda tmp: Image.fromarray(arr).save(tmp, format="PNG")
+
+
+def write_png(path: Path, arr: np.ndarray) -> None:
+    """Write a uint8 (H, W), (H, W, 3) or (H, W, 4) array as PNG, atomically."""
+    atomic_write(path, png_writer(arr))
 
 
 def read_png(path: Path) -> np.ndarray:
@@ -157,8 +162,9 @@ def read_png(path: Path) -> np.ndarray:
         raise InputError(f"cannot read image {path}: {e}") from None
 
 
-def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
-    """Write float32 channels (each (H, W)) to a single-part scanline EXR, ZIP-compressed, atomically."""
+def exr_writer(channels: dict[str, np.ndarray]) -> Callable[[str], None]:
+    """A function that writes float32 channels (each (H, W)) as a single-part scanline EXR,
+    ZIP-compressed, to the path it is given."""
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -167,7 +173,12 @@ def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
     def w(tmp: str) -> None:
         with OpenEXR.File(header, chans) as f:
             f.write(tmp)
-    atomic_write(path, w)
+    return w
+
+
+def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    """Write float32 channels (each (H, W)) to a single-part scanline EXR, ZIP-compressed, atomically."""
+    atomic_write(path, exr_writer(channels))
 
 
 def read_exr(path: Path) -> dict[str, np.ndarray]:

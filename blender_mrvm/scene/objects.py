@@ -179,6 +179,7 @@ def quiet_stdout():
 def _import_file(path: Path) -> list[bpy.types.Object]:
     """Import a mesh file with Blender's importers (trimesh for OFF); return the new objects."""
     ext = path.suffix.lower()
+    check_mesh_file(path)
     before = {o.as_pointer() for o in bpy.data.objects}
     try:
         with quiet_stdout():
@@ -192,6 +193,38 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
             bpy.data.objects.remove(o)
         raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
     return new
+
+
+_OBJ_NONFINITE = re.compile(rb"(?im)^[ \t]*v[ \t][^\n#]*?(?<![a-z0-9_.])[+-]?(nan|inf(inity)?)(?![a-z0-9_])")
+
+
+def check_mesh_file(path: Path) -> None:
+    """Refuse a mesh file with NaN or infinite vertex coordinates (InputError, one line).
+
+    Blender's importers silently replace them with 0 (mesh validation), so the object would be
+    rendered with vertices the file does not have; trimesh reads the numbers as they are. OBJ is
+    scanned as text (fast for big ShapeNet files); OFF is checked where trimesh imports it."""
+    ext = path.suffix.lower()
+    bad = 0
+    if ext == ".obj":
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return  # the importer reports it
+        bad = len(_OBJ_NONFINITE.findall(data))
+    elif ext in (".ply", ".stl", ".glb", ".gltf"):
+        import trimesh
+
+        try:
+            with quiet_stdout():
+                tm = trimesh.load(str(path), force="mesh", process=False)
+            verts = np.asarray(tm.vertices, dtype=np.float64)
+        except Exception:  # trimesh cannot read it: leave the verdict to Blender's importer
+            return
+        bad = int((~np.isfinite(verts).all(axis=1)).sum()) if verts.ndim == 2 else 0
+    if bad:
+        raise InputError(f"mesh file {path} has {bad} vertices that are not finite numbers (NaN or infinite); "
+                         "fix or re-export the mesh")
 
 
 def _run_importer(path: Path, ext: str) -> None:
@@ -221,6 +254,7 @@ def _import_with_trimesh(path: Path) -> None:
         raise InputError(f"cannot read mesh file {path}: {e}") from None
     if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
         raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
+    check_vertices(np.asarray(tm.vertices, dtype=np.float64), f"mesh file {path}")
     mesh = bpy.data.meshes.new(path.stem)
     mesh.from_pydata(np.asarray(tm.vertices, dtype=np.float64).tolist(), [], np.asarray(tm.faces).tolist())
     mesh.validate()
@@ -265,6 +299,7 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection) -> list[bpy.ty
             ob.parent = None
             ob.matrix_world = src.matrix_world.copy()
             ob.animation_data_clear()
+            render_evaluation(ob)
             collection.objects.link(ob)
             out.append(ob)
         return out
@@ -277,6 +312,17 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection) -> list[bpy.ty
         ob = procedural.build(spec.category, spec.seed, collection, **params)
         return [ob]
     raise InputError(f"unknown source kind {spec.kind!r}")
+
+
+def render_evaluation(ob: bpy.types.Object) -> None:
+    """Make a private copy evaluate as a render does: modifiers shown in renders only, subdivision
+    and multires at their render levels. Normalization and the data passes read the evaluated
+    mesh (a viewport evaluation); Cycles renders the render evaluation, and the two must agree."""
+    for m in ob.modifiers:
+        if m.show_viewport != m.show_render:
+            m.show_viewport = m.show_render
+        if m.type in ("SUBSURF", "MULTIRES") and m.levels != m.render_levels:
+            m.levels = m.render_levels
 
 
 def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
@@ -321,3 +367,143 @@ def apply_world_transform(objs: list[bpy.types.Object], m: np.ndarray, view_laye
     for o in _top_level(objs):
         o.matrix_world = mm @ o.matrix_world
     view_layer.update()
+
+
+def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer):
+    """World-space triangles of the evaluated, render-visible meshes of ``objs`` for the data passes.
+
+    Each triangle carries its corner (shading) normals, its object's ``pass_index`` and its
+    material's ``pass_index`` (what Cycles' Object Index and Material Index passes hold). The
+    triangulation is Blender's own (``loop_triangles``), the one Cycles renders.
+    """
+    from .raster import Triangles, concatenate
+
+    view_layer.update()
+    depsgraph = view_layer.depsgraph
+    parts = []
+    for o in objs:
+        if o.type != "MESH" or o.hide_render or not getattr(o, "visible_camera", True):
+            continue
+        ev = o.evaluated_get(depsgraph)
+        me = ev.to_mesh()
+        try:
+            if hasattr(me, "calc_loop_triangles"):
+                me.calc_loop_triangles()
+            n = len(me.loop_triangles)
+            if n == 0:
+                continue
+            co = np.empty(len(me.vertices) * 3, dtype=np.float64)
+            me.vertices.foreach_get("co", co)
+            tv = np.empty(n * 3, dtype=np.int64)
+            me.loop_triangles.foreach_get("vertices", tv)
+            tl = np.empty(n * 3, dtype=np.int64)
+            me.loop_triangles.foreach_get("loops", tl)
+            slot = np.empty(n, dtype=np.int64)
+            me.loop_triangles.foreach_get("material_index", slot)
+            cn = np.empty(len(me.loops) * 3, dtype=np.float64)
+            me.corner_normals.foreach_get("vector", cn)
+            tp = np.empty(n, dtype=np.int64)
+            me.loop_triangles.foreach_get("polygon_index", tp)
+            smooth = np.empty(len(me.polygons), dtype=bool)
+            me.polygons.foreach_get("use_smooth", smooth)
+            mats = [m.pass_index if m is not None else 0 for m in me.materials] or [0]
+        finally:
+            ev.to_mesh_clear()
+        m = np.array(ev.matrix_world, dtype=np.float64)
+        lin = m[:3, :3]
+        verts = (co.reshape(-1, 3) @ lin.T + m[:3, 3])[tv.reshape(-1, 3)]
+        nrm_mat = np.linalg.inv(lin)  # normals transform with the inverse transpose (row vectors: n @ inv)
+        nrm = cn.reshape(-1, 3) @ nrm_mat
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        ng = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
+        if np.linalg.det(lin) < 0:  # a mirrored object keeps its own normals' orientation
+            ng = -ng
+        corner = nrm[tl.reshape(-1, 3)]
+        # Flat faces shade with their triangle's own normal (a non-planar quad's two triangles
+        # differ from the face normal), as Cycles does; smooth ones interpolate the corner normals.
+        flat = ~smooth[tp]
+        if flat.any():
+            unit = ng[flat] / np.maximum(np.linalg.norm(ng[flat], axis=1, keepdims=True), 1e-300)
+            corner[flat] = unit[:, None, :]
+        mat_ids = np.asarray(mats, dtype=np.int64)[np.clip(slot, 0, len(mats) - 1)]
+        parts.append(Triangles(verts, corner, ng, np.full(n, int(o.pass_index), np.int64), mat_ids))
+    return concatenate(parts)
+
+
+MAX_COORDINATE = 1e9
+"""Vertex coordinates beyond this (scene units) mark a broken mesh: normalization would squeeze the
+real geometry into a point and every view would come out blank."""
+
+
+def check_vertices(verts: np.ndarray, what: str) -> None:
+    """Refuse vertices that are NaN, infinite or absurdly far away (InputError, one line)."""
+    verts = np.asarray(verts)
+    bad = ~np.isfinite(verts).all(axis=1)
+    if bad.any():
+        raise InputError(f"{what} has {int(bad.sum())} vertices that are not finite numbers (NaN or infinite); "
+                         "fix or re-export the mesh")
+    far = float(np.abs(verts).max()) if len(verts) else 0.0
+    if far > MAX_COORDINATE:
+        raise InputError(f"{what} has a vertex coordinate of {far:.3g}, beyond +-{MAX_COORDINATE:g} scene units "
+                         "(a broken mesh would render as blank views); fix or re-export the mesh")
+
+
+def source_fingerprint(spec: ObjectSpec) -> str:
+    """What a dataset object is rendered from, as a hash: a changed source gets a new fingerprint.
+
+    Mesh files: their bytes (and an OBJ's material libraries beside it). Procedural objects: the
+    full generator parameters. Selected objects: their evaluated geometry, placement and materials.
+    """
+    import hashlib
+
+    h = hashlib.sha256()
+    if spec.kind == "file":
+        path = Path(spec.path)
+        files = [path]
+        if path.suffix.lower() == ".obj":
+            files += _obj_material_libraries(path)
+        for f in files:
+            h.update(f.name.encode() + b"\0")
+            try:
+                with open(f, "rb") as fh:
+                    for block in iter(lambda: fh.read(1 << 20), b""):
+                        h.update(block)
+            except OSError as e:
+                raise InputError(f"cannot read mesh file {f}: {e.strerror or e}") from None
+    elif spec.kind == "procedural":
+        from . import procedural
+
+        h.update(repr(sorted(procedural.sample_parameters(spec.category, spec.seed, **dict(spec.params)).items())).encode())
+    else:
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        for name in spec.names:
+            src = bpy.data.objects.get(name)
+            if src is None:
+                raise InputError(f"object {name!r} no longer exists")
+            ev = src.evaluated_get(depsgraph)
+            me = ev.to_mesh()
+            try:
+                co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+                me.vertices.foreach_get("co", co)
+                lv = np.empty(len(me.loops), dtype=np.int32)
+                me.loops.foreach_get("vertex_index", lv)
+                h.update(co.tobytes() + lv.tobytes())
+                h.update(repr([m.name if m else "" for m in me.materials]).encode())
+            finally:
+                ev.to_mesh_clear()
+            h.update(np.array(src.matrix_world, dtype=np.float32).tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+def _obj_material_libraries(path: Path) -> list[Path]:
+    out = []
+    try:
+        with open(path, "r", errors="replace") as f:
+            for line in f:
+                if line.startswith("mtllib "):
+                    p = path.parent / line.split(None, 1)[1].strip()
+                    if p.is_file():
+                        out.append(p)
+    except OSError:
+        pass
+    return out

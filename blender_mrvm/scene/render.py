@@ -5,25 +5,34 @@ every view and returns a :class:`RenderSummary`. The CLI drives it with a tqdm b
 operator steps it on a timer and cancels with ``close()``.
 
 How a view is made: every dataset object is loaded into a private scene (the user's scenes and
-objects are never modified), normalized like ShapeNet, and rendered twice per camera into
-multi-layer EXRs: the colour with the chosen engine (Cycles by default, anti-aliased), and the data
-passes (Depth, Normal, Object Index, Material Index) with a 1-sample Cycles render whose pixel
-filter is near zero, so every depth, normal and id belongs exactly to the ray through the pixel
-centre (the convention of ``geometry/cameras.py``). numpy turns them into the dataset files: RGB
+objects are never modified) and normalized like ShapeNet. The colour is one render per camera with
+the chosen engine (Cycles by default, anti-aliased) into a multi-layer EXR. The data passes (depth,
+normals, object and part ids) are not rendered: ``raster.py`` computes them exactly for the ray
+through each pixel centre (the convention of ``geometry/cameras.py``) from the object's triangles,
+which are read once per object; they match a 1-sample, zero-filter Cycles render pixel for pixel
+(``tests/test_raster.py``) at a fraction of its cost. numpy turns them into the dataset files: RGB
 composited on white (or RGBA) with the sRGB transfer function (what Blender's "Standard" view
-transform applies), planar z-depth and world normals as float32 EXR, and the part-id mask. With
-Cycles, ``use_persistent_data`` keeps each scene's BVH between views.
+transform applies), planar z-depth and world normals as float32 EXR, and the part-id mask. A writer
+thread rasterizes and writes view i while Cycles renders view i + 1 (the render releases the GIL).
+
+What each view was rendered from is recorded (``source_hash`` in ``meta.json``) and checked on
+resume, and a finished view counts only if its files are intact (a truncated PNG is rendered again).
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import itertools
 import json
 import math
 import os
 import shutil
+import signal
 import tempfile
+import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -37,10 +46,13 @@ from ..geometry import cameras as C
 from ..geometry import rigs
 from ..progress import Progress, ProgressGen
 from . import objects as O
+from . import raster
 from .camera import apply_intrinsics, apply_pose, new_camera, read_camera, set_clip
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
 MAX_RESOLUTION = 8192
+MAX_VIEWS = 10000
+"""Views per object at most (NeRF-synthetic uses 100-400, SRN 50-250): a typo cannot queue days of work."""
 
 
 @dataclass(frozen=True)
@@ -90,6 +102,8 @@ class RenderConfig:
             raise InputError(f"unknown rig {self.rig!r}; choose one of {', '.join(rigs.RIGS)}")
         if self.rig != "scene" and self.views < 1:
             raise InputError(f"number of views must be at least 1, got {self.views}")
+        if self.rig != "scene" and self.views > MAX_VIEWS:
+            raise InputError(f"number of views must be at most {MAX_VIEWS} per object, got {self.views}")
         if self.engine not in ENGINES:
             raise InputError(f"unknown engine {self.engine!r}; choose one of {', '.join(ENGINES)}")
         if self.samples < 1:
@@ -196,7 +210,7 @@ def write_splits(root: Path) -> dict[str, list[str]]:
 # --------------------------------------------------------------------------------------------
 
 class RenderSession:
-    """Private scene(s) holding one dataset object, a camera, a light and a world.
+    """A private scene holding one dataset object, a camera, a light and a world.
 
     Everything it creates is removed by :meth:`close`, also after an error or a cancel.
     """
@@ -212,19 +226,6 @@ class RenderSession:
         self._setup_world_and_light()
         self.camera = new_camera("MRVM_camera", self.coll)
         self.scene.camera = self.camera
-        # Data passes (depth, normals, ids) from a 1-sample Cycles render with a near-zero pixel
-        # filter, so each value belongs exactly to the ray through the pixel centre; colour from the
-        # chosen engine with full anti-aliasing, in a second scene sharing the objects.
-        self.data_scene = self.scene
-        self._setup_cycles(self.data_scene, 1)
-        self.data_scene.cycles.filter_width = 0.01
-        vl = self.data_scene.view_layers[0]
-        vl.use_pass_z = vl.use_pass_normal = True
-        vl.use_pass_object_index = vl.use_pass_material_index = True
-        self.scene = bpy.data.scenes.new("MRVM_render_colour")
-        self.scene.collection.children.link(self.coll)
-        self.scene.world = self.data_scene.world
-        self.scene.camera = self.camera
         if cfg.engine == "CYCLES":
             self._setup_cycles(self.scene, cfg.samples)
         else:
@@ -236,8 +237,11 @@ class RenderSession:
                 self.scene.display.shading.light = "STUDIO"
                 self.scene.display.shading.color_type = "MATERIAL"
                 self.scene.display.render_aa = "8"
-        for sc in {self.scene, self.data_scene}:
-            sc.render.filepath = str(tmpdir / f"{sc.name}.exr")
+        self.scene.render.filepath = str(tmpdir / f"{self.scene.name}.exr")
+
+    @property
+    def view_layer(self) -> bpy.types.ViewLayer:
+        return self.scene.view_layers[0]
 
     def _setup_common(self, sc: bpy.types.Scene) -> None:
         w, h = self.cfg.resolution
@@ -252,6 +256,7 @@ class RenderSession:
         s.color_depth = "32"
         s.exr_codec = "NONE"
         sc.view_settings.view_transform = "Standard"
+        sc.view_layers[0].use_pass_z = False  # colour only: the data passes are rasterized
 
     def _setup_cycles(self, sc: bpy.types.Scene, samples: int) -> None:
         sc.render.engine = "CYCLES"
@@ -288,8 +293,40 @@ class RenderSession:
         O.remove_new_data(self._before)
 
     # ------------------------------------------------------------------
-    def render_passes(self, scene: bpy.types.Scene) -> dict[str, dict[str, np.ndarray]]:
-        """Render ``scene`` and return ``{pass name: {channel: (H, W) array}}``."""
+    def render_colour(self, box: tuple[int, int, int, int] | None) -> dict[str, dict[str, np.ndarray]]:
+        """Render the colour, only inside ``box`` (inclusive pixel ranges i0, i1, j0, j1) when given.
+
+        Outside the box nothing of the object can reach a pixel (``raster.pixel_box`` widens the
+        object's projection by the pixel filter's reach), so those pixels are transparent black in a
+        full render too; inside it Cycles samples exactly as in a full render (its sampling pattern
+        depends on the pixel, not on the border), so the image is the same, bit for bit, and the
+        background pixels around the object cost nothing. If the box's outer ring is not empty after
+        all (geometry that the mesh does not describe, such as displacement), the full image is rendered.
+        """
+        r = self.scene.render
+        w, h = r.resolution_x, r.resolution_y
+        if box is not None and box == (0, w - 1, 0, h - 1):
+            box = None
+        if box is None:
+            r.use_border = False
+            return self.render_passes()
+        i0, i1, j0, j1 = box
+        r.use_border, r.use_crop_to_border = True, False
+        # Blender's border is in fractions of the image, y up from the bottom.
+        r.border_min_x, r.border_max_x = i0 / w, (i1 + 1) / w
+        r.border_min_y, r.border_max_y = (h - 1 - j1) / h, (h - j0) / h
+        passes = self.render_passes()
+        a = passes["Combined"]["A"]
+        ring = [a[j0, i0:i1 + 1] if j0 > 0 else None, a[j1, i0:i1 + 1] if j1 < h - 1 else None,
+                a[j0:j1 + 1, i0] if i0 > 0 else None, a[j0:j1 + 1, i1] if i1 < w - 1 else None]
+        if a.shape != (h, w) or any(x is not None and x.any() for x in ring):
+            r.use_border = False
+            return self.render_passes()
+        return passes
+
+    def render_passes(self, scene: bpy.types.Scene | None = None) -> dict[str, dict[str, np.ndarray]]:
+        """Render ``scene`` (default: the session's) and return ``{pass name: {channel: (H, W) array}}``."""
+        scene = scene or self.scene
         with O.quiet_stdout():
             bpy.ops.render.render(write_still=True, scene=scene.name)
         parts = F.read_exr_parts(Path(scene.render.filepath))
@@ -319,29 +356,103 @@ def rgb_image(rgba_premult: np.ndarray, rgba_out: bool) -> np.ndarray:
     return np.concatenate([F.to_uint8(F.linear_to_srgb(straight)), F.to_uint8(a)], axis=-1)
 
 
-def part_mask(passes: dict, labelled_ids: np.ndarray) -> np.ndarray:
+def part_mask(data: raster.DataPasses, labelled_ids: np.ndarray) -> np.ndarray:
     """Part ids: the material pass index for part-labelled objects, else the object pass index."""
-    ob = np.rint(passes["Object Index"]["X"]).astype(np.int64)
-    ma = np.rint(passes["Material Index"]["X"]).astype(np.int64)
+    ob, ma = data.object_id, data.material_id
     is_labelled = labelled_ids[np.clip(ob, 0, len(labelled_ids) - 1)]
     return np.where(ob == 0, 0, np.where(is_labelled, ma, ob)).astype(np.uint8)
 
 
-def write_view(obj_dir: Path, index: int, colour: dict, data: dict, labelled_ids: np.ndarray,
+_TMP_NAMES = itertools.count()
+
+
+def _replace_into(path: str, write) -> None:
+    """Write a file through ``write(tmp)`` under a hidden name beside it, then rename it into place.
+
+    The same promise as ``format.atomic_write`` (never half-written, ordinary permissions) with
+    less per-file work: the folders exist, the name is unique to this process, the file is created
+    with the umask's permissions. Five files a view made that the writer thread's largest cost."""
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".{name}.{os.getpid()}.{next(_TMP_NAMES)}{os.path.splitext(name)[1]}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _text_writer(text: str):
+    def w(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+    return w
+
+
+def write_view(obj_dir: Path, index: int, colour: dict, data: raster.DataPasses, labelled_ids: np.ndarray,
                rgba_out: bool, c2w_opencv: np.ndarray) -> None:
+    """The five files of a view (the folders exist); the pose, written last, is its commit point."""
+    base, name = str(obj_dir), F.view_name(index)
+    path = {k: f"{base}/{k}/{name}{F.VIEW_EXT[k]}" for k in F.VIEW_DIRS}
+    _replace_into(path["rgb"], F.png_writer(rgb_image(_combined_rgba(colour), rgba_out)))
+    _replace_into(path["depth"], F.exr_writer({"Y": data.depth}))
+    n = data.normal
+    _replace_into(path["normal"], F.exr_writer({"R": n[..., 0], "G": n[..., 1], "B": n[..., 2]}))
+    _replace_into(path["mask"], F.png_writer(part_mask(data, labelled_ids)))
+    _replace_into(path["pose"], _text_writer(F.format_pose(c2w_opencv)))
+
+
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def view_intact(obj_dir: Path, index: int) -> bool:
+    """A finished view whose files are whole: PNGs end with their IEND chunk, EXRs decode, the pose
+    parses. Files are written atomically, so this catches damage from outside (a truncated copy)."""
     paths = F.view_paths(obj_dir, index)
-    mask = part_mask(data, labelled_ids)
-    bg = np.rint(data["Object Index"]["X"]) == 0
-    depth = np.where(bg, 0.0, data["Depth"]["Z"]).astype(np.float32)
-    n = data["Normal"]
-    normals = np.stack([n["X"], n["Y"], n["Z"]], axis=-1).astype(np.float64)
-    norm = np.linalg.norm(normals, axis=-1, keepdims=True)
-    normals = np.where(bg[..., None] | (norm == 0), 0.0, normals / np.maximum(norm, 1e-12)).astype(np.float32)
-    F.write_png(paths["rgb"], rgb_image(_combined_rgba(colour), rgba_out))
-    F.write_depth(paths["depth"], depth)
-    F.write_normals(paths["normal"], normals)
-    F.write_png(paths["mask"], mask)
-    F.write_srn_pose(paths["pose"], c2w_opencv)  # last: the view's commit point
+    try:
+        for k in ("rgb", "mask"):
+            with open(paths[k], "rb") as f:
+                if f.seek(0, os.SEEK_END) < 67:  # smallest PNG
+                    return False
+                f.seek(-len(_PNG_END), os.SEEK_END)
+                if f.read() != _PNG_END:
+                    return False
+        for k in ("depth", "normal"):
+            ch = F.read_exr(paths[k])
+            if not ch or any(v.size == 0 for v in ch.values()):
+                return False
+        return np.isfinite(F.read_srn_pose(paths["pose"])).all()
+    except Exception:  # any unreadable file: the view is not finished
+        return False
+
+
+class _Writer:
+    """One background thread that rasterizes and writes a view while the next one renders.
+
+    At most one view is in flight; :meth:`wait` returns when it is on disk (or raises its error)."""
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mrvm_write")
+        self._pending: Future | None = None
+
+    def submit(self, fn, *args) -> None:
+        self.wait()
+        self._pending = self._pool.submit(fn, *args)
+
+    def wait(self) -> None:
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            try:
+                pending.result()
+            except OSError as e:
+                raise OutputError(f"cannot write the dataset files ({e.strerror or e})") from None
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            self._pool.shutdown(wait=True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -393,6 +504,29 @@ def shard_specs(specs: list[O.ObjectSpec], shard: tuple[int, int]) -> list[O.Obj
     return [s for k, s in enumerate(ordered) if k % n == i]
 
 
+@contextlib.contextmanager
+def _sigint_between_views():
+    """In a headless run, turn Ctrl-C (SIGINT) into a flag that is checked between views.
+
+    Python's default handler raises KeyboardInterrupt wherever the main thread happens to be; during
+    a render that is inside a Python callback Blender runs (Cycles' engine), which Blender catches
+    and prints, so the render went on to the end. The flag makes ``render_dataset`` raise
+    KeyboardInterrupt after the view in flight is written. Inside Blender's UI (not background)
+    SIGINT is left alone: the modal operator cancels with ``close()``."""
+    flag: list[int] = []
+    previous = None
+    if bpy.app.background and threading.current_thread() is threading.main_thread():
+        try:
+            previous = signal.signal(signal.SIGINT, lambda signum, frame: flag.append(signum))
+        except (ValueError, OSError):
+            previous = None
+    try:
+        yield flag
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
 def render_dataset(cfg: RenderConfig) -> ProgressGen:
     """Render every object of ``cfg.sources`` (this shard's share); yields Progress, returns RenderSummary."""
     cfg.validate()
@@ -406,12 +540,18 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
     t0 = time.perf_counter()
     done = 0
     yield Progress(0, total, "starting")
-    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
         for spec in specs:
-            for event in _render_object(cfg, spec, scene_cams, Path(tmp), summary):
-                done += 1
-                summary.seconds = time.perf_counter() - t0
-                yield Progress(done, total, event, skipped=summary.views_skipped)
+            views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
+            try:
+                for event in views:
+                    done += 1
+                    summary.seconds = time.perf_counter() - t0
+                    yield Progress(done, total, event, skipped=summary.views_skipped)
+                    if interrupted:
+                        raise KeyboardInterrupt  # between views: every reported view is on disk
+            finally:
+                views.close()
             summary.objects.append(spec.key)
     write_splits(Path(cfg.out))
     summary.seconds = time.perf_counter() - t0
@@ -423,6 +563,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     obj_dir = Path(cfg.out) / spec.category / spec.object_id
     settings = cfg.settings()
     meta_path = obj_dir / "meta.json"
+    source_hash = O.source_fingerprint(spec)
     if meta_path.exists():
         try:
             old = json.loads(meta_path.read_text())
@@ -433,16 +574,24 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 raise OutputError(f"{obj_dir} holds another render of {spec.key} "
                                   f"({old.get('source')}); use --force to overwrite it")
             shutil.rmtree(obj_dir)
-        elif old.get("complete") and all(F.view_complete(obj_dir, i) for i in range(old.get("n_views", -1))):
+        elif old.get("source_hash") not in (None, source_hash):  # None: rendered before hashes were kept
+            if not cfg.force:
+                raise OutputError(f"{obj_dir} holds views of {spec.describe()} as it was before it changed "
+                                  "(its content differs from what they were rendered from); "
+                                  "use --force to render it again")
+            shutil.rmtree(obj_dir)
+        elif old.get("complete") and all(view_intact(obj_dir, i) for i in range(old.get("n_views", -1))):
             for i in range(old["n_views"]):
                 summary.views_skipped += 1
                 yield f"{spec.key}: view {i + 1}/{old['n_views']} (done before)"
             return
 
     session = RenderSession(cfg, tmpdir)
+    writer = _Writer()
     try:
         objs = O.load_into(spec, session.coll)
-        vl = session.data_scene.view_layers[0]
+        vl = session.view_layer
+        O.check_vertices(O.mesh_vertices_world(objs, vl), spec.describe())
         norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl))
         O.apply_world_transform(objs, norm, vl)
         radius = float(np.linalg.norm(O.mesh_vertices_world(objs, vl), axis=1).max())
@@ -462,6 +611,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 labels[k] = spec.category if len(meshes) == 1 else o.name
         if len(labels) > 256:
             raise InputError(f"{spec.key} has more than 255 parts; the uint8 mask cannot hold them")
+        tris = O.mesh_triangles(objs, vl)  # once per object: the data passes of every view
+        outline = raster.outline_points(tris)
 
         # Cameras.
         w, h = cfg.resolution
@@ -478,6 +629,10 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             cam_names = []
         near, far = rigs.near_far(poses, radius)
         set_clip(session.camera, near, far)
+        clip = (session.camera.data.clip_start, session.camera.data.clip_end)
+        # Cycles renders only the pixels the object can reach (the rest is transparent anyway): its
+        # pixel filter spreads a pixel's samples over +-filter_width/2 pixels; one pixel more for safety.
+        border_margin = int(math.ceil(session.scene.cycles.filter_width / 2)) + 1 if cfg.engine == "CYCLES" else 0
 
         split = assign_split(cfg, spec.key)
         lo = O.mesh_vertices_world(objs, vl).min(axis=0)
@@ -485,6 +640,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         meta = {
             "format_version": F.FORMAT_VERSION, "generator": f"blender_mrvm {__version__}",
             "category": spec.category, "object_id": spec.object_id, "source": spec.describe(),
+            "source_hash": source_hash,
             "split": split, "settings": settings, "n_views": len(poses), "complete": False,
             "normalization": {"matrix": norm.tolist(), "scale": float(norm[0, 0]),
                               "note": "x_normalized = matrix @ x_source (ShapeNetCore v2: bbox centre 0, diagonal 1)"},
@@ -494,6 +650,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             "rgb": "8-bit sRGB (IEC 61966-2-1 transfer of linear render)",
             "depth": "planar z-depth along the camera axis, scene units, channel Y; 0 = background",
             "normal": "world-space unit normals, channels R G B = x y z; 0 = background",
+            "data_passes": "the first surface along the ray through each pixel centre (rasterized exactly)",
             "intrinsics": {"fl_x": intrs[0].fx, "fl_y": intrs[0].fy, "cx": intrs[0].cx, "cy": intrs[0].cy,
                            "w": w, "h": h},
             "per_view_intrinsics": len({(i.fx, i.fy, i.cx, i.cy) for i in intrs}) > 1,
@@ -503,24 +660,27 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if cam_names:
             meta["scene_cameras"] = cam_names
         F.atomic_write_json(meta_path, meta)
+        for k in F.VIEW_DIRS:
+            (obj_dir / k).mkdir(exist_ok=True)
 
         current_intr = None
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
             msg = f"{spec.key}: view {i + 1}/{len(poses)}"
-            if F.view_complete(obj_dir, i):
+            if view_intact(obj_dir, i):
                 summary.views_skipped += 1
                 yield msg + " (done before)"
                 continue
             if intr != current_intr:
-                for sc in {session.scene, session.data_scene}:
-                    apply_intrinsics(session.camera, sc, intr)
+                apply_intrinsics(session.camera, session.scene, intr)
                 current_intr = intr
             apply_pose(session.camera, c2w)
-            data = session.render_passes(session.data_scene)
-            colour = session.render_passes(session.scene)
-            write_view(obj_dir, i, colour, data, labelled, cfg.rgba, c2w)
+            box = raster.pixel_box(outline, intr, c2w, border_margin) if border_margin else None
+            colour = session.render_colour(box)
+            # Rasterized and written on the writer thread while the next view renders.
+            writer.submit(_make_view, obj_dir, i, colour, tris, intr, c2w, clip, labelled, cfg.rgba)
             summary.views_rendered += 1
             yield msg
+        writer.wait()
 
         # Per-object camera files (from the poses, so they are exact whatever was resumed).
         F.atomic_write_text(obj_dir / "intrinsics.txt", F.format_srn_intrinsics(intrs[0]))
@@ -538,7 +698,17 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         meta["complete"] = True
         F.atomic_write_json(meta_path, meta)
     finally:
-        session.close()
+        try:
+            writer.close()  # the view in flight is finished (a cancel keeps every view it reported)
+        finally:
+            session.close()
+
+
+def _make_view(obj_dir: Path, index: int, colour: dict, tris: raster.Triangles, intr: C.Intrinsics,
+               c2w: np.ndarray, clip: tuple[float, float], labelled: np.ndarray, rgba: bool) -> None:
+    """The writer thread's job for one view: its exact data passes, then its files (no bpy here)."""
+    data = raster.rasterize(tris, intr, c2w, clip[0], clip[1])
+    write_view(obj_dir, index, colour, data, labelled, rgba, c2w)
 
 
 def config_dict(cfg: RenderConfig) -> dict:
