@@ -55,6 +55,8 @@ class Sem2NeRFTrainConfig:
     """Split to train on."""
     max_objects: int = 0
     """Use at most this many objects (0 = all)."""
+    holdout: int = 0
+    """Leave out the last this-many objects of every category (held out for evaluation)."""
     out_dir: str = "runs/sem2nerf"
     """Run folder: metrics.jsonl, checkpoints/."""
     preset: str = "balanced"
@@ -164,7 +166,23 @@ def load_masked_object(obj_dir: Path) -> MaskedObject:
                         scene.intrinsics, labels)
 
 
-def load_masked_dataset(root: Path, split: str = "train", limit: int = 0) -> list[MaskedObject]:
+def split_holdout(dirs: list[Path], holdout: int) -> tuple[list[Path], list[Path]]:
+    """(kept, held out): the last ``holdout`` object folders of every category (sorted) are held out."""
+    if holdout <= 0:
+        return list(dirs), []
+    by_cat: dict[str, list[Path]] = {}
+    for d in sorted(dirs):
+        by_cat.setdefault(d.parent.name, []).append(d)
+    keep, held = [], []
+    for ds in by_cat.values():
+        n = max(len(ds) - holdout, 1 if len(ds) > 1 else len(ds))
+        keep += ds[:n]
+        held += ds[n:]
+    return keep, held
+
+
+def load_masked_dataset(root: Path, split: str = "train", limit: int = 0, holdout: int = 0,
+                        held_out: bool = False) -> list[MaskedObject]:
     from ..datasets.loaders import list_ours
 
     root = Path(root)
@@ -174,7 +192,11 @@ def load_masked_dataset(root: Path, split: str = "train", limit: int = 0) -> lis
     dirs = list_ours(root, split if has_split else None)
     if not dirs:
         raise InputError(f"{root}: no objects of our format for split {split!r}")
+    keep, held = split_holdout(dirs, holdout)
+    dirs = held if held_out else keep
     dirs = dirs[:limit] if limit else dirs
+    if not dirs:
+        raise InputError(f"{root}: no objects left for split {split!r} (holdout {holdout})")
     return [load_masked_object(d) for d in dirs]
 
 
@@ -346,7 +368,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
     if objects is None:
         if not cfg.data:
             raise InputError("no dataset: give --data")
-        objects = load_masked_dataset(Path(cfg.data), cfg.split, cfg.max_objects)
+        objects = load_masked_dataset(Path(cfg.data), cfg.split, cfg.max_objects, cfg.holdout)
     sizes = {o.images.shape[1:3] for o in objects}
     if len(sizes) != 1:
         raise InputError(f"objects have different image sizes {sorted(sizes)}")
@@ -507,3 +529,103 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         metrics_f.close()
     return {"step": max(start, cfg.iterations), "checkpoint": str(last_ck) if last_ck else None,
             "resumed_from": str(ck) if ck else None, "labels": list(labels), "objects": n_obj}
+
+
+# ------------------------------------------------------------------------------------------- evaluation
+
+def category_mean_images(objects: list[MaskedObject]) -> dict[str, np.ndarray]:
+    """Per category: the per-pixel mean object colour over every view of every object ((H, W, 3);
+    pixels no object covers get the category's overall mean object colour)."""
+    acc: dict[str, list] = {}
+    for o in objects:
+        fg = (o.masks > 0)[..., None].astype(np.float64)
+        s = (o.images * fg).sum(0)
+        n = fg.sum(0)
+        if o.category in acc:
+            acc[o.category][0] += s
+            acc[o.category][1] += n
+        else:
+            acc[o.category] = [s, n]
+    out = {}
+    for cat, (s, n) in acc.items():
+        overall = s.reshape(-1, 3).sum(0) / max(n.sum(), 1.0)
+        out[cat] = np.where(n > 0, s / np.maximum(n, 1.0), overall).astype(np.float32)
+    return out
+
+
+def miou(gt: np.ndarray, pred: np.ndarray) -> float:
+    """Mean IoU over the labels present in either map (background included)."""
+    ious = []
+    for lab in np.union1d(np.unique(gt), np.unique(pred)):
+        a, b = gt == lab, pred == lab
+        ious.append((a & b).sum() / max((a | b).sum(), 1))
+    return float(np.mean(ious)) if ious else 1.0
+
+
+def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
+             input_view: int = 0, views_every: int = 3, threads: int = 0):
+    """Progress generator over objects; writes ``out/eval.json`` and returns its dict.
+
+    For every evaluated object the mask of ``input_view`` is encoded and the input view plus every
+    ``views_every``-th other view are rendered with the mean style. Scored per view: PSNR, SSIM,
+    LPIPS-VGG against the rendered ground truth, the same for the baseline (the category's mean
+    object image, masked by the true mask of that view), and the mIoU between the true part mask and
+    the rendered semantic map (in the input view: the input mask itself)."""
+    from ..models import metrics as M
+    from ..models.sem2nerf.inputs import build_inputs
+
+    if threads:
+        torch.set_num_threads(threads)
+    model, cfg, meta = load_sem2nerf(checkpoint)
+    if holdout > 0:
+        evals = load_masked_dataset(Path(data), split, max_objects, holdout, held_out=True)
+        base_objs = load_masked_dataset(Path(data), split, 0, holdout)
+    else:
+        evals = load_masked_dataset(Path(data), split, max_objects)
+        base_objs = load_masked_dataset(Path(data), "train", 0)
+    means = category_mean_images(base_objs)
+    lp = M.LPIPS()
+    labels_t = torch.as_tensor(cfg.labels)
+    per_view = []
+    t0 = time.time()
+    for k, ob in enumerate(evals):
+        if ob.images.shape[1:3] != (cfg.image_size, cfg.image_size):
+            raise InputError(f"{ob.name}: images are not {cfg.image_size} px like the checkpoint's training images")
+        v_in = input_view % len(ob.images)
+        with torch.no_grad():
+            code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None])
+        views = [v_in] + [v for v in range(len(ob.images)) if v != v_in and (v - v_in) % views_every == 0]
+        for v in views:
+            img = model.render_image(ob.intrinsics[v], ob.c2w[v], code, model.default_style())
+            pred = img["rgb"].clamp(0, 1).numpy()
+            gt = ob.images[v]
+            fg = ob.masks[v] > 0
+            base = np.where(fg[..., None], means.get(ob.category, np.full_like(gt, 0.5)), 1.0).astype(np.float32)
+            sem = labels_t[img["semantic"].argmax(-1)].numpy()
+            pt, gtt, bt = torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(base)
+            per_view.append({
+                "object": f"{ob.category}/{ob.name}", "category": ob.category, "view": int(v), "input_view": v == v_in,
+                "psnr": float(M.psnr(pt, gtt)[0]), "ssim": float(M.ssim(pt, gtt)[0]), "lpips": float(lp(pt, gtt)[0]),
+                "base_psnr": float(M.psnr(bt, gtt)[0]), "base_ssim": float(M.ssim(bt, gtt)[0]),
+                "base_lpips": float(lp(bt, gtt)[0]), "miou": miou(ob.masks[v], sem),
+                "fg_iou": float((fg & (sem > 0)).sum() / max((fg | (sem > 0)).sum(), 1))})
+        yield Progress(k + 1, len(evals), ob.name)
+
+    def summarise(rows):
+        keys = ("psnr", "ssim", "lpips", "base_psnr", "base_ssim", "base_lpips", "miou", "fg_iou")
+        return {"n_views": len(rows), **{key: float(np.mean([r[key] for r in rows])) for key in keys}} if rows else {}
+
+    res = {"checkpoint": str(checkpoint), "step": meta.get("step"), "data": str(data), "split": split,
+           "holdout": holdout, "objects": len(evals), "input_view": input_view, "views_every": views_every,
+           "style": "mean", "elapsed_s": round(time.time() - t0, 1),
+           "overall": {"input_view": summarise([r for r in per_view if r["input_view"]]),
+                       "novel_views": summarise([r for r in per_view if not r["input_view"]])},
+           "per_category": {c: {"input_view": summarise([r for r in per_view if r["category"] == c and r["input_view"]]),
+                                "novel_views": summarise([r for r in per_view if r["category"] == c and not r["input_view"]])}
+                            for c in sorted({r["category"] for r in per_view})},
+           "per_view": per_view}
+    Path(out).mkdir(parents=True, exist_ok=True)
+    from ..datasets.format import atomic_write_json
+
+    atomic_write_json(Path(out) / "eval.json", res)
+    return res
