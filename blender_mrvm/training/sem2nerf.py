@@ -562,6 +562,41 @@ def miou(gt: np.ndarray, pred: np.ndarray) -> float:
     return float(np.mean(ious)) if ious else 1.0
 
 
+def _edit_locality(model, cfg, ob: MaskedObject, v_in: int, code: torch.Tensor) -> dict:
+    """Remove the smallest part of the input mask (relabel it background) and measure how much the
+    rendered input view changes near the edited region (within r = size / 16 px) and far from it."""
+    from scipy import ndimage
+
+    from ..models.sem2nerf.inputs import build_inputs
+
+    m = ob.masks[v_in]
+    parts, counts = np.unique(m[m > 0], return_counts=True)
+    if len(parts) < 2:
+        return {"object": f"{ob.category}/{ob.name}", "edited": None}
+    src = int(parts[np.argmin(counts)])
+    edited = np.where(m == src, 0, m).astype(np.uint8)
+    style = model.default_style()
+    with torch.no_grad():
+        code_e = model.encode(torch.from_numpy(build_inputs(edited, cfg.labels))[None])
+    a = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code, style)["rgb"].numpy()
+    b = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code_e, style)["rgb"].numpy()
+    r = max(2, cfg.image_size // 16)
+    near = ndimage.distance_transform_edt(m != src) <= r
+    change = np.abs(a - b).mean(-1)
+    return {"object": f"{ob.category}/{ob.name}", "edited": src, "edited_px": int((m == src).sum()), "radius_px": r,
+            "near_change": float(change[near].mean()), "far_change": float(change[~near].mean()) if (~near).any() else 0.0}
+
+
+def _summarise_edits(rows: list[dict]) -> dict:
+    rows = [r for r in rows if r.get("edited") is not None]
+    if not rows:
+        return {"n_objects": 0}
+    near = float(np.mean([r["near_change"] for r in rows]))
+    far = float(np.mean([r["far_change"] for r in rows]))
+    return {"n_objects": len(rows), "edit": "smallest part of the input mask -> background",
+            "near_change": near, "far_change": far, "far_over_near": far / near if near > 0 else None}
+
+
 def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
              input_view: int = 0, views_every: int = 3, threads: int = 0):
     """Progress generator over objects; writes ``out/eval.json`` and returns its dict.
@@ -587,6 +622,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     lp = M.LPIPS()
     labels_t = torch.as_tensor(cfg.labels)
     per_view = []
+    edit_rows = []
     t0 = time.time()
     for k, ob in enumerate(evals):
         if ob.images.shape[1:3] != (cfg.image_size, cfg.image_size):
@@ -609,6 +645,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
                 "base_psnr": float(M.psnr(bt, gtt)[0]), "base_ssim": float(M.ssim(bt, gtt)[0]),
                 "base_lpips": float(lp(bt, gtt)[0]), "miou": miou(ob.masks[v], sem),
                 "fg_iou": float((fg & (sem > 0)).sum() / max((fg | (sem > 0)).sum(), 1))})
+        edit_rows.append(_edit_locality(model, cfg, ob, v_in, code))
         yield Progress(k + 1, len(evals), ob.name)
 
     def summarise(rows):
@@ -623,7 +660,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
            "per_category": {c: {"input_view": summarise([r for r in per_view if r["category"] == c and r["input_view"]]),
                                 "novel_views": summarise([r for r in per_view if r["category"] == c and not r["input_view"]])}
                             for c in sorted({r["category"] for r in per_view})},
-           "per_view": per_view}
+           "edit_locality": _summarise_edits(edit_rows),
+           "per_view": per_view, "per_object_edits": edit_rows}
     Path(out).mkdir(parents=True, exist_ok=True)
     from ..datasets.format import atomic_write_json
 
