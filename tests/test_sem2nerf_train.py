@@ -97,3 +97,29 @@ def test_not_a_sem2nerf_checkpoint(tmp_path):
         T.load_sem2nerf(tmp_path)
     with pytest.raises(InputError, match="LPIPS"):
         T.train_config(patch_size=8)
+
+
+def test_training_reduces_losses_on_one_object(data, tmp_path):
+    cfg = T.train_config(data=str(data), out_dir=str(tmp_path / "fit"), preset="fast", model_overrides=TINY_MODEL,
+                         iterations=60, max_objects=1, objects_per_step=1, other_views=1, patch_size=8,
+                         lpips_weight=0.0, ce_weight=0.5, lr=1e-3, encoder_lr=1e-3, checkpoint_every=1000,
+                         log_every=1, threads=1, seed=1)
+    run_to_end(T.train(cfg, resume=False))
+    rows = [json.loads(x) for x in (tmp_path / "fit" / "metrics.jsonl").read_text().splitlines()]
+    first, last = rows[:10], rows[-10:]
+    assert np.mean([r["l2"] for r in last]) < 0.7 * np.mean([r["l2"] for r in first])
+    assert np.mean([r["ce"] for r in last]) < 0.85 * np.mean([r["ce"] for r in first])
+
+
+def test_miou_and_category_means():
+    gt = np.array([[0, 1], [2, 2]])
+    assert T.miou(gt, gt) == 1.0
+    assert T.miou(gt, np.array([[0, 1], [2, 0]])) == pytest.approx((1 / 2 + 1 + 1 / 2) / 3)
+    ims = np.ones((2, 2, 2, 3), np.float32)
+    ims[0, 0, 0] = 0.2
+    ims[1, 0, 0] = 0.6
+    masks = np.zeros((2, 2, 2), np.uint8)
+    masks[:, 0, 0] = 1
+    o = T.MaskedObject("a", "cat", ims, masks, np.tile(np.eye(4), (2, 1, 1)), [None, None], {})
+    mean = T.category_mean_images([o])["cat"]
+    assert np.allclose(mean[0, 0], 0.4) and np.allclose(mean[1, 1], 0.4)  # uncovered pixels: overall object mean
