@@ -156,7 +156,7 @@ def test_model_shapes_and_one_logit_per_label(tiny):
     cfg = tiny.cfg
     x = _mask_inputs(cfg)
     assert x.shape == (1, cfg.in_channels, 32, 32)
-    code = tiny.encode(x)
+    code = tiny.encode(x, _rays()[2][None])
     assert code.shape == (1, 2 * cfg.n_layers * cfg.hidden)
     b, intr, c2w = _rays()
     out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, tiny.default_style())
@@ -170,7 +170,7 @@ def test_model_shapes_and_one_logit_per_label(tiny):
 
 def test_no_nan_for_empty_and_extreme(tiny):
     cfg = tiny.cfg
-    code = tiny.encode(_mask_inputs(cfg))
+    code = tiny.encode(_mask_inputs(cfg), _rays()[2][None])
     b, _, _ = _rays()
     # all rays miss: background everywhere, no evaluation
     miss = torch.zeros_like(b.hit)
@@ -186,7 +186,7 @@ def test_no_nan_for_empty_and_extreme(tiny):
     # extreme inputs (all-zero / all-one channels) and gradients through the whole model
     tiny.train()
     for x in (torch.zeros(1, cfg.in_channels, 32, 32), torch.ones(1, cfg.in_channels, 32, 32)):
-        code = tiny.encode(x)
+        code = tiny.encode(x, _rays()[2][None] * 1e3)
         out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code,
                                tiny.default_style(), perturb=True)
         loss = out["rgb"].mean() + out["semantic"].mean()
@@ -212,7 +212,7 @@ def test_style_blend_changes_image_monotonically(tiny):
 
     torch.manual_seed(1)
     tiny = Sem2NeRF(replace(tiny.cfg, density_bias=3.0)).eval()  # an opaque field: colour shows
-    code = tiny.encode(_mask_inputs(tiny.cfg))
+    code = tiny.encode(_mask_inputs(tiny.cfg), _rays()[2][None])
     b, _, _ = _rays()
     with torch.no_grad():
         s0, s1 = tiny.style_from_seed(1), tiny.style_from_seed(2)

@@ -447,12 +447,13 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         for step in range(start, cfg.iterations):
             lo = scale_lower_bound(step, cfg)
             obj_ids = rng.choice(n_obj, size=cfg.objects_per_step, replace=n_obj < cfg.objects_per_step)
-            enc_in, item_obj, o_list, d_list, f_list, h_list, gt_rgb, gt_idx = [], [], [], [], [], [], [], []
+            enc_cam, enc_in, item_obj, o_list, d_list, f_list, h_list, gt_rgb, gt_idx = [], [], [], [], [], [], [], [], []
             for j, o in enumerate(obj_ids):
                 ob = objects[o]
                 nv = len(ob.images)
                 vin = int(rng.integers(nv))
                 enc_in.append(inputs_of(o, vin))
+                enc_cam.append(ob.c2w[vin])
                 others = [v for v in range(nv) if v != vin]
                 pick = list(rng.choice(others, size=min(cfg.other_views, len(others)), replace=False)) if others else []
                 for v in [vin] + [int(x) for x in pick]:
@@ -468,7 +469,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                     gt_rgb.append(rgb)
                     gt_idx.append(idx)
             enc = torch.stack(enc_in).to(dev)
-            mask_code = model.encode(enc)
+            mask_code = model.encode(enc, np.stack(enc_cam))
             zs = codes[torch.as_tensor(obj_ids, device=dev)]
             zs = zs / zs.norm(dim=-1, keepdim=True).clamp_min(1e-8) * math.sqrt(mcfg.z_dim)
             style = model.style(zs)
@@ -577,7 +578,7 @@ def _edit_locality(model, cfg, ob: MaskedObject, v_in: int, code: torch.Tensor) 
     edited = np.where(m == src, 0, m).astype(np.uint8)
     style = model.default_style()
     with torch.no_grad():
-        code_e = model.encode(torch.from_numpy(build_inputs(edited, cfg.labels))[None])
+        code_e = model.encode(torch.from_numpy(build_inputs(edited, cfg.labels))[None], ob.c2w[v_in][None])
     a = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code, style)["rgb"].numpy()
     b = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code_e, style)["rgb"].numpy()
     r = max(2, cfg.image_size // 16)
@@ -629,7 +630,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
             raise InputError(f"{ob.name}: images are not {cfg.image_size} px like the checkpoint's training images")
         v_in = input_view % len(ob.images)
         with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None])
+            code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None], ob.c2w[v_in][None])
         views = [v_in] + [v for v in range(len(ob.images)) if v != v_in and (v - v_in) % views_every == 0]
         for v in views:
             img = model.render_image(ob.intrinsics[v], ob.c2w[v], code, model.default_style())

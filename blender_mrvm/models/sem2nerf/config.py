@@ -34,6 +34,8 @@ class Sem2NeRFConfig:
     """The VGG feature map is average-pooled to grid x grid cells before the code head."""
     encoder_hidden: int = 256
     """Width of the code head's hidden layer."""
+    pose_conditioning: bool = True
+    """The code head also sees the input camera (rotation + centre): the mask's viewpoint is known."""
     hidden: int = 64
     """Width of the SIREN layers."""
     n_layers: int = 4

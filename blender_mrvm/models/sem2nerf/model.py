@@ -27,7 +27,8 @@ from torch import nn
 from .. import renderer, samplers
 from .config import Sem2NeRFConfig
 
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
+CAMERA_FEATURES = 12
+"""Camera features of the encoder head: the 3x3 rotation and the centre (in scene-box units)."""
 VGG_CHANNELS = {4: 64, 9: 128, 16: 256, 23: 512}
 
 
@@ -119,6 +120,7 @@ class MaskEncoder(nn.Module):
         super().__init__()
         from ..vgg import load_vgg16_features, vgg16_features
 
+        self.cfg = cfg
         vgg = load_vgg16_features(cfg.vgg_layers) if cfg.pretrained else vgg16_features(cfg.vgg_layers)
         conv0 = vgg[0]
         first = nn.Conv2d(cfg.in_channels, conv0.out_channels, 3, padding=1)
@@ -133,15 +135,21 @@ class MaskEncoder(nn.Module):
         ch = VGG_CHANNELS[cfg.vgg_layers]
         self.pool = nn.AdaptiveAvgPool2d(cfg.encoder_grid)
         out = 2 * cfg.n_layers * cfg.hidden
-        self.head = nn.Sequential(nn.Flatten(), nn.Linear(ch * cfg.encoder_grid ** 2, cfg.encoder_hidden),
+        n_cam = CAMERA_FEATURES if cfg.pose_conditioning else 0
+        self.head = nn.Sequential(nn.Linear(ch * cfg.encoder_grid ** 2 + n_cam, cfg.encoder_hidden),
                                   nn.LeakyReLU(0.2), nn.Linear(cfg.encoder_hidden, out))
         with torch.no_grad():
             self.head[-1].weight.mul_(0.25)
             self.head[-1].bias.zero_()
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, cam: torch.Tensor | None = None) -> torch.Tensor:
         x = x * 2.0 - 1.0  # channels in [0, 1] -> [-1, 1], centred like normalised ImageNet input
-        return self.head(self.pool(self.backbone(x)))
+        f = self.pool(self.backbone(x)).flatten(1)
+        if self.cfg.pose_conditioning:
+            if cam is None:
+                raise ValueError("this Sem2NeRF encoder needs the input camera (pose_conditioning)")
+            f = torch.cat([f, cam.to(f)], 1)
+        return self.head(f)
 
 
 # ------------------------------------------------------------------------------------------- model
@@ -161,9 +169,15 @@ class Sem2NeRF(nn.Module):
         self.update_style_mean()
 
     # -- codes
-    def encode(self, inputs: torch.Tensor) -> torch.Tensor:
-        """(B, C + 2, S, S) builder outputs -> (B, 2 * n_layers * hidden) mask codes."""
-        return self.encoder(inputs)
+    def camera_features(self, c2w) -> torch.Tensor:
+        """(B, 4, 4) world camera-to-world (OpenCV) -> (B, 12): rotation and centre / scene_box."""
+        c = torch.as_tensor(c2w, dtype=torch.float64).reshape(-1, 4, 4)
+        return torch.cat([c[:, :3, :3].reshape(-1, 9), c[:, :3, 3] / self.cfg.scene_box], 1).float()
+
+    def encode(self, inputs: torch.Tensor, c2w=None) -> torch.Tensor:
+        """(B, C + 2, S, S) builder outputs (+ (B, 4, 4) world c2w of the mask's camera) -> (B, 2 * n_layers * hidden) mask codes."""
+        cam = self.camera_features(c2w).to(inputs.device) if c2w is not None else None
+        return self.encoder(inputs, cam)
 
     def style(self, z: torch.Tensor) -> torch.Tensor:
         """(B, z_dim) random codes -> (B, 2 * hidden) style codes."""

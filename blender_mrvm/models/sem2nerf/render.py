@@ -238,7 +238,7 @@ def render_from_mask(req: RenderRequest):
     try:
         labels_t = torch.as_tensor(cfg.labels)
         with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(req.device))
+            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(req.device), p.c2w[None])
             style = model.style_from_seed(req.style_seed) if req.style_seed is not None else model.default_style()
         poses = orbit_poses(p.c2w, req.views)
         total = len(poses) + (req.blend_steps if req.blend is not None else 0)
