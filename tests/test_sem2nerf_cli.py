@@ -131,7 +131,7 @@ def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, cas
 def test_eval_writes_metrics(tmp_path, trained):
     run, data, _ = trained
     rc = main(["sem2nerf", "eval", "--checkpoint", str(run), "--data", str(data), "--split", "test",
-               "--out", str(tmp_path / "e"), "--threads", "1"])
+               "--out", str(tmp_path / "e"), "--threads", "1", "--views-every", "3"])
     assert rc == 0
     res = json.loads((tmp_path / "e" / "eval.json").read_text())
     iv = res["overall"]["input_view"]

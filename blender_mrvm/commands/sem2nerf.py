@@ -69,6 +69,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "0 = every object of --split")
     e.add_argument("--max-objects", type=int, default=0, help="evaluate at most this many objects (0 = all)")
     e.add_argument("--input-view", type=int, default=0, help="view whose mask is the input (default 0)")
+    e.add_argument("--views-every", type=int, default=3,
+                   help="score the input view and every N-th other view (default 3)")
     e.add_argument("--out", required=True, help="output folder for eval.json")
     e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
@@ -110,7 +112,8 @@ def run(args) -> int:
 
         res = run_with_tqdm(T.evaluate(Path(args.checkpoint), Path(args.data), Path(args.out), split=args.split,
                                        holdout=args.holdout, max_objects=args.max_objects,
-                                       input_view=args.input_view, threads=args.threads),
+                                       input_view=args.input_view, views_every=args.views_every,
+                                       threads=args.threads),
                             desc="sem2nerf eval", unit="obj")
         print(json.dumps(res["overall"]))
         return 0

@@ -610,6 +610,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     from ..models import metrics as M
     from ..models.sem2nerf.inputs import build_inputs
 
+    if views_every < 1:
+        raise InputError("--views-every must be >= 1")
     if threads:
         torch.set_num_threads(threads)
     model, cfg, meta = load_sem2nerf(checkpoint)
