@@ -71,6 +71,13 @@ def test_external_contours_skip_holes_and_match_reference():
     for size in (64, 512):
         mm = _mask(size)
         assert np.array_equal(I.contour_map(mm), I.contour_map_reference(mm))
+    # random blocky part maps (holes, nested regions, edge contact) agree with the plain reference
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        r = ndimage.zoom(rng.integers(0, 4, (8, 8)).astype(np.uint8), 12, order=0)
+        assert np.array_equal(I.contour_map(r), I.contour_map_reference(r))
     # a region touching the image edge is outlined along the edge
     e = np.zeros((20, 20), np.uint8)
     e[:10] = 2
