@@ -137,6 +137,8 @@ def test_eval_writes_metrics(tmp_path, trained):
     iv = res["overall"]["input_view"]
     assert iv["n_views"] == 1 and 0 <= iv["miou"] <= 1 and np.isfinite(iv["psnr"]) and np.isfinite(iv["base_psnr"])
     assert res["overall"]["novel_views"]["n_views"] == 1  # 4 views, every 3rd other view: view 3
+    grid = DF.read_png(tmp_path / "e" / "eval_grid.png")
+    assert grid.shape == (16, 16 * 7, 3)
     ed = res["per_object_edits"][0]
     m = DF.read_png(data / ed["object"] / "mask" / "000000.png")
     assert len(np.unique(m[m > 0])) >= 2  # the held-out object has parts to edit (precondition)

@@ -606,7 +606,9 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     ``views_every``-th other view are rendered with the mean style. Scored per view: PSNR, SSIM,
     LPIPS-VGG against the rendered ground truth, the same for the baseline (the category's mean
     object image, masked by the true mask of that view), and the mIoU between the true part mask and
-    the rendered semantic map (in the input view: the input mask itself)."""
+    the rendered semantic map (in the input view: the input mask itself). ``eval_grid.png`` shows, per
+    object (first 16): input mask | true, rendered and semantic input view | the same for the first
+    novel view."""
     from ..models import metrics as M
     from ..models.sem2nerf.inputs import build_inputs
 
@@ -626,6 +628,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     labels_t = torch.as_tensor(cfg.labels)
     per_view = []
     edit_rows = []
+    grid_rows: list[np.ndarray] = []
     t0 = time.time()
     for k, ob in enumerate(evals):
         if ob.images.shape[1:3] != (cfg.image_size, cfg.image_size):
@@ -634,6 +637,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
         with torch.no_grad():
             code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None], ob.c2w[v_in][None])
         views = [v_in] + [v for v in range(len(ob.images)) if v != v_in and (v - v_in) % views_every == 0]
+        row: list[np.ndarray] = []
         for v in views:
             img = model.render_image(ob.intrinsics[v], ob.c2w[v], code, model.default_style())
             pred = img["rgb"].clamp(0, 1).numpy()
@@ -648,6 +652,14 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
                 "base_psnr": float(M.psnr(bt, gtt)[0]), "base_ssim": float(M.ssim(bt, gtt)[0]),
                 "base_lpips": float(lp(bt, gtt)[0]), "miou": miou(ob.masks[v], sem),
                 "fg_iou": float((fg & (sem > 0)).sum() / max((fg | (sem > 0)).sum(), 1))})
+            if len(grid_rows) < 16 and (v == v_in or len(row) < 6):
+                from ..models.sem2nerf.render import colorize
+
+                row += ([colorize(ob.masks[v])] if v == v_in else []) + [
+                    (gt * 255).round().astype(np.uint8), (pred * 255).round().astype(np.uint8),
+                    colorize(sem.astype(np.uint8))]
+        if row:
+            grid_rows.append(np.concatenate(row[:7], 1))
         edit_rows.append(_edit_locality(model, cfg, ob, v_in, code))
         yield Progress(k + 1, len(evals), ob.name)
 
@@ -669,4 +681,11 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     from ..datasets.format import atomic_write_json
 
     atomic_write_json(Path(out) / "eval.json", res)
+    if grid_rows:
+        from ..datasets.format import write_png
+
+        width = max(r.shape[1] for r in grid_rows)
+        grid = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255)
+                               for r in grid_rows], 0)
+        write_png(Path(out) / "eval_grid.png", grid)
     return res
