@@ -386,7 +386,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         missing = set(labels) - set(mcfg.labels)
         if missing:
             raise InputError(f"run {out} does not know label id(s) {sorted(missing)} of this data")
-        labels = mcfg.labels
+        labels, names = mcfg.labels, mcfg.label_names
     else:
         overrides = dict(cfg.model_overrides)
         mcfg = sem2nerf_config(cfg.preset, overrides, image_size=h, labels=labels, label_names=names)
