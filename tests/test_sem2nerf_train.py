@@ -75,9 +75,12 @@ def test_two_step_training_checkpoint_and_resume(data, tmp_path):
     assert img["rgb"].shape == (16, 16, 3) and torch.isfinite(img["rgb"]).all()
     assert not any(p.name.startswith(".") for p in (out / "checkpoints").iterdir())
     # resume continues from step 2 and ends at 3
-    cfg3 = T.train_config(**{**cfg.__dict__, "iterations": 3})
+    cfg3 = T.train_config(**{**cfg.__dict__, "iterations": 3, "lr": 7e-4})
     s3 = run_to_end(T.train(cfg3, resume=True))
     assert s3["resumed_from"] and s3["step"] == 3
+    st = torch.load(out / "checkpoints" / "step_0000003" / "trainer_state.pt", weights_only=True)
+    assert st["opt"]["param_groups"][0]["lr"] == 7e-4  # the config's learning rate applies on resume
+    assert st["opt"]["param_groups"][1]["lr"] == cfg.encoder_lr
     assert (out / "checkpoints" / "latest").read_text().strip() == "step_0000003"
 
 

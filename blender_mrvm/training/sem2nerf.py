@@ -411,6 +411,8 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         with torch.no_grad():
             codes.copy_(st["codes"].to(dev))
         opt.load_state_dict(st["opt"])
+        for group, lr in zip(opt.param_groups, (cfg.lr, cfg.encoder_lr, cfg.code_lr)):
+            group["lr"] = lr  # the run config's learning rates apply to a resumed run
         if disc is not None and "disc" in st:
             disc.load_state_dict(st["disc"])
             d_opt.load_state_dict(st["d_opt"])
