@@ -1,0 +1,126 @@
+"""Sem2NeRF: one part mask + its camera -> a radiance field with semantic maps (train, render, eval, bench).
+
+  python -m blender_mrvm sem2nerf train --data data/shapenet13_all --out runs/s2n --preset fast --iterations 5000
+  python -m blender_mrvm sem2nerf render --checkpoint runs/s2n --mask obj/mask/000000.png --pose obj/pose/000000.txt \\
+      --out s2n_out [--views 8] [--edit 2:0] [--style-seed 3] [--blend 7]
+  python -m blender_mrvm sem2nerf eval --checkpoint runs/s2n --data data/shapenet13_all --holdout 3 --out eval/s2n
+  python -m blender_mrvm sem2nerf bench --out bench_out
+
+render writes OUT/rgb, OUT/semantic (uint8 part ids), OUT/semantic_color, OUT/pose and sem2nerf.json;
+bad input (labels the checkpoint does not know, an empty mask, a mask of another size, a missing
+pose) is one line `error: ...` and nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="sem2nerf_command", metavar="ACTION")
+    sub.required = True
+    t = sub.add_parser("train", help="train a Sem2NeRF model on a dataset with part masks")
+    t.add_argument("--data", required=True, help="dataset root (our format, mask/*.png part ids)")
+    t.add_argument("--out", required=True, help="run folder (resumed from its latest checkpoint)")
+    t.add_argument("--preset", default="balanced", help="model preset: fast or balanced (default balanced)")
+    t.add_argument("--split", default="train", help="split to train on (default train)")
+    t.add_argument("--holdout", type=int, default=0, help="leave out the last N objects of every category")
+    t.add_argument("--max-objects", type=int, default=0, help="use at most this many objects (0 = all)")
+    t.add_argument("--iterations", type=int, default=5000, help="optimizer steps (default 5000)")
+    t.add_argument("--objects-per-step", type=int, default=2, help="objects per step (default 2)")
+    t.add_argument("--other-views", type=int, default=1, help="views besides the input view per object (default 1)")
+    t.add_argument("--patch-size", type=int, default=16, help="rays per patch side (default 16)")
+    t.add_argument("--lpips-weight", type=float, default=0.2, help="LPIPS loss weight (default 0.2)")
+    t.add_argument("--ce-weight", type=float, default=0.1, help="semantic cross-entropy weight (default 0.1)")
+    t.add_argument("--gan-weight", type=float, default=0.0, help="patch discriminator weight (default 0 = off)")
+    t.add_argument("--scale-anneal-steps", type=float, default=2000.0, help="e-folding steps of the patch scale bound")
+    t.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
+    t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    t.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    t.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    t.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
+
+    r = sub.add_parser("render", help="free-viewpoint images + semantic maps from one part mask and its camera")
+    r.add_argument("--checkpoint", required=True, help="Sem2NeRF model file, checkpoint folder or run folder")
+    r.add_argument("--mask", required=True, help="part-id mask PNG (uint8, the checkpoint's image size)")
+    r.add_argument("--pose", required=True, help="the mask's camera: SRN pose .txt (4x4 OpenCV camera-to-world)")
+    r.add_argument("--intrinsics", default="", help="SRN intrinsics.txt (default: the pose's object folder's)")
+    r.add_argument("--fov", type=float, default=40.0, help="horizontal FOV in degrees when no intrinsics are found")
+    r.add_argument("--out", required=True, help="output folder (must be empty or new unless --force)")
+    r.add_argument("--views", type=int, default=8, help="views on the orbit about world z (view 0 = input camera)")
+    r.add_argument("--edit", action="append", default=[], metavar="SRC:DST",
+                   help="relabel part SRC as DST (ids or label names) before rendering; repeatable")
+    r.add_argument("--style-seed", type=int, default=None, help="style of this random code (default: the mean style)")
+    r.add_argument("--blend", type=int, default=None, metavar="SEED",
+                   help="also render the input view along a linear blend to the style of SEED")
+    r.add_argument("--blend-steps", type=int, default=5, help="images along the blend, ends included (default 5)")
+    r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
+    r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    r.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+
+    e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
+    e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint")
+    e.add_argument("--data", required=True, help="dataset root")
+    e.add_argument("--split", default="train", help="split the objects come from (default train)")
+    e.add_argument("--holdout", type=int, default=0,
+                   help="evaluate the last N objects of every category of --split (those training held out); "
+                        "0 = every object of --split")
+    e.add_argument("--max-objects", type=int, default=0, help="evaluate at most this many objects (0 = all)")
+    e.add_argument("--input-view", type=int, default=0, help="view whose mask is the input (default 0)")
+    e.add_argument("--views-every", type=int, default=3,
+                   help="score the input view and every N-th other view (default 3)")
+    e.add_argument("--out", required=True, help="output folder for eval.json")
+    e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+
+    b = sub.add_parser("bench", help="time the input builders at 512 px -> CSV")
+    b.add_argument("--out", default="bench_out", help="output folder (default bench_out)")
+    b.add_argument("--size", type=int, default=512, help="mask size in pixels (default 512)")
+    b.add_argument("--repeats", type=int, default=50, help="timed repeats per builder (default 50)")
+
+
+def run(args) -> int:
+    from ..progress import run_with_tqdm
+
+    cmd = args.sem2nerf_command
+    if cmd == "train":
+        from ..training import sem2nerf as T
+
+        cfg = T.train_config(data=args.data, out_dir=args.out, preset=args.preset, split=args.split,
+                             holdout=args.holdout, max_objects=args.max_objects, iterations=args.iterations,
+                             objects_per_step=args.objects_per_step, other_views=args.other_views,
+                             patch_size=args.patch_size, lpips_weight=args.lpips_weight, ce_weight=args.ce_weight,
+                             gan_weight=args.gan_weight, scale_anneal_steps=args.scale_anneal_steps,
+                             checkpoint_every=args.checkpoint_every, seed=args.seed, threads=args.threads,
+                             device=args.device)
+        summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step")
+        print(json.dumps(summary))
+        return 0
+    if cmd == "render":
+        from ..models.sem2nerf.render import RenderRequest, render_from_mask
+
+        req = RenderRequest(checkpoint=args.checkpoint, mask=args.mask, pose=args.pose, out=args.out,
+                            intrinsics=args.intrinsics, fov=args.fov, views=args.views, edits=tuple(args.edit),
+                            style_seed=args.style_seed, blend=args.blend, blend_steps=args.blend_steps,
+                            force=args.force, threads=args.threads, device=args.device)
+        summary = run_with_tqdm(render_from_mask(req), desc="sem2nerf render", unit="img")
+        print(json.dumps({"out": args.out, "views": summary["views"], "edits": summary["edits"]}))
+        return 0
+    if cmd == "eval":
+        from ..training import sem2nerf as T
+
+        res = run_with_tqdm(T.evaluate(Path(args.checkpoint), Path(args.data), Path(args.out), split=args.split,
+                                       holdout=args.holdout, max_objects=args.max_objects,
+                                       input_view=args.input_view, views_every=args.views_every,
+                                       threads=args.threads),
+                            desc="sem2nerf eval", unit="obj")
+        print(json.dumps(res["overall"]))
+        return 0
+    if cmd == "bench":
+        from ..models.sem2nerf.inputs import bench
+
+        res = bench(Path(args.out), size=args.size, repeats=args.repeats)
+        print(json.dumps({k: round(v, 3) for k, v in res.items()}))
+        return 0
+    raise AssertionError(cmd)

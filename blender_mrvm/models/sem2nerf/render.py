@@ -1,0 +1,273 @@
+"""Sem2NeRF synthesis from one part mask and its camera: free-viewpoint images + semantic maps.
+
+``render_from_mask`` validates everything first (checkpoint header, mask size and labels, edits,
+pose, intrinsics) without torch, so bad input is a one-line :class:`InputError` and nothing is
+written; then it renders into a temporary folder that is moved into place at the end::
+
+    OUT/rgb/NNNNNN.png             RGBA (alpha = the model's opacity), view 0 = the input camera
+    OUT/semantic/NNNNNN.png        uint8 part ids (argmax of the rendered semantic map)
+    OUT/semantic_color/NNNNNN.png  the same, coloured for viewing
+    OUT/pose/NNNNNN.txt            OpenCV camera-to-world of each view (SRN format)
+    OUT/blend/NNNNNN.png           with --blend: the input view along the style blend
+    OUT/mask_input.png             the (edited) input mask the model saw
+    OUT/sem2nerf.json              settings, labels, edits, styles
+
+Views orbit the world z axis through the input camera (``views`` of them, evenly spaced). bpy-free.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import InputError, OutputError
+from ...progress import Progress
+
+
+@dataclass(frozen=True)
+class RenderRequest:
+    """One ``sem2nerf render`` call."""
+
+    checkpoint: str
+    """Sem2NeRF checkpoint (model file, checkpoint folder or run folder)."""
+    mask: str
+    """Part-id mask PNG (uint8, single channel, the checkpoint's image size)."""
+    pose: str
+    """The mask's camera: SRN pose file (4x4 OpenCV camera-to-world)."""
+    out: str
+    """Output folder."""
+    intrinsics: str = ""
+    """SRN intrinsics.txt of the camera ('' = the pose's object folder's, else ``fov``)."""
+    fov: float = 40.0
+    """Horizontal field of view in degrees when no intrinsics file is found."""
+    views: int = 8
+    """Views on the orbit (view 0 = the input camera)."""
+    edits: tuple[str, ...] = ()
+    """Label edits 'SRC:DST' (ids or names) applied to the mask in order."""
+    style_seed: int | None = None
+    """Style of this random code (None = the default: mean style)."""
+    blend: int | None = None
+    """Also blend from the style above to the style of this seed (input view)."""
+    blend_steps: int = 5
+    """Images along the blend (ends included)."""
+    force: bool = False
+    """Write into a non-empty output folder (files of the same name are replaced)."""
+    threads: int = 0
+    """torch CPU threads (0 = leave)."""
+    device: str = "cpu"
+    """Torch device."""
+
+
+def palette(label_id: int) -> tuple[int, int, int]:
+    """A fixed colour per part id (background white)."""
+    if label_id == 0:
+        return (255, 255, 255)
+    rng = np.random.default_rng(int(label_id) * 7919 + 17)
+    c = rng.integers(30, 226, 3)
+    return int(c[0]), int(c[1]), int(c[2])
+
+
+def colorize(ids: np.ndarray) -> np.ndarray:
+    lut = np.array([palette(i) for i in range(256)], np.uint8)
+    return lut[ids]
+
+
+def parse_edit(text: str, labels: tuple[int, ...], names: tuple[str, ...]) -> tuple[int, int]:
+    """'SRC:DST' (part ids or label names) -> (src id, dst id); InputError for unknown labels."""
+    if text.count(":") < 1:
+        raise InputError(f"--edit {text!r}: expected SRC:DST (part ids or label names)")
+    src, dst = text.rsplit(":", 1) if text.count(":") == 1 else _split_named(text, names)
+
+    def lab(s: str) -> int:
+        s = s.strip()
+        if s.isdigit():
+            v = int(s)
+        elif s in names:
+            v = labels[names.index(s)]
+        else:
+            raise InputError(f"--edit {text!r}: {s!r} is not a label of this checkpoint")
+        if v not in labels:
+            raise InputError(f"--edit {text!r}: label id {v} is not known to this checkpoint "
+                             f"(known: {list(labels)})")
+        return v
+
+    return lab(src), lab(dst)
+
+
+def _split_named(text: str, names: tuple[str, ...]) -> tuple[str, str]:
+    for i in range(len(text)):
+        if text[i] == ":":
+            a, b = text[:i], text[i + 1:]
+            if (a in names or a.isdigit()) and (b in names or b.isdigit()):
+                return a, b
+    raise InputError(f"--edit {text!r}: expected SRC:DST (part ids or label names)")
+
+
+def orbit_poses(c2w: np.ndarray, n: int) -> list[np.ndarray]:
+    """``n`` poses rotating ``c2w`` about the world z axis (view 0 = ``c2w``)."""
+    out = []
+    for k in range(n):
+        a = 2 * math.pi * k / n
+        R = np.array([[math.cos(a), -math.sin(a), 0, 0], [math.sin(a), math.cos(a), 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        out.append(R @ c2w)
+    return out
+
+
+def read_mask_png(path: Path) -> np.ndarray:
+    from ...datasets import format as DF
+
+    if not Path(path).is_file():
+        raise InputError(f"mask {path} does not exist")
+    try:
+        m = np.asarray(DF.read_png(Path(path)))
+    except Exception as e:  # noqa: BLE001 - any decoder failure is the user's file
+        raise InputError(f"mask {path} is not a readable PNG: {type(e).__name__}") from None
+    if m.ndim != 2:
+        raise InputError(f"mask {path} has {m.shape[-1]} channels; expected a single-channel part-id image")
+    if m.dtype != np.uint8:
+        raise InputError(f"mask {path} is {m.dtype}; expected 8-bit part ids")
+    return m
+
+
+@dataclass
+class Prepared:
+    model_file: Path
+    meta: dict
+    labels: tuple
+    names: tuple
+    mask: np.ndarray
+    edits: list = field(default_factory=list)
+    c2w: np.ndarray | None = None
+    intr: object = None
+
+
+def prepare(req: RenderRequest) -> Prepared:
+    """Every check that needs no torch; InputError / OutputError naming the first problem."""
+    from ...datasets import format as DF
+    from ...geometry import cameras
+    from ...training.sem2nerf import read_sem2nerf_header
+    from .inputs import check_mask
+
+    out = Path(req.out)
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not req.force)):
+        raise OutputError(f"output {out} exists and is not an empty folder (use --force to write into it)")
+    if req.views < 1 or req.blend_steps < 2:
+        raise InputError("--views must be >= 1 and --blend-steps >= 2")
+    model_file, meta = read_sem2nerf_header(Path(req.checkpoint))
+    cfg = json.loads(meta["model_config"])
+    labels, names, size = tuple(cfg["labels"]), tuple(cfg["label_names"]), int(cfg["image_size"])
+    mask = read_mask_png(Path(req.mask))
+    if mask.shape != (size, size):
+        raise InputError(f"mask {req.mask} is {mask.shape[1]}x{mask.shape[0]}; this checkpoint takes {size}x{size} masks")
+    edits = [parse_edit(e, labels, names) for e in req.edits]
+    mask = mask.copy()
+    for src, dst in edits:
+        if not (mask == src).any():
+            raise InputError(f"--edit {src}:{dst}: label {src} is not in the mask")
+        mask[mask == src] = dst
+    check_mask(mask, labels, f"mask {req.mask}")
+    if not (mask != 0).any():
+        raise InputError(f"mask {req.mask} is empty (background only{' after the edits' if edits else ''})")
+    pose = Path(req.pose)
+    if not pose.is_file():
+        raise InputError(f"pose {pose} does not exist (the mask's camera needs a pose)")
+    try:
+        c2w = DF.read_srn_pose(pose)
+    except Exception as e:  # noqa: BLE001
+        raise InputError(f"pose {pose} is not a 4x4 camera-to-world matrix: {type(e).__name__}") from None
+    c2w = np.asarray(c2w, np.float64)
+    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+        raise InputError(f"pose {pose} is not a finite 4x4 camera-to-world matrix")
+    intr_path = Path(req.intrinsics) if req.intrinsics else pose.parent.parent / "intrinsics.txt"
+    if req.intrinsics and not intr_path.is_file():
+        raise InputError(f"intrinsics {intr_path} do not exist")
+    if intr_path.is_file():
+        intr = DF.read_srn_intrinsics(intr_path)
+        if (intr.width, intr.height) != (size, size):
+            if intr.width != intr.height:
+                raise InputError(f"intrinsics {intr_path} are {intr.width}x{intr.height}; the mask is square")
+            intr = intr.scaled(size / intr.width)
+    else:
+        if not 1.0 <= req.fov <= 170.0:
+            raise InputError("--fov must be in [1, 170] degrees")
+        intr = cameras.intrinsics_from_fov(math.radians(req.fov), size, size)
+    return Prepared(model_file, meta, labels, names, mask, edits, c2w, intr)
+
+
+def _move_into(tmp: Path, out: Path) -> None:
+    """Move the finished temporary folder into ``out`` (replacing files of the same name), with the
+    permissions of ordinary new files."""
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    for q in [tmp, *tmp.rglob("*")]:
+        os.chmod(q, (0o777 if q.is_dir() else 0o666) & ~mask)
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    for q in sorted(tmp.rglob("*")):
+        if q.is_file():
+            dst = out / q.relative_to(tmp)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(q, dst)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def render_from_mask(req: RenderRequest):
+    """Progress generator (events in images); returns the summary dict written to sem2nerf.json."""
+    p = prepare(req)
+    import torch
+
+    from ...datasets import format as DF
+    from ...training.sem2nerf import load_sem2nerf
+    from .inputs import build_inputs
+
+    if req.threads:
+        torch.set_num_threads(req.threads)
+    model, cfg, meta = load_sem2nerf(p.model_file, req.device)
+    out = Path(req.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        labels_t = torch.as_tensor(cfg.labels)
+        with torch.no_grad():
+            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(req.device), p.c2w[None])
+            style = model.style_from_seed(req.style_seed) if req.style_seed is not None else model.default_style()
+        poses = orbit_poses(p.c2w, req.views)
+        total = len(poses) + (req.blend_steps if req.blend is not None else 0)
+        DF.write_png(tmp / "mask_input.png", p.mask)
+        for k, c2w in enumerate(poses):
+            img = model.render_image(p.intr, c2w, code, style)
+            rgba = torch.cat([img["rgb"], img["acc"][..., None]], -1).clamp(0, 1).cpu().numpy()
+            ids = labels_t[img["semantic"].argmax(-1).cpu()].numpy().astype(np.uint8)
+            DF.write_png(tmp / "rgb" / f"{k:06d}.png", DF.to_uint8(rgba))
+            DF.write_png(tmp / "semantic" / f"{k:06d}.png", ids)
+            DF.write_png(tmp / "semantic_color" / f"{k:06d}.png", colorize(ids))
+            DF.write_srn_pose(tmp / "pose" / f"{k:06d}.txt", c2w)
+            yield Progress(k + 1, total, f"view {k + 1}/{len(poses)}")
+        if req.blend is not None:
+            with torch.no_grad():
+                s1 = model.style_from_seed(req.blend)
+            for j, a in enumerate(np.linspace(0.0, 1.0, req.blend_steps)):
+                img = model.render_image(p.intr, p.c2w, code, (1 - a) * style + a * s1)
+                DF.write_png(tmp / "blend" / f"{j:06d}.png", DF.to_uint8(img["rgb"].clamp(0, 1).cpu().numpy()))
+                yield Progress(len(poses) + j + 1, total, f"blend {j + 1}/{req.blend_steps}")
+        summary = {"checkpoint": str(p.model_file), "mask": str(req.mask), "pose": str(req.pose),
+                   "views": req.views, "image_size": cfg.image_size, "labels": list(cfg.labels),
+                   "label_names": list(cfg.label_names), "edits": [list(e) for e in p.edits],
+                   "style": "mean" if req.style_seed is None else f"seed {req.style_seed}",
+                   "blend_to_seed": req.blend, "blend_steps": req.blend_steps if req.blend is not None else 0,
+                   "intrinsics": {"fx": p.intr.fx, "fy": p.intr.fy, "cx": p.intr.cx, "cy": p.intr.cy}}
+        (tmp / "sem2nerf.json").write_text(json.dumps(summary, indent=2) + "\n")
+        _move_into(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return summary

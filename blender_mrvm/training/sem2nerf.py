@@ -1,0 +1,693 @@
+"""Sem2NeRF training on the library's (part mask, image, pose) triples, checkpoints and evaluation.
+
+Each step draws objects; for each, one *input view* whose part mask is encoded (one-hot + contour +
+distance field, ``models/sem2nerf/inputs.py``) and ``other_views`` further views of the same object.
+Every view (the input one included) is supervised on a P x P patch of rays:
+
+- *region-aware, random-scale patches* (Sem2NeRF): a patch covers ``scale`` of the image side,
+  ``scale ~ U[lo, 1]`` with ``lo`` starting at 0.9 and annealing exponentially toward 0.06, so early
+  steps see whole objects and later ones fine detail; with probability ``fg_patch_prob`` the patch is
+  centred on a random object pixel.
+- losses: L2 on colour, LPIPS-VGG (offline weights, with gradients) on the patch, cross-entropy of the
+  rendered semantic map against the true part mask, and optionally a non-saturating patch
+  discriminator (``gan_weight > 0``).
+- appearance: every training object owns a latent z (on the sphere of radius sqrt(z_dim), where
+  random normal codes live) mapped to its style code, so the mapping network learns the library's
+  appearances and random codes give plausible styles (GLO-style auto-decoding; the paper froze a
+  pretrained pi-GAN instead, which we do not have).
+
+Checkpoints are atomic (temporary folder renamed into place, then ``latest``) safetensors files whose
+metadata records the format, ``model_kind: sem2nerf``, the config and ``train_image_size``; the
+trainer state (optimizers, per-object codes, step, RNG) is a ``torch.load(weights_only=True)`` file.
+bpy-free.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..errors import InputError
+from ..progress import Progress
+
+MODEL_KIND = "sem2nerf"
+
+
+@dataclass(frozen=True)
+class Sem2NeRFTrainConfig:
+    """One Sem2NeRF training run."""
+
+    data: str = ""
+    """Dataset root of our format (part masks in mask/*.png, labels in meta.json)."""
+    split: str = "train"
+    """Split to train on."""
+    max_objects: int = 0
+    """Use at most this many objects (0 = all)."""
+    holdout: int = 0
+    """Leave out the last this-many objects of every category (held out for evaluation)."""
+    out_dir: str = "runs/sem2nerf"
+    """Run folder: metrics.jsonl, checkpoints/."""
+    preset: str = "balanced"
+    """Model preset (``fast``, ``balanced``)."""
+    model_overrides: tuple[tuple[str, Any], ...] = ()
+    """(field, value) overrides of the model preset."""
+    seed: int = 0
+    """Seed for initialisation and sampling."""
+    iterations: int = 5000
+    """Optimizer steps."""
+    objects_per_step: int = 2
+    """Objects (each with its own input mask) per step."""
+    other_views: int = 1
+    """Views besides the input view supervised per object and step."""
+    patch_size: int = 16
+    """Rays per patch side (P x P rays per supervised view)."""
+    scale_start: float = 0.9
+    """Initial lower bound of the patch scale range (the range starts at [scale_start, 1])."""
+    scale_end: float = 0.06
+    """Value the lower bound anneals toward."""
+    scale_anneal_steps: float = 2000.0
+    """e-folding steps of the lower bound: lo = end + (start - end) * exp(-step / this)."""
+    fg_patch_prob: float = 0.8
+    """Probability that a patch is centred on an object pixel (region-aware sampling)."""
+    lr: float = 2e-4
+    """Adam learning rate of the generator and mapping network."""
+    encoder_lr: float = 1e-4
+    """Adam learning rate of the mask encoder."""
+    code_lr: float = 1e-3
+    """Adam learning rate of the per-object latent codes."""
+    l2_weight: float = 1.0
+    """Weight of the colour L2 loss."""
+    lpips_weight: float = 0.2
+    """Weight of the LPIPS-VGG loss (0 = off; needs the offline weights)."""
+    ce_weight: float = 0.1
+    """Weight of the semantic cross-entropy loss."""
+    gan_weight: float = 0.0
+    """Weight of the non-saturating patch-discriminator loss (0 = no discriminator)."""
+    disc_lr: float = 2e-4
+    """Adam learning rate of the patch discriminator."""
+    grad_clip: float = 1.0
+    """Global gradient-norm clip (0 = off)."""
+    checkpoint_every: int = 500
+    """Write a checkpoint every this many steps (and at the end)."""
+    log_every: int = 25
+    """Append a metrics.jsonl line every this many steps."""
+    keep: int = 2
+    """Checkpoints kept."""
+    threads: int = 0
+    """torch CPU threads (0 = leave as is)."""
+    device: str = "cpu"
+    """Torch device ('cpu', 'cuda')."""
+
+
+def train_config(**kw) -> Sem2NeRFTrainConfig:
+    """A validated :class:`Sem2NeRFTrainConfig` (InputError for bad values)."""
+    if "model_overrides" in kw and isinstance(kw["model_overrides"], dict):
+        kw["model_overrides"] = tuple(sorted(kw["model_overrides"].items()))
+    cfg = Sem2NeRFTrainConfig(**kw)
+    if cfg.iterations < 1 or cfg.objects_per_step < 1 or cfg.other_views < 0 or cfg.patch_size < 2:
+        raise InputError("sem2nerf: iterations >= 1, objects_per_step >= 1, other_views >= 0, patch_size >= 2")
+    if not (0 < cfg.scale_end <= cfg.scale_start <= 1):
+        raise InputError("sem2nerf: need 0 < scale_end <= scale_start <= 1")
+    if cfg.lpips_weight > 0 and cfg.patch_size < 16:
+        raise InputError("sem2nerf: LPIPS needs patch_size >= 16 (or lpips_weight 0)")
+    return cfg
+
+
+def scale_lower_bound(step: int, cfg: Sem2NeRFTrainConfig) -> float:
+    """Lower bound of the patch scale range at ``step`` (exponential annealing toward scale_end)."""
+    return cfg.scale_end + (cfg.scale_start - cfg.scale_end) * math.exp(-step / max(cfg.scale_anneal_steps, 1e-9))
+
+
+# ------------------------------------------------------------------------------------------- data
+
+@dataclass
+class MaskedObject:
+    """One object: views with images, part masks and poses."""
+
+    name: str
+    category: str
+    images: np.ndarray
+    """(N, H, W, 3) float32 in [0, 1] on white."""
+    masks: np.ndarray
+    """(N, H, W) uint8 part ids."""
+    c2w: np.ndarray
+    """(N, 4, 4) OpenCV camera-to-world."""
+    intrinsics: list
+    labels: dict
+    """part id -> name (meta.json ``labels``)."""
+
+
+def load_masked_object(obj_dir: Path) -> MaskedObject:
+    from ..datasets import format as DF
+    from ..datasets.loaders import load_ours
+
+    scene = load_ours(obj_dir)
+    ov = DF.read_object(Path(obj_dir))
+    if not ov.has("mask"):
+        raise InputError(f"{obj_dir}: views lack mask/*.png part masks (Sem2NeRF needs them)")
+    masks = np.stack([np.asarray(ov.mask(i)) for i in range(len(ov.indices))])
+    if masks.ndim != 3 or masks.shape != scene.images.shape[:3]:
+        raise InputError(f"{obj_dir}: masks {masks.shape} do not match images {scene.images.shape[:3]}")
+    labels = {int(k): str(v) for k, v in (ov.meta.get("labels") or {}).items()}
+    labels.setdefault(0, "background")
+    return MaskedObject(scene.name, scene.category, scene.images, masks.astype(np.uint8), scene.c2w,
+                        scene.intrinsics, labels)
+
+
+def split_holdout(dirs: list[Path], holdout: int) -> tuple[list[Path], list[Path]]:
+    """(kept, held out): the last ``holdout`` object folders of every category (sorted) are held out."""
+    if holdout <= 0:
+        return list(dirs), []
+    by_cat: dict[str, list[Path]] = {}
+    for d in sorted(dirs):
+        by_cat.setdefault(d.parent.name, []).append(d)
+    keep, held = [], []
+    for ds in by_cat.values():
+        n = max(len(ds) - holdout, 1 if len(ds) > 1 else len(ds))
+        keep += ds[:n]
+        held += ds[n:]
+    return keep, held
+
+
+def load_masked_dataset(root: Path, split: str = "train", limit: int = 0, holdout: int = 0,
+                        held_out: bool = False) -> list[MaskedObject]:
+    from ..datasets.loaders import list_ours
+
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"dataset {root} does not exist")
+    has_split = (root / "splits" / f"{split}.lst").is_file()
+    dirs = list_ours(root, split if has_split else None)
+    if not dirs:
+        raise InputError(f"{root}: no objects of our format for split {split!r}")
+    keep, held = split_holdout(dirs, holdout)
+    dirs = held if held_out else keep
+    dirs = dirs[:limit] if limit else dirs
+    if not dirs:
+        raise InputError(f"{root}: no objects left for split {split!r} (holdout {holdout})")
+    return [load_masked_object(d) for d in dirs]
+
+
+def label_table(objects: list[MaskedObject]) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    """Known labels (background first) and names from the objects' meta and their masks."""
+    names: dict[int, str] = {0: "background"}
+    for o in objects:
+        for k, v in o.labels.items():
+            names.setdefault(k, v)
+        for k in np.unique(o.masks):
+            names.setdefault(int(k), f"part_{int(k)}")
+    ids = (0,) + tuple(sorted(k for k in names if k != 0))
+    return ids, tuple(names[k] for k in ids)
+
+
+# ------------------------------------------------------------------------------------------- patches
+
+def sample_patch(rng: np.random.Generator, mask: np.ndarray, patch: int, scale: float, fg_prob: float) -> np.ndarray:
+    """(P*P, 2) continuous pixel coordinates (x, y) of a P x P patch covering ``scale`` of the image side.
+
+    Sample spacing is scale * side / P; with probability ``fg_prob`` the patch is centred on a random
+    object pixel of ``mask`` (clamped so it stays inside the image)."""
+    h, w = mask.shape
+    side_x, side_y = scale * w, scale * h
+    fg = np.flatnonzero(mask.ravel() > 0)
+    if fg.size and rng.random() < fg_prob:
+        k = fg[rng.integers(fg.size)]
+        cy, cx = k // w + 0.5, k % w + 0.5
+        x0 = float(np.clip(cx - side_x / 2, 0, w - side_x))
+        y0 = float(np.clip(cy - side_y / 2, 0, h - side_y))
+    else:
+        x0 = float(rng.uniform(0, w - side_x)) if w > side_x else 0.0
+        y0 = float(rng.uniform(0, h - side_y)) if h > side_y else 0.0
+    g = (np.arange(patch) + 0.5) / patch
+    xs, ys = x0 + g * side_x, y0 + g * side_y
+    X, Y = np.meshgrid(xs, ys)
+    return np.stack([X.ravel(), Y.ravel()], -1)
+
+
+def gather_patch(image: np.ndarray, mask_idx: np.ndarray, px: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bilinear colour (N, 3) and nearest part index (N,) at continuous pixel coordinates ``px``."""
+    h, w = mask_idx.shape
+    img = torch.from_numpy(image).permute(2, 0, 1)[None]
+    grid = torch.from_numpy(np.stack([px[:, 0] / w * 2 - 1, px[:, 1] / h * 2 - 1], -1)).float()[None, None]
+    rgb = F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)[0, :, 0].T
+    xi = np.clip(np.floor(px[:, 0]).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.floor(px[:, 1]).astype(np.int64), 0, h - 1)
+    return rgb, torch.from_numpy(mask_idx[yi, xi])
+
+
+# ------------------------------------------------------------------------------------------- losses
+
+class PatchDiscriminator(nn.Module):
+    """Small conv discriminator on (B, 3, P, P) patches -> (B,) logits (LeakyReLU, no normalisation)."""
+
+    def __init__(self, width: int = 32):
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(3, width, 3, 1, 1), nn.LeakyReLU(0.2),
+                                 nn.Conv2d(width, 2 * width, 4, 2, 1), nn.LeakyReLU(0.2),
+                                 nn.Conv2d(2 * width, 4 * width, 4, 2, 1), nn.LeakyReLU(0.2),
+                                 nn.Conv2d(4 * width, 1, 3, 1, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x * 2 - 1).mean(dim=(1, 2, 3))
+
+
+def lpips_loss(lp, pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """Mean LPIPS-VGG (v0.1) of (B, 3, P, P) patches, differentiable w.r.t. ``pred``."""
+    fa, fb = lp.features(pred), lp.features(gt)
+    total = 0.0
+    for a, b, w in zip(fa, fb, lp.lins):
+        a = a / (a.norm(dim=1, keepdim=True) + 1e-10)
+        b = b / (b.norm(dim=1, keepdim=True) + 1e-10)
+        total = total + F.conv2d((a - b) ** 2, w).mean(dim=(1, 2, 3))
+    return total.mean()
+
+
+# ------------------------------------------------------------------------------------------- checkpoints
+
+def save_checkpoint(run_dir: Path, step: int, model, train_image_size: int, trainer_state: dict | None,
+                    extra_meta: dict | None = None, keep: int = 2) -> Path:
+    """Atomic checkpoint ``<run>/checkpoints/step_NNNNNNN/`` (+ ``latest``); returns its folder."""
+    from safetensors.torch import save_model
+
+    from ..datasets.format import atomic_write_text, ordinary_permissions
+    from ..models.checkpoint_files import FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE
+    from ..models.config import to_dict
+
+    ck_root = Path(run_dir) / "checkpoints"
+    ck_root.mkdir(parents=True, exist_ok=True)
+    name = f"step_{step:07d}"
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=ck_root))
+    try:
+        meta = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "model_kind": MODEL_KIND,
+                "step": str(step), "model_config": json.dumps(to_dict(model.cfg)),
+                "train_image_size": str(int(train_image_size))}
+        for k, v in (extra_meta or {}).items():
+            meta[k] = v if isinstance(v, str) else json.dumps(v)
+        save_model(model, str(tmp / MODEL_FILE), metadata=meta)
+        if trainer_state is not None:
+            torch.save(trainer_state, tmp / STATE_FILE)
+        ordinary_permissions(tmp)
+        final = ck_root / name
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    atomic_write_text(ck_root / "latest", name + "\n")
+    done = sorted(p for p in ck_root.glob("step_*") if p.is_dir())
+    for old in done[:-keep] if keep > 0 else []:
+        if old.name != name:
+            shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def read_sem2nerf_header(path: Path) -> tuple[Path, dict[str, str]]:
+    """(model file, metadata) of a Sem2NeRF checkpoint; InputError if it is none (torch-free)."""
+    from ..models.checkpoint_files import checked_header
+
+    model_file, meta = checked_header(Path(path))
+    if meta.get("model_kind") != MODEL_KIND:
+        raise InputError(f"{model_file} is not a Sem2NeRF checkpoint (model kind {meta.get('model_kind', 'mrvm')!r})")
+    return model_file, meta
+
+
+def load_sem2nerf(path: Path, device: str = "cpu"):
+    """(model, config, metadata) from a Sem2NeRF checkpoint (run folder, checkpoint folder or model file)."""
+    from safetensors.torch import load_model as st_load
+
+    from ..models.config import from_dict
+    from ..models.sem2nerf.config import Sem2NeRFConfig, validate
+    from ..models.sem2nerf.model import Sem2NeRF
+
+    model_file, meta = read_sem2nerf_header(path)
+    cfg = validate(from_dict(Sem2NeRFConfig, json.loads(meta["model_config"])))
+    model = Sem2NeRF(replace(cfg, pretrained=False, style_mean_samples=1))  # weights come from the file
+    model.cfg = cfg
+    model.field.cfg = cfg
+    try:
+        st_load(model, str(model_file), strict=True, device=device)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"checkpoint {model_file} does not match its config: {first[:300]}") from None
+    return model.to(device).eval(), cfg, meta
+
+
+# ------------------------------------------------------------------------------------------- training
+
+def _normalized_rays(intr, c2w, px: np.ndarray, box: float):
+    from ..models.rays import make_rays, normalize_pose
+
+    return make_rays(intr, normalize_pose(c2w, np.zeros(3), box), px, box=1.0)
+
+
+def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObject] | None = None):
+    """Progress generator: trains, writes checkpoints and metrics.jsonl; returns a summary dict."""
+    from ..models.checkpoint_files import STATE_FILE, find_checkpoint
+    from ..models.config import merge
+    from ..models.sem2nerf.config import sem2nerf_config
+    from ..models.sem2nerf.inputs import build_inputs, to_index
+    from ..models.sem2nerf.model import Sem2NeRF
+
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    dev = torch.device(cfg.device)
+    out = Path(cfg.out_dir)
+    if objects is None:
+        if not cfg.data:
+            raise InputError("no dataset: give --data")
+        objects = load_masked_dataset(Path(cfg.data), cfg.split, cfg.max_objects, cfg.holdout)
+    sizes = {o.images.shape[1:3] for o in objects}
+    if len(sizes) != 1:
+        raise InputError(f"objects have different image sizes {sorted(sizes)}")
+    (h, w), = sizes
+    if h != w:
+        raise InputError(f"Sem2NeRF trains on square images; these are {w}x{h}")
+    labels, names = label_table(objects)
+
+    ck = find_checkpoint(out) if resume and out.exists() else None
+    torch.manual_seed(cfg.seed)
+    if ck is not None:
+        model, mcfg, _ = load_sem2nerf(ck, cfg.device)
+        if mcfg.image_size != h:
+            raise InputError(f"run {out} was trained at {mcfg.image_size} px; this data is {h} px")
+        missing = set(labels) - set(mcfg.labels)
+        if missing:
+            raise InputError(f"run {out} does not know label id(s) {sorted(missing)} of this data")
+        labels, names = mcfg.labels, mcfg.label_names
+    else:
+        overrides = dict(cfg.model_overrides)
+        mcfg = sem2nerf_config(cfg.preset, overrides, image_size=h, labels=labels, label_names=names)
+        model = Sem2NeRF(mcfg).to(dev)
+    model.train()
+    n_obj = len(objects)
+    codes = nn.Parameter(torch.randn(n_obj, mcfg.z_dim, device=dev))
+    gen_params = list(model.field.parameters()) + list(model.mapping.parameters())
+    opt = torch.optim.Adam([{"params": gen_params, "lr": cfg.lr},
+                            {"params": model.encoder.parameters(), "lr": cfg.encoder_lr},
+                            {"params": [codes], "lr": cfg.code_lr}], betas=(0.0 if cfg.gan_weight > 0 else 0.9, 0.999))
+    disc = d_opt = None
+    if cfg.gan_weight > 0:
+        disc = PatchDiscriminator().to(dev)
+        d_opt = torch.optim.Adam(disc.parameters(), lr=cfg.disc_lr, betas=(0.0, 0.99))
+    start = 0
+    rng = np.random.default_rng(cfg.seed)
+    if ck is not None:
+        st = torch.load(Path(ck) / STATE_FILE, map_location="cpu", weights_only=True)
+        if st["codes"].shape[0] != n_obj:
+            raise InputError(f"run {out} was trained on {st['codes'].shape[0]} objects, this data has {n_obj}")
+        with torch.no_grad():
+            codes.copy_(st["codes"].to(dev))
+        opt.load_state_dict(st["opt"])
+        for group, lr in zip(opt.param_groups, (cfg.lr, cfg.encoder_lr, cfg.code_lr)):
+            group["lr"] = lr  # the run config's learning rates apply to a resumed run
+        if disc is not None and "disc" in st:
+            disc.load_state_dict(st["disc"])
+            d_opt.load_state_dict(st["d_opt"])
+        start = int(st["step"])
+        rng.bit_generator.state = json.loads(st["rng"])
+        torch.set_rng_state(st["torch_rng"])
+    lp = None
+    if cfg.lpips_weight > 0:
+        from ..models.metrics import LPIPS
+
+        lp = LPIPS().to(dev)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps({"train": {k: v for k, v in cfg.__dict__.items()},
+                                                 "labels": list(labels), "label_names": list(names)},
+                                                indent=2, default=list) + "\n")
+    index_cache: dict[tuple[int, int], np.ndarray] = {}
+    input_cache: dict[tuple[int, int], torch.Tensor] = {}
+
+    def idx_of(o: int, v: int) -> np.ndarray:
+        if (o, v) not in index_cache:
+            index_cache[(o, v)] = to_index(objects[o].masks[v], labels, f"{objects[o].name} view {v}")
+        return index_cache[(o, v)]
+
+    def inputs_of(o: int, v: int) -> torch.Tensor:
+        if (o, v) not in input_cache:
+            input_cache[(o, v)] = torch.from_numpy(build_inputs(objects[o].masks[v], labels))
+        return input_cache[(o, v)]
+
+    P = cfg.patch_size
+    last_ck = None
+    t0 = time.time()
+    metrics_f = open(out / "metrics.jsonl", "a")
+    try:
+        for step in range(start, cfg.iterations):
+            lo = scale_lower_bound(step, cfg)
+            obj_ids = rng.choice(n_obj, size=cfg.objects_per_step, replace=n_obj < cfg.objects_per_step)
+            enc_cam, enc_in, item_obj, o_list, d_list, f_list, h_list, gt_rgb, gt_idx = [], [], [], [], [], [], [], [], []
+            for j, o in enumerate(obj_ids):
+                ob = objects[o]
+                nv = len(ob.images)
+                vin = int(rng.integers(nv))
+                enc_in.append(inputs_of(o, vin))
+                enc_cam.append(ob.c2w[vin])
+                others = [v for v in range(nv) if v != vin]
+                pick = list(rng.choice(others, size=min(cfg.other_views, len(others)), replace=False)) if others else []
+                for v in [vin] + [int(x) for x in pick]:
+                    scale = float(rng.uniform(lo, 1.0))
+                    px = sample_patch(rng, ob.masks[v], P, scale, cfg.fg_patch_prob)
+                    b = _normalized_rays(ob.intrinsics[v], ob.c2w[v], px, mcfg.scene_box)
+                    rgb, idx = gather_patch(ob.images[v], idx_of(o, v), px)
+                    item_obj.append(j)
+                    o_list.append(b.origins)
+                    d_list.append(b.dirs)
+                    f_list.append(b.far)
+                    h_list.append(b.hit)
+                    gt_rgb.append(rgb)
+                    gt_idx.append(idx)
+            enc = torch.stack(enc_in).to(dev)
+            mask_code = model.encode(enc, np.stack(enc_cam))
+            zs = codes[torch.as_tensor(obj_ids, device=dev)]
+            zs = zs / zs.norm(dim=-1, keepdim=True).clamp_min(1e-8) * math.sqrt(mcfg.z_dim)
+            style = model.style(zs)
+            sel = torch.as_tensor(item_obj, device=dev)
+            res = model.render_rays(torch.stack(o_list), torch.stack(d_list), torch.stack(f_list), torch.stack(h_list),
+                                    mask_code[sel], style[sel], perturb=True)
+            B = len(item_obj)
+            gt = torch.stack(gt_rgb).to(dev)
+            gi = torch.stack(gt_idx).to(dev)
+            l2 = F.mse_loss(res["rgb"], gt)
+            ce = F.nll_loss(res["semantic"].reshape(-1, mcfg.n_labels), gi.reshape(-1))
+            loss = cfg.l2_weight * l2 + cfg.ce_weight * ce
+            pred_img = res["rgb"].view(B, P, P, 3).permute(0, 3, 1, 2)
+            gt_img = gt.view(B, P, P, 3).permute(0, 3, 1, 2)
+            lpv = torch.zeros(())
+            if lp is not None:
+                lpv = lpips_loss(lp, pred_img, gt_img)
+                loss = loss + cfg.lpips_weight * lpv
+            g_adv = d_loss = torch.zeros(())
+            if disc is not None:
+                g_adv = F.softplus(-disc(pred_img)).mean()
+                loss = loss + cfg.gan_weight * g_adv
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if cfg.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(list(model.parameters()) + [codes], cfg.grad_clip)
+            opt.step()
+            if disc is not None:
+                d_opt.zero_grad(set_to_none=True)
+                d_loss = F.softplus(-disc(gt_img)).mean() + F.softplus(disc(pred_img.detach())).mean()
+                d_loss.backward()
+                d_opt.step()
+            if not torch.isfinite(loss):
+                raise RuntimeError(f"sem2nerf: loss became {loss.item()} at step {step}")
+            done = step + 1
+            if done % cfg.log_every == 0 or done == cfg.iterations:
+                psnr = float(-10 * torch.log10(l2.detach().clamp_min(1e-10)))
+                rec = {"step": done, "loss": float(loss.detach()), "l2": float(l2.detach()), "psnr": psnr,
+                       "lpips": float(lpv.detach()), "ce": float(ce.detach()), "g_adv": float(g_adv.detach()),
+                       "d_loss": float(d_loss.detach()), "scale_lo": lo,
+                       "elapsed_s": round(time.time() - t0, 1)}
+                metrics_f.write(json.dumps(rec) + "\n")
+                metrics_f.flush()
+            if done % cfg.checkpoint_every == 0 or done == cfg.iterations:
+                model.update_style_mean()
+                state = {"step": done, "codes": codes.detach().cpu(), "opt": opt.state_dict(),
+                         "rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
+                         "objects": [f"{o.category}/{o.name}" for o in objects]}
+                if disc is not None:
+                    state["disc"] = disc.state_dict()
+                    state["d_opt"] = d_opt.state_dict()
+                last_ck = save_checkpoint(out, done, model, h, state, keep=cfg.keep,
+                                          extra_meta={"train": {"data": cfg.data, "split": cfg.split,
+                                                                "iterations": cfg.iterations,
+                                                                "gan_weight": cfg.gan_weight}})
+            yield Progress(done, cfg.iterations, f"loss {loss.item():.4f} l2 {l2.item():.4f} ce {ce.item():.3f}")
+    finally:
+        metrics_f.close()
+    return {"step": max(start, cfg.iterations), "checkpoint": str(last_ck) if last_ck else None,
+            "resumed_from": str(ck) if ck else None, "labels": list(labels), "objects": n_obj}
+
+
+# ------------------------------------------------------------------------------------------- evaluation
+
+def category_mean_images(objects: list[MaskedObject]) -> dict[str, np.ndarray]:
+    """Per category: the per-pixel mean object colour over every view of every object ((H, W, 3);
+    pixels no object covers get the category's overall mean object colour)."""
+    acc: dict[str, list] = {}
+    for o in objects:
+        fg = (o.masks > 0)[..., None].astype(np.float64)
+        s = (o.images * fg).sum(0)
+        n = fg.sum(0)
+        if o.category in acc:
+            acc[o.category][0] += s
+            acc[o.category][1] += n
+        else:
+            acc[o.category] = [s, n]
+    out = {}
+    for cat, (s, n) in acc.items():
+        overall = s.reshape(-1, 3).sum(0) / max(n.sum(), 1.0)
+        out[cat] = np.where(n > 0, s / np.maximum(n, 1.0), overall).astype(np.float32)
+    return out
+
+
+def miou(gt: np.ndarray, pred: np.ndarray) -> float:
+    """Mean IoU over the labels present in either map (background included)."""
+    ious = []
+    for lab in np.union1d(np.unique(gt), np.unique(pred)):
+        a, b = gt == lab, pred == lab
+        ious.append((a & b).sum() / max((a | b).sum(), 1))
+    return float(np.mean(ious)) if ious else 1.0
+
+
+def _edit_locality(model, cfg, ob: MaskedObject, v_in: int, code: torch.Tensor) -> dict:
+    """Remove the smallest part of the input mask (relabel it background) and measure how much the
+    rendered input view changes near the edited region (within r = size / 16 px) and far from it."""
+    from scipy import ndimage
+
+    from ..models.sem2nerf.inputs import build_inputs
+
+    m = ob.masks[v_in]
+    parts, counts = np.unique(m[m > 0], return_counts=True)
+    if len(parts) < 2:
+        return {"object": f"{ob.category}/{ob.name}", "edited": None}
+    src = int(parts[np.argmin(counts)])
+    edited = np.where(m == src, 0, m).astype(np.uint8)
+    style = model.default_style()
+    with torch.no_grad():
+        code_e = model.encode(torch.from_numpy(build_inputs(edited, cfg.labels))[None], ob.c2w[v_in][None])
+    a = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code, style)["rgb"].numpy()
+    b = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code_e, style)["rgb"].numpy()
+    r = max(2, cfg.image_size // 16)
+    near = ndimage.distance_transform_edt(m != src) <= r
+    change = np.abs(a - b).mean(-1)
+    return {"object": f"{ob.category}/{ob.name}", "edited": src, "edited_px": int((m == src).sum()), "radius_px": r,
+            "near_change": float(change[near].mean()), "far_change": float(change[~near].mean()) if (~near).any() else 0.0}
+
+
+def _summarise_edits(rows: list[dict]) -> dict:
+    rows = [r for r in rows if r.get("edited") is not None]
+    if not rows:
+        return {"n_objects": 0}
+    near = float(np.mean([r["near_change"] for r in rows]))
+    far = float(np.mean([r["far_change"] for r in rows]))
+    return {"n_objects": len(rows), "edit": "smallest part of the input mask -> background",
+            "near_change": near, "far_change": far, "far_over_near": far / near if near > 0 else None}
+
+
+def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
+             input_view: int = 0, views_every: int = 3, threads: int = 0):
+    """Progress generator over objects; writes ``out/eval.json`` and returns its dict.
+
+    For every evaluated object the mask of ``input_view`` is encoded and the input view plus every
+    ``views_every``-th other view are rendered with the mean style. Scored per view: PSNR, SSIM,
+    LPIPS-VGG against the rendered ground truth, the same for the baseline (the category's mean
+    object image, masked by the true mask of that view), and the mIoU between the true part mask and
+    the rendered semantic map (in the input view: the input mask itself). ``eval_grid.png`` shows, per
+    object (first 16): input mask | true, rendered and semantic input view | the same for the first
+    novel view."""
+    from ..models import metrics as M
+    from ..models.sem2nerf.inputs import build_inputs
+
+    if views_every < 1:
+        raise InputError("--views-every must be >= 1")
+    if threads:
+        torch.set_num_threads(threads)
+    model, cfg, meta = load_sem2nerf(checkpoint)
+    if holdout > 0:
+        evals = load_masked_dataset(Path(data), split, max_objects, holdout, held_out=True)
+        base_objs = load_masked_dataset(Path(data), split, 0, holdout)
+    else:
+        evals = load_masked_dataset(Path(data), split, max_objects)
+        base_objs = load_masked_dataset(Path(data), "train", 0)
+    means = category_mean_images(base_objs)
+    lp = M.LPIPS()
+    labels_t = torch.as_tensor(cfg.labels)
+    per_view = []
+    edit_rows = []
+    grid_rows: list[np.ndarray] = []
+    t0 = time.time()
+    for k, ob in enumerate(evals):
+        if ob.images.shape[1:3] != (cfg.image_size, cfg.image_size):
+            raise InputError(f"{ob.name}: images are not {cfg.image_size} px like the checkpoint's training images")
+        v_in = input_view % len(ob.images)
+        with torch.no_grad():
+            code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None], ob.c2w[v_in][None])
+        views = [v_in] + [v for v in range(len(ob.images)) if v != v_in and (v - v_in) % views_every == 0]
+        row: list[np.ndarray] = []
+        for v in views:
+            img = model.render_image(ob.intrinsics[v], ob.c2w[v], code, model.default_style())
+            pred = img["rgb"].clamp(0, 1).numpy()
+            gt = ob.images[v]
+            fg = ob.masks[v] > 0
+            base = np.where(fg[..., None], means.get(ob.category, np.full_like(gt, 0.5)), 1.0).astype(np.float32)
+            sem = labels_t[img["semantic"].argmax(-1)].numpy()
+            pt, gtt, bt = torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(base)
+            per_view.append({
+                "object": f"{ob.category}/{ob.name}", "category": ob.category, "view": int(v), "input_view": v == v_in,
+                "psnr": float(M.psnr(pt, gtt)[0]), "ssim": float(M.ssim(pt, gtt)[0]), "lpips": float(lp(pt, gtt)[0]),
+                "base_psnr": float(M.psnr(bt, gtt)[0]), "base_ssim": float(M.ssim(bt, gtt)[0]),
+                "base_lpips": float(lp(bt, gtt)[0]), "miou": miou(ob.masks[v], sem),
+                "fg_iou": float((fg & (sem > 0)).sum() / max((fg | (sem > 0)).sum(), 1))})
+            if len(grid_rows) < 16 and (v == v_in or len(row) < 6):
+                from ..models.sem2nerf.render import colorize
+
+                row += ([colorize(ob.masks[v])] if v == v_in else []) + [
+                    (gt * 255).round().astype(np.uint8), (pred * 255).round().astype(np.uint8),
+                    colorize(sem.astype(np.uint8))]
+        if row:
+            grid_rows.append(np.concatenate(row[:7], 1))
+        edit_rows.append(_edit_locality(model, cfg, ob, v_in, code))
+        yield Progress(k + 1, len(evals), ob.name)
+
+    def summarise(rows):
+        keys = ("psnr", "ssim", "lpips", "base_psnr", "base_ssim", "base_lpips", "miou", "fg_iou")
+        return {"n_views": len(rows), **{key: float(np.mean([r[key] for r in rows])) for key in keys}} if rows else {}
+
+    res = {"checkpoint": str(checkpoint), "step": meta.get("step"), "data": str(data), "split": split,
+           "holdout": holdout, "objects": len(evals), "input_view": input_view, "views_every": views_every,
+           "style": "mean", "elapsed_s": round(time.time() - t0, 1),
+           "overall": {"input_view": summarise([r for r in per_view if r["input_view"]]),
+                       "novel_views": summarise([r for r in per_view if not r["input_view"]])},
+           "per_category": {c: {"input_view": summarise([r for r in per_view if r["category"] == c and r["input_view"]]),
+                                "novel_views": summarise([r for r in per_view if r["category"] == c and not r["input_view"]])}
+                            for c in sorted({r["category"] for r in per_view})},
+           "edit_locality": _summarise_edits(edit_rows),
+           "per_view": per_view, "per_object_edits": edit_rows}
+    Path(out).mkdir(parents=True, exist_ok=True)
+    from ..datasets.format import atomic_write_json
+
+    atomic_write_json(Path(out) / "eval.json", res)
+    if grid_rows:
+        from ..datasets.format import write_png
+
+        width = max(r.shape[1] for r in grid_rows)
+        grid = np.concatenate([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255)
+                               for r in grid_rows], 0)
+        write_png(Path(out) / "eval_grid.png", grid)
+    return res

@@ -1,0 +1,247 @@
+"""Sem2NeRF: input builders and the model (CPU, tiny shapes)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm.errors import InputError
+from blender_mrvm.models.sem2nerf import inputs as I
+
+torch.set_num_threads(1)
+
+
+def _mask(size=64):
+    return I.synthetic_mask(size)
+
+
+# ------------------------------------------------------------------------------------------ inputs
+
+def test_one_hot_shapes_and_values():
+    m = _mask(64)
+    labels = [0, 1, 2, 3, 4, 9]
+    oh = I.one_hot(m, labels)
+    assert oh.shape == (6, 64, 64) and oh.dtype == np.float32
+    assert np.array_equal(oh.sum(0), np.ones((64, 64), np.float32))
+    assert oh[5].sum() == 0  # label 9 absent
+    for i, lab in enumerate(labels):
+        assert np.array_equal(oh[i] > 0, m == lab)
+
+
+def test_unknown_label_is_an_error():
+    m = _mask(32)
+    with pytest.raises(InputError, match=r"\[4\]"):
+        I.one_hot(m, [0, 1, 2, 3])
+
+
+def test_thickness_scales_with_resolution():
+    assert I.contour_thickness(512, 512) == 3
+    assert I.contour_thickness(1024, 768) == 6
+    assert I.contour_thickness(64, 64) == 1
+    assert I.contour_thickness(256, 256) == 2
+
+
+def test_contours_lie_on_label_boundaries():
+    m = _mask(128)
+    c = I.contour_map(m, thickness=1) > 0
+    # every thin contour pixel has a 4-neighbour of another label (or lies on the image edge)
+    pad = np.pad(m, 1, mode="edge")
+    nb_diff = np.zeros_like(c)
+    for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        nb_diff |= pad[dy:dy + 128, dx:dx + 128] != m
+    assert c.any()
+    assert np.all(nb_diff[c])
+    assert np.all(m[c] != 0)  # drawn on the labelled side of the boundary
+    # and of every pair of 4-neighbours with two different non-background labels, at least one
+    # pixel is on a contour (the outer one of a region nested in another is not: that is a hole)
+    for a, b in ((m[1:], m[:-1]), (m[:, 1:], m[:, :-1])):
+        ca, cb = (c[1:], c[:-1]) if a.shape[0] == 127 else (c[:, 1:], c[:, :-1])
+        pair = (a != b) & (a != 0) & (b != 0)
+        assert pair.any() and np.all((ca | cb)[pair])
+
+
+def test_external_contours_skip_holes_and_match_reference():
+    m = np.zeros((40, 40), np.uint8)
+    m[5:35, 5:35] = 1
+    m[15:25, 15:25] = 0  # a background hole inside label 1: not an external contour
+    c = I.contour_map(m, thickness=1) > 0
+    assert not c[14, 20] and not c[25, 20]  # pixels of label 1 bordering the hole
+    assert c[5, 20] and c[34, 20]
+    for size in (64, 512):
+        mm = _mask(size)
+        assert np.array_equal(I.contour_map(mm), I.contour_map_reference(mm))
+    # random blocky part maps (holes, nested regions, edge contact) agree with the plain reference
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        r = ndimage.zoom(rng.integers(0, 4, (8, 8)).astype(np.uint8), 12, order=0)
+        assert np.array_equal(I.contour_map(r), I.contour_map_reference(r))
+    # a region touching the image edge is outlined along the edge
+    e = np.zeros((20, 20), np.uint8)
+    e[:10] = 2
+    ce = I.contour_map(e, thickness=1) > 0
+    assert ce[0, 5] and ce[9, 5] and not ce[5, 5]
+
+
+def test_contour_thickness_drawn():
+    m = np.zeros((512, 512), np.uint8)
+    m[100:400, 100:400] = 1
+    c = I.contour_map(m) > 0
+    # 3 px thick, centred on the border pixel row 100: rows 99, 100, 101
+    assert c[99:102, 250].all() and not c[98, 250] and not c[102, 250]
+
+
+def test_distance_field_zero_on_contour_and_growing():
+    m = np.zeros((64, 64), np.uint8)
+    m[16:48, 16:48] = 1
+    c = I.contour_map(m)
+    d = I.distance_field(c)
+    assert d.shape == (64, 64) and d.dtype == np.float32
+    assert d.min() == 0.0 and d.max() == pytest.approx(1.0)
+    assert np.all(d[c > 0] == 0)
+    assert np.all(d[c == 0] > 0)
+    row = d[32, 16:32]  # from the contour (x=16) to the centre (x=31.5): strictly increasing
+    assert np.all(np.diff(row) > 0)
+    # Euclidean: distance to contour pixel (x=16) at (32, 24) is 8, before normalisation
+    from scipy import ndimage
+
+    raw = ndimage.distance_transform_edt(c == 0)
+    assert np.allclose(d, raw / raw.max())
+    assert raw[32, 24] == pytest.approx(24 - 16)
+
+
+def test_empty_mask_inputs():
+    m = np.zeros((32, 32), np.uint8)
+    x = I.build_inputs(m, [0, 1])
+    assert x.shape == (4, 32, 32)
+    assert np.all(x[0] == 1) and np.all(x[1] == 0) and np.all(x[2] == 0) and np.all(x[3] == 1)
+    assert np.isfinite(x).all() and x.min() >= 0 and x.max() <= 1
+
+
+def test_bench_writes_csv(tmp_path):
+    res = I.bench(tmp_path, size=64, repeats=2)
+    text = (tmp_path / "bench_sem2nerf_inputs.csv").read_text().splitlines()
+    assert text[0].startswith("builder,size")
+    assert {"one_hot", "contour_map", "distance_field", "build_inputs"} <= set(res)
+    assert len(text) == 1 + len(res)
+
+
+# ------------------------------------------------------------------------------------------- model
+
+@pytest.fixture(scope="module")
+def tiny():
+    from blender_mrvm.models.sem2nerf.config import sem2nerf_config
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF
+
+    torch.manual_seed(0)
+    cfg = sem2nerf_config("fast", image_size=32, labels=(0, 3, 5), label_names=("background", "a", "b"),
+                          pretrained=False, style_mean_samples=1000, n_coarse=8, n_fine=4, hidden=16,
+                          n_layers=2, encoder_hidden=32, vgg_layers=4)
+    return Sem2NeRF(cfg).eval()
+
+
+def _mask_inputs(cfg, seed=0):
+    m = np.zeros((cfg.image_size, cfg.image_size), np.uint8)
+    m[8:24, 10:22] = 3
+    m[20:28, 12:20] = 5
+    return torch.from_numpy(I.build_inputs(m, cfg.labels))[None]
+
+
+def _rays(n=64, seed=0):
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models.rays import make_rays, normalize_pose
+
+    intr = cameras.intrinsics_from_fov(np.deg2rad(40), 8, 8)
+    c2w = cameras.look_at_opencv(np.array([1.2, -0.8, 0.7]))
+    b = make_rays(intr, normalize_pose(c2w, np.zeros(3), 0.5), None, box=1.0)
+    return b, intr, c2w
+
+
+def test_model_shapes_and_one_logit_per_label(tiny):
+    cfg = tiny.cfg
+    x = _mask_inputs(cfg)
+    assert x.shape == (1, cfg.in_channels, 32, 32)
+    code = tiny.encode(x, _rays()[2][None])
+    assert code.shape == (1, 2 * cfg.n_layers * cfg.hidden)
+    b, intr, c2w = _rays()
+    out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, tiny.default_style())
+    assert out["rgb"].shape == (1, 64, 3) and out["acc"].shape == (1, 64)
+    assert out["semantic"].shape == (1, 64, cfg.n_labels) == (1, 64, 3)
+    # log-probabilities: they exponentiate to a distribution over the known labels
+    assert torch.allclose(out["semantic"].exp().sum(-1), torch.ones(1, 64), atol=1e-3)
+    img = tiny.render_image(intr, c2w, code, tiny.default_style())
+    assert img["rgb"].shape == (8, 8, 3) and img["semantic"].shape == (8, 8, 3) and img["acc"].shape == (8, 8)
+
+
+def test_no_nan_for_empty_and_extreme(tiny):
+    cfg = tiny.cfg
+    code = tiny.encode(_mask_inputs(cfg), _rays()[2][None])
+    b, _, _ = _rays()
+    # all rays miss: background everywhere, no evaluation
+    miss = torch.zeros_like(b.hit)
+    out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], miss[None], code, tiny.default_style())
+    assert torch.all(out["rgb"] == 1) and torch.all(out["acc"] == 0)
+    assert torch.all(out["semantic"].argmax(-1) == 0)
+    # zero-length rays, huge codes and a huge style: finite
+    far0 = torch.zeros_like(b.far)
+    out = tiny.render_rays(b.origins[None], b.dirs[None], far0[None], b.hit[None], code * 1e4,
+                           tiny.default_style() * 1e4)
+    for v in out.values():
+        assert torch.isfinite(v).all()
+    # extreme inputs (all-zero / all-one channels) and gradients through the whole model
+    tiny.train()
+    for x in (torch.zeros(1, cfg.in_channels, 32, 32), torch.ones(1, cfg.in_channels, 32, 32)):
+        code = tiny.encode(x, _rays()[2][None] * 1e3)
+        out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code,
+                               tiny.default_style(), perturb=True)
+        loss = out["rgb"].mean() + out["semantic"].mean()
+        loss.backward()
+        assert all(torch.isfinite(p.grad).all() for p in tiny.parameters() if p.grad is not None)
+        tiny.zero_grad()
+    tiny.eval()
+
+
+def test_default_style_is_mean_of_mapping(tiny):
+    cfg = tiny.cfg
+    g = torch.Generator().manual_seed(0)
+    z = torch.randn(cfg.style_mean_samples, cfg.z_dim, generator=g)
+    with torch.no_grad():
+        assert torch.allclose(tiny.style_mean, tiny.mapping(z).mean(0), atol=1e-6)
+    assert not torch.allclose(tiny.style_from_seed(1), tiny.style_from_seed(2))
+
+
+def test_style_blend_changes_image_monotonically(tiny):
+    from dataclasses import replace
+
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF
+
+    torch.manual_seed(1)
+    tiny = Sem2NeRF(replace(tiny.cfg, density_bias=3.0)).eval()  # an opaque field: colour shows
+    code = tiny.encode(_mask_inputs(tiny.cfg), _rays()[2][None])
+    b, _, _ = _rays()
+    with torch.no_grad():
+        s0, s1 = tiny.style_from_seed(1), tiny.style_from_seed(2)
+        imgs = []
+        for a in np.linspace(0, 1, 6):
+            s = (1 - a) * s0 + a * s1
+            imgs.append(tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, s)["rgb"])
+    d0 = [float((im - imgs[0]).abs().mean()) for im in imgs]
+    d1 = [float((im - imgs[-1]).abs().mean()) for im in imgs]
+    assert d0[-1] > 1e-3  # the two styles give different images
+    assert all(x < y for x, y in zip(d0, d0[1:]))  # away from style 0 ...
+    assert all(x > y for x, y in zip(d1, d1[1:]))  # ... towards style 1
+
+
+def test_encoder_starts_from_imagenet_vgg():
+    from blender_mrvm.models.sem2nerf.config import sem2nerf_config
+    from blender_mrvm.models.sem2nerf.model import MaskEncoder
+    from blender_mrvm.models.vgg import load_vgg16_features
+
+    cfg = sem2nerf_config("fast", image_size=32, labels=(0, 1, 2), label_names=("b", "x", "y"), vgg_layers=4)
+    enc = MaskEncoder(cfg)
+    ref = load_vgg16_features(4)
+    assert torch.equal(enc.backbone[2].weight, ref[2].weight)
+    w0 = ref[0].weight.mean(1, keepdim=True) * (3.0 / cfg.in_channels)
+    assert torch.allclose(enc.backbone[0].weight, w0.expand(-1, cfg.in_channels, -1, -1))

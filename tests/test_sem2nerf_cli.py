@@ -1,0 +1,151 @@
+"""Sem2NeRF CLI: train -> render (views, semantic maps, edits, styles, blend), eval, bench, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm.cli import main
+from blender_mrvm.datasets import format as DF
+
+torch.set_num_threads(1)
+
+TINY = (("hidden", 16), ("n_layers", 2), ("encoder_hidden", 32), ("vgg_layers", 4), ("n_coarse", 6),
+        ("n_fine", 2), ("style_mean_samples", 200), ("z_dim", 8), ("mapping_hidden", 16), ("chunk_rays", 512))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    from blender_mrvm.progress import run_to_end
+    from blender_mrvm.training import sem2nerf as T
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    root = tmp_path_factory.mktemp("s2ncli")
+    data = make_sphere_dataset(root / "d", n_objects=3, n_views=4, resolution=16)
+    cfg = T.train_config(data=str(data), out_dir=str(root / "run"), preset="fast", model_overrides=TINY, iterations=1,
+                         objects_per_step=1, patch_size=8, lpips_weight=0.0, checkpoint_every=1, threads=1)
+    run_to_end(T.train(cfg, resume=False))
+    obj = sorted((data / "spheres").glob("obj*"))[0]
+    return root / "run", data, obj
+
+
+def _labels(run):
+    from blender_mrvm.training.sem2nerf import read_sem2nerf_header
+
+    return json.loads(read_sem2nerf_header(run)[1]["model_config"])["labels"]
+
+
+def test_cli_train_one_step(tmp_path, trained):
+    _, data, _ = trained
+    rc = main(["sem2nerf", "train", "--data", str(data), "--out", str(tmp_path / "r"), "--preset", "fast",
+               "--iterations", "1", "--patch-size", "8", "--lpips-weight", "0", "--threads", "1"])
+    assert rc == 0
+    assert (tmp_path / "r" / "checkpoints" / "latest").read_text().strip() == "step_0000001"
+
+
+def test_render_views_semantics_edit_blend(tmp_path, trained):
+    run, _, obj = trained
+    out = tmp_path / "o"
+    m = DF.read_png(obj / "mask" / "000000.png")
+    present = sorted(int(v) for v in np.unique(m) if v)
+    edit_src = present[-1]
+    rc = main(["sem2nerf", "render", "--checkpoint", str(run), "--mask", str(obj / "mask" / "000000.png"),
+               "--pose", str(obj / "pose" / "000000.txt"), "--out", str(out), "--views", "3",
+               "--edit", f"{edit_src}:0" if len(present) > 1 else f"{edit_src}:{edit_src}",
+               "--style-seed", "3", "--blend", "4", "--blend-steps", "3", "--threads", "1"])
+    assert rc == 0
+    for sub in ("rgb", "semantic", "semantic_color", "pose"):
+        assert len(list((out / sub).iterdir())) == 3
+    assert len(list((out / "blend").iterdir())) == 3
+    sem = DF.read_png(out / "semantic" / "000000.png")
+    assert sem.shape == (16, 16) and set(np.unique(sem)) <= set(_labels(run))
+    rgba = DF.read_png(out / "rgb" / "000001.png")
+    assert rgba.shape == (16, 16, 4)
+    summary = json.loads((out / "sem2nerf.json").read_text())
+    assert summary["style"] == "seed 3" and summary["blend_to_seed"] == 4
+    edited = DF.read_png(out / "mask_input.png")
+    if len(present) > 1:
+        assert not (edited == edit_src).any() and (m == edit_src).any()
+    # an existing non-empty output needs --force
+    rc = main(["sem2nerf", "render", "--checkpoint", str(run), "--mask", str(obj / "mask" / "000000.png"),
+               "--pose", str(obj / "pose" / "000000.txt"), "--out", str(out), "--views", "1"])
+    assert rc == 2
+
+
+@pytest.mark.parametrize("case", ["unknown_label", "empty", "size", "no_pose", "rgb_mask", "bad_edit",
+                                  "edit_absent", "not_sem2nerf"])
+def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, case):
+    run, _, obj = trained
+    mask = obj / "mask" / "000000.png"
+    pose = obj / "pose" / "000000.txt"
+    ckpt = str(run)
+    edit = []
+    m = DF.read_png(mask)
+    if case == "unknown_label":
+        bad = m.copy()
+        bad[:2, :2] = 200
+        mask = tmp_path / "m.png"
+        DF.write_png(mask, bad)
+        match = "200"
+    elif case == "empty":
+        mask = tmp_path / "m.png"
+        DF.write_png(mask, np.zeros_like(m))
+        match = "empty"
+    elif case == "size":
+        mask = tmp_path / "m.png"
+        DF.write_png(mask, np.zeros((20, 16), np.uint8))
+        match = "16x20"
+    elif case == "no_pose":
+        pose = tmp_path / "nope.txt"
+        match = "pose"
+    elif case == "rgb_mask":
+        mask = tmp_path / "m.png"
+        DF.write_png(mask, np.zeros((16, 16, 3), np.uint8))
+        match = "single-channel"
+    elif case == "bad_edit":
+        edit = ["--edit", "1:250"]
+        match = "250"
+    elif case == "edit_absent":
+        known = [v for v in _labels(run) if v]
+        assert len(known) >= 2
+        mask = tmp_path / "m.png"
+        DF.write_png(mask, np.where(m > 0, known[0], 0).astype(np.uint8))
+        edit = ["--edit", f"{known[1]}:0"]
+        match = "not in the mask"
+    else:
+        ckpt = str(tmp_path)
+        match = "no checkpoint"
+    out = tmp_path / "out"
+    rc = main(["sem2nerf", "render", "--checkpoint", ckpt, "--mask", str(mask), "--pose", str(pose),
+               "--out", str(out), *edit])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and err[0].startswith("error: ") and match in err[0]
+    assert not out.exists()
+    assert not any(p.name.startswith(".out") for p in tmp_path.iterdir())
+
+
+def test_eval_writes_metrics(tmp_path, trained):
+    run, data, _ = trained
+    rc = main(["sem2nerf", "eval", "--checkpoint", str(run), "--data", str(data), "--split", "test",
+               "--out", str(tmp_path / "e"), "--threads", "1", "--views-every", "3"])
+    assert rc == 0
+    res = json.loads((tmp_path / "e" / "eval.json").read_text())
+    iv = res["overall"]["input_view"]
+    assert iv["n_views"] == 1 and 0 <= iv["miou"] <= 1 and np.isfinite(iv["psnr"]) and np.isfinite(iv["base_psnr"])
+    assert res["overall"]["novel_views"]["n_views"] == 1  # 4 views, every 3rd other view: view 3
+    grid = DF.read_png(tmp_path / "e" / "eval_grid.png")
+    assert grid.shape == (16, 16 * 7, 3)
+    ed = res["per_object_edits"][0]
+    m = DF.read_png(data / ed["object"] / "mask" / "000000.png")
+    assert len(np.unique(m[m > 0])) >= 2  # the held-out object has parts to edit (precondition)
+    assert ed["edited"] in np.unique(m) and res["edit_locality"]["n_objects"] == 1
+    assert ed["near_change"] > 0 and ed["far_change"] >= 0
+
+
+def test_bench_cli(tmp_path):
+    rc = main(["sem2nerf", "bench", "--out", str(tmp_path), "--size", "64", "--repeats", "2"])
+    assert rc == 0 and (tmp_path / "bench_sem2nerf_inputs.csv").is_file()

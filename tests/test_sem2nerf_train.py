@@ -1,0 +1,128 @@
+"""Sem2NeRF training: 2 CPU steps on a tiny analytic dataset, checkpoints, resume, patch sampling."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm.errors import InputError
+from blender_mrvm.progress import run_to_end
+from blender_mrvm.training import sem2nerf as T
+
+torch.set_num_threads(1)
+
+TINY_MODEL = (("hidden", 16), ("n_layers", 2), ("encoder_hidden", 32), ("vgg_layers", 4), ("n_coarse", 6),
+              ("n_fine", 2), ("style_mean_samples", 200), ("z_dim", 8), ("mapping_hidden", 16))
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    return make_sphere_dataset(tmp_path_factory.mktemp("s2n") / "d", n_objects=3, n_views=4, resolution=16)
+
+
+def test_scale_range_anneals():
+    cfg = T.train_config(scale_anneal_steps=100.0)
+    assert T.scale_lower_bound(0, cfg) == pytest.approx(0.9)
+    vals = [T.scale_lower_bound(s, cfg) for s in (0, 50, 100, 400, 5000)]
+    assert all(a > b for a, b in zip(vals, vals[1:]))
+    assert T.scale_lower_bound(100, cfg) == pytest.approx(0.06 + 0.84 / np.e)
+    assert vals[-1] == pytest.approx(0.06, abs=1e-6)
+
+
+def test_patch_sampling_region_aware_and_scaled():
+    rng = np.random.default_rng(0)
+    mask = np.zeros((64, 64), np.uint8)
+    mask[40:50, 5:15] = 2
+    px = T.sample_patch(rng, mask, 8, 0.25, fg_prob=1.0)
+    assert px.shape == (64, 2)
+    assert px.min() >= 0 and px.max() <= 64
+    span = px.max(0) - px.min(0)
+    assert np.allclose(span, 0.25 * 64 * 7 / 8)  # P samples spaced scale * side / P apart
+    # centred on an object pixel: the patch overlaps the object
+    xi, yi = px[:, 0].astype(int), px[:, 1].astype(int)
+    assert (mask[yi, xi] > 0).any()
+    full = T.sample_patch(rng, mask, 8, 1.0, fg_prob=0.0)
+    assert np.allclose(np.unique(full[:, 0]), (np.arange(8) + 0.5) * 8)
+
+
+def test_two_step_training_checkpoint_and_resume(data, tmp_path):
+    from blender_mrvm.models.sem2nerf.inputs import build_inputs
+
+    out = tmp_path / "run"
+    cfg = T.train_config(data=str(data), out_dir=str(out), preset="fast", model_overrides=TINY_MODEL, iterations=2,
+                         objects_per_step=2, patch_size=16, checkpoint_every=2, log_every=1, threads=1)
+    summary = run_to_end(T.train(cfg, resume=False))
+    assert summary["step"] == 2 and summary["objects"] == 2
+    lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in lines] == [1, 2]
+    assert all(np.isfinite(r["loss"]) and r["lpips"] > 0 and r["ce"] > 0 for r in lines)
+    model, mcfg, meta = T.load_sem2nerf(out)
+    assert meta["model_kind"] == "sem2nerf" and meta["train_image_size"] == "16"
+    assert mcfg.labels[0] == 0 and set(mcfg.labels) >= {1}
+    assert mcfg.image_size == 16 and mcfg.hidden == 16
+    assert json.loads(meta["model_config"])["labels"] == list(mcfg.labels)
+    # the loaded model renders the training mask's input view
+    from blender_mrvm.training.sem2nerf import load_masked_object
+
+    ob = load_masked_object(sorted(data.glob("spheres/obj*"))[0])
+    code = model.encode(torch.from_numpy(build_inputs(ob.masks[0], mcfg.labels))[None], ob.c2w[:1])
+    img = model.render_image(ob.intrinsics[0], ob.c2w[0], code, model.default_style())
+    assert img["rgb"].shape == (16, 16, 3) and torch.isfinite(img["rgb"]).all()
+    assert not any(p.name.startswith(".") for p in (out / "checkpoints").iterdir())
+    # resume continues from step 2 and ends at 3
+    cfg3 = T.train_config(**{**cfg.__dict__, "iterations": 3, "lr": 7e-4})
+    s3 = run_to_end(T.train(cfg3, resume=True))
+    assert s3["resumed_from"] and s3["step"] == 3
+    st = torch.load(out / "checkpoints" / "step_0000003" / "trainer_state.pt", weights_only=True)
+    assert st["opt"]["param_groups"][0]["lr"] == 7e-4  # the config's learning rate applies on resume
+    assert st["opt"]["param_groups"][1]["lr"] == cfg.encoder_lr
+    assert (out / "checkpoints" / "latest").read_text().strip() == "step_0000003"
+
+
+def test_discriminator_option_runs(data, tmp_path):
+    cfg = T.train_config(data=str(data), out_dir=str(tmp_path / "gan"), preset="fast", model_overrides=TINY_MODEL,
+                         iterations=1, objects_per_step=1, patch_size=8, lpips_weight=0.0, gan_weight=0.1,
+                         checkpoint_every=1, log_every=1, threads=1)
+    run_to_end(T.train(cfg, resume=False))
+    rec = json.loads((tmp_path / "gan" / "metrics.jsonl").read_text().splitlines()[-1])
+    assert rec["d_loss"] > 0 and rec["g_adv"] > 0
+    st = torch.load(tmp_path / "gan" / "checkpoints" / "step_0000001" / "trainer_state.pt", weights_only=True)
+    assert "disc" in st
+
+
+def test_not_a_sem2nerf_checkpoint(tmp_path):
+    with pytest.raises(InputError):
+        T.load_sem2nerf(tmp_path)
+    with pytest.raises(InputError, match="LPIPS"):
+        T.train_config(patch_size=8)
+
+
+def test_training_reduces_losses_on_one_object(data, tmp_path):
+    cfg = T.train_config(data=str(data), out_dir=str(tmp_path / "fit"), preset="fast", model_overrides=TINY_MODEL,
+                         iterations=60, max_objects=1, objects_per_step=1, other_views=1, patch_size=8,
+                         lpips_weight=0.0, ce_weight=0.5, lr=1e-3, encoder_lr=1e-3, checkpoint_every=1000,
+                         log_every=1, threads=1, seed=1)
+    run_to_end(T.train(cfg, resume=False))
+    rows = [json.loads(x) for x in (tmp_path / "fit" / "metrics.jsonl").read_text().splitlines()]
+    first, last = rows[:10], rows[-10:]
+    assert np.mean([r["l2"] for r in last]) < 0.7 * np.mean([r["l2"] for r in first])
+    assert np.mean([r["ce"] for r in last]) < 0.85 * np.mean([r["ce"] for r in first])
+
+
+def test_miou_and_category_means():
+    gt = np.array([[0, 1], [2, 2]])
+    assert T.miou(gt, gt) == 1.0
+    assert T.miou(gt, np.array([[0, 1], [2, 0]])) == pytest.approx((1 / 2 + 1 + 1 / 2) / 3)
+    ims = np.ones((2, 2, 2, 3), np.float32)
+    ims[0, 0, 0] = 0.2
+    ims[1, 0, 0] = 0.6
+    masks = np.zeros((2, 2, 2), np.uint8)
+    masks[:, 0, 0] = 1
+    o = T.MaskedObject("a", "cat", ims, masks, np.tile(np.eye(4), (2, 1, 1)), [None, None], {})
+    mean = T.category_mean_images([o])["cat"]
+    assert np.allclose(mean[0, 0], 0.4) and np.allclose(mean[1, 1], 0.4)  # uncovered pixels: overall object mean
