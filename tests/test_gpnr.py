@@ -351,3 +351,10 @@ def test_checkpoint_of_unknown_kind_and_reference_counts(tmp_path):
     with pytest.raises(InputError) as e:
         load_checkpoint(tmp_path / "weird.safetensors")
     assert "hologram" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_sem2nerf_checkpoint_is_named_not_misread():
+    """A checkpoint of the mask-conditioned kind handed to the reference-view commands says what it is."""
+    with pytest.raises(InputError, match="sem2nerf render"):
+        registry.kind_from_meta({"model_kind": "sem2nerf"})
+    assert registry.kind_from_meta({}) == "nerformer_mrvm" and registry.kind_from_meta({"model_kind": "gpnr"}) == "gpnr"

@@ -58,6 +58,12 @@ KINDS: dict[str, Kind] = {
 }
 """Every model kind this version knows."""
 
+OTHER_KINDS = {
+    "sem2nerf": "a Sem2NeRF generator renders from a semantic part mask, not from reference views: use "
+                "`python -m blender_mrvm sem2nerf render` (models/sem2nerf/)",
+}
+"""Checkpoint kinds of this package that do not take reference views (and what to use instead)."""
+
 DEFAULT_KIND = "nerformer_mrvm"
 """Kind of checkpoints that predate the ``model_kind`` key (and of run configs that name none)."""
 
@@ -132,6 +138,8 @@ def kind_from_meta(meta: dict[str, str]) -> str:
     """The model kind a checkpoint's metadata records (the default for checkpoints that predate the key);
     InputError for a kind this version does not know."""
     raw = meta.get("model_kind") or DEFAULT_KIND
+    if raw in OTHER_KINDS:
+        raise InputError(f"the checkpoint holds a {raw} model: {OTHER_KINDS[raw]}")
     if raw not in KINDS:
         raise InputError(f"the checkpoint holds a model of kind {raw!r}, which this version does not know "
                          f"(it knows {', '.join(sorted(KINDS))})")
