@@ -13,13 +13,9 @@ evaluated, and large renders are evaluated ``render.chunk_rays`` rays at a time 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
 
-import numpy as np
 import torch
-from torch import nn
 
-from ..geometry import cameras
 from . import samplers
 from .config import ModelConfig
 from .encoder import ImageEncoder

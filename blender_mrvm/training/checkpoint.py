@@ -33,7 +33,9 @@ from ..models.config import to_dict
 
 def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg: Any,
                     trainer_state: dict[str, Any] | None, extra_meta: dict[str, Any] | None = None,
-                    keep: int = 2) -> Path:
+                    keep: int = 2, kind: str | None = None) -> Path:
+    """Atomic checkpoint ``<run>/checkpoints/step_NNNNNNN/`` (+ ``latest``) of any model kind (``kind``: the
+    registry's for ``model_cfg`` when None); returns its folder."""
     from safetensors.torch import save_model
 
     ck_root = Path(run_dir) / "checkpoints"
@@ -42,7 +44,7 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=ck_root))
     try:
         meta = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "step": str(step),
-                "model_kind": registry.kind_of(model_cfg), "model_config": json.dumps(to_dict(model_cfg))}
+                "model_kind": kind or registry.kind_of(model_cfg), "model_config": json.dumps(to_dict(model_cfg))}
         for k, v in (extra_meta or {}).items():
             meta[k] = v if isinstance(v, str) else json.dumps(v)
         save_model(model, str(tmp / MODEL_FILE), metadata=meta)

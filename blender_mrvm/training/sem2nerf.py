@@ -26,9 +26,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -278,40 +275,11 @@ def lpips_loss(lp, pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
 def save_checkpoint(run_dir: Path, step: int, model, train_image_size: int, trainer_state: dict | None,
                     extra_meta: dict | None = None, keep: int = 2) -> Path:
-    """Atomic checkpoint ``<run>/checkpoints/step_NNNNNNN/`` (+ ``latest``); returns its folder."""
-    from safetensors.torch import save_model
+    """Atomic checkpoint ``<run>/checkpoints/step_NNNNNNN/`` (+ ``latest``) through the shared writer; returns its folder."""
+    from . import checkpoint as ckpt
 
-    from ..datasets.format import atomic_write_text, ordinary_permissions
-    from ..models.checkpoint_files import FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE
-    from ..models.config import to_dict
-
-    ck_root = Path(run_dir) / "checkpoints"
-    ck_root.mkdir(parents=True, exist_ok=True)
-    name = f"step_{step:07d}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=ck_root))
-    try:
-        meta = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "model_kind": MODEL_KIND,
-                "step": str(step), "model_config": json.dumps(to_dict(model.cfg)),
-                "train_image_size": str(int(train_image_size))}
-        for k, v in (extra_meta or {}).items():
-            meta[k] = v if isinstance(v, str) else json.dumps(v)
-        save_model(model, str(tmp / MODEL_FILE), metadata=meta)
-        if trainer_state is not None:
-            torch.save(trainer_state, tmp / STATE_FILE)
-        ordinary_permissions(tmp)
-        final = ck_root / name
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    atomic_write_text(ck_root / "latest", name + "\n")
-    done = sorted(p for p in ck_root.glob("step_*") if p.is_dir())
-    for old in done[:-keep] if keep > 0 else []:
-        if old.name != name:
-            shutil.rmtree(old, ignore_errors=True)
-    return final
+    meta = {"train_image_size": str(int(train_image_size)), **(extra_meta or {})}
+    return ckpt.save_checkpoint(run_dir, step, model, model.cfg, trainer_state, meta, keep=keep, kind=MODEL_KIND)
 
 
 def read_sem2nerf_header(path: Path) -> tuple[Path, dict[str, str]]:
