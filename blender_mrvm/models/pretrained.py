@@ -21,7 +21,8 @@ SHIPPED = {"nerformer_mrvm": DEFAULT_NAME, "gpnr": "gpnr_shapenet13_all"}
 
 
 FIGURES = {
-    "nerformer_mrvm": "20.5 dB / LPIPS 0.245 with 2 views (64 px test objects); ~1 s per 128 px view on 2 CPU cores",
+    "nerformer_mrvm": "2 views 20.4 dB / LPIPS 0.247, 5 views 23.9 / 0.143 (held-out 64 px objects)",
+    "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); best with many nearby views",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details)."""
 
