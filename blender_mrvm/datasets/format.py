@@ -76,6 +76,25 @@ def ordinary_permissions(path: Path) -> None:
         os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~_UMASK)
 
 
+def move_into(tmp: Path, out: Path) -> None:
+    """Move a finished temporary folder into ``out`` (files replace files of the same name; ``out`` is
+    created when missing) with the permissions of ordinary new files; ``tmp`` is removed."""
+    import shutil
+
+    tmp, out = Path(tmp), Path(out)
+    ordinary_permissions(tmp)
+    if not out.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, out)
+        return
+    for p in sorted(tmp.rglob("*")):
+        if p.is_file():
+            dst = out / p.relative_to(tmp)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(p, dst)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
 def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = None) -> None:
     """Write a file through ``write(tmp_path)`` then rename it into place (never half-written)."""
     path = Path(path)

@@ -429,30 +429,6 @@ def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
         raise OutputError(f"cannot write into {probe}")
 
 
-def _umask() -> int:
-    m = os.umask(0)
-    os.umask(m)
-    return m
-
-
-def _move_into(tmp: Path, out: Path) -> None:
-    """Move everything under ``tmp`` into ``out`` (files replace files of the same name), with the
-    permissions of ordinary new files (temporary files and folders are private to the user)."""
-    mask = _umask()
-    for p in [tmp, *tmp.rglob("*")]:
-        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~mask)
-    if not out.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp, out)
-        return
-    for p in sorted(tmp.rglob("*")):
-        if p.is_file():
-            dst = out / p.relative_to(tmp)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(p, dst)
-    shutil.rmtree(tmp, ignore_errors=True)
-
-
 def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     """Progress generator (events in rays); returns a :class:`SynthesisSummary`. See the module doc."""
     import torch
@@ -524,8 +500,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg))
         if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
             shutil.copyfile(cfg.targets, tmp / "targets.json")  # the cameras, beside their images
-        F.ordinary_permissions(tmp)
-        _move_into(tmp, out)
+        F.move_into(tmp, out)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

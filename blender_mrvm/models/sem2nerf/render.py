@@ -200,26 +200,6 @@ def prepare(req: RenderRequest) -> Prepared:
     return Prepared(model_file, meta, labels, names, mask, edits, c2w, intr)
 
 
-def _move_into(tmp: Path, out: Path) -> None:
-    """Move the finished temporary folder into ``out`` (replacing files of the same name), with the
-    permissions of ordinary new files."""
-    import os
-
-    mask = os.umask(0)
-    os.umask(mask)
-    for q in [tmp, *tmp.rglob("*")]:
-        os.chmod(q, (0o777 if q.is_dir() else 0o666) & ~mask)
-    if not out.exists():
-        os.replace(tmp, out)
-        return
-    for q in sorted(tmp.rglob("*")):
-        if q.is_file():
-            dst = out / q.relative_to(tmp)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(q, dst)
-    shutil.rmtree(tmp, ignore_errors=True)
-
-
 def render_from_mask(req: RenderRequest):
     """Progress generator (events in images); returns the summary dict written to sem2nerf.json."""
     p = prepare(req)
@@ -266,7 +246,7 @@ def render_from_mask(req: RenderRequest):
                    "blend_to_seed": req.blend, "blend_steps": req.blend_steps if req.blend is not None else 0,
                    "intrinsics": {"fx": p.intr.fx, "fy": p.intr.fy, "cx": p.intr.cx, "cy": p.intr.cy}}
         (tmp / "sem2nerf.json").write_text(json.dumps(summary, indent=2) + "\n")
-        _move_into(tmp, out)
+        DF.move_into(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
