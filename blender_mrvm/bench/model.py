@@ -54,7 +54,7 @@ def run(args) -> int:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
             for nv in [int(v) for v in args.views.split(",")]:
                 refs = np.random.default_rng(0).random((nv, size, size, 3)).astype(np.float32)
-                ref_poses = [cameras.look_at_opencv(e) for e in eyes[1:1 + nv]]
+                ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
                 model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)  # warm-up
                 times = []
@@ -86,3 +86,17 @@ def points_per_ray(cfg) -> int:
         sc = cfg.sampler
         return sc.n_coarse + sc.n_fine + (sc.n_coarse if sc.fine_includes_coarse else 0)
     return int(cfg.n_samples)
+
+
+def ref_eyes(eyes, n: int):
+    """``n`` reference camera positions: the fixed ones after the target's, then more on a ring at the same
+    distance (1.3 units) around the object."""
+    import numpy as np
+
+    out = list(eyes[1:1 + n])
+    k = 0
+    while len(out) < n:
+        a = 2 * np.pi * k / max(1, n) + 0.3
+        out.append(np.array([np.cos(a), np.sin(a), 0.35]) / np.linalg.norm([1.0, 0.35]) * 1.3)
+        k += 1
+    return out
