@@ -35,7 +35,7 @@ SCENE_TARGETS = 6
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    p.add_argument("--checkpoint", type=Path, default=None, help="model checkpoint (default: the shipped model)")
+    p.add_argument("--checkpoint", type=Path, default=None, help="model checkpoint, or shipped:<kind> (default: the shipped model)")
     p.add_argument("--objects", type=int, default=4, help=f"held-out objects, one per category of {', '.join(DEMO_CATEGORIES)}")
     p.add_argument("--views", type=int, default=24, help="turntable views per object (the test split has 24)")
     p.add_argument("--resolution", type=int, default=64, help="image size in pixels (the training set's, 64)")
@@ -74,8 +74,10 @@ def check_args(args) -> None:
     V.check_device_name("--device", args.device)
     if not 1 <= args.objects <= len(DEMO_CATEGORIES):
         raise InputError(f"--objects must be between 1 and {len(DEMO_CATEGORIES)}, got {args.objects}")
-    if args.checkpoint is not None and not Path(args.checkpoint).exists():
-        raise InputError(f"checkpoint {args.checkpoint} does not exist")
+    if args.checkpoint is not None:
+        from ..models.pretrained import resolve_checkpoint
+
+        args.checkpoint = resolve_checkpoint(args.checkpoint)  # a path, or shipped / shipped:<kind>
     demo_folder(args.out).check(args.force)
 
 
