@@ -215,6 +215,14 @@ def test_half_rendered_dataset_is_refused_and_split_typos(data, tmp_path, capsys
     code, _, err = train(capsys, config(tmp_path, half), tmp_path / "run")
     assert code == 2 and "half-rendered: 1 of 1 objects of split 'train'" in error_line(err)
     assert not (tmp_path / "run").exists()
+    # evaluation refuses it too, before loading a model or writing anything
+    from blender_mrvm.cli import main
+
+    capsys.readouterr()
+    code = main(["eval", "--data", str(half), "--split", "train", "--input-views", "0", "--no-lpips",
+                 "--out", str(tmp_path / "ev"), "--threads", "1"])
+    err = capsys.readouterr().err
+    assert code == 2 and "half-rendered" in error_line(err) and not (tmp_path / "ev").exists()
 
 
 # ------------------------------------------------------------------------------------------ outputs

@@ -77,7 +77,7 @@ def read_compare_to(path: Path) -> dict:
 def run(args) -> int:
     import torch
 
-    from ..datasets.loaders import detect_format, list_objects, load_object
+    from ..datasets.loaders import check_finished, detect_format, list_objects, load_object
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
@@ -117,6 +117,7 @@ def run(args) -> int:
 
         lpips = LPIPS()
     objs = list_objects(args.data, fmt, args.split)
+    check_finished(args.data, args.split, objs)
     objs = per_category(objs, lambda o: Path(o[1]).parent.name, args.max_objects_per_category)
     objs = objs[:args.max_objects or None]
     if not objs:

@@ -332,6 +332,13 @@ def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit
     """The objects of ``split`` for training; InputError when the dataset is half-rendered (some objects of
     the split missing or unfinished: training would quietly use the others)."""
     objs = list_objects(root, fmt, split)
+    check_finished(root, split, objs)
+    return [load_object(f, p, split) for f, p in objs[:limit]]
+
+
+def check_finished(root: Path, split: str, objs: list) -> None:
+    """InputError when ``objs`` (from :func:`list_objects`) is empty, or our dataset is half-rendered (some
+    objects of the split missing or unfinished: training or evaluation would quietly use the others)."""
     if not objs:
         raise InputError(f"{root}: no objects for split {split!r}")
     if objs[0][0] == "ours":
@@ -339,4 +346,3 @@ def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit
         if bad:
             raise InputError(f"{root} is half-rendered: {len(bad)} of {total} objects of split {split!r} are missing "
                              f"or unfinished (e.g. {bad[0]}); finish it with render-dataset (a rerun resumes)")
-    return [load_object(f, p, split) for f, p in objs[:limit]]
