@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
+                   help="empty-space skipping through the references' visual hull where the dataset has masks "
+                   "(as synthesize; default cull)")
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model, as in synthesize: "
                    "0 (default) shrinks references larger than the model's training images to that size, -1 keeps "
                    "them, N pixels (baselines and ground truth stay at the dataset's size)")
@@ -127,7 +130,8 @@ def run(args) -> int:
              "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
                       "max_objects_per_category": args.max_objects_per_category}}
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
-                                    extra=extra, ref_size=ref_size, max_ref_size=max_ref_size),
+                                    extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
+                                    skip=args.skip_empty),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

@@ -43,6 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bbox", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                    help="object box in world units (default: from the reference folder)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
+                   help="empty-space skipping inside the object's box when the references have masks: cull "
+                   "(default; rays missing the references' visual hull are background, same images to < 1/255), "
+                   "tighten (also shorten rays to the hull; loses PSNR with models trained on box-length rays), off")
     p.add_argument("--blend", type=Path, default=None, help="also write a .blend with the cameras and image planes")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds files and replace "
                    "an existing --blend file (never the reference folder)")
@@ -67,7 +71,7 @@ def run(args) -> int:
     cfg = SynthesisConfig(references=args.references, targets=args.targets or args.out / "targets.json",
                           out=args.out, views=views, checkpoint=args.checkpoint, device=args.device, depth=args.depth,
                           chunk_rays=args.chunk, ref_size=args.ref_size, bbox=bbox, threads=args.threads,
-                          force=args.force)
+                          skip_empty=args.skip_empty, force=args.force)
     if args.orbit_size:
         V.check_image_side("--orbit-size", args.orbit_size)
     if args.orbit is not None:

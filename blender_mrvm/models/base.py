@@ -141,13 +141,24 @@ class RayModel(nn.Module):
         return ctx, ns
 
     @torch.no_grad()
-    def image_chunks(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float, chunk: int | None = None):
+    def image_chunks(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float, chunk: int | None = None,
+                     hull=None, skip: str = "off"):
         """Generator over one view in the normalised frame: yields the rays finished so far in each step
         (misses first, then every chunk), returns dict(color (H, W, 3) on the background, acc (H, W),
         depth (H, W) distance from the camera along the ray to the expected surface (0 where acc = 0),
-        rays, evaluated)."""
+        rays, box_rays (rays that cross the box), evaluated (rays the model rendered), span (mean
+        share of each evaluated ray's box length left to sample)).
+
+        ``hull`` (:class:`models.hull.Hull`) with ``skip`` "cull" or "tighten": empty-space skipping
+        inside the box (``models/hull.py``)."""
+        from .hull import clip_rays, footprint
+
         rays = make_rays(intr, c2w_norm, box=box)
         n = len(rays)
+        box_rays = int(rays.hit.sum())
+        box_far = rays.far
+        if hull is not None and skip != "off":
+            rays = clip_rays(rays, hull, skip, keep=footprint(hull, intr, c2w_norm))
         bg = 1.0 if self.white_background else 0.0
         color = torch.full((n, 3), bg)
         depth = torch.zeros(n)
@@ -165,15 +176,23 @@ class RayModel(nn.Module):
             acc[sel] = a.cpu()
             depth[sel] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
             yield sel.numel()
+        span = float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).mean()) if idx.numel() else 0.0
         H, W = intr.height, intr.width
         return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
-                "rays": n, "evaluated": int(idx.numel())}
+                "rays": n, "box_rays": box_rays, "evaluated": int(idx.numel()), "span": span}
+
+    @staticmethod
+    def hull(ctx, ref_masks: np.ndarray, box: float):
+        """The references' visual hull (``models/hull.py``) for ``ctx`` (which holds the cameras)."""
+        from .hull import build_hull
+
+        return build_hull(ref_masks, ctx.cams, box)
 
     @torch.no_grad()
     def render_image(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,
-                     chunk: int | None = None) -> dict:
+                     chunk: int | None = None, hull=None, skip: str = "off") -> dict:
         """A full view (normalised frame), chunk by chunk; misses are background, not evaluated."""
-        gen = self.image_chunks(ctx, intr, c2w_norm, box, chunk)
+        gen = self.image_chunks(ctx, intr, c2w_norm, box, chunk, hull, skip)
         while True:
             try:
                 next(gen)
@@ -182,9 +201,14 @@ class RayModel(nn.Module):
 
     @torch.no_grad()
     def synthesize(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
-                   bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None) -> dict:
-        """Novel view in world units (see :meth:`encode_world`). Depth is along the ray, world units."""
+                   bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None,
+                   ref_masks: np.ndarray | None = None, skip: str = "off") -> dict:
+        """Novel view in world units (see :meth:`encode_world`). Depth is along the ray, world units.
+
+        ``ref_masks`` (V, H, W) bool object masks of the references with ``skip`` "cull" or "tighten":
+        empty-space skipping inside the box through their visual hull (``models/hull.py``)."""
         ctx, ns = self.encode_world(ref_images, ref_c2w, ref_intr, bbox)
-        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk)
+        hull = self.hull(ctx, ref_masks, ns.box) if ref_masks is not None and skip != "off" else None
+        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk, hull, skip)
         out["depth"] = out["depth"] * ns.scale
         return out

@@ -76,6 +76,11 @@ class SynthesisConfig:
     """Object box ((min x, y, z), (max x, y, z)) in world units; None = from the references."""
     threads: int = 0
     """torch CPU threads (0 = torch's default)."""
+    skip_empty: str = "cull"
+    """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
+    masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
+    background, not evaluated; same images to < 1/255), ``tighten`` (also shorten the rays to the hull:
+    faster sampling, but models trained on box-length rays lose PSNR), ``off``."""
     force: bool = False
     """Write into an output folder that already holds files (same-named files are replaced)."""
 
@@ -97,6 +102,10 @@ def _validate_config(c: SynthesisConfig) -> None:
         V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
     V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
     V.check_count("--threads (synthesis.threads)", c.threads, 0, 4096)
+    from ..models.hull import MODES
+
+    if c.skip_empty not in MODES:
+        raise InputError(f"--skip-empty (synthesis.skip_empty) must be one of {', '.join(MODES)}, got {c.skip_empty!r}")
 
 
 @dataclass
@@ -116,12 +125,15 @@ class References:
     """(min xyz, max xyz) float64."""
     bbox_source: str
     """Where the box came from."""
+    masks: np.ndarray | None = None
+    """(V, H, W) bool object masks at the images' size when every reference has one (``mask/``), else None."""
 
     def subset(self, keep: Sequence[int]) -> "References":
         """The references at positions ``keep``."""
         keep = list(keep)
         return References(self.folder, tuple(self.views[k] for k in keep), self.images[keep],
-                          [self.c2w[k] for k in keep], [self.intrinsics[k] for k in keep], self.bbox, self.bbox_source)
+                          [self.c2w[k] for k in keep], [self.intrinsics[k] for k in keep], self.bbox, self.bbox_source,
+                          None if self.masks is None else self.masks[keep])
 
 
 def nearest_views(ref_c2w: Sequence[np.ndarray], target_c2w: np.ndarray, centre, k: int) -> tuple[int, ...]:
@@ -327,7 +339,36 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
         box, src = parse_bbox([*bbox[0], *bbox[1]]), "given"
     else:
         box, src = object_box(ov.meta, poses)
-    return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src)
+    return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src,
+                      _reference_masks(folder, ov, [pos[v] for v in views], w0, h0))
+
+
+def _reference_masks(folder: Path, ov, ks: Sequence[int], w: int, h: int) -> np.ndarray | None:
+    """Object masks of views ``ks`` at ``w`` x ``h`` (nearest resampling) when every one has a readable
+    ``mask/`` image, else None (empty-space skipping is then off; nothing else needs masks)."""
+    out = []
+    for k in ks:
+        path = F.view_paths(folder, ov.indices[k])["mask"]
+        if not path.is_file():
+            return None
+        try:
+            m = np.asarray(ov.mask(k))
+        except Exception:
+            return None
+        m = resize_mask((m[..., 0] if m.ndim == 3 else m) > 0, w, h)
+        if not m.any():
+            return None
+        out.append(m)
+    return np.stack(out)
+
+
+def resize_mask(mask: np.ndarray, w: int, h: int) -> np.ndarray:
+    """A bool mask at ``w`` x ``h`` (nearest resampling; unchanged when already that size)."""
+    from PIL import Image
+
+    if mask.shape == (h, w):
+        return mask
+    return np.asarray(Image.fromarray(np.asarray(mask, bool)).resize((w, h), Image.NEAREST))
 
 
 def reference_shape(intr: C.Intrinsics, ref_size: int = 0, max_size: int = 0) -> tuple[int, int]:
@@ -359,7 +400,14 @@ def encode_references(model, refs: References, device=None):
     return model.encode_world(refs.images, refs.c2w, refs.intrinsics, refs.bbox)
 
 
-def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device=None):
+def reference_hull(model, ctx, ns, refs: References, skip: str):
+    """The references' visual hull (``models/hull.py``) when ``skip`` is not "off" and every reference has
+    a mask, else None (no empty-space skipping)."""
+    return model.hull(ctx, refs.masks, ns.box) if refs.masks is not None and skip != "off" else None
+
+
+def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device=None, hull=None,
+                  skip: str = "off"):
     """Progress generator over one view: yields rays finished, returns dict(color (H, W, 3) on white,
     acc (H, W), depth_z (H, W) planar z-depth in world units, evaluated rays).
 
@@ -367,14 +415,14 @@ def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: in
     so a caller can report progress and stop between chunks."""
     import torch
 
-    res = yield from model.image_chunks(ctx, intr, ns.pose(c2w), ns.box, chunk)
+    res = yield from model.image_chunks(ctx, intr, ns.pose(c2w), ns.box, chunk, hull, skip)
     # Distance along the ray (normalised units) -> planar z in world units: z = dist * scale * d_cam.z.
     _, d = C.rays_opencv(intr, np.eye(4))
     zdir = torch.from_numpy(d[..., 2].astype(np.float32))
     acc = res["acc"]
     depth_z = torch.where(acc >= ALPHA_DEPTH_THRESHOLD, res["depth"] * float(ns.scale) * zdir, torch.zeros_like(acc))
     return {"color": res["color"].numpy(), "acc": acc.numpy(), "depth_z": depth_z.numpy(),
-            "evaluated": res["evaluated"], "rays": res["rays"]}
+            "evaluated": res["evaluated"], "rays": res["rays"], "box_rays": res["box_rays"]}
 
 
 def rgba_image(color_on_white: np.ndarray, acc: np.ndarray) -> np.ndarray:
@@ -467,7 +515,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
             keep = nearest_views(refs.c2w, target.c2w_opencv, 0.5 * (refs.bbox[0] + refs.bbox[1]), model.max_ref_views)
         if keep not in encoded:
             encoded.clear()
-            encoded[keep] = encode_references(model, refs.subset(keep))
+            sub = refs.subset(keep)
+            ctx, ns = encode_references(model, sub)
+            encoded[keep] = ctx, ns, reference_hull(model, ctx, ns, sub, cfg.skip_empty)
         return encoded[keep], keep
 
     base = out.parent if str(out.parent) else Path(".")
@@ -477,8 +527,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     try:
         for i, t in enumerate(targets):
             ts = time.perf_counter()
-            (ctx, ns), used = context_for(t)
-            gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device)
+            (ctx, ns, hull), used = context_for(t)
+            gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device, hull, cfg.skip_empty)
             msg = f"view {i + 1}/{len(targets)} ({t.name})"
             while True:
                 try:
@@ -494,7 +544,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                 files["depth"] = t.depth_path(i)
             summary.targets.append({"name": t.name, **files, "width": t.intrinsics.width,
                                     "height": t.intrinsics.height, "rays": res["rays"],
-                                    "evaluated_rays": res["evaluated"], "seconds": time.perf_counter() - ts,
+                                    "box_rays": res["box_rays"], "evaluated_rays": res["evaluated"],
+                                    "empty_space_skipping": cfg.skip_empty if hull is not None else "off", "seconds": time.perf_counter() - ts,
                                     "reference_views": [int(refs.views[k]) for k in used]})
         summary.seconds = time.perf_counter() - t0
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg))

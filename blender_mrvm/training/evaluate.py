@@ -25,7 +25,7 @@ from ..datasets.loaders import ObjectScene
 from ..errors import InputError
 from ..models.metrics import psnr, ssim, ssim_gauss
 from ..progress import Progress
-from ..synthesis import reference_shape, resize_view
+from ..synthesis import reference_shape, resize_mask, resize_view
 
 METRICS = ("psnr", "ssim", "lpips", "ssim_gauss")
 """Reported metrics: ``ssim`` is pixelNeRF's convention (scikit-image's defaults), ``ssim_gauss`` the
@@ -102,11 +102,13 @@ def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float]:
 def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips=None, max_targets: int = 0,
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
-             ref_size: int = 0, max_ref_size: int = 0):
+             ref_size: int = 0, max_ref_size: int = 0, skip: str = "off"):
     """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
 
     ``ref_size`` / ``max_ref_size``: the model sees the references resized as synthesis does
     (``synthesize.reference_shape``); baselines and ground truth stay at the dataset's size.
+
+    ``skip``: empty-space skipping mode (``models/hull.py``) for objects with masks.
 
     ``target_views``: view ids to score (None = every view that is not an input); ``extra``: entries
     added to the report (e.g. the checkpoint and the protocol's source)."""
@@ -143,10 +145,12 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         mean_col = ref_imgs.reshape(-1, 3).mean(0)
         w, h = reference_shape(s.intrinsics[refs[0]], ref_size, max_ref_size)
         model_refs = [resize_view(s.images[r], s.intrinsics[r], w, h) for r in refs]
+        ref_masks = None if s.masks is None else np.stack([resize_mask(s.masks[r], w, h) for r in refs])
         sizes.add((w, h))
         for ti, t in enumerate(targets):
             out = model.synthesize(np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
-                                   [k for _, k in model_refs], s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk)
+                                   [k for _, k in model_refs], s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
+                                   ref_masks=ref_masks, skip=skip)
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}
@@ -164,7 +168,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     report = summarize(records)
     report["protocol"] = {"input_views": list(input_views),
                           "target_views": list(target_views) if target_views is not None else "all others",
-                          "max_targets": max_targets, "objects": len(jobs),
+                          "max_targets": max_targets, "objects": len(jobs), "empty_space_skipping": skip,
                           "reference_sizes": sorted([list(x) for x in sizes]),
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None}
     report.update(extra or {})

@@ -1,0 +1,111 @@
+"""Empty-space skipping (models/hull.py): the visual hull is conservative, culling changes nothing the
+model renders on the rays it keeps, and the modes and bad inputs behave. bpy-free."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm.geometry import cameras as C
+from blender_mrvm.models import registry
+from blender_mrvm.models.base import ref_cameras
+from blender_mrvm.models.hull import build_hull, clip_rays, footprint
+from blender_mrvm.models.rays import make_rays
+
+RADIUS = 0.45  # a sphere at the origin, in the normalised frame (box = 1 + padding)
+SIZE = 48
+
+
+def sphere_hits(intr, c2w, radius=RADIUS):
+    """(H*W,) bool: which pixel rays hit the sphere, and (t_in, t_out) along the ray from the camera."""
+    o, d = C.rays_opencv(intr, c2w)
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    b = (o * d).sum(-1)
+    c = (o * o).sum(-1) - radius ** 2
+    disc = b * b - c
+    hit = disc > 0
+    sq = np.sqrt(np.maximum(disc, 0))
+    return hit, -b - sq, -b + sq
+
+
+def rig(n, dist=2.6, seed=0):
+    rng = np.random.default_rng(seed)
+    eyes = rng.normal(size=(n, 3))
+    eyes = eyes / np.linalg.norm(eyes, axis=1, keepdims=True) * dist
+    intr = C.Intrinsics(SIZE * 1.1, SIZE * 1.1, SIZE / 2, SIZE / 2, SIZE, SIZE)
+    return [C.look_at_opencv(e) for e in eyes], intr
+
+
+def sphere_hull(n_refs=3, box=1.1):
+    poses, intr = rig(n_refs)
+    masks = np.stack([sphere_hits(intr, p)[0].reshape(SIZE, SIZE) for p in poses])
+    cams = ref_cameras(poses, [intr] * n_refs)
+    return build_hull(masks, cams, box, resolution=32), poses, intr
+
+
+def test_hull_contains_the_object_and_carves_empty_space():
+    hull, _, _ = sphere_hull()
+    G = hull.resolution
+    h = hull.box / G
+    c = np.linspace(-hull.box + h, hull.box - h, G)
+    X, Y, Z = np.meshgrid(c, c, c, indexing="ij")
+    inside = np.sqrt(X ** 2 + Y ** 2 + Z ** 2) < RADIUS
+    occ = hull.occupied.numpy()
+    assert occ[inside].all(), "a voxel of the object was carved away"
+    assert hull.fraction < 0.5, f"the hull keeps {hull.fraction:.0%} of the box: it carves too little"
+
+
+def test_cull_keeps_every_ray_that_meets_the_object_and_drops_many_others():
+    hull, _, intr = sphere_hull()
+    for pose in rig(4, dist=2.2, seed=7)[0]:
+        rays = make_rays(intr, pose, box=hull.box)
+        hits, t_in, t_out = sphere_hits(intr, pose)
+        keep = footprint(hull, intr, pose)
+        assert keep[torch.from_numpy(hits)].all(), "the footprint dropped a pixel that sees the object"
+        culled = clip_rays(rays, hull, "cull", keep=keep)
+        assert culled.hit[torch.from_numpy(hits)].all(), "culling dropped a ray that hits the object"
+        assert not (culled.hit & ~rays.hit).any(), "culling revived a ray that misses the box"
+        assert torch.equal(culled.far[culled.hit], rays.far[culled.hit])  # cull leaves kept rays as they were
+        dropped = (rays.hit & ~culled.hit).sum() / rays.hit.sum()
+        assert dropped > 0.2, f"only {dropped:.0%} of the box rays were skipped"
+        tight = clip_rays(rays, hull, "tighten", keep=keep)
+        hit = torch.from_numpy(hits)
+        t0 = tight.depth_offset[hit].numpy()
+        t1 = t0 + tight.far[hit].numpy()
+        assert (t0 <= t_in[hits] + 1e-6).all() and (t1 >= t_out[hits] - 1e-6).all(), \
+            "tighten cut into the object's span"
+        assert (tight.far[hit] <= rays.far[hit] + 1e-9).all()
+
+
+def test_culling_changes_nothing_on_kept_rays():
+    torch.manual_seed(0)
+    model = registry.build_model(registry.build_config(None, "fast")).eval()
+    poses, intr = rig(2)
+    imgs = np.random.default_rng(1).random((2, SIZE, SIZE, 3)).astype(np.float32)
+    masks = np.stack([sphere_hits(intr, p)[0].reshape(SIZE, SIZE) for p in poses])
+    bbox = (np.full(3, -0.5), np.full(3, 0.5))
+    target = rig(1, dist=2.3, seed=3)[0][0]
+    a = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr)
+    b = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip="cull")
+    assert b["evaluated"] < a["evaluated"] and b["box_rays"] == a["box_rays"]
+    kept = b["acc"].reshape(-1) > 0
+    # kept rays: the same network on the same samples (chunking may differ only in order)
+    assert torch.allclose(a["color"].reshape(-1, 3)[kept], b["color"].reshape(-1, 3)[kept], atol=1e-5)
+    assert torch.all(b["color"].reshape(-1, 3)[~kept] == 1.0)  # skipped rays are background
+
+
+def test_modes_and_bad_input():
+    hull, poses, intr = sphere_hull(2)
+    rays = make_rays(intr, poses[0], box=hull.box)
+    assert clip_rays(rays, hull, "off") is rays
+    with pytest.raises(ValueError, match="one of"):
+        clip_rays(rays, hull, "fast")
+    cams = ref_cameras(poses, [intr] * 2)
+    with pytest.raises(ValueError, match="one mask per reference"):
+        build_hull(np.ones((3, SIZE, SIZE), bool), cams, 1.1)
+    with pytest.raises(ValueError, match="masks are"):
+        build_hull(np.ones((2, SIZE + 1, SIZE), bool), cams, 1.1)
+    empty = build_hull(np.zeros((2, SIZE, SIZE), bool), cams, 1.1, resolution=16)
+    assert empty.fraction == 1.0  # no information: nothing carved
+
