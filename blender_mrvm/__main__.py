@@ -2,6 +2,6 @@
 
 import sys
 
-from .cli import main
+from .cli import main  # sets the OpenMP defaults before any command imports torch (threads.py)
 
 sys.exit(main())

@@ -18,6 +18,9 @@ import importlib
 import sys
 
 from .errors import MRVMError
+from .threads import apply_omp_defaults
+
+apply_omp_defaults()  # before any command imports torch (see threads.py)
 
 # command name -> (module in commands/, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -208,7 +208,9 @@ def worker_env(extra: dict[str, str] | None = None) -> dict[str, str]:
     env["PYTHONUNBUFFERED"] = "1"
     env["PYTHONIOENCODING"] = "utf-8"
     env.update(extra or {})
-    return env
+    from .threads import apply_omp_defaults
+
+    return dict(apply_omp_defaults(env))
 
 
 def worker_argv(python: str, command: str, args: list[str]) -> list[str]:

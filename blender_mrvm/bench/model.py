@@ -5,19 +5,22 @@ weights) renders a view of an SRN-like set-up (camera 1.3 units from a [-0.4, 0.
 f = 131.25 px at 128 px: pixelNeRF's SRN cars cameras) after one warm-up render; the median of
 ``--repeats`` timed renders is reported with the rays evaluated (those that hit the object's box)
 against all rays, and the points evaluated against evaluating every ray with the same samples between a fixed near and
-far (what pixelNeRF does). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
+far (what pixelNeRF does), with the process CPU seconds (steadier than wall time on a shared machine) and
+the peak extra resident memory of a render (``bench.PeakMemory``: bounded by ``render.chunk_rays``, not
+by the image size). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
 The issue's target: ``balanced``, 128 x 128, 2 reference views, about 1 s on 2 CPU cores.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
 from pathlib import Path
 
-from . import write_csv
+from . import PeakMemory, write_csv
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -57,16 +60,21 @@ def run(args) -> int:
                 ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
                 model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)  # warm-up
-                times = []
+                times, cpus, peaks = [], [], []
                 for _ in range(args.repeats):
-                    t0 = time.perf_counter()
-                    res = model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)
-                    times.append(time.perf_counter() - t0)
+                    with PeakMemory("cpu") as pm:
+                        t0, c0 = time.perf_counter(), time.process_time()
+                        res = model.synthesize(refs, ref_poses, [intr] * nv, bbox, target, intr)
+                        times.append(time.perf_counter() - t0)
+                        cpus.append(time.process_time() - c0)
+                    peaks.append(pm.mib)
                 sec = statistics.median(times)
                 pts_ray = points_per_ray(cfg)
                 rows.append({
                     "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_views": nv, "threads": args.threads, "params": n_params,
                     "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4),
+                    "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
+                    "chunk_rays": model.chunk_rays, "load_1min": round(os.getloadavg()[0], 2),
                     "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
                     "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
                     "points_evaluated": res["evaluated"] * pts_ray,
@@ -74,7 +82,8 @@ def run(args) -> int:
                     "rays_per_s": round(res["evaluated"] / sec, 1),
                     "cpu": platform.processor() or platform.machine(), "torch": torch.__version__,
                 })
-                print(f"{preset:9s} {size}px {nv} ref(s): {sec:.3f} s/view, {res['evaluated']}/{res['rays']} rays evaluated")
+                print(f"{preset:9s} {size}px {nv} ref(s): {sec:.3f} s/view, {res['evaluated']}/{res['rays']} rays evaluated, "
+                      f"peak +{max(peaks):.0f} MiB")
     write_csv(out / "bench_model.csv", rows)
     return 0
 

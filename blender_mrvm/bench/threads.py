@@ -1,0 +1,78 @@
+"""The thread-count cliff: seconds per view at 1..N torch threads, OpenMP's default wait policy against
+ours (``OMP_WAIT_POLICY=PASSIVE``, ``threads.py``), on a quiet machine and beside a competing process.
+
+Each setting runs ``bench model`` in a fresh process (libgomp reads its policy when torch is imported).
+``--competitors K`` busy processes (a pure-Python spin loop each, like Blender or a second job holding a
+core) run beside the "busy" settings. Writes ``<out>/bench_threads.csv``: policy, threads, competitors,
+median seconds per view and the ratio to 1 thread under the same policy and load.
+
+Usage::
+
+    python -m blender_mrvm bench threads --out docs --preset balanced --size 128
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from . import write_csv
+
+SPIN = "import time\nwhile True:\n    pass\n"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="bench_out", help="folder for bench_threads.csv")
+    p.add_argument("--preset", default="balanced", help="model preset (KIND:PRESET for another kind)")
+    p.add_argument("--size", type=int, default=128, help="view side in pixels")
+    p.add_argument("--views", type=int, default=2, help="reference views")
+    p.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
+    p.add_argument("--competitors", type=int, default=1, help="busy processes beside the 'busy' settings")
+    p.add_argument("--repeats", type=int, default=3, help="timed renders per setting (median)")
+
+
+def _one(policy: str, threads: int, args) -> float:
+    from ..threads import KEEP_ENV
+
+    env = dict(os.environ)
+    env.pop("OMP_WAIT_POLICY", None)
+    if policy == "openmp default":
+        env[KEEP_ENV] = "1"
+    else:
+        env.pop(KEEP_ENV, None)
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "blender_mrvm", "bench", "model", "--presets", args.preset, "--views",
+               str(args.views), "--sizes", str(args.size), "--repeats", str(args.repeats), "--threads", str(threads),
+               "--out", tmp]
+        subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+        with open(Path(tmp) / "bench_model.csv") as f:
+            return float(next(csv.DictReader(f))["seconds_median"])
+
+
+def run(args) -> int:
+    threads = [int(t) for t in args.threads.split(",") if t.strip()]
+    rows = []
+    for busy in (0, args.competitors):
+        procs = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
+        try:
+            for policy in ("openmp default", "PASSIVE (ours)"):
+                base = None
+                for t in threads:
+                    sec = _one(policy, t, args)
+                    base = sec if base is None else base
+                    rows.append({"policy": policy, "threads": t, "competing_processes": busy, "preset": args.preset,
+                                 "size": args.size, "ref_views": args.views, "seconds_median": round(sec, 3),
+                                 "ratio_to_first": round(sec / base, 2), "cpus": os.cpu_count(),
+                                 "load_1min": round(os.getloadavg()[0], 2)})
+                    print(f"{policy:15s} threads={t} competitors={busy}: {sec:.3f} s/view", flush=True)
+        finally:
+            for p in procs:
+                p.kill()
+                p.wait()
+    write_csv(Path(args.out) / "bench_threads.csv", rows)
+    return 0

@@ -1,0 +1,336 @@
+"""Speed against accuracy: one-knob-at-a-time sweeps of every trained model kind, with the Pareto front.
+
+Each checkpoint (``--checkpoints``, default the shipped NeRFormer+MRVM and GPNR models) is swept from its
+own setting one knob at a time, at inference (the weights stay; every point is a real measurement):
+
+- ``samples``: points per ray (NeRFormer: coarse and fine; GPNR: epipolar depths);
+- ``refs``: number of reference views (1, 2, 5), spread evenly around each object;
+- ``ref_size``: reference resolution (the references resized before encoding);
+- ``precision``: fp32, bf16 autocast (and fp16 on a GPU);
+- ``skip``: box clipping only, visual-hull culling (``models/hull.py``), hull tightening;
+- ``chunk``: rays per forward pass (time and memory only: the numbers are the same).
+
+Width and depth are training-time choices: each trained model given in ``--checkpoints`` (its kind and
+preset) is a point of its own. For every point:
+
+- quality on held-out objects (``--data``, split ``--split``, ``--objects`` of them, one per category
+  first, ``--targets`` target views each): PSNR, SSIM (pixelNeRF's convention), LPIPS-VGG;
+- speed: median seconds per ``--size`` x ``--size`` view (wall and process CPU seconds; the CPU seconds
+  are the steadier figure on a shared machine) over ``--repeats`` renders of a held-out object, rays per
+  second, and the peak extra resident memory of the render (Linux ``VmHWM`` reset through
+  ``/proc/self/clear_refs``; on CUDA ``torch.cuda.max_memory_allocated``).
+
+Writes ``<out>/bench_tradeoff.csv`` (one row per point, with the machine, threads and load) and
+``<out>/bench_tradeoff.png`` (seconds per view against LPIPS and against PSNR, log time axis, the Pareto
+front of each kind drawn as a line, the points on it listed in ``<out>/bench_tradeoff_front.md``).
+
+Usage (about 30 minutes on one core)::
+
+    python -m blender_mrvm bench tradeoff --data data/shapenet13_all --out docs/bench_tradeoff --threads 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import PeakMemory, write_csv
+
+AXES = ("base", "samples", "refs", "ref_size", "precision", "skip", "chunk")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", type=Path, required=True, help="rendered dataset with held-out objects (make-shapenet)")
+    p.add_argument("--split", default="test", help="held-out split (default test)")
+    p.add_argument("--checkpoints", default="shipped:nerformer_mrvm,shipped:gpnr",
+                   help="comma-separated checkpoints (files, run folders or shipped:<kind>); each is swept")
+    p.add_argument("--axes", default=",".join(AXES), help=f"comma-separated knobs to sweep ({', '.join(AXES)})")
+    p.add_argument("--objects", type=int, default=13, help="held-out objects scored (one per category first)")
+    p.add_argument("--targets", type=int, default=3, help="target views scored per object")
+    p.add_argument("--size", type=int, default=128, help="timed view's side in pixels (default 128)")
+    p.add_argument("--repeats", type=int, default=3, help="timed renders per point (median reported)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (the front then uses PSNR only)")
+    p.add_argument("--out", type=Path, default=Path("bench_out"), help="folder for the CSV, PNG and front")
+
+
+@dataclass
+class Point:
+    """One setting of one checkpoint."""
+
+    axis: str
+    label: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    refs: int = 2
+    ref_size: int = 0
+    precision: str = "fp32"
+    skip: str = "cull"
+    chunk: int = 0
+    quality: bool = True
+    """False: numbers are the base point's by construction (chunking), only speed is measured."""
+
+
+def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
+    """The points of one checkpoint: its own setting, then each knob moved alone."""
+    pts = [Point("base", "as trained")] if "base" in axes else []
+    if "samples" in axes:
+        if kind == "gpnr":
+            n = int(cfg.n_samples)
+            for s in sorted({max(4, n // 2), n * 2} - {n}):
+                pts.append(Point("samples", f"{s} depths", {"n_samples": s}))
+        else:
+            c, f = int(cfg.sampler.n_coarse), int(cfg.sampler.n_fine)
+            for cc, ff in [(max(4, c // 2), f // 2), (c, 0), (c * 2, f * 2)]:
+                if (cc, ff) != (c, f):
+                    pts.append(Point("samples", f"{cc}+{ff} samples", {"sampler": {"n_coarse": cc, "n_fine": ff}}))
+    if "refs" in axes:
+        pts += [Point("refs", f"{r} refs", refs=r) for r in (1, 5)]
+    if "ref_size" in axes:
+        pts.append(Point("ref_size", "refs at 32 px", ref_size=32))
+    if "precision" in axes:
+        pts.append(Point("precision", "bf16", precision="bf16"))
+        if device.startswith("cuda"):
+            pts.append(Point("precision", "fp16", precision="fp16"))
+    if "skip" in axes:
+        pts += [Point("skip", "box only", skip="off"), Point("skip", "hull tighten", skip="tighten")]
+    if "chunk" in axes:
+        pts += [Point("chunk", f"chunk {c}", chunk=c, quality=False) for c in (256, 4096)]
+    return pts
+
+
+def ref_views(n_views: int, k: int) -> list[int]:
+    """``k`` reference view ids spread evenly over an object's ``n_views`` (turntable: evenly in azimuth)."""
+    return [int(round(i * n_views / k + 3)) % n_views for i in range(k)]
+
+
+def _autocast(precision: str, device: str):
+    import contextlib
+
+    import torch
+
+    if precision == "fp32":
+        return contextlib.nullcontext()
+    dtype = {"bf16": torch.bfloat16, "fp16": torch.float16}[precision]
+    return torch.autocast("cuda" if device.startswith("cuda") else "cpu", dtype=dtype)
+
+
+def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: int, device: str) -> dict:
+    """Median wall / CPU seconds of one ``size`` x ``size`` view, rays, and peak extra memory (MiB)."""
+    import torch
+
+    from ..synthesis import reference_shape, resize_mask, resize_view
+
+    w, h = reference_shape(scene.intrinsics[refs[0]], pt.ref_size)
+    mr = [resize_view(scene.images[r], scene.intrinsics[r], w, h) for r in refs]
+    masks = None if scene.masks is None else np.stack([resize_mask(scene.masks[r], w, h) for r in refs])
+    t = [v for v in range(len(scene)) if v not in refs][0]
+    intr = scene.intrinsics[t].resized(size, size)
+    args = (np.stack([im for im, _ in mr]), [scene.c2w[r] for r in refs], [k for _, k in mr], scene.bbox,
+            scene.c2w[t], intr)
+    kw = dict(chunk=pt.chunk or None, ref_masks=masks, skip=pt.skip)
+    with _autocast(pt.precision, device):
+        model.synthesize(*args, **kw)  # warm-up
+        walls, cpus, peaks = [], [], []
+        for _ in range(repeats):
+            with PeakMemory(device) as pm:
+                w0, c0 = time.perf_counter(), time.process_time()
+                res = model.synthesize(*args, **kw)
+                if device.startswith("cuda"):
+                    torch.cuda.synchronize()
+                walls.append(time.perf_counter() - w0)
+                cpus.append(time.process_time() - c0)
+            peaks.append(pm.mib)
+    sec = statistics.median(walls)
+    return {"seconds_per_view": round(sec, 4), "cpu_seconds_per_view": round(statistics.median(cpus), 4),
+            "rays_total": res["rays"], "rays_box": res["box_rays"], "rays_evaluated": res["evaluated"],
+            "rays_per_s": round(res["evaluated"] / sec, 1), "peak_extra_mib": round(max(peaks), 1)}
+
+
+def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str) -> dict:
+    from ..training.evaluate import evaluate
+
+    gen = evaluate(model, scenes, ref_views(len(scenes[0]), pt.refs), lpips, max_targets=targets,
+                   chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip)
+    with _autocast(pt.precision, device):
+        while True:
+            try:
+                next(gen)
+            except StopIteration as stop:
+                rep = stop.value
+                break
+    o = rep["overall"]
+    return {k: round(float(o[k]), 4) for k in ("psnr", "ssim", "lpips") if o.get(k) is not None}
+
+
+def pareto(rows: list[dict], cost: str, loss: str) -> list[dict]:
+    """Rows not dominated (lower cost and lower loss) by another, sorted by cost."""
+    ok = [r for r in rows if r.get(loss) not in (None, "") and r.get(cost) not in (None, "")]
+    ok.sort(key=lambda r: (float(r[cost]), float(r[loss])))
+    front, best = [], float("inf")
+    for r in ok:
+        if float(r[loss]) < best:
+            front.append(r)
+            best = float(r[loss])
+    return front
+
+
+def run(args) -> int:
+    import torch
+
+    from ..datasets.loaders import list_objects, load_object
+    from ..errors import InputError
+    from ..models import registry
+    from ..models.config import merge
+    from ..synthesis import load_checkpoint
+    from ..models.pretrained import resolve_checkpoint
+
+    torch.set_num_threads(args.threads)
+    axes = [a.strip() for a in args.axes.split(",") if a.strip()]
+    bad = [a for a in axes if a not in AXES]
+    if bad:
+        raise InputError(f"--axes: unknown knob(s) {bad}; choose from {', '.join(AXES)}")
+    lpips = None
+    if not args.no_lpips:
+        from ..models.metrics import LPIPS
+
+        lpips = LPIPS()
+    objs = list_objects(args.data, None, args.split)
+    by_cat: dict[str, list] = {}
+    for o in objs:
+        by_cat.setdefault(Path(o[1]).parent.name, []).append(o)
+    order = [c[i] for i in range(max(map(len, by_cat.values()))) for c in by_cat.values() if i < len(c)]
+    scenes = [load_object(f, p, args.split) for f, p in order[:args.objects]]
+    if not scenes:
+        raise InputError(f"{args.data}: no objects in split {args.split!r}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    load0 = os.getloadavg()[0]
+    rows = []
+    for spec in [s.strip() for s in args.checkpoints.split(",") if s.strip()]:
+        ck = resolve_checkpoint(spec)
+        model, cfg0, _, _ = load_checkpoint(ck, args.device)
+        kind = registry.kind_of(cfg0)
+        n_params = sum(p.numel() for p in model.parameters())
+        for pt in sweep(kind, cfg0, axes, args.device):
+            model.cfg = merge(cfg0, pt.overrides) if pt.overrides else cfg0
+            t0 = time.perf_counter()
+            speed = measure_speed(model, scenes[0], ref_views(len(scenes[0]), pt.refs), pt, args.size, args.repeats,
+                                  args.device)
+            quality = measure_quality(model, scenes, pt, args.targets, lpips, args.device) if pt.quality else {}
+            row = {"kind": kind, "checkpoint": spec, "preset": getattr(cfg0, "name", ""), "params": n_params,
+                   "axis": pt.axis, "point": pt.label, "refs": pt.refs, "ref_size": pt.ref_size or "native",
+                   "precision": pt.precision, "skip_empty": pt.skip, "chunk": pt.chunk or "model",
+                   "size": args.size, **speed,
+                   "psnr": quality.get("psnr", ""), "ssim": quality.get("ssim", ""), "lpips": quality.get("lpips", ""),
+                   "quality": "measured" if pt.quality else "same numbers as 'as trained' (chunking only)",
+                   "objects": len(scenes), "targets_per_object": args.targets, "threads": args.threads,
+                   "device": args.device, "load_1min": round(os.getloadavg()[0], 2),
+                   "cpu": platform.processor() or platform.machine(), "torch": torch.__version__}
+            rows.append(row)
+            print(f"{kind:15s} {pt.axis:9s} {pt.label:16s} {speed['seconds_per_view']:7.3f} s/view "
+                  f"(cpu {speed['cpu_seconds_per_view']:.3f})  psnr {row['psnr']}  lpips {row['lpips']}  "
+                  f"[{time.perf_counter() - t0:.0f} s]", flush=True)
+            write_csv(out / "bench_tradeoff.csv", rows, quiet=True)  # after every point: a stopped sweep keeps its rows
+        model.cfg = cfg0
+    write_csv(out / "bench_tradeoff.csv", rows)
+    write_front(rows, out, load0)
+    return 0
+
+
+def write_front(rows: list[dict], out: Path, load0: float) -> None:
+    """The Pareto fronts (markdown) and the plot (PNG)."""
+    lines = ["# Pareto fronts (CPU seconds per view against LPIPS / PSNR)", "",
+             f"Load average at the start: {load0:.2f}. Rows: `bench_tradeoff.csv`.", ""]
+    for kind in sorted({r["kind"] for r in rows}):
+        kr = [r for r in rows if r["kind"] == kind and r["quality"] == "measured"]
+        for loss, lab in (("lpips", "LPIPS"), ("neg_psnr", "PSNR")):
+            for r in kr:
+                r["neg_psnr"] = -float(r["psnr"]) if r["psnr"] != "" else ""
+            front = pareto(kr, "cpu_seconds_per_view", loss)
+            lines += [f"## {kind}: seconds against {lab}", "", "| point | s/view (cpu) | PSNR | SSIM | LPIPS |",
+                      "|---|---|---|---|---|"]
+            lines += [f"| {r['point']} | {r['cpu_seconds_per_view']:.3f} | {r['psnr']} | {r['ssim']} | {r['lpips']} |"
+                      for r in front]
+            lines.append("")
+            for r in kr:
+                r.pop("neg_psnr", None)
+    (out / "bench_tradeoff_front.md").write_text("\n".join(lines))
+    plot(rows, out / "bench_tradeoff.png")
+    print(f"wrote {out / 'bench_tradeoff_front.md'} and {out / 'bench_tradeoff.png'}")
+
+
+COLOURS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14)]
+
+
+def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
+    """Two panels (CPU seconds per view, log axis, against LPIPS and PSNR), drawn with PIL."""
+    from PIL import Image, ImageDraw
+
+    img = Image.new("RGB", (w, h), "white")
+    d = ImageDraw.Draw(img)
+    kinds = sorted({r["kind"] for r in rows})
+    meas = [r for r in rows if r["quality"] == "measured" and r["psnr"] != ""]
+    if not meas:
+        img.save(path)
+        return
+    secs = [float(r["cpu_seconds_per_view"]) for r in meas]
+    lx0, lx1 = np.log10(min(secs)) - 0.1, np.log10(max(secs)) + 0.1
+    panels = [("lpips", "LPIPS (lower is better)", True), ("psnr", "PSNR dB (higher is better)", False)]
+    pw = (w - 60) // 2
+    for pi, (key, title, lower) in enumerate(panels):
+        vals = [float(r[key]) for r in meas if r[key] != ""]
+        if not vals:
+            continue
+        v0, v1 = min(vals), max(vals)
+        pad = 0.08 * (v1 - v0 or 1.0)
+        v0, v1 = v0 - pad, v1 + pad
+        ox, oy, pwid, phei = 60 + pi * (pw + 20), 40, pw - 70, h - 110
+        d.rectangle([ox, oy, ox + pwid, oy + phei], outline="black")
+        d.text((ox, 12), f"seconds per {rows[0]['size']}px view (CPU, log) vs {title}", fill="black")
+
+        def xy(r, ox=ox, oy=oy, pwid=pwid, phei=phei, key=key, v0=v0, v1=v1):
+            x = ox + (np.log10(float(r["cpu_seconds_per_view"])) - lx0) / (lx1 - lx0) * pwid
+            y = oy + (1 - (float(r[key]) - v0) / (v1 - v0)) * phei
+            return x, y
+
+        for e in range(int(np.floor(lx0)), int(np.ceil(lx1)) + 1):
+            for m in (1, 2, 5):
+                lv = e + np.log10(m)
+                if lx0 <= lv <= lx1:
+                    x = ox + (lv - lx0) / (lx1 - lx0) * pwid
+                    d.line([x, oy + phei, x, oy + phei + 4], fill="black")
+                    d.text((x - 10, oy + phei + 6), f"{10 ** lv:g}", fill="black")
+        for k in range(5):
+            v = v0 + (v1 - v0) * k / 4
+            y = oy + (1 - k / 4) * phei
+            d.line([ox - 4, y, ox, y], fill="black")
+            d.text((ox - 44, y - 6), f"{v:.3f}" if key == "lpips" else f"{v:.2f}", fill="black")
+        for ki, kind in enumerate(kinds):
+            col = COLOURS[ki % len(COLOURS)]
+            kr = [r for r in meas if r["kind"] == kind and r[key] != ""]
+            for r in kr:
+                r["_loss"] = float(r[key]) if lower else -float(r[key])
+            front = pareto(kr, "cpu_seconds_per_view", "_loss")
+            if len(front) > 1:
+                d.line([xy(r) for r in front], fill=col, width=2)
+            for r in kr:
+                x, y = xy(r)
+                on = r in front
+                d.ellipse([x - 4, y - 4, x + 4, y + 4], fill=col if on else "white", outline=col)
+                if on:
+                    d.text((x + 5, y - 12), r["point"], fill=col)
+            for r in kr:
+                r.pop("_loss", None)
+            d.text((ox + 8 + 170 * ki, oy + phei + 24), f"o {kind}", fill=col)
+    d.text((60, h - 22), "filled: on the kind's Pareto front (no other point of that kind is both faster and better)",
+           fill="black")
+    img.save(path)

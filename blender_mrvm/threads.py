@@ -1,0 +1,33 @@
+"""CPU threading that degrades gracefully on a busy machine. bpy-free, imports nothing heavy.
+
+torch's CPU build runs its parallel regions on OpenMP (libgomp), whose idle threads spin-wait by
+default. When another process holds a core (Blender itself, a second job, a render), a spinning
+thread takes the core its sibling needs and every parallel region waits on a descheduled thread:
+measured on the project's 2-core box with a competing process, NeRFormer ``balanced`` at 128 px took
+30.1 s per view with 2 threads against 4.5 s with 1 (``docs/bench_threads.csv``). With
+``OMP_WAIT_POLICY=PASSIVE`` idle threads sleep instead, and 2 threads stop being a cliff
+(``python -m blender_mrvm bench threads`` measures both policies side by side).
+
+libgomp reads the variable once, when torch is first imported, so it must be in the environment
+before that: :func:`apply_omp_defaults` is called by the CLI entry point (``__main__``) and by
+:func:`worker.worker_env` for the processes the add-on starts. A value the user set is kept.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import MutableMapping
+
+OMP_DEFAULTS = {"OMP_WAIT_POLICY": "PASSIVE"}
+"""What we set unless the environment already says otherwise."""
+KEEP_ENV = "BLENDER_MRVM_KEEP_OMP"
+"""Set to 1 to leave OpenMP's own defaults (what ``bench threads`` compares against)."""
+
+
+def apply_omp_defaults(env: MutableMapping[str, str] | None = None) -> MutableMapping[str, str]:
+    """Add :data:`OMP_DEFAULTS` to ``env`` (default ``os.environ``) where absent; returns it."""
+    env = os.environ if env is None else env
+    if env.get(KEEP_ENV) != "1":
+        for k, v in OMP_DEFAULTS.items():
+            env.setdefault(k, v)
+    return env

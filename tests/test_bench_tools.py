@@ -1,0 +1,93 @@
+"""The measuring tools behind the trade-off figures: Pareto fronts, the plot, peak memory, the stage
+profile, the sweep's points, and the OpenMP policy the CLI and the worker set. bpy-free, fast."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm import threads
+from blender_mrvm.bench import PeakMemory
+from blender_mrvm.bench import profile as prof
+from blender_mrvm.bench import tradeoff as tr
+from blender_mrvm.models import registry
+
+
+def test_pareto_keeps_exactly_the_undominated_points():
+    rows = [{"s": 1.0, "l": 0.30, "n": "a"}, {"s": 2.0, "l": 0.20, "n": "b"}, {"s": 3.0, "l": 0.25, "n": "c"},
+            {"s": 0.5, "l": 0.40, "n": "d"}, {"s": 4.0, "l": 0.10, "n": "e"}, {"s": 2.5, "l": "", "n": "f"}]
+    assert [r["n"] for r in tr.pareto(rows, "s", "l")] == ["d", "a", "b", "e"]
+
+
+def test_plot_draws_both_panels(tmp_path):
+    from PIL import Image
+
+    rows = [{"kind": k, "point": p, "cpu_seconds_per_view": s, "psnr": q, "lpips": l, "quality": "measured", "size": 128}
+            for k, p, s, q, l in [("a", "x", 0.5, 20.0, 0.3), ("a", "y", 1.0, 21.0, 0.25), ("b", "z", 2.0, 22.0, 0.2),
+                                  ("b", "w", 3.0, 21.5, 0.22)]]
+    path = tmp_path / "p.png"
+    tr.plot(rows, path)
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape == (460, 1100, 3)
+    for col in tr.COLOURS[:2]:  # each kind's points are drawn in both panels
+        hit = np.all(img == col, axis=-1)
+        assert hit[:, :550].any() and hit[:, 550:].any()
+
+
+def test_sweep_moves_one_knob_at_a_time():
+    cfg = registry.build_config(None, "balanced")
+    pts = tr.sweep("nerformer_mrvm", cfg, list(tr.AXES), "cpu")
+    base = tr.Point("base", "")
+    for p in pts[1:]:
+        moved = [f for f in ("overrides", "refs", "ref_size", "precision", "skip", "chunk")
+                 if getattr(p, f) != getattr(base, f)]
+        assert len(moved) == 1, (p.label, moved)
+    assert not any(p.precision == "fp16" for p in pts)  # fp16 only on a GPU
+    g = tr.sweep("gpnr", registry.build_config("gpnr", "fast"), ["samples"], "cuda")
+    assert {p.overrides["n_samples"] for p in g} == {12, 48}
+    assert tr.ref_views(24, 2) == [3, 15] and len(set(tr.ref_views(24, 5))) == 5
+
+
+def test_peak_memory_sees_an_allocation():
+    with PeakMemory("cpu") as pm:
+        x = np.ones(64 * 2 ** 20 // 8)  # 64 MiB, touched
+        x += 1
+    del x
+    assert 48 <= pm.mib <= 200
+
+
+def test_profile_stages_add_up_and_restore_the_model():
+    torch.manual_seed(0)
+    model = registry.build_model(registry.build_config(None, "fast")).eval()
+    from blender_mrvm.geometry import cameras
+
+    intr = cameras.Intrinsics(30, 30, 12, 12, 24, 24)
+    poses = [cameras.look_at_opencv(np.array(e, float)) for e in ([1.3, 0, 0.3], [0, 1.3, 0.3])]
+    refs = np.random.default_rng(0).random((2, 24, 24, 3)).astype(np.float32)
+    box = (np.full(3, -0.4), np.full(3, 0.4))
+
+    def render():
+        return model.synthesize(refs, poses, [intr] * 2, box, poses[0], intr)
+
+    before = render()["color"]
+    st = prof.profile_view(model, render)
+    total = st.pop("total")
+    assert {"encoder (network)", "gathering", "projection", "compositing", "sampling", "other"} <= set(st)
+    assert sum(st.values()) == pytest.approx(total, rel=1e-6)
+    import blender_mrvm.models.model as M
+
+    assert M.sample_maps.__name__ == "sample_maps"  # the timers are gone
+    assert torch.equal(render()["color"], before)
+
+
+def test_omp_policy_is_set_unless_the_user_chose(monkeypatch):
+    env = {}
+    assert threads.apply_omp_defaults(env)["OMP_WAIT_POLICY"] == "PASSIVE"
+    assert threads.apply_omp_defaults({"OMP_WAIT_POLICY": "ACTIVE"})["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert "OMP_WAIT_POLICY" not in threads.apply_omp_defaults({threads.KEEP_ENV: "1"})
+    from blender_mrvm import worker
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    monkeypatch.delenv(threads.KEEP_ENV, raising=False)
+    assert worker.worker_env()["OMP_WAIT_POLICY"] == "PASSIVE"
