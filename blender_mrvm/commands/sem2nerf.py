@@ -63,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="targets.json (the add-on's format) of the cameras to render instead of the orbit")
     r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
     r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
-    r.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
     e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint")

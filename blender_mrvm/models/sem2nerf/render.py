@@ -278,9 +278,6 @@ class Prepared:
 
 def prepare(req: RenderRequest) -> Prepared:
     """Every check that needs no torch; InputError / OutputError naming the first problem."""
-    from ...datasets import format as DF
-    from ...geometry import cameras
-
     out = Path(req.out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not req.force)):
         raise OutputError(f"output {out} exists and is not an empty folder (use --force to write into it)")
@@ -291,27 +288,7 @@ def prepare(req: RenderRequest) -> Prepared:
     info = checkpoint_info(Path(req.checkpoint))
     size = info.size
     mask, edits = check_input_mask(read_mask_png(Path(req.mask)), info, f"mask {req.mask}", req.edits)
-    pose = Path(req.pose)
-    if not pose.is_file():
-        raise InputError(f"pose {pose} does not exist (the mask's camera needs a pose)")
-    try:
-        c2w = DF.read_srn_pose(pose)
-    except Exception as e:  # noqa: BLE001
-        raise InputError(f"pose {pose} is not a 4x4 camera-to-world matrix: {type(e).__name__}") from None
-    c2w = check_pose(c2w, f"pose {pose}")
-    intr_path = Path(req.intrinsics) if req.intrinsics else pose.parent.parent / "intrinsics.txt"
-    if req.intrinsics and not intr_path.is_file():
-        raise InputError(f"intrinsics {intr_path} do not exist")
-    if intr_path.is_file():
-        intr = DF.read_srn_intrinsics(intr_path)
-        if (intr.width, intr.height) != (size, size):
-            if intr.width != intr.height:
-                raise InputError(f"intrinsics {intr_path} are {intr.width}x{intr.height}; the mask is square")
-            intr = intr.scaled(size / intr.width)
-    else:
-        if not 1.0 <= req.fov <= 170.0:
-            raise InputError("--fov must be in [1, 170] degrees")
-        intr = cameras.intrinsics_from_fov(math.radians(req.fov), size, size)
+    c2w, intr = mask_camera_files(Path(req.pose), req.intrinsics, size, req.fov)
     if req.targets:
         from ...datasets.novel_views import read_targets
 
@@ -320,6 +297,36 @@ def prepare(req: RenderRequest) -> Prepared:
     else:
         views = [(intr, c2w) for c2w in orbit_poses(c2w, req.views)]
     return Prepared(info, mask, edits, c2w, intr, views)
+
+
+def mask_camera_files(pose: Path, intrinsics: str, size: int, fov: float = 40.0):
+    """(OpenCV camera-to-world, intrinsics at size x size) of a mask's camera from an SRN pose file and
+    intrinsics file ('' = the pose's object folder's ``intrinsics.txt``, else ``fov`` degrees)."""
+    from ...datasets import format as DF
+    from ...geometry import cameras
+
+    pose = Path(pose)
+    if not pose.is_file():
+        raise InputError(f"pose {pose} does not exist (the mask's camera needs a pose)")
+    try:
+        c2w = DF.read_srn_pose(pose)
+    except Exception as e:  # noqa: BLE001
+        raise InputError(f"pose {pose} is not a 4x4 camera-to-world matrix: {type(e).__name__}") from None
+    c2w = check_pose(c2w, f"pose {pose}")
+    intr_path = Path(intrinsics) if intrinsics else pose.parent.parent / "intrinsics.txt"
+    if intrinsics and not intr_path.is_file():
+        raise InputError(f"intrinsics {intr_path} do not exist")
+    if intr_path.is_file():
+        intr = DF.read_srn_intrinsics(intr_path)
+        if (intr.width, intr.height) != (size, size):
+            if intr.width != intr.height:
+                raise InputError(f"intrinsics {intr_path} are {intr.width}x{intr.height}; the mask is square")
+            intr = intr.scaled(size / intr.width)
+    else:
+        if not 1.0 <= fov <= 170.0:
+            raise InputError("--fov must be in [1, 170] degrees")
+        intr = cameras.intrinsics_from_fov(math.radians(fov), size, size)
+    return c2w, intr
 
 
 def mix_styles(a, b, t: float):
@@ -338,14 +345,17 @@ def render_from_mask(req: RenderRequest):
 
     if req.threads:
         torch.set_num_threads(req.threads)
-    model, cfg, meta = load_sem2nerf(p.info.model_file, req.device)
+    from ...synthesis.views import resolve_device
+
+    device = str(resolve_device(req.device))
+    model, cfg, meta = load_sem2nerf(p.info.model_file, device)
     out = Path(req.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         labels_t = torch.as_tensor(cfg.labels)
         with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(req.device), p.c2w[None])
+            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(device), p.c2w[None])
             style = model.style_from_seed(req.style_seed) if req.style_seed is not None else model.default_style()
             if req.mix_seed is not None and req.mix > 0:
                 style = mix_styles(style, model.style_from_seed(req.mix_seed), req.mix)
