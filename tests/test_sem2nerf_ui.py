@@ -75,20 +75,25 @@ def _label_colours(run):
     return {palette(v) for v in checkpoint_info(run).labels}
 
 
-def test_registered_and_panel_draws(empty_scene):
+def test_registered_and_panel_draws(empty_scene, trained):  # noqa: F811
     import bpy
     from test_novel_views import _draw
 
+    from blender_mrvm.models.sem2nerf.render import checkpoint_info, palette
     from blender_mrvm.panels.sem2nerf import MRVM_PT_sem2nerf
 
     assert hasattr(bpy.types, "MRVM_OT_sem2nerf") and hasattr(bpy.types, "MRVM_PT_sem2nerf")
     assert MRVM_PT_sem2nerf.bl_parent_id == "MRVM_PT_main"
     p = empty_scene.mrvm_sem2nerf
-    p.mask_source, p.style, p.mix = "IMAGE", "SEED", 0.5
+    p.mask_source, p.style, p.mix, p.checkpoint = "IMAGE", "SEED", 0.5, str(trained[0])
     log = _draw(MRVM_PT_sem2nerf)
     props = {e[1] for e in log if e[0] == "prop"}
     assert {"mask_image", "mask_encoding", "camera", "style_seed", "mix_seed", "show_semantic"} <= props
     assert ("operator", "mrvm.sem2nerf") in log
+    labels = [e[1] for e in log if e[0] == "label"]
+    info = checkpoint_info(trained[0])
+    for v, name in zip(info.labels, info.names):  # the colours to paint with
+        assert f"{v} {name}: #%02x%02x%02x" % palette(v) in labels
 
 
 def test_operator_dataset_mask_orbit_planes_with_semantic_maps(s2n):

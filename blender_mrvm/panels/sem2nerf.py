@@ -9,6 +9,34 @@ from .main import MRVMPanel, draw_job
 from .novel_views import _torch_warning
 
 
+_label_cache: dict = {}
+
+
+def _label_colors(checkpoint: str) -> list[tuple[int, str, str]]:
+    """(id, name, '#rrggbb') of the chosen checkpoint's labels; [] when it cannot be read. Reads the
+    file's small header once per path and modification time (draw() runs on every redraw)."""
+    raw = checkpoint.strip()
+    if not raw or (raw.startswith("//") and not bpy.data.filepath):
+        return []
+    from pathlib import Path
+
+    from ..errors import MRVMError
+    from ..models.sem2nerf.render import checkpoint_info, label_colors
+
+    path = Path(bpy.path.abspath(raw))
+    try:
+        key = (str(path), path.stat().st_mtime)
+    except OSError:
+        return []
+    if key not in _label_cache:
+        try:
+            info = checkpoint_info(path)
+            _label_cache[key] = label_colors(info.labels, info.names)
+        except MRVMError:
+            _label_cache[key] = []
+    return _label_cache[key]
+
+
 class MRVM_PT_sem2nerf(MRVMPanel, bpy.types.Panel):
     bl_label = "Sem2NeRF (from a mask)"
     bl_idname = "MRVM_PT_sem2nerf"
@@ -36,7 +64,11 @@ class MRVM_PT_sem2nerf(MRVMPanel, bpy.types.Panel):
             col.prop(p, "mask_image")
             col.prop(p, "mask_encoding")
             if p.mask_encoding == "COLORS":
-                col.label(text="Paint with the label colours of the semantic maps", icon="INFO")
+                rows = _label_colors(p.checkpoint)
+                col.label(text="Paint with the label colours (hex):" if rows else
+                          "Paint with the label colours of the semantic maps", icon="INFO")
+                for v, name, hexa in rows:
+                    col.label(text=f"{v} {name}: {hexa}")
         if p.mask_source == "IMAGE" or p.viewpoint == "CAMERA":
             col.prop(p, "camera")
 
