@@ -8,21 +8,10 @@ import types
 
 import numpy as np
 import pytest
+from test_novel_views import ESC, TIMER, _draw, _modal_driver, _state, tiny_checkpoint
 from test_sem2nerf_cli import trained  # noqa: F401 (module fixture: a 1-step tiny Sem2NeRF run on 16 px spheres)
 
 from blender_mrvm.datasets import format as DF
-
-TIMER, ESC = types.SimpleNamespace(type="TIMER"), types.SimpleNamespace(type="ESC")
-
-
-def _state():
-    import bpy
-
-    out = {k: sorted(d.name for d in getattr(bpy.data, k))
-           for k in ("objects", "meshes", "materials", "images", "collections", "cameras")}
-    out["children"] = sorted(c.name for c in bpy.context.scene.collection.children)
-    return out
-
 
 def _camera(scene, name, c2w, intr):
     from blender_mrvm.scene import camera as scam
@@ -77,8 +66,6 @@ def _label_colours(run):
 
 def test_registered_and_panel_draws(empty_scene, trained):  # noqa: F811
     import bpy
-    from test_novel_views import _draw
-
     from blender_mrvm.models.sem2nerf.render import checkpoint_info, palette
     from blender_mrvm.panels.sem2nerf import MRVM_PT_sem2nerf
 
@@ -189,29 +176,13 @@ def test_job_arguments_carry_the_style(s2n, tmp_path):
 
 
 def test_escape_stops_the_worker_and_adds_nothing(s2n, monkeypatch):
-    import bpy
-    from test_modal_operator import FakeWM, FakeWorkspace
-
     from blender_mrvm import worker as Wk
-    from blender_mrvm.operators._modal import ProgressOperator
-    from blender_mrvm.operators.sem2nerf import MRVM_OT_sem2nerf as Op
-
-    class Driver(ProgressOperator):
-        props_attr, job_name, cancel_hint = Op.props_attr, Op.job_name, Op.cancel_hint
-        start, on_result = Op.start, Op.on_result
-
-        def __init__(self):
-            self.reports = []
-
-        def report(self, level, msg):
-            self.reports.append((next(iter(level)), msg))
+    from blender_mrvm.operators.sem2nerf import MRVM_OT_sem2nerf
 
     procs = []
     real = Wk.run_worker
     monkeypatch.setattr(Wk, "run_worker", lambda *a, **k: real(*a, on_start=procs.append, **k))
-    ctx = types.SimpleNamespace(scene=bpy.context.scene, selected_objects=[], preferences=bpy.context.preferences,
-                                window_manager=FakeWM(), window=None, workspace=FakeWorkspace(), screen=None)
-    op, before = Driver(), _state()
+    (op, ctx), before = _modal_driver(MRVM_OT_sem2nerf), _state()
     assert op.invoke(ctx, None) == {"RUNNING_MODAL"} and s2n.props.running
     assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"}
     assert len(procs) == 1 and procs[0].poll() is None, "the worker is running"
@@ -300,8 +271,6 @@ def test_bad_input_one_line_nothing_created_or_written(s2n, tmp_path, case):
         p.mask_source, p.viewpoint = "IMAGE", "CAMERA"
         match = "choose the mask image"
     elif case == "not_sem2nerf":
-        from test_novel_views import tiny_checkpoint
-
         p.checkpoint = str(tiny_checkpoint(tmp_path / "nerformer"))
         match = "is not a Sem2NeRF checkpoint"
     else:
