@@ -119,7 +119,9 @@ def test_operator_dataset_mask_orbit_planes_with_semantic_maps(s2n):
     assert not list(s2n.jobs.iterdir()), "the job folder is removed"
 
 
-def test_painted_image_reads_back_as_the_mask(empty_scene, trained):  # noqa: F811
+def test_painted_image_reads_back_as_the_mask(empty_scene, trained, tmp_path):  # noqa: F811
+    import bpy
+
     from blender_mrvm.models.sem2nerf.render import checkpoint_info, mask_from_rgba
     from blender_mrvm.scene.sem2nerf import image_rgba
 
@@ -130,6 +132,13 @@ def test_painted_image_reads_back_as_the_mask(empty_scene, trained):  # noqa: F8
     for enc, flt in (("COLORS", False), ("COLORS", True), ("IDS", False)):
         img = _paint(f"m_{enc}_{flt}", m, enc, flt)
         assert np.array_equal(mask_from_rgba(image_rgba(img), labels, enc, "img"), m), (enc, flt)
+    # files opened in the image editor: the dataset's grey mask, and a semantic map of a render
+    from blender_mrvm.models.sem2nerf.render import colorize
+
+    DF.write_png(tmp_path / "sem.png", colorize(m))
+    for path, enc in ((obj / "mask" / "000000.png", "IDS"), (tmp_path / "sem.png", "COLORS")):
+        img = bpy.data.images.load(str(path))
+        assert np.array_equal(mask_from_rgba(image_rgba(img), labels, enc, "img"), m), path
 
 
 @pytest.mark.slow
