@@ -315,17 +315,20 @@ def bench(out_dir: Path, size: int = 512, repeats: int = 50, n_labels: int = 6) 
         "contour_map_reference": lambda: contour_map_reference(mask),
         "distance_field_exact": lambda: distance_field(contour, exact_max_side=1 << 30),
     }
-    out: dict[str, float] = {}
-    rows = []
-    for name, fn in jobs.items():
-        fn()
-        ts, cs = [], []
-        for _ in range(repeats):
+    times: dict[str, list[float]] = {name: [] for name in jobs}
+    cpus: dict[str, list[float]] = {name: [] for name in jobs}
+    for fn in jobs.values():
+        fn()  # warm-up
+    for _ in range(repeats):  # round robin: a load that comes and goes disturbs every builder alike
+        for name, fn in jobs.items():
             t0, c0 = time.perf_counter(), time.process_time()
             fn()
-            ts.append(time.perf_counter() - t0)
-            cs.append(time.process_time() - c0)
-        ts, cs = np.asarray(ts) * 1e3, np.asarray(cs) * 1e3
+            times[name].append(time.perf_counter() - t0)
+            cpus[name].append(time.process_time() - c0)
+    out: dict[str, float] = {}
+    rows = []
+    for name in jobs:
+        ts, cs = np.asarray(times[name]) * 1e3, np.asarray(cpus[name]) * 1e3
         out[name] = float(np.median(ts))
         rows.append({"builder": name, "size": size, "repeats": repeats, "median_ms": f"{np.median(ts):.3f}",
                      "min_ms": f"{ts.min():.3f}", "p90_ms": f"{np.percentile(ts, 90):.3f}",
