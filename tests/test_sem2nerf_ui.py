@@ -141,6 +141,33 @@ def test_painted_image_reads_back_as_the_mask(empty_scene, trained, tmp_path):  
         assert np.array_equal(mask_from_rgba(image_rgba(img), labels, enc, "img"), m), path
 
 
+def test_semantic_planes_replace_and_switch(empty_scene, tmp_path):
+    """A plane with a semantic map: both images saved and wired; building again replaces it under
+    the same names and removes the old images; the switch flips what the material shows."""
+    import bpy
+
+    from blender_mrvm.geometry import cameras as C
+    from blender_mrvm.scene import image_planes as IP
+    from blender_mrvm.scene.sem2nerf import COLLECTION, set_show_semantic
+
+    scene = empty_scene
+    scene.render.resolution_x = scene.render.resolution_y = 8
+    cam = _camera(scene, "Cam", np.eye(4), C.intrinsics_from_fov(0.8, 8, 8))
+    cfg = IP.PlaneConfig(distance=1.0, folder=str(tmp_path / "p"), collection=COLLECTION)
+    rgba = np.zeros((8, 8, 4), np.uint8)
+    for k in range(2):
+        rgba[..., 3], sem = 255, np.full((8, 8, 3), 40 * (k + 1), np.uint8)
+        IP.build_image_planes(scene, [IP.NovelView("Cam", rgba, semantic=sem)], cfg)
+    (plane,) = IP.planes_of(cam)
+    assert plane.name == "MRVM plane Cam" and plane["mrvm_semantic_image"] == "MRVM semantic Cam"
+    assert sorted(i.name for i in bpy.data.images) == ["MRVM Cam", "MRVM semantic Cam"]
+    assert DF.read_png(tmp_path / "p" / "Cam_semantic.png")[0, 0, 0] == 80
+    assert set_show_semantic(True) == 1 and plane[IP.SHOW_SEMANTIC] == 1
+    nodes = plane.active_material.node_tree.nodes
+    attr = next(n for n in nodes if n.type == "ATTRIBUTE")
+    assert (attr.attribute_type, attr.attribute_name) == ("OBJECT", IP.SHOW_SEMANTIC) and attr.outputs["Fac"].is_linked
+
+
 @pytest.mark.slow
 def test_operator_painted_image_scene_camera_selected_targets_packed(s2n):
     import bpy

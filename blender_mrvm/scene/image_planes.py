@@ -11,7 +11,7 @@ image's alpha (background = alpha 0), rendered BLENDED (the Blender 4.2+/5.0 ``s
 and invisible to shadow / diffuse / glossy / transmission rays, so it neither lights nor shades the
 scene.
 
-Images are written as PNG (and depth as EXR when given) into a folder (default ``//mrvm_novel_views``
+Images are written as PNG (depth as EXR and a semantic map as ``<stem>_semantic.png`` when given) into a folder (default ``//mrvm_novel_views``
 next to the .blend; paths are stored relative to the .blend) or packed into the .blend. Everything is
 created in the collection "MRVM novel views". Building is a transaction: on any error every
 datablock and file it created is removed and every file it replaced is restored.
