@@ -295,10 +295,11 @@ def bench(out_dir: Path, size: int = 512, repeats: int = 50, n_labels: int = 6) 
     min, 90th percentile and the median process CPU time, which a loaded machine disturbs less);
     returns the wall-clock medians.
 
-    ``python -m blender_mrvm sem2nerf bench --out docs --repeats 200`` wrote ``docs/bench_sem2nerf_inputs.csv``
-    (512 px, 2 shared CPU cores under load from other jobs): the distance field takes 2.9 ms median
-    (``distance_field``; the exact scipy EDT it replaced, ``distance_field_exact``, 13.4 ms), contour +
-    distance 11.1 ms, the whole input build 26.5 ms. Rows: one_hot, contour_map, distance_field,
+    ``python -m blender_mrvm sem2nerf bench --out docs --repeats 400`` wrote ``docs/bench_sem2nerf_inputs.csv``
+    (512 px; 2 CPU cores shared with other jobs, load average 8 to 10, so wall-clock medians are 2-3x
+    the CPU times; min / median CPU time): the distance field 1.6 / 2.8 ms (``distance_field``; the
+    exact scipy EDT it replaced at this size, ``distance_field_exact``, 12.5 / 18.3 ms), contour +
+    distance 4.8 / 7.0 ms, the whole input build 8.2 / 12.4 ms. Rows: one_hot, contour_map, distance_field,
     contour_and_distance, build_inputs, contour_map_reference, distance_field_exact."""
     import csv
     import time
