@@ -246,6 +246,9 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
                                     "white, black and transparent are background"),
         ("IDS", "Part ids", "Grey value = part id (a dataset mask opened as an image)"),
     ], default="COLORS")
+    edits: StringProperty(name="Relabel", default="",
+                          description="Label edits applied to the mask first, e.g. '2:0' (part 2 becomes background) "
+                                      "or 'arm:seat'; several separated by commas")
     viewpoint: EnumProperty(name="Viewpoint", items=[
         ("DATASET", "Dataset pose", "The mask's own pose and intrinsics in its dataset (pose/NNNNNN.txt)"),
         ("CAMERA", "Scene camera", "A camera of the scene sees the mask"),

@@ -211,6 +211,37 @@ def test_job_arguments_carry_the_style(s2n, tmp_path):
     assert [t.name for t in targets] == ["MRVM Sem2NeRF 000", "MRVM Sem2NeRF 001"] and all(t.generated for t in targets)
 
 
+def test_open_mask_for_painting_and_relabel(s2n, tmp_path):
+    import bpy
+
+    from blender_mrvm.models.sem2nerf.render import checkpoint_info
+    from blender_mrvm.operators import sem2nerf as O
+
+    p = s2n.props
+    m = DF.read_png(s2n.obj / "mask" / "000000.png")
+    assert bpy.ops.mrvm.sem2nerf_paint_mask() == {"FINISHED"}
+    assert (p.mask_source, p.mask_encoding) == ("IMAGE", "COLORS") and p.mask_image.packed_file is not None
+    p.camera = _camera(s2n.scene, "View", DF.read_srn_pose(s2n.obj / "pose" / "000000.txt"),
+                       DF.read_srn_intrinsics(s2n.obj / "intrinsics.txt"))
+    assert np.array_equal(O.plan_from_props(bpy.context).mask, m), "the painted image reads back as the mask"
+    parts = sorted(int(v) for v in np.unique(m) if v)
+    info = checkpoint_info(s2n.run)
+    p.edits = f"{parts[0]}:0"
+    if len(parts) > 1:  # relabel by name too
+        p.edits += f", {info.names[info.labels.index(parts[1])]}:{parts[0]}"
+    got = O.plan_from_props(bpy.context).mask
+    want = np.where(m == parts[0], 0, m)
+    if len(parts) > 1:
+        want = np.where(want == parts[1], parts[0], want)
+    assert np.array_equal(got, want)
+    p.edits = "1:250"
+    with pytest.raises(RuntimeError, match="250"):
+        bpy.ops.mrvm.sem2nerf()
+    p.mask_source, p.mask_path = "FILE", str(tmp_path / "missing.png")
+    with pytest.raises(RuntimeError, match="does not exist"):
+        bpy.ops.mrvm.sem2nerf_paint_mask()
+
+
 def test_escape_stops_the_worker_and_adds_nothing(s2n, monkeypatch):
     from blender_mrvm import worker as Wk
     from blender_mrvm.operators.sem2nerf import MRVM_OT_sem2nerf

@@ -95,7 +95,8 @@ def plan_from_props(context) -> Sem2NeRFJob:
         raw = R.mask_from_rgba(S.image_rgba(img), info.labels, p.mask_encoding,
                                f"image {img.name!r}" if img is not None else "image")
         where = f"image {img.name!r}"
-    mask, _ = R.check_input_mask(raw, info, where)
+    edits = tuple(e.strip() for e in p.edits.replace(";", ",").split(",") if e.strip())
+    mask, _ = R.check_input_mask(raw, info, where, edits)  # the worker gets the edited mask
     if p.viewpoint == "DATASET" and p.mask_source == "FILE":
         pose = path.parent.parent / "pose" / f"{path.stem}.txt"
         if not pose.is_file():
@@ -183,6 +184,32 @@ def import_run(context, run: Sem2NeRFRun) -> str:
             + (f" ({made} new cameras)" if made else "") + f", generated in {run.seconds:.1f} s")
 
 
+class MRVM_OT_sem2nerf_paint_mask(bpy.types.Operator):
+    """Open the chosen dataset mask as an image in label colours, ready to paint in the image editor, and use it as the mask"""
+
+    bl_idname = "mrvm.sem2nerf_paint_mask"
+    bl_label = "Open Mask for Painting"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        from ..errors import MRVMError
+        from ..models.sem2nerf import render as R
+        from ..scene.sem2nerf import new_mask_image
+
+        p = context.scene.mrvm_sem2nerf
+        try:
+            path = _path_setting(p.mask_path, "the mask file (a dataset's mask/NNNNNN.png)")
+            img = new_mask_image(f"{path.parent.parent.name} {path.stem}", R.colorize(R.read_mask_png(path)))
+        except MRVMError as e:
+            p.status = str(e)
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        p.mask_image, p.mask_source, p.mask_encoding = img, "IMAGE", "COLORS"
+        p.status = f"mask opened as image {img.name!r}: paint it in the image editor (label colours, a hard brush)"
+        self.report({"INFO"}, p.status)
+        return {"FINISHED"}
+
+
 class MRVM_OT_sem2nerf(ProgressOperator, bpy.types.Operator):
     """Generate views and semantic maps of an object from one part mask seen from a camera (Sem2NeRF), as image planes"""
 
@@ -204,4 +231,4 @@ class MRVM_OT_sem2nerf(ProgressOperator, bpy.types.Operator):
         return import_run(context, run)
 
 
-classes = (MRVM_OT_sem2nerf,)
+classes = (MRVM_OT_sem2nerf_paint_mask, MRVM_OT_sem2nerf)

@@ -60,6 +60,7 @@ class MRVM_PT_sem2nerf(MRVMPanel, bpy.types.Panel):
         if p.mask_source == "FILE":
             col.prop(p, "mask_path")
             col.prop(p, "viewpoint")
+            col.operator("mrvm.sem2nerf_paint_mask", icon="BRUSH_DATA")
         else:
             col.prop(p, "mask_image")
             col.prop(p, "mask_encoding")
@@ -71,6 +72,7 @@ class MRVM_PT_sem2nerf(MRVMPanel, bpy.types.Panel):
                     col.label(text=f"{v} {name}: {hexa}")
         if p.mask_source == "IMAGE" or p.viewpoint == "CAMERA":
             col.prop(p, "camera")
+        col.prop(p, "edits")
 
         col.separator()
         col.prop(p, "target_source")

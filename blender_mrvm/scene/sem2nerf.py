@@ -1,7 +1,8 @@
 """Sem2NeRF in Blender: the main-thread half of the Sem2NeRF operator (the model runs in the worker).
 
 - :func:`image_rgba`: a ``bpy.types.Image`` (a mask the user painted in the image editor, or loaded)
-  as an 8-bit RGBA array, top row first, in the image's stored colours;
+  as an 8-bit RGBA array, top row first, in the image's stored colours; :func:`new_mask_image` the
+  other way (a dataset mask in label colours, to paint on);
 - :func:`mask_camera`: a scene camera as the mask's viewpoint (intrinsics at the mask's size, OpenCV
   camera-to-world), through ``scene/camera.read_camera`` and ``geometry/cameras.py``;
 - :func:`orbit_targets` / :func:`camera_targets`: the views to generate (an orbit of new cameras, the
@@ -52,6 +53,17 @@ def image_rgba(img: bpy.types.Image | None) -> np.ndarray:
     if img.is_float and img.colorspace_settings.name not in ("Non-Color", "Raw", "Generic Data"):
         px[..., :3] = _srgb_from_linear(np.clip(px[..., :3], 0.0, 1.0))
     return (np.clip(px, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def new_mask_image(name: str, rgb: np.ndarray) -> bpy.types.Image:
+    """A new 8-bit Blender image holding ``rgb`` ((H, W, 3) uint8, top row first), packed so it is
+    saved with the .blend: a mask to paint on."""
+    h, w = rgb.shape[:2]
+    img = bpy.data.images.new(f"MRVM mask {name}", w, h, alpha=True)
+    px = np.concatenate([rgb.astype(np.float32) / 255.0, np.ones((h, w, 1), np.float32)], -1)
+    img.pixels.foreach_set(px[::-1].ravel())
+    img.pack()
+    return img
 
 
 def mask_camera(scene: bpy.types.Scene, cam: bpy.types.Object | None, size: int):
