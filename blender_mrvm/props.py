@@ -19,6 +19,18 @@ MODEL_KINDS = [
 ]
 """The model kinds (``models/registry.py``) the panel offers."""
 
+DEVICES = [
+    ("AUTO", "Auto", "CUDA when available, else CPU"),
+    ("CPU", "CPU", "Always the CPU"),
+    ("CUDA", "CUDA", "An NVIDIA GPU"),
+]
+"""Where the worker runs a model."""
+IMAGE_OUTPUTS = [
+    ("FILES", "Files", "Save PNG files into the output folder and reference them"),
+    ("PACK", "Pack into .blend", "Pack the images into the .blend file"),
+]
+"""Where image planes keep their images."""
+
 ENGINES = [
     ("CYCLES", "Cycles", "Path tracing on the CPU (default; all passes in one render)"),
     ("BLENDER_EEVEE", "EEVEE", "Rasterizer (slow on software GL); data passes from a 1-sample Cycles render"),
@@ -144,11 +156,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
     shipped_model: EnumProperty(name="Shipped model", items=MODEL_KINDS, default="nerformer_mrvm",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
-    device: EnumProperty(name="Device", items=[
-        ("AUTO", "Auto", "CUDA when available, else CPU"),
-        ("CPU", "CPU", "Always the CPU"),
-        ("CUDA", "CUDA", "An NVIDIA GPU"),
-    ], default="AUTO")
+    device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
     reference_sizing: EnumProperty(name="Reference size", items=[
         ("AUTO", "Auto", "Shrink references larger than the model's training images to that size (the model's "
                          "features are tuned to it; photos also encode much faster)"),
@@ -159,10 +167,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                 description="Longer side of the references, in pixels")
     plane_distance: FloatProperty(name="Plane distance", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")
-    output: EnumProperty(name="Images", items=[
-        ("FILES", "Files", "Save PNG files into the output folder and reference them"),
-        ("PACK", "Pack into .blend", "Pack the images into the .blend file"),
-    ], default="FILES")
+    output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_novel_views",
                                description="Folder of the novel-view PNG/EXR files (// is relative to the .blend)")
     save_depth: BoolProperty(name="Depth (EXR)", default=False, description="Also save each view's depth map as EXR")
@@ -214,10 +219,75 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
     progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
     status: StringProperty(default="", options={"SKIP_SAVE"})
 
+# --- Sem2NeRF (issue 12): settings of the Generate from mask operator ---------------------------------
+def _is_camera(self, obj) -> bool:
+    return obj.type == "CAMERA"
+
+
+def _show_semantic_changed(self, context) -> None:
+    from .scene.sem2nerf import set_show_semantic
+
+    set_show_semantic(self.show_semantic)
+
+
+class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
+    """Settings of the Sem2NeRF operator (runs `python -m blender_mrvm sem2nerf render` in the worker)."""
+
+    mask_source: EnumProperty(name="Mask", items=[
+        ("FILE", "Dataset mask", "A part-id mask PNG of a rendered dataset (mask/NNNNNN.png)"),
+        ("IMAGE", "Blender image", "An image painted or opened in Blender's image editor"),
+    ], default="FILE")
+    mask_path: StringProperty(name="Mask file", subtype="FILE_PATH",
+                              description="Part-id mask PNG (uint8, the checkpoint's image size)")
+    mask_image: PointerProperty(name="Image", type=bpy.types.Image,
+                                description="The mask image (the checkpoint's image size, square)")
+    mask_encoding: EnumProperty(name="Encoding", items=[
+        ("COLORS", "Label colours", "Each pixel has a label's colour (as the semantic maps show them); "
+                                    "white, black and transparent are background"),
+        ("IDS", "Part ids", "Grey value = part id (a dataset mask opened as an image)"),
+    ], default="COLORS")
+    edits: StringProperty(name="Relabel", default="",
+                          description="Label edits applied to the mask first, e.g. '2:0' (part 2 becomes background) "
+                                      "or 'arm:seat'; several separated by commas")
+    viewpoint: EnumProperty(name="Viewpoint", items=[
+        ("DATASET", "Dataset pose", "The mask's own pose and intrinsics in its dataset (pose/NNNNNN.txt)"),
+        ("CAMERA", "Scene camera", "A camera of the scene sees the mask"),
+    ], default="DATASET")
+    camera: PointerProperty(name="Camera", type=bpy.types.Object, poll=_is_camera,
+                            description="The camera the mask is seen from (its frame must be square)")
+    checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
+                               description="Sem2NeRF model (`sem2nerf train` run folder, checkpoint folder or model file)")
+    target_source: EnumProperty(name="Views", items=[
+        ("ORBIT", "Orbit", "New cameras on a circle about world z through the mask's camera"),
+        ("SELECTED", "Selected cameras", "Generate the view of every selected camera"),
+    ], default="ORBIT")
+    orbit_count: IntProperty(name="Cameras", default=8, min=1, soft_max=120, description="Cameras on the orbit")
+    style: EnumProperty(name="Style", items=[
+        ("MEAN", "Mean", "The average style (the default look)"),
+        ("SEED", "Seed", "The style of a random code"),
+    ], default="MEAN")
+    style_seed: IntProperty(name="Seed", default=0, min=0, description="Random code of the style")
+    mix: FloatProperty(name="Blend", default=0.0, min=0.0, max=1.0, subtype="FACTOR",
+                       description="Blend the style toward the style of another seed (0 = off)")
+    mix_seed: IntProperty(name="Blend seed", default=1, min=0, description="Random code of the style blended in")
+    device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
+    plane_distance: FloatProperty(name="Plane distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
+                                  description="Distance of each image plane from its camera along the view axis")
+    output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_sem2nerf",
+                               description="Folder of the generated images and semantic maps (// is relative to the .blend)")
+    show_semantic: BoolProperty(name="Show semantic maps", default=False, update=_show_semantic_changed,
+                                description="The Sem2NeRF planes show their semantic maps instead of their images")
+    running: BoolProperty(default=False, options={"SKIP_SAVE"})
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
+    status: StringProperty(default="", options={"SKIP_SAVE"})
+
+
 SCENE_PROPERTIES = {
     "mrvm_capture": MRVM_PG_capture,
     "mrvm_dataset": MRVM_PG_dataset,
     "mrvm_novel_views": MRVM_PG_novel_views,
+    "mrvm_sem2nerf": MRVM_PG_sem2nerf,
     "mrvm_train": MRVM_PG_train,
 }
 classes = tuple(SCENE_PROPERTIES.values())

@@ -19,9 +19,11 @@ from __future__ import annotations
 import json
 import os
 import queue
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections import deque
@@ -373,6 +375,23 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
     if rc in (130, -signal.SIGINT):
         raise Cancelled("the worker was interrupted; finished work is kept")
     raise WorkerError(error_message(rc, list(stderr_tail), python), rc)
+
+
+def run_in_job_folder(command: str, python: str, write_args, prefix: str = "mrvm_job_"):
+    """Progress generator of an operator's worker run: a new temporary job folder, ``write_args(folder)``
+    -> the worker's arguments, then :func:`run_worker`; returns ``(folder, WorkerResult)``. The folder
+    is removed when anything fails or the run is cancelled (the generator closed); after success the
+    caller owns it (and removes it once it has read the results)."""
+    job_dir = Path(tempfile.mkdtemp(prefix=prefix))
+    ok = False
+    try:
+        args = write_args(job_dir)
+        result = yield from run_worker(command, args, python)
+        ok = True
+        return job_dir, result
+    finally:
+        if not ok:
+            shutil.rmtree(job_dir, ignore_errors=True)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -181,7 +181,7 @@ def test_every_panel_draws_idle_and_running(empty_scene):
     panels = [c for c in bpy.types.Panel.__subclasses__() if c.__name__.startswith("MRVM_PT_")]
     assert len(panels) >= 5
     for running in (False, True):
-        for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train"):
+        for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train", "mrvm_sem2nerf"):
             props = getattr(empty_scene, name)
             props.running, props.status = running, "halfway through a long job"
         for cls in panels:
@@ -195,5 +195,5 @@ def test_every_panel_draws_idle_and_running(empty_scene):
                 assert ("progress", "halfway through a long job") in log, cls.__name__
             elif ops:
                 assert ("label", "halfway through a long job") in log, cls.__name__
-    for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train"):
+    for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train", "mrvm_sem2nerf"):
         getattr(empty_scene, name).running = False

@@ -409,13 +409,15 @@ class _FakeWM:
         self.calls.append("modal")
 
 
-def _modal_driver():
-    """The Synthesize operator's own start/on_result on the ProgressOperator machinery, with a fake
-    window manager (headless Blender has no event loop or window), as tests/test_modal_operator.py does."""
+def _modal_driver(Op=None):
+    """The Synthesize operator's (or ``Op``'s) own start/on_result on the ProgressOperator machinery, with
+    a fake window manager (headless Blender has no event loop or window), as tests/test_modal_operator.py does."""
     import bpy
 
     from blender_mrvm.operators._modal import ProgressOperator
-    from blender_mrvm.operators.synthesize import MRVM_OT_synthesize as Op
+    from blender_mrvm.operators.synthesize import MRVM_OT_synthesize
+
+    Op = Op or MRVM_OT_synthesize
 
     class Driver(ProgressOperator):
         props_attr, job_name, cancel_hint = Op.props_attr, Op.job_name, Op.cancel_hint

@@ -112,6 +112,27 @@ def test_distance_field_zero_on_contour_and_growing():
     assert raw[32, 24] == pytest.approx(24 - 16)
 
 
+def test_distance_field_large_masks_within_stated_bound():
+    """Above 128 px the field goes through a 128 px grid: within (2 f - 1) / sqrt(2) px of exact."""
+    from scipy import ndimage
+
+    c = I.contour_map(I.synthetic_mask(512))
+    d = I.distance_field(c)
+    raw = ndimage.distance_transform_edt(c == 0)
+    bound = (2 * 4 - 1) / np.sqrt(2)
+    assert d.dtype == np.float32 and d.min() == 0.0 and d.max() == pytest.approx(1.0)
+    assert np.all(d[c > 0] == 0) and np.all(d[c == 0] > 0)
+    approx = I._coarse_distance(c > 0.5, 4)
+    err = np.abs(approx - raw)
+    assert err.max() <= bound and err.mean() < 2.0
+    assert np.abs(d - raw / raw.max()).max() < 2 * bound / raw.max()
+    rng = np.random.default_rng(3)  # sparse random contours, odd sizes (padding at the edges)
+    for h, w in ((300, 517), (640, 200)):
+        cc = rng.random((h, w)) < 3e-4
+        f = -(-max(h, w) // I.EXACT_MAX_SIDE)
+        assert np.abs(I._coarse_distance(cc, f) - ndimage.distance_transform_edt(~cc)).max() <= (2 * f - 1) / np.sqrt(2)
+
+
 def test_empty_mask_inputs():
     m = np.zeros((32, 32), np.uint8)
     x = I.build_inputs(m, [0, 1])

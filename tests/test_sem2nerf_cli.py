@@ -75,6 +75,25 @@ def test_render_views_semantics_edit_blend(tmp_path, trained):
     assert rc == 2
 
 
+def test_render_targets_and_style_mix(tmp_path, trained):
+    from blender_mrvm.datasets.novel_views import Target, write_targets
+
+    run, _, obj = trained
+    intr = DF.read_srn_intrinsics(obj / "intrinsics.txt")
+    poses = [DF.read_srn_pose(obj / "pose" / f"{i:06d}.txt") for i in (1, 2)]
+    write_targets(tmp_path / "t.json", [Target("a", intr, poses[0]), Target("b", intr.resized(16, 12), poses[1])])
+    args = ["sem2nerf", "render", "--checkpoint", str(run), "--mask", str(obj / "mask" / "000000.png"),
+            "--pose", str(obj / "pose" / "000000.txt"), "--targets", str(tmp_path / "t.json"), "--threads", "1"]
+    assert main([*args, "--out", str(tmp_path / "o"), "--mix-seed", "5", "--mix", "0.5"]) == 0
+    assert DF.read_png(tmp_path / "o" / "rgb" / "000000.png").shape == (16, 16, 4)
+    assert DF.read_png(tmp_path / "o" / "semantic_color" / "000001.png").shape == (12, 16, 3)
+    assert np.allclose(DF.read_srn_pose(tmp_path / "o" / "pose" / "000001.txt"), poses[1], atol=1e-6)
+    summary = json.loads((tmp_path / "o" / "sem2nerf.json").read_text())
+    assert summary["views"] == 2 and summary["mix_seed"] == 5 and summary["mix"] == 0.5
+    assert main([*args, "--out", str(tmp_path / "p"), "--mix-seed", "5", "--mix", "1.5"]) == 2
+    assert not (tmp_path / "p").exists()
+
+
 @pytest.mark.parametrize("case", ["unknown_label", "empty", "size", "no_pose", "rgb_mask", "bad_edit",
                                   "edit_absent", "not_sem2nerf"])
 def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, case):

@@ -2,9 +2,9 @@
 
   python -m blender_mrvm sem2nerf train --data data/shapenet13_all --out runs/s2n --preset fast --iterations 5000
   python -m blender_mrvm sem2nerf render --checkpoint runs/s2n --mask obj/mask/000000.png --pose obj/pose/000000.txt \\
-      --out s2n_out [--views 8] [--edit 2:0] [--style-seed 3] [--blend 7]
+      --out s2n_out [--views 8 | --targets targets.json] [--edit 2:0] [--style-seed 3] [--mix-seed 5 --mix 0.3] [--blend 7]
   python -m blender_mrvm sem2nerf eval --checkpoint runs/s2n --data data/shapenet13_all --holdout 3 --out eval/s2n
-  python -m blender_mrvm sem2nerf bench --out bench_out
+  python -m blender_mrvm sem2nerf bench --out docs     # -> docs/bench_sem2nerf_inputs.csv
 
 render writes OUT/rgb, OUT/semantic (uint8 part ids), OUT/semantic_color, OUT/pose and sem2nerf.json;
 bad input (labels the checkpoint does not know, an empty mask, a mask of another size, a missing
@@ -56,9 +56,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--blend", type=int, default=None, metavar="SEED",
                    help="also render the input view along a linear blend to the style of SEED")
     r.add_argument("--blend-steps", type=int, default=5, help="images along the blend, ends included (default 5)")
+    r.add_argument("--mix-seed", type=int, default=None, metavar="SEED",
+                   help="render every view with the style blended toward the style of SEED ...")
+    r.add_argument("--mix", type=float, default=0.5, help="... by this factor in [0, 1] (default 0.5)")
+    r.add_argument("--targets", default="",
+                   help="targets.json (the add-on's format) of the cameras to render instead of the orbit")
     r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
     r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
-    r.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
     e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint")
@@ -103,7 +108,8 @@ def run(args) -> int:
         req = RenderRequest(checkpoint=args.checkpoint, mask=args.mask, pose=args.pose, out=args.out,
                             intrinsics=args.intrinsics, fov=args.fov, views=args.views, edits=tuple(args.edit),
                             style_seed=args.style_seed, blend=args.blend, blend_steps=args.blend_steps,
-                            force=args.force, threads=args.threads, device=args.device)
+                            force=args.force, threads=args.threads, device=args.device, targets=args.targets,
+                            mix_seed=args.mix_seed, mix=args.mix if args.mix_seed is not None else 0.0)
         summary = run_with_tqdm(render_from_mask(req), desc="sem2nerf render", unit="img")
         print(json.dumps({"out": args.out, "views": summary["views"], "edits": summary["edits"]}))
         return 0

@@ -50,6 +50,10 @@ class Target:
     def depth_path(self, index: int) -> str:
         return f"depth/{index:06d}.exr"
 
+    def semantic_path(self, index: int) -> str:
+        """The coloured semantic map ``sem2nerf render --targets`` writes for this target."""
+        return f"semantic_color/{index:06d}.png"
+
 
 def parse_views(text: str, max_views: int = MAX_REFERENCES) -> tuple[int, ...]:
     """Reference view indices from '0 1', '0,1' or '0, 3, 5'; 1..max_views distinct, non-negative."""

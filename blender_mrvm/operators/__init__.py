@@ -5,7 +5,7 @@ Each module in ``MODULES`` defines a ``classes`` tuple; they are registered in o
 
 import importlib
 
-MODULES = ("dataset", "capture", "synthesize", "train")
+MODULES = ("dataset", "capture", "synthesize", "train", "sem2nerf")
 
 
 def _classes():

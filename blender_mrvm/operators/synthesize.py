@@ -19,7 +19,6 @@ see ``datasets/novel_views.py`` for the files). Steps:
 from __future__ import annotations
 
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -139,11 +138,7 @@ def plan_from_props(context) -> SynthesisJob:
     cfg = IP.PlaneConfig(distance=p.plane_distance, pack=p.output == "PACK", folder=p.output_dir).validate()
     if not cfg.pack:
         IP.output_folder(cfg)  # "//" needs a saved .blend
-    for t in targets:
-        obj = bpy.data.objects.get(t.name)
-        if obj is not None and not (obj.data.clip_start < cfg.distance < obj.data.clip_end):
-            raise InputError(f"plane distance {cfg.distance:g} is outside camera {t.name!r}'s clip range "
-                             f"({obj.data.clip_start:g}..{obj.data.clip_end:g})")
+    IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
                         p.save_depth, ref_size)
@@ -192,18 +187,11 @@ def run_job(context, job: SynthesisJob, interp) -> "ProgressGen":
 
     The job folder is removed on error or cancel (closing the generator interrupts the worker);
     after success :func:`import_run` removes it."""
-    from ..worker import run_worker
+    from ..worker import run_in_job_folder
 
-    job_dir = Path(tempfile.mkdtemp(prefix="mrvm_synth_"))
-    ok = False
-    try:
-        args = write_job(context, job, job_dir)
-        result = yield from run_worker(SYNTH_COMMAND, args, interp.path)
-        ok = True
-        return SynthesisRun(job, job_dir, result.seconds)
-    finally:
-        if not ok:
-            shutil.rmtree(job_dir, ignore_errors=True)
+    job_dir, result = yield from run_in_job_folder(SYNTH_COMMAND, interp.path, lambda d: write_job(context, job, d),
+                                                   "mrvm_synth_")
+    return SynthesisRun(job, job_dir, result.seconds)
 
 
 def import_run(context, run: SynthesisRun) -> str:

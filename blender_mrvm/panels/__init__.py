@@ -5,7 +5,7 @@ Each module in ``MODULES`` defines a ``classes`` tuple; they are registered in o
 
 import importlib
 
-MODULES = ("main", "capture", "novel_views")
+MODULES = ("main", "capture", "novel_views", "sem2nerf")
 
 
 def _classes():

@@ -11,7 +11,7 @@ image's alpha (background = alpha 0), rendered BLENDED (the Blender 4.2+/5.0 ``s
 and invisible to shadow / diffuse / glossy / transmission rays, so it neither lights nor shades the
 scene.
 
-Images are written as PNG (and depth as EXR when given) into a folder (default ``//mrvm_novel_views``
+Images are written as PNG (depth as EXR and a semantic map as ``<stem>_semantic.png`` when given) into a folder (default ``//mrvm_novel_views``
 next to the .blend; paths are stored relative to the .blend) or packed into the .blend. Everything is
 created in the collection "MRVM novel views". Building is a transaction: on any error every
 datablock and file it created is removed and every file it replaced is restored.
@@ -39,6 +39,9 @@ from .objects import remove_new_data, safe_id, snapshot_data
 COLLECTION = "MRVM novel views"
 PLANE_TAG = "mrvm_plane_of"
 """Custom property on a plane object: the name of the camera it belongs to."""
+SHOW_SEMANTIC = "mrvm_show_semantic"
+"""Custom property on a plane with a semantic map: 0 shows the image, 1 the semantic map (read by
+the material's Attribute node)."""
 
 
 @dataclass(frozen=True)
@@ -51,6 +54,9 @@ class NovelView:
     """PNG file, or a uint8 (H, W, 3|4) array (alpha 0 = background)."""
     depth: Path | np.ndarray | None = None
     """Optional planar z-depth: an EXR file or a float (H, W) array, saved beside the image."""
+    semantic: Path | np.ndarray | None = None
+    """Optional semantic map of the same size (a colour PNG or a uint8 (H, W, 3) array), saved beside
+    the image; the plane shows it instead of the image while its ``mrvm_show_semantic`` property is 1."""
 
 
 @dataclass(frozen=True)
@@ -340,7 +346,7 @@ def _unique_stems(cameras: list[str], folder: Path | None, in_use: set[str]) -> 
         while True:
             s = base if k == 0 else f"{base}_{k}"
             clash = folder is not None and any(str((folder / f"{s}{ext}").resolve()) in in_use
-                                               for ext in (".png", "_depth.exr"))
+                                               for ext in (".png", "_depth.exr", "_semantic.png"))
             if s not in taken and not clash:
                 break
             k += 1
@@ -394,8 +400,10 @@ def _load_image(path: Path, name: str, stored_path: str, pack: bool, non_color: 
     return img
 
 
-def _material(name: str, image: bpy.types.Image, interpolation: str) -> bpy.types.Material:
-    """Shadeless image material: emission of the image colour, transparent where alpha is 0."""
+def _material(name: str, image: bpy.types.Image, interpolation: str,
+              semantic: bpy.types.Image | None = None) -> bpy.types.Material:
+    """Shadeless image material: emission of the image colour, transparent where alpha is 0. With a
+    ``semantic`` image, the colour is the semantic map's where the object's ``mrvm_show_semantic`` is 1."""
     mat = bpy.data.materials.new(name)
     if mat.node_tree is None:  # Blender < 5 creates materials without nodes
         mat.use_nodes = True
@@ -410,7 +418,23 @@ def _material(name: str, image: bpy.types.Image, interpolation: str) -> bpy.type
     emit.inputs["Strength"].default_value = 1.0
     transparent = nt.nodes.new("ShaderNodeBsdfTransparent")
     mix = nt.nodes.new("ShaderNodeMixShader")
-    nt.links.new(tex.outputs["Color"], emit.inputs["Color"])
+    if semantic is None:
+        nt.links.new(tex.outputs["Color"], emit.inputs["Color"])
+    else:
+        stex = nt.nodes.new("ShaderNodeTexImage")
+        stex.image = semantic
+        stex.interpolation = "Closest"  # label colours are not blended
+        stex.extension = "EXTEND"
+        attr = nt.nodes.new("ShaderNodeAttribute")
+        attr.attribute_type, attr.attribute_name = "OBJECT", SHOW_SEMANTIC
+        pick = nt.nodes.new("ShaderNodeMix")
+        pick.data_type = "RGBA"
+        a_in, b_in = (next(sk for sk in pick.inputs if sk.name == n and sk.type == "RGBA") for n in ("A", "B"))
+        nt.links.new(attr.outputs["Fac"], pick.inputs["Factor"])
+        nt.links.new(tex.outputs["Color"], a_in)
+        nt.links.new(stex.outputs["Color"], b_in)
+        nt.links.new(next(sk for sk in pick.outputs if sk.type == "RGBA"), emit.inputs["Color"])
+        stex.location, attr.location, pick.location = (-600, -300), (-600, 250), (-400, -150)
     nt.links.new(tex.outputs["Alpha"], mix.inputs["Fac"])
     nt.links.new(transparent.outputs["BSDF"], mix.inputs[1])
     nt.links.new(emit.outputs["Emission"], mix.inputs[2])
@@ -476,6 +500,15 @@ def _remove_planes(objs: list[bpy.types.Object]) -> None:
 # The builder
 # ---------------------------------------------------------------------------------------------
 
+def check_clip_range(cameras, distance: float) -> None:
+    """InputError when ``distance`` lies outside the clip range of one of ``cameras`` (None entries:
+    cameras still to be created, skipped)."""
+    for cam in cameras:
+        if cam is not None and not (cam.data.clip_start < distance < cam.data.clip_end):
+            raise InputError(f"plane distance {distance:g} is outside camera {cam.name!r}'s clip range "
+                             f"({cam.data.clip_start:g}..{cam.data.clip_end:g})")
+
+
 def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: PlaneConfig,
                        txn: Transaction | None = None) -> PlaneResult:
     """Create one image plane per view in ``cfg.collection``; all or nothing (see module doc).
@@ -494,13 +527,13 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
     for v in views:
         cam = _camera_object(v.camera)
         intr, _ = scam.read_camera(cam, scene)
-        if not (cam.data.clip_start < cfg.distance < cam.data.clip_end):
-            raise InputError(f"plane distance {cfg.distance:g} is outside camera {cam.name!r}'s clip range "
-                             f"({cam.data.clip_start:g}..{cam.data.clip_end:g})")
+        check_clip_range([cam], cfg.distance)
         wh = _image_size(v.rgba, f"camera {cam.name!r}")
         _check_aspect(wh, intr, f"camera {cam.name!r}")
         if v.depth is not None and _depth_size(v.depth, f"camera {cam.name!r}") != wh:
             raise InputError(f"camera {cam.name!r}: depth map size differs from its image {wh[0]}x{wh[1]}")
+        if v.semantic is not None and _image_size(v.semantic, f"camera {cam.name!r}") != wh:
+            raise InputError(f"camera {cam.name!r}: semantic map size differs from its image {wh[0]}x{wh[1]}")
         cams.append(cam)
         intrs.append(intr)
     if len({c.name for c in cams}) != len(cams):
@@ -522,10 +555,21 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
             if not cfg.pack:
                 files.append(png)
             images.append(img)
+            simg = None
+            if v.semantic is not None:
+                spng = _write_png(t, v.semantic, (work or folder) / f"{stem}_semantic.png")
+                stored_s = (f"{stored_folder.rstrip('/')}/{stem}_semantic.png" if cfg.pack else _blend_path(spng))
+                simg = _load_image(spng, f"MRVM semantic {cam.name}", stored_s, cfg.pack)
+                images.append(simg)
+                if not cfg.pack:
+                    files.append(spng)
             mesh = _plane_mesh(f"MRVM plane {cam.name}", intr, cfg.distance)
-            mesh.materials.append(_material(f"MRVM {cam.name}", img, cfg.interpolation))
+            mesh.materials.append(_material(f"MRVM {cam.name}", img, cfg.interpolation, simg))
             obj = _plane_object(f"MRVM plane {cam.name}", mesh, cam, coll)
             obj["mrvm_image"] = img.name
+            if simg is not None:
+                obj["mrvm_semantic_image"] = simg.name
+                obj[SHOW_SEMANTIC] = 0
             obj["mrvm_distance"] = float(cfg.distance)
             if v.depth is not None:
                 exr = _write_exr(t, v.depth, (work or folder) / f"{stem}_depth.exr")
@@ -543,7 +587,8 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
                 cam = obj.parent.name
                 obj.name = obj.data.name = f"MRVM plane {cam}"
                 obj.data.materials[0].name = f"MRVM {cam}"
-                for key, name in (("mrvm_image", f"MRVM {cam}"), ("mrvm_depth_image", f"MRVM depth {cam}")):
+                for key, name in (("mrvm_image", f"MRVM {cam}"), ("mrvm_depth_image", f"MRVM depth {cam}"),
+                                  ("mrvm_semantic_image", f"MRVM semantic {cam}")):
                     if key in obj:
                         img = bpy.data.images[obj[key]]
                         img.name = name  # Blender adds a suffix when another image holds the name

@@ -142,19 +142,25 @@ def _orbit_camera_settings(scene: bpy.types.Scene, fov: float) -> C.BlenderCamer
                            pixel_aspect_x=scene.render.pixel_aspect_x, pixel_aspect_y=scene.render.pixel_aspect_y)
 
 
+def fresh_names(prefix: str, count: int) -> list[str]:
+    """``count`` object names "<prefix> 000", ... that no object holds yet (earlier cameras are kept)."""
+    taken = {o.name for o in bpy.data.objects}
+    names, i = [], 0
+    while len(names) < count:
+        n = f"{prefix} {i:03d}"
+        if n not in taken:
+            names.append(n)
+        i += 1
+    return names
+
+
 def orbit_targets(scene: bpy.types.Scene, count: int, radius: float, elevation: float, fov: float,
                   center=(0.0, 0.0, 0.0)) -> list[Target]:
     """``count`` generated targets on a circle around ``center`` (angles in radians), looking at it."""
     from ..geometry.rigs import orbit_poses
 
     intr = C.intrinsics_from_blender(_orbit_camera_settings(scene, fov))
-    taken = {o.name for o in bpy.data.objects}
-    names, i = [], 0
-    while len(names) < count:  # fresh names: existing orbit cameras are kept
-        n = f"{ORBIT_PREFIX} {i:03d}"
-        if n not in taken:
-            names.append(n)
-        i += 1
+    names = fresh_names(ORBIT_PREFIX, count)
     poses = orbit_poses(count, radius, math.degrees(elevation), center)
     return [Target(n, intr, p, generated=True) for n, p in zip(names, poses)]
 
@@ -184,8 +190,9 @@ def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection
 # ---------------------------------------------------------------------------------------------
 
 def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path, cfg: IP.PlaneConfig,
-                   depth: bool = False) -> IP.PlaneResult:
-    """Create generated cameras and one image plane per target from the worker's ``out_dir``.
+                   depth: bool = False, semantic: bool = False) -> IP.PlaneResult:
+    """Create generated cameras and one image plane per target from the worker's ``out_dir`` (with
+    ``semantic``, each plane also carries the target's semantic map, ``Target.semantic_path``).
 
     All or nothing: a missing or unreadable result, or any other error, leaves the scene and the
     output folder as they were.
@@ -196,6 +203,8 @@ def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path,
             raise InputError(f"the worker wrote no image for {t.name!r} ({out_dir / t.rgb_path(i)})")
         if depth and not (out_dir / t.depth_path(i)).is_file():
             raise InputError(f"the worker wrote no depth map for {t.name!r} ({out_dir / t.depth_path(i)})")
+        if semantic and not (out_dir / t.semantic_path(i)).is_file():
+            raise InputError(f"the worker wrote no semantic map for {t.name!r} ({out_dir / t.semantic_path(i)})")
     with IP.transaction() as txn:
         coll = IP.ensure_collection(scene, cfg.collection, txn)
         for t in targets:
@@ -203,7 +212,8 @@ def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path,
                 _create_camera(scene, t, coll)
             elif bpy.data.objects.get(t.name) is None:
                 raise InputError(f"target camera {t.name!r} was removed while synthesizing")
-        views = [IP.NovelView(t.name, out_dir / t.rgb_path(i), out_dir / t.depth_path(i) if depth else None)
+        views = [IP.NovelView(t.name, out_dir / t.rgb_path(i), out_dir / t.depth_path(i) if depth else None,
+                              out_dir / t.semantic_path(i) if semantic else None)
                  for i, t in enumerate(targets)]
         return IP.build_image_planes(scene, views, cfg, txn=txn)
 

@@ -37,9 +37,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import InputError
+from ..models.sem2nerf.config import MODEL_KIND, read_sem2nerf_header  # noqa: F401 (torch-free owner)
 from ..progress import Progress
-
-MODEL_KIND = "sem2nerf"
 
 
 @dataclass(frozen=True)
@@ -280,16 +279,6 @@ def save_checkpoint(run_dir: Path, step: int, model, train_image_size: int, trai
 
     meta = {"train_image_size": str(int(train_image_size)), **(extra_meta or {})}
     return ckpt.save_checkpoint(run_dir, step, model, model.cfg, trainer_state, meta, keep=keep, kind=MODEL_KIND)
-
-
-def read_sem2nerf_header(path: Path) -> tuple[Path, dict[str, str]]:
-    """(model file, metadata) of a Sem2NeRF checkpoint; InputError if it is none (torch-free)."""
-    from ..models.checkpoint_files import checked_header
-
-    model_file, meta = checked_header(Path(path))
-    if meta.get("model_kind") != MODEL_KIND:
-        raise InputError(f"{model_file} is not a Sem2NeRF checkpoint (model kind {meta.get('model_kind', 'mrvm')!r})")
-    return model_file, meta
 
 
 def load_sem2nerf(path: Path, device: str = "cpu"):

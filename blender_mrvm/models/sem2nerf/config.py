@@ -8,10 +8,14 @@ with the checkpoint, so a mask with other ids is refused before any work.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 from ...errors import InputError
 from ..config import from_dict, merge, to_dict  # noqa: F401 (re-exported: generic dataclass <-> dict)
+
+MODEL_KIND = "sem2nerf"
+"""The ``model_kind`` a Sem2NeRF checkpoint records."""
 
 
 @dataclass(frozen=True)
@@ -110,3 +114,14 @@ def sem2nerf_config(preset: str = "balanced", overrides: dict[str, Any] | None =
     if kw:
         cfg = replace(cfg, **{k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()})
     return validate(cfg)
+
+
+def read_sem2nerf_header(path: Path) -> tuple[Path, dict[str, str]]:
+    """(model file, metadata) of a Sem2NeRF checkpoint (model file, checkpoint or run folder);
+    InputError if it is none. Torch-free: the add-on checks a picked file on Blender's main thread."""
+    from ..checkpoint_files import checked_header
+
+    model_file, meta = checked_header(Path(path))
+    if meta.get("model_kind") != MODEL_KIND:
+        raise InputError(f"{model_file} is not a Sem2NeRF checkpoint (model kind {meta.get('model_kind', 'mrvm')!r})")
+    return model_file, meta

@@ -12,7 +12,11 @@ written; then it renders into a temporary folder that is moved into place at the
     OUT/mask_input.png             the (edited) input mask the model saw
     OUT/sem2nerf.json              settings, labels, edits, styles
 
-Views orbit the world z axis through the input camera (``views`` of them, evenly spaced). bpy-free.
+Views orbit the world z axis through the input camera (``views`` of them, evenly spaced), or are the
+cameras of a ``targets.json`` (the add-on's selected cameras or its own orbit); view k is written as
+``rgb/k``, ``semantic/k``, ... in both cases. The checks (:func:`checkpoint_info`,
+:func:`check_input_mask`, :func:`check_pose`, :func:`mask_from_rgba`) are shared with the add-on's
+operator, which runs them on Blender's main thread before it starts the worker. bpy-free.
 """
 
 from __future__ import annotations
@@ -62,6 +66,12 @@ class RenderRequest:
     """torch CPU threads (0 = leave)."""
     device: str = "cpu"
     """Torch device."""
+    targets: str = ""
+    """``targets.json`` (``datasets/novel_views.py``): render these cameras instead of the orbit."""
+    mix_seed: int | None = None
+    """Blend the style above toward the style of this seed for every view ..."""
+    mix: float = 0.0
+    """... by this factor in [0, 1] (0 = the style above, 1 = the seed's)."""
 
 
 def palette(label_id: int) -> tuple[int, int, int]:
@@ -135,57 +145,176 @@ def read_mask_png(path: Path) -> np.ndarray:
     return m
 
 
-@dataclass
-class Prepared:
+@dataclass(frozen=True)
+class CheckpointInfo:
+    """What the checks need from a Sem2NeRF checkpoint's header (read without torch)."""
+
     model_file: Path
     meta: dict
     labels: tuple
+    """Part ids the model knows (background 0 first)."""
     names: tuple
+    """Their names."""
+    size: int
+    """Side of the square masks it takes."""
+
+
+def checkpoint_info(path: Path) -> CheckpointInfo:
+    """The header of a Sem2NeRF checkpoint; InputError when it is none (torch-free: the add-on calls it)."""
+    from .config import read_sem2nerf_header
+
+    model_file, meta = read_sem2nerf_header(Path(path))
+    try:
+        cfg = json.loads(meta["model_config"])
+        labels, names, size = tuple(int(v) for v in cfg["labels"]), tuple(cfg["label_names"]), int(cfg["image_size"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{model_file}: its Sem2NeRF model config is unreadable") from None
+    return CheckpointInfo(model_file, meta, labels, names, size)
+
+
+def check_input_mask(mask: np.ndarray, info: CheckpointInfo, where: str,
+                     edits: tuple[str, ...] = ()) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """The (edited) uint8 part-id mask the model gets, and the parsed edits; InputError for a mask of
+    another size than the checkpoint's, labels it does not know, edits of absent labels, an empty mask."""
+    from .inputs import check_mask
+
+    mask = np.asarray(mask)
+    if mask.shape != (info.size, info.size):
+        h, w = mask.shape[:2] if mask.ndim >= 2 else (0, 0)
+        raise InputError(f"{where} is {w}x{h}; this checkpoint takes {info.size}x{info.size} masks")
+    parsed = [parse_edit(e, info.labels, info.names) for e in edits]
+    mask = mask.copy()
+    for src, dst in parsed:
+        if not (mask == src).any():
+            raise InputError(f"--edit {src}:{dst}: label {src} is not in the mask")
+        mask[mask == src] = dst
+    mask = check_mask(mask, info.labels, where)
+    if not (mask != 0).any():
+        raise InputError(f"{where} is empty (background only{' after the edits' if parsed else ''})")
+    return mask, parsed
+
+
+def check_pose(c2w, where: str) -> np.ndarray:
+    """A finite rigid 4x4 camera-to-world matrix as float64; InputError otherwise."""
+    try:
+        m = np.asarray(c2w, np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where} is not a 4x4 camera-to-world matrix") from None
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise InputError(f"{where} is not a finite 4x4 camera-to-world matrix")
+    r = m[:3, :3]
+    if not np.allclose(r.T @ r, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
+        raise InputError(f"{where} is not a rigid camera pose (its rotation is scaled, sheared or mirrored)")
+    return m
+
+
+MASK_ENCODINGS = ("COLORS", "IDS")
+"""How an RGB(A) image holds part ids: the label colours of :func:`palette` (what ``semantic_color``
+shows; white and black are background) or grey values equal to the ids (a dataset mask)."""
+
+COLOR_TOLERANCE = 24
+"""Largest per-channel difference (0..255) between a pixel and the label colour it is read as."""
+
+
+def mask_from_rgba(rgba: np.ndarray, labels: tuple[int, ...], encoding: str, where: str) -> np.ndarray:
+    """(H, W, 3|4) uint8 image -> (H, W) uint8 part ids. Pixels with alpha < 128 are background.
+
+    COLORS: each colour is read as the nearest known label's colour within :data:`COLOR_TOLERANCE`,
+    else as any other id whose colour it is (so an unknown label is named), else InputError. IDS: the
+    grey value is the id (the image must be grey). Labels are checked by :func:`check_input_mask`.
+    """
+    img = np.asarray(rgba)
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8:
+        raise InputError(f"{where}: expected an 8-bit RGB or RGBA image")
+    if encoding not in MASK_ENCODINGS:
+        raise InputError(f"unknown mask encoding {encoding!r}; choose one of {list(MASK_ENCODINGS)}")
+    rgb = img[..., :3].astype(np.int32)
+    clear = img[..., 3] < 128 if img.shape[2] == 4 else np.zeros(img.shape[:2], bool)
+    if encoding == "IDS":
+        grey = (rgb[..., 0] == rgb[..., 1]) & (rgb[..., 1] == rgb[..., 2])
+        if not (grey | clear).all():
+            raise InputError(f"{where} has coloured pixels; a part-id image is grey (value = id): "
+                             "read it as label colours instead")
+        return np.where(clear, 0, rgb[..., 0]).astype(np.uint8)
+    packed = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+    uniq, inv = np.unique(packed, return_inverse=True)
+    cols = np.stack([(uniq >> 16) & 255, (uniq >> 8) & 255, uniq & 255], -1)
+    known = [0, *[int(v) for v in labels if v != 0]]
+    table = {0: [(255, 255, 255), (0, 0, 0)]}
+    for v in range(1, 256):
+        table.setdefault(v, []).append(palette(v))
+    ids = np.full(len(uniq), -1, np.int64)
+    for pool in (known, range(256)):  # known labels first; then name the unknown id a colour is
+        ref_ids = np.array([v for v in pool for _ in table[v]])
+        refs = np.array([c for v in pool for c in table[v]], np.int32)
+        dist = np.abs(cols[:, None, :] - refs[None]).max(-1)
+        best = dist.argmin(1)
+        ok = (ids < 0) & (dist[np.arange(len(uniq)), best] <= COLOR_TOLERANCE)
+        ids[ok] = ref_ids[best[ok]]
+    out = ids[inv.reshape(packed.shape)]
+    bad = (out < 0) & ~clear
+    if bad.any():
+        y, x = np.argwhere(bad)[0]
+        raise InputError(f"{where}: {int(bad.sum())} pixels have colours of no label, e.g. {tuple(img[y, x, :3])} at "
+                         f"x={x}, y={y} (paint with the label colours and a hard brush)")
+    return np.where(clear, 0, out).astype(np.uint8)
+
+
+def label_colors(labels: tuple[int, ...], names: tuple[str, ...]) -> list[tuple[int, str, str]]:
+    """(id, name, '#rrggbb') of each label: the colours to paint a mask with."""
+    return [(int(v), str(n), "#%02x%02x%02x" % palette(int(v))) for v, n in zip(labels, names)]
+
+
+@dataclass
+class Prepared:
+    info: CheckpointInfo
     mask: np.ndarray
     edits: list = field(default_factory=list)
     c2w: np.ndarray | None = None
     intr: object = None
+    views: list = field(default_factory=list)
+    """(intrinsics, OpenCV camera-to-world) of every view to render."""
 
 
 def prepare(req: RenderRequest) -> Prepared:
     """Every check that needs no torch; InputError / OutputError naming the first problem."""
-    from ...datasets import format as DF
-    from ...geometry import cameras
-    from ...training.sem2nerf import read_sem2nerf_header
-    from .inputs import check_mask
-
     out = Path(req.out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not req.force)):
         raise OutputError(f"output {out} exists and is not an empty folder (use --force to write into it)")
     if req.views < 1 or req.blend_steps < 2:
         raise InputError("--views must be >= 1 and --blend-steps >= 2")
-    model_file, meta = read_sem2nerf_header(Path(req.checkpoint))
-    cfg = json.loads(meta["model_config"])
-    labels, names, size = tuple(cfg["labels"]), tuple(cfg["label_names"]), int(cfg["image_size"])
-    mask = read_mask_png(Path(req.mask))
-    if mask.shape != (size, size):
-        raise InputError(f"mask {req.mask} is {mask.shape[1]}x{mask.shape[0]}; this checkpoint takes {size}x{size} masks")
-    edits = [parse_edit(e, labels, names) for e in req.edits]
-    mask = mask.copy()
-    for src, dst in edits:
-        if not (mask == src).any():
-            raise InputError(f"--edit {src}:{dst}: label {src} is not in the mask")
-        mask[mask == src] = dst
-    check_mask(mask, labels, f"mask {req.mask}")
-    if not (mask != 0).any():
-        raise InputError(f"mask {req.mask} is empty (background only{' after the edits' if edits else ''})")
-    pose = Path(req.pose)
+    if not 0.0 <= req.mix <= 1.0:
+        raise InputError("--mix must lie in [0, 1]")
+    info = checkpoint_info(Path(req.checkpoint))
+    size = info.size
+    mask, edits = check_input_mask(read_mask_png(Path(req.mask)), info, f"mask {req.mask}", req.edits)
+    c2w, intr = mask_camera_files(Path(req.pose), req.intrinsics, size, req.fov)
+    if req.targets:
+        from ...datasets.novel_views import read_targets
+
+        targets, _ = read_targets(Path(req.targets))
+        views = [(t.intrinsics, check_pose(t.c2w_opencv, f"target {t.name!r}")) for t in targets]
+    else:
+        views = [(intr, c2w) for c2w in orbit_poses(c2w, req.views)]
+    return Prepared(info, mask, edits, c2w, intr, views)
+
+
+def mask_camera_files(pose: Path, intrinsics: str, size: int, fov: float = 40.0):
+    """(OpenCV camera-to-world, intrinsics at size x size) of a mask's camera from an SRN pose file and
+    intrinsics file ('' = the pose's object folder's ``intrinsics.txt``, else ``fov`` degrees)."""
+    from ...datasets import format as DF
+    from ...geometry import cameras
+
+    pose = Path(pose)
     if not pose.is_file():
         raise InputError(f"pose {pose} does not exist (the mask's camera needs a pose)")
     try:
         c2w = DF.read_srn_pose(pose)
     except Exception as e:  # noqa: BLE001
         raise InputError(f"pose {pose} is not a 4x4 camera-to-world matrix: {type(e).__name__}") from None
-    c2w = np.asarray(c2w, np.float64)
-    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-        raise InputError(f"pose {pose} is not a finite 4x4 camera-to-world matrix")
-    intr_path = Path(req.intrinsics) if req.intrinsics else pose.parent.parent / "intrinsics.txt"
-    if req.intrinsics and not intr_path.is_file():
+    c2w = check_pose(c2w, f"pose {pose}")
+    intr_path = Path(intrinsics) if intrinsics else pose.parent.parent / "intrinsics.txt"
+    if intrinsics and not intr_path.is_file():
         raise InputError(f"intrinsics {intr_path} do not exist")
     if intr_path.is_file():
         intr = DF.read_srn_intrinsics(intr_path)
@@ -194,10 +323,15 @@ def prepare(req: RenderRequest) -> Prepared:
                 raise InputError(f"intrinsics {intr_path} are {intr.width}x{intr.height}; the mask is square")
             intr = intr.scaled(size / intr.width)
     else:
-        if not 1.0 <= req.fov <= 170.0:
+        if not 1.0 <= fov <= 170.0:
             raise InputError("--fov must be in [1, 170] degrees")
-        intr = cameras.intrinsics_from_fov(math.radians(req.fov), size, size)
-    return Prepared(model_file, meta, labels, names, mask, edits, c2w, intr)
+        intr = cameras.intrinsics_from_fov(math.radians(fov), size, size)
+    return c2w, intr
+
+
+def mix_styles(a, b, t: float):
+    """The linear blend ``(1 - t) a + t b`` of two style codes (the blend sequence and ``--mix``)."""
+    return (1 - t) * a + t * b
 
 
 def render_from_mask(req: RenderRequest):
@@ -211,38 +345,44 @@ def render_from_mask(req: RenderRequest):
 
     if req.threads:
         torch.set_num_threads(req.threads)
-    model, cfg, meta = load_sem2nerf(p.model_file, req.device)
+    from ...synthesis.views import resolve_device
+
+    device = str(resolve_device(req.device))
+    model, cfg, meta = load_sem2nerf(p.info.model_file, device)
     out = Path(req.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         labels_t = torch.as_tensor(cfg.labels)
         with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(req.device), p.c2w[None])
+            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(device), p.c2w[None])
             style = model.style_from_seed(req.style_seed) if req.style_seed is not None else model.default_style()
-        poses = orbit_poses(p.c2w, req.views)
-        total = len(poses) + (req.blend_steps if req.blend is not None else 0)
+            if req.mix_seed is not None and req.mix > 0:
+                style = mix_styles(style, model.style_from_seed(req.mix_seed), req.mix)
+        n = len(p.views)
+        total = n + (req.blend_steps if req.blend is not None else 0)
         DF.write_png(tmp / "mask_input.png", p.mask)
-        for k, c2w in enumerate(poses):
-            img = model.render_image(p.intr, c2w, code, style)
+        for k, (intr, c2w) in enumerate(p.views):
+            img = model.render_image(intr, c2w, code, style)
             rgba = torch.cat([img["rgb"], img["acc"][..., None]], -1).clamp(0, 1).cpu().numpy()
             ids = labels_t[img["semantic"].argmax(-1).cpu()].numpy().astype(np.uint8)
             DF.write_png(tmp / "rgb" / f"{k:06d}.png", DF.to_uint8(rgba))
             DF.write_png(tmp / "semantic" / f"{k:06d}.png", ids)
             DF.write_png(tmp / "semantic_color" / f"{k:06d}.png", colorize(ids))
             DF.write_srn_pose(tmp / "pose" / f"{k:06d}.txt", c2w)
-            yield Progress(k + 1, total, f"view {k + 1}/{len(poses)}")
+            yield Progress(k + 1, total, f"view {k + 1}/{n}")
         if req.blend is not None:
             with torch.no_grad():
                 s1 = model.style_from_seed(req.blend)
             for j, a in enumerate(np.linspace(0.0, 1.0, req.blend_steps)):
-                img = model.render_image(p.intr, p.c2w, code, (1 - a) * style + a * s1)
+                img = model.render_image(p.intr, p.c2w, code, mix_styles(style, s1, float(a)))
                 DF.write_png(tmp / "blend" / f"{j:06d}.png", DF.to_uint8(img["rgb"].clamp(0, 1).cpu().numpy()))
-                yield Progress(len(poses) + j + 1, total, f"blend {j + 1}/{req.blend_steps}")
-        summary = {"checkpoint": str(p.model_file), "mask": str(req.mask), "pose": str(req.pose),
-                   "views": req.views, "image_size": cfg.image_size, "labels": list(cfg.labels),
+                yield Progress(n + j + 1, total, f"blend {j + 1}/{req.blend_steps}")
+        summary = {"checkpoint": str(p.info.model_file), "mask": str(req.mask), "pose": str(req.pose),
+                   "views": n, "targets": str(req.targets), "image_size": cfg.image_size, "labels": list(cfg.labels),
                    "label_names": list(cfg.label_names), "edits": [list(e) for e in p.edits],
                    "style": "mean" if req.style_seed is None else f"seed {req.style_seed}",
+                   "mix_seed": req.mix_seed, "mix": req.mix if req.mix_seed is not None else 0.0,
                    "blend_to_seed": req.blend, "blend_steps": req.blend_steps if req.blend is not None else 0,
                    "intrinsics": {"fx": p.intr.fx, "fy": p.intr.fy, "cx": p.intr.cx, "cy": p.intr.cy}}
         (tmp / "sem2nerf.json").write_text(json.dumps(summary, indent=2) + "\n")
