@@ -25,6 +25,11 @@ from .projection import RefCameras
 from .rays import RayBundle, make_rays, normalization, normalize_pose
 
 
+RAY_BLOCK = 1 << 16
+"""Pixels whose rays are made at once in :meth:`RayModel.image_chunks` (with ``chunk_rays`` rays per forward
+pass, this bounds a view's memory whatever its size; only the output images grow with it)."""
+
+
 @dataclass
 class NormalizedScene:
     """A scene moved into the model's frame: box centred, longest half-side 1."""
@@ -153,33 +158,44 @@ class RayModel(nn.Module):
         inside the box (``models/hull.py``)."""
         from .hull import clip_rays, footprint
 
-        rays = make_rays(intr, c2w_norm, box=box)
-        n = len(rays)
-        box_rays = int(rays.hit.sum())
-        box_far = rays.far
-        if hull is not None and skip != "off":
-            rays = clip_rays(rays, hull, skip, keep=footprint(hull, intr, c2w_norm))
+        H, W = int(intr.height), int(intr.width)
+        n = H * W
         bg = 1.0 if self.white_background else 0.0
         color = torch.full((n, 3), bg)
         depth = torch.zeros(n)
         acc = torch.zeros(n)
-        idx = torch.nonzero(rays.hit).flatten()
         chunk = int(chunk or self.chunk_rays)
-        yield n - idx.numel()
+        keep = footprint(hull, intr, c2w_norm) if hull is not None and skip != "off" else None
         dev = self.device
-        for s in range(0, idx.numel(), chunk):
-            sel = idx[s:s + chunk]
-            sub = rays_to(rays.select(sel), dev)
-            o = self.render_rays(ctx, sub)
-            a = o["acc"].float()
-            color[sel] = o["color"].float().cpu()
-            acc[sel] = a.cpu()
-            depth[sel] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
-            yield sel.numel()
-        span = float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).mean()) if idx.numel() else 0.0
-        H, W = intr.height, intr.width
+        box_rays = evaluated = 0
+        span = 0.0
+        rows = max(1, RAY_BLOCK // W)  # rays are made a block of rows at a time: memory does not grow with the view
+        for r0 in range(0, H, rows):
+            r1 = min(H, r0 + rows)
+            vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
+            rays = make_rays(intr, c2w_norm, np.stack([uu, vv], -1).reshape(-1, 2), box=box)
+            base = r0 * W
+            box_rays += int(rays.hit.sum())
+            box_far = rays.far
+            if keep is not None:
+                rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)])
+            idx = torch.nonzero(rays.hit).flatten()
+            yield len(rays) - idx.numel()
+            for s in range(0, idx.numel(), chunk):
+                sel = idx[s:s + chunk]
+                sub = rays_to(rays.select(sel), dev)
+                o = self.render_rays(ctx, sub)
+                a = o["acc"].float()
+                out = sel + base
+                color[out] = o["color"].float().cpu()
+                acc[out] = a.cpu()
+                depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
+                yield sel.numel()
+            evaluated += int(idx.numel())
+            span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
+        span = span / evaluated if evaluated else 0.0
         return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
-                "rays": n, "box_rays": box_rays, "evaluated": int(idx.numel()), "span": span}
+                "rays": n, "box_rays": box_rays, "evaluated": evaluated, "span": span}
 
     @staticmethod
     def hull(ctx, ref_masks: np.ndarray, box: float):
