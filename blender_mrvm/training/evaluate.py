@@ -61,6 +61,25 @@ def protocol_views(root: Path, n_inputs: int, fmt: str | None = None) -> tuple[l
                      f"pass --input-views (e.g. 0 or 0,1)")
 
 
+def protocol_target_inputs(root: Path, n_inputs: int) -> dict[int, list[int]] | None:
+    """Per-target input views of the dataset's protocol (``target_inputs_<n>`` in ``eval_views.json``:
+    {target view id: [input view ids]}, as ``make-captures`` writes: each held-out view of a camera path
+    is synthesized from its neighbours on the path), or None when the protocol has one input set for all."""
+    path = Path(root) / "splits" / PROTOCOL_FILE
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text()).get(f"target_inputs_{n_inputs}")
+    except (json.JSONDecodeError, AttributeError) as e:
+        raise InputError(f"{path}: not a protocol file ({e})") from e
+    if rec is None:
+        return None
+    try:
+        return {int(t): [int(v) for v in refs] for t, refs in rec.items()}
+    except (AttributeError, TypeError, ValueError):
+        raise InputError(f"{path}: target_inputs_{n_inputs} must map target view ids to lists of view ids") from None
+
+
 def per_category(items: Sequence, category, k: int) -> list:
     """The first ``k`` items of every category, order kept (``k`` <= 0 keeps all)."""
     if k <= 0:
@@ -76,9 +95,12 @@ def per_category(items: Sequence, category, k: int) -> list:
 
 
 def _nearest_ref(scene: ObjectScene, refs: Sequence[int], tgt: int) -> int:
-    c = 0.5 * (scene.bbox[0] + scene.bbox[1])
-    d = lambda i: (scene.c2w[i][:3, 3] - c) / np.linalg.norm(scene.c2w[i][:3, 3] - c)  # noqa: E731
-    return max(refs, key=lambda r: float(d(r) @ d(tgt)))
+    """The reference nearest the target by the rule synthesis picks references with (angle between the
+    directions from the box centre, plus the log-ratio of the distances: any pose, any distance)."""
+    from ..synthesis import nearest_views
+
+    c = 0.5 * (np.asarray(scene.bbox[0], np.float64) + np.asarray(scene.bbox[1], np.float64))
+    return refs[nearest_views([scene.c2w[r] for r in refs], scene.c2w[tgt], c, 1)[0]]
 
 
 def _scores(pred: torch.Tensor, gt: torch.Tensor, lpips) -> dict[str, float]:
@@ -102,20 +124,34 @@ def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float]:
 def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips=None, max_targets: int = 0,
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
-             ref_size: int = 0, max_ref_size: int = 0):
+             ref_size: int = 0, max_ref_size: int = 0, target_inputs: dict[int, Sequence[int]] | None = None):
     """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
 
     ``ref_size`` / ``max_ref_size``: the model sees the references resized as synthesis does
     (``synthesize.reference_shape``); baselines and ground truth stay at the dataset's size.
 
     ``target_views``: view ids to score (None = every view that is not an input); ``extra``: entries
-    added to the report (e.g. the checkpoint and the protocol's source)."""
+    added to the report (e.g. the checkpoint and the protocol's source); ``target_inputs``: {target view
+    id: input view ids} when each target has its own references (then ``target_views`` defaults to its
+    keys and ``input_views`` is not used)."""
     model.eval()
     records: list[dict[str, Any]] = []
     grid_rows = []
     jobs = []
     for s in scenes:
         pos = {vid: k for k, vid in enumerate(s.view_ids)}
+        if target_inputs is not None:
+            wanted = sorted(target_inputs) if target_views is None else list(target_views)
+            absent = [v for v in wanted if v not in pos or v not in target_inputs
+                      or any(r not in pos for r in target_inputs[v])]
+            if absent:
+                raise InputError(f"object {s.category}/{s.name} lacks target view(s) {absent[:5]} or their inputs")
+            per = [(tuple(pos[r] for r in target_inputs[v]), pos[v]) for v in wanted]
+            if max_targets and len(per) > max_targets:
+                per = [per[i] for i in np.linspace(0, len(per) - 1, max_targets).round().astype(int)]
+            for refs_t, t in per:
+                jobs.append((s, list(refs_t), [t]))
+            continue
         missing = [v for v in input_views if v not in pos]
         if missing:
             raise InputError(f"object {s.category}/{s.name} has no view(s) {missing} to use as input")
@@ -133,8 +169,10 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     total = sum(len(t) for _, _, t in jobs)
     # grid: the first object of every category, then further objects, up to grid_objects rows
     firsts = {}
+    seen_objects = set()
     for oi, (s, _, _) in enumerate(jobs):
         firsts.setdefault(s.category, oi)
+        seen_objects.add(id(s))
     grid_set = set((list(firsts.values()) + [i for i in range(len(jobs)) if i not in firsts.values()])[:grid_objects])
     done = 0
     sizes: set = set()
@@ -162,9 +200,9 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             done += 1
             yield Progress(done, total, f"{s.category}/{s.name} view {s.view_ids[t]}: {rec['psnr']:.2f} dB")
     report = summarize(records)
-    report["protocol"] = {"input_views": list(input_views),
+    report["protocol"] = {"input_views": list(input_views) if target_inputs is None else "per target",
                           "target_views": list(target_views) if target_views is not None else "all others",
-                          "max_targets": max_targets, "objects": len(jobs),
+                          "max_targets": max_targets, "objects": len(seen_objects),
                           "reference_sizes": sorted([list(x) for x in sizes]),
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None}
     report.update(extra or {})
