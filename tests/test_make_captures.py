@@ -218,3 +218,27 @@ def test_eval_scores_each_held_out_view_from_its_neighbours(tiny):
     assert model.calls == [[tuple(np.round(s.c2w[i][:3, 3], 6)) for i in (1, 3)]]
     assert report["overall"]["n"] == 1 and report["protocol"]["input_views"] == "per target"
     assert report["overall"]["baseline_nearest"]["psnr"] is not None
+
+
+def test_training_on_captures_draws_the_targets_nearest_views_as_references(tiny):
+    from blender_mrvm.datasets.loaders import load_dataset
+    from blender_mrvm.models.base import normalized_scene
+    from blender_mrvm.synthesis import nearest_views
+    from blender_mrvm.training.config import TrainConfig
+    from blender_mrvm.training.trainer import RayBatcher
+
+    scenes = load_dataset(tiny, "train")
+    b = RayBatcher(scenes, TrainConfig(min_ref_views=2, max_ref_views=2, rays_per_object=8), 0.05, seed=0)
+    s = scenes[0]
+    sc = normalized_scene(s.bbox[0], s.bbox[1], 0.05)
+    centres = np.stack([sc.pose(p)[:3, 3] for p in s.c2w])
+    centre = 0.5 * (s.bbox[0] + s.bbox[1])
+    for _ in range(10):
+        d = b.draw(False)
+        # cameras are inside the room's box: every ray starts at the target camera's centre
+        tgt = int(np.argmin(np.linalg.norm(centres - d["rays"].origins[0].numpy(), axis=1)))
+        assert np.allclose(d["rays"].origins.numpy(), centres[tgt], atol=1e-9)
+        refs = sorted(int(np.argmin(np.linalg.norm(centres - np.linalg.inv(w)[:3, 3], axis=1)))
+                      for w in d["cams"].w2c.numpy())
+        others = [v for v in range(len(s)) if v != tgt]
+        assert refs == sorted(others[i] for i in nearest_views([s.c2w[v] for v in others], s.c2w[tgt], centre, 2))
