@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from blender_mrvm.cli import main
-from blender_mrvm.errors import InputError
 from blender_mrvm.geometry import paths as P
 
 

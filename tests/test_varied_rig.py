@@ -4,7 +4,6 @@ turntable default unchanged (issue 11, item 4)."""
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 import numpy as np

@@ -36,23 +36,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")
 
 
-def config_from_args(args):
-    """The validated config (bpy-free: bad arguments fail before Blender loads)."""
+def config_fields(args) -> dict:
+    """The config's fields, parsed (bpy-free: malformed arguments fail before Blender loads)."""
     from pathlib import Path
 
     from ..geometry.rigs import parse_range
     from .render_dataset import parse_resolution, parse_shard
 
-    fields = {"out": Path(args.out), "scenes": args.scenes, "views": args.views,
-              "resolution": parse_resolution(args.resolution), "engine": args.engine, "samples": args.samples,
-              "seed": args.seed, "holdout_every": args.holdout_every,
-              "fov_range_deg": parse_range(args.fov_range, "--fov-range", 0.0, 179.0),
-              "shard": parse_shard(args.shard), "force": args.force}
-    return fields
+    return {"out": Path(args.out), "scenes": args.scenes, "views": args.views,
+            "resolution": parse_resolution(args.resolution), "engine": args.engine, "samples": args.samples,
+            "seed": args.seed, "holdout_every": args.holdout_every,
+            "fov_range_deg": parse_range(args.fov_range, "--fov-range", 0.0, 179.0),
+            "shard": parse_shard(args.shard), "force": args.force}
 
 
 def run(args) -> int:
-    fields = config_from_args(args)
+    fields = config_fields(args)
     from ..progress import run_with_tqdm
     from ..scene.capture_scenes import CaptureConfig, render_captures
 

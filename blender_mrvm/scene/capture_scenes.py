@@ -76,8 +76,6 @@ class CaptureConfig:
     """(i, n): render only scenes whose index modulo n is i."""
     force: bool = False
     """Write into a folder that holds another dataset or other files."""
-    rgba: bool = False
-    """Kept False: captures have no transparent background (the attribute ``write_view`` reads)."""
 
     def validate(self) -> None:
         w, h = self.resolution
