@@ -217,6 +217,10 @@ def test_eval_scores_each_held_out_view_from_its_neighbours(tiny):
     assert model.calls == [[tuple(np.round(s.c2w[i][:3, 3], 6)) for i in (1, 3)]]
     assert report["overall"]["n"] == 1 and report["protocol"]["input_views"] == "per target"
     assert report["overall"]["baseline_nearest"]["psnr"] is not None
+    blend = np.mean([s.images[1], s.images[3]], 0)  # the two neighbours' pixel-wise mean, as the stub answers
+    assert report["overall"]["baseline_blend"]["psnr"] == pytest.approx(report["overall"]["psnr"], abs=1e-4)
+    assert report["overall"]["baseline_blend"]["psnr"] == pytest.approx(
+        -10 * np.log10(((blend - s.images[2]) ** 2).mean()), abs=1e-3)
 
 
 def test_training_on_captures_draws_the_targets_nearest_views_as_references(tiny):
