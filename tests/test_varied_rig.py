@@ -128,3 +128,43 @@ def test_sphere_rig_renders_poses_and_intrinsics_that_reproject(bpy_empty, tmp_p
         assert iou > 0.85 and np.linalg.norm(c_rgb - c_mask) < 0.5, (i, iou, c_rgb - c_mask)
     errs = np.concatenate([depth_consistency(ov, a, b) for a in range(6) for b in range(6) if a != b])
     assert errs.size > 100 and np.median(errs) < 1e-3
+
+
+def test_nearest_view_baseline_weighs_direction_and_distance():
+    """eval's nearest-view baseline on arbitrary poses: the synthesis rule (angle + log distance ratio),
+    not direction alone; on a turntable (equal distances) it is the plain nearest direction as before."""
+    from blender_mrvm.datasets.loaders import ObjectScene
+    from blender_mrvm.geometry.cameras import look_at_opencv, intrinsics_from_fov
+    from blender_mrvm.training.evaluate import _nearest_ref
+
+    def at(az_deg, dist, el_deg=20.0):
+        a, e = math.radians(az_deg), math.radians(el_deg)
+        return look_at_opencv(dist * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)]))
+
+    intr = intrinsics_from_fov(math.radians(40), 8, 8)
+    poses = [at(0, 1.5), at(3, 6.0), at(12, 1.6), at(180, 1.5)]  # target 0
+    s = ObjectScene("o", "c", np.zeros((4, 8, 8, 3), np.float32), np.stack(poses), [intr] * 4,
+                    (np.full(3, -0.5), np.full(3, 0.5)), [0, 1, 2, 3])
+    assert _nearest_ref(s, [1, 2, 3], 0) == 2  # 12 degrees away at the same distance beats 3 degrees at 4x the distance
+    tt = [at(az, 1.5) for az in (0, 15, 40, 180)]
+    s2 = ObjectScene("o", "c", np.zeros((4, 8, 8, 3), np.float32), np.stack(tt), [intr] * 4,
+                     (np.full(3, -0.5), np.full(3, 0.5)), [0, 1, 2, 3])
+    assert _nearest_ref(s2, [2, 1, 3], 0) == 1
+
+
+def test_render_dataset_takes_the_varied_rig_too(tmp_path, capsys):
+    from blender_mrvm.commands.render_dataset import add_arguments, config_from_args
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    cfg = config_from_args(p.parse_args(["--source", "procedural:car:0", "--out", str(tmp_path / "a"),
+                                         "--rig", "hemisphere", "--fov-range", "35,45"]))
+    assert cfg.fov_range_deg == (35.0, 45.0) and cfg.distance_range == rigs.DISTANCE_RANGE
+    cfg.validate()
+    assert config_from_args(p.parse_args(["--source", "x", "--out", "y"])).fov_range_deg is None
+    from blender_mrvm.cli import main
+
+    out = tmp_path / "b"
+    assert main(["render-dataset", "--source", "procedural:car:0", "--rig", "turntable", "--fov-range", "30,40",
+                 "--out", str(out)]) == 2
+    assert "sphere or hemisphere" in capsys.readouterr().err and not out.exists()
