@@ -138,10 +138,10 @@ class RenderConfig:
     def settings(self) -> dict:
         """What makes two renders of the same object the same dataset (resume / overwrite checks)."""
         d = {"rig": self.rig, "views": self.views if self.rig != "scene" else None,
-                "resolution": list(self.resolution), "engine": self.engine, "samples": self.samples,
-                "rgba": self.rgba, "fov_deg": self.fov_deg,
-                "elevation_deg": self.elevation_deg if self.rig == "turntable" else None,
-                "seed": self.seed}
+             "resolution": list(self.resolution), "engine": self.engine, "samples": self.samples,
+             "rgba": self.rgba, "fov_deg": self.fov_deg,
+             "elevation_deg": self.elevation_deg if self.rig == "turntable" else None,
+             "seed": self.seed}
         if self.fov_range_deg is not None:  # only then: settings of earlier datasets stay byte-identical
             d.update({"fov_range_deg": list(self.fov_range_deg), "distance_range": list(self.distance_range),
                       "camera_seed": "per object"})
