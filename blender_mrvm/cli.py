@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "recover-poses": ("recover_poses", "recover camera poses of photos (pycolmap) into a capture folder"),
     "preview-library": ("preview_library", "render a contact sheet PNG of the procedural object library"),
     "make-shapenet": ("make_shapenet", "render a ShapeNet-13-style set from the procedural library with the papers' splits"),
+    "make-captures": ("make_captures", "render capture-like scenes: library objects in textured rooms along hand-held camera paths"),
     "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
     "fetch-weights": ("fetch_weights", "set-up: convert the offline LPIPS/VGG16 weights into the local cache"),
     "train": ("train", "train the generalizable NeRF with MRVM (torchrun for several processes)"),

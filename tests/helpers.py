@@ -36,8 +36,9 @@ def depth_consistency(ov, a: int, b: int, occlusion: float = 0.02) -> np.ndarray
     from blender_mrvm.geometry import cameras as C
 
     da, db = ov.depth(a), ov.depth(b)
-    pts = C.unproject_depth(ov.intrinsics, ov.c2w_opencv[a], da)[da > 0]
-    uv, z = C.project(ov.intrinsics.K, C.invert_pose(ov.c2w_opencv[b]), pts)
+    per_view = getattr(ov, "intrinsics_per_view", None) or [ov.intrinsics] * len(ov.indices)
+    pts = C.unproject_depth(per_view[a], ov.c2w_opencv[a], da)[da > 0]  # each view with its own intrinsics
+    uv, z = C.project(per_view[b].K, C.invert_pose(ov.c2w_opencv[b]), pts)
     x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5  # pixel-centre convention -> array coordinates
     h, w = db.shape
     ok = (x >= 0) & (x < w - 1) & (y >= 0) & (y < h - 1) & (z > 0)

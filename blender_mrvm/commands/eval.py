@@ -1,8 +1,9 @@
 """Evaluate a checkpoint with the SRN protocol: fixed input view ids, every other view scored.
 
 The input views default to the dataset's own protocol (``splits/eval_views.json`` from
-``make-shapenet``: ``--n-inputs 1`` or ``2``), or pixelNeRF's ids for SRN folders; ``--input-views``
-overrides them. The checkpoint defaults to the shipped model. Writes <out>/eval.json (PSNR, SSIM,
+``make-shapenet``: ``--n-inputs 1`` or ``2``; ``make-captures`` names each held-out view's own inputs,
+its neighbours on the camera path), or pixelNeRF's ids for SRN folders; ``--input-views`` overrides
+them. The checkpoint defaults to the shipped model. Writes <out>/eval.json (PSNR, SSIM,
 LPIPS-VGG per category and overall, with the nearest-reference and mean-colour baselines and the
 margin over the better one), <out>/eval.md and <out>/eval_grid.png; --compare-to adds paired differences
 against another checkpoint's eval.json (<out>/compare.json). LPIPS needs the offline weights
@@ -84,7 +85,7 @@ def run(args) -> int:
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
-    from ..training.evaluate import compare_reports, evaluate, per_category, protocol_views
+    from ..training.evaluate import compare_reports, evaluate, per_category, protocol_target_inputs, protocol_views
 
     check_args(args)
     if args.threads:
@@ -102,11 +103,12 @@ def run(args) -> int:
             raise InputError(f"--input-views must be comma-separated integers, got {args.input_views!r}") from e
         if not views:
             raise InputError("--input-views is empty")
-        targets, source = None, "--input-views"
+        targets, source, per_target = None, "--input-views", None
     else:
         if args.n_inputs < 1:
             raise InputError(f"--n-inputs must be at least 1, got {args.n_inputs}")
         views, targets, source = protocol_views(args.data, args.n_inputs, fmt)
+        per_target = protocol_target_inputs(args.data, args.n_inputs)  # captures: each target's own neighbours
     from ..models.pretrained import resolve_checkpoint
 
     args.checkpoint = resolve_checkpoint(args.checkpoint)
@@ -131,7 +133,7 @@ def run(args) -> int:
                       "max_objects_per_category": args.max_objects_per_category}}
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
                                     extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
-                                    skip=args.skip_empty),
+                                    skip=args.skip_empty, target_inputs=per_target),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

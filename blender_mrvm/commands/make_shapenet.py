@@ -5,7 +5,12 @@ Settings (as in pixelNeRF / NeRFormer evaluations on ShapeNet-NMR):
 - ``all``: category-agnostic; every category is split into train/val/test objects.
 - ``unseen``: train (and val) on airplane, car, chair; test on the other 10 categories.
 
-Views follow the NMR layout (a turntable at 30 degrees elevation, 24 views by default). The
+Views follow the NMR layout by default (a turntable at 30 degrees elevation, 24 views), the papers'
+protocol. ``--rig sphere`` or ``--rig hemisphere`` renders the cameras users have instead: directions
+uniform on the sphere (or its upper half), a horizontal field of view drawn per view from
+``--fov-range`` and a distance per view from ``--distance-range`` (multiples of the distance at which
+the object's bounding sphere fills that view), seeded per object and recorded exactly in the per-view
+poses and intrinsics (``transforms.json`` frames, ``meta.json`` "cameras"). The
 evaluation protocol is fixed and written next to the split lists: ``splits/eval_views.json``
 names the input view ids for 1-view and 2-view tests and the remaining target views;
 ``splits/test_views.lst`` repeats it per test object (``category/object_id inputs1 | inputs2``).
@@ -19,6 +24,10 @@ from pathlib import Path
 
 UNSEEN_TRAIN = ("airplane", "car", "chair")
 SETTINGS = ("all", "unseen")
+RIGS = ("turntable", "sphere", "hemisphere")
+TURNTABLE_ELEVATION = 30.0
+FOV_DEFAULT = (30.0, 60.0)  # = geometry.rigs.FOV_RANGE_DEG (not imported: --help stays instant)
+DIST_DEFAULT = (0.85, 1.6)  # = geometry.rigs.DISTANCE_RANGE
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,16 +42,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--samples", type=int, default=8, help="samples per pixel")
     p.add_argument("--seed", type=int, default=0, help="first object seed (objects use seed .. seed+N-1)")
     p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")
+    p.add_argument("--rig", choices=RIGS, default="turntable",
+                   help="turntable (default: NMR layout, 30 degrees elevation), or sphere / hemisphere with a field "
+                        "of view and a distance drawn per view (seeded per object)")
+    p.add_argument("--fov-range", default=None, metavar="MIN,MAX",
+                   help="sphere/hemisphere rigs: horizontal field of view per view, degrees (default %g,%g)" % FOV_DEFAULT)
+    p.add_argument("--distance-range", default=None, metavar="MIN,MAX",
+                   help="sphere/hemisphere rigs: camera distance per view, as multiples of the distance at which the "
+                        "object's bounding sphere fills the view (default %g,%g)" % DIST_DEFAULT)
 
 
-def eval_views(views: int) -> dict:
-    """Fixed input view ids (1- and 2-view tests) and the targets (every other view)."""
+def eval_views(views: int, rig: str = "turntable") -> dict:
+    """Fixed input view ids (1- and 2-view tests) and the targets (every other view).
+
+    Turntable: a three-quarter front view and the opposite side. Sphere / hemisphere: views 0 and 1,
+    whose directions (like every view's) are independent and uniform, so the pair's angle varies per
+    object as a user's photos would."""
     from ..errors import InputError
 
     if views < 3:
         raise InputError(f"the evaluation protocol needs at least 3 views per object, got {views}")
-    first = round(views * 0.125) % views  # a three-quarter front view on the turntable
-    second = (first + views // 2) % views  # the opposite side
+    if rig == "turntable":
+        first = round(views * 0.125) % views  # a three-quarter front view on the turntable
+        second = (first + views // 2) % views  # the opposite side
+    else:
+        first, second = 0, 1
     return {"views": views, "input_views_1": [first], "input_views_2": [first, second],
             "target_views_1": [v for v in range(views) if v != first],
             "target_views_2": [v for v in range(views) if v not in (first, second)]}
@@ -83,11 +107,28 @@ def plan(setting: str, per_category: int, first_seed: int = 0) -> dict[str, list
     return out
 
 
-def run(args) -> int:
-    from ..datasets import format as F
+def camera_settings(args) -> dict:
+    """The RenderConfig fields of the camera rig (bpy-free): the turntable's, or the varied rig's ranges."""
     from ..errors import InputError
-    from ..progress import run_with_tqdm
-    from ..scene.render import RenderConfig, render_dataset
+    from ..geometry.rigs import parse_range
+
+    rig = getattr(args, "rig", "turntable")
+    fov, dist = getattr(args, "fov_range", None), getattr(args, "distance_range", None)
+    if rig not in RIGS:
+        raise InputError(f"unknown rig {rig!r}; choose one of {', '.join(RIGS)}")
+    if rig == "turntable":
+        if fov is not None or dist is not None:
+            raise InputError("--fov-range and --distance-range need --rig sphere or hemisphere")
+        return {"rig": "turntable", "elevation_deg": TURNTABLE_ELEVATION}
+    return {"rig": rig,
+            "fov_range_deg": parse_range(fov, "--fov-range", 0.0, 179.0) if fov is not None else FOV_DEFAULT,
+            "distance_range": parse_range(dist, "--distance-range", 0.0, 100.0) if dist is not None else DIST_DEFAULT}
+
+
+def render_configs(args) -> list[tuple[str, object]]:
+    """(split, RenderConfig) per non-empty split, in render order (validated; needs bpy for RenderConfig)."""
+    from ..errors import InputError
+    from ..scene.render import RenderConfig
     from .render_dataset import parse_shard
 
     if args.views < 1:
@@ -95,27 +136,50 @@ def run(args) -> int:
     if not 1 <= args.resolution <= 8192:
         raise InputError(f"--resolution must be between 1 and 8192, got {args.resolution}")
     shard = parse_shard(args.shard)
-    protocol = eval_views(args.views)
+    cams = camera_settings(args)
     groups = plan(args.setting, args.objects_per_category, args.seed)
-    out = Path(args.out)
-    total_views = 0
-    force = args.force
+    out, force, cfgs = Path(args.out), args.force, []
     for split, sources in groups.items():
         if not sources:
             continue
-        cfg = RenderConfig(out=out, sources=tuple(sources), rig="turntable", views=args.views,
+        cfg = RenderConfig(out=out, sources=tuple(sources), views=args.views,
                            resolution=(args.resolution, args.resolution), engine=args.engine, samples=args.samples,
-                           elevation_deg=30.0, seed=args.seed, shard=shard, force=force, split=split)
+                           seed=args.seed, shard=shard, force=force, split=split, **cams)
+        cfg.validate()
+        cfgs.append((split, cfg))
+        force = False  # the first group has claimed (or been allowed into) the folder
+    return cfgs
+
+
+def protocol_rig(cams: dict) -> dict:
+    """The rig as eval_views.json records it (the turntable's record is what it always was)."""
+    if cams["rig"] == "turntable":
+        return {"rig": "turntable", "elevation_deg": cams["elevation_deg"]}
+    return {"rig": cams["rig"], "fov_range_deg": list(cams["fov_range_deg"]),
+            "distance_range": list(cams["distance_range"]), "cameras": "per object, seeded (meta.json 'cameras')"}
+
+
+def run(args) -> int:
+    from ..datasets import format as F
+    from ..progress import run_with_tqdm
+    from ..scene.render import render_dataset
+
+    cams = camera_settings(args)
+    cfgs = render_configs(args)
+    protocol = eval_views(args.views, cams["rig"])
+    groups = plan(args.setting, args.objects_per_category, args.seed)
+    out = Path(args.out)
+    total_views = 0
+    for split, cfg in cfgs:
         summary = run_with_tqdm(render_dataset(cfg), desc=f"{args.setting}/{split}", unit="view")
         total_views += summary.views_rendered
-        force = False  # the first group has claimed (or been allowed into) the folder
     splits_dir = out / "splits"
     splits_dir.mkdir(parents=True, exist_ok=True)
     test_ids = F.read_split(out, "test") if (splits_dir / "test.lst").exists() else []
     record = dict(protocol, setting=args.setting,
                   train_categories=sorted({s.split(":")[1] for s in groups["train"]}),
                   test_categories=sorted({s.split(":")[1] for s in groups["test"]}),
-                  rig="turntable", elevation_deg=30.0)
+                  **protocol_rig(cams))
     F.atomic_write_json(splits_dir / "eval_views.json", record)
     lines = [f"{t} {' '.join(map(str, protocol['input_views_1']))} | {' '.join(map(str, protocol['input_views_2']))}"
              for t in test_ids]

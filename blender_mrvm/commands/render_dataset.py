@@ -49,6 +49,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rgba", action="store_true", help="write RGBA images instead of compositing on white")
     p.add_argument("--fov", type=float, default=40.0, help="horizontal field of view of generated cameras, degrees")
     p.add_argument("--elevation", type=float, default=20.0, help="turntable elevation, degrees")
+    p.add_argument("--fov-range", default=None, metavar="MIN,MAX",
+                   help="sphere/hemisphere rigs: draw each view's horizontal field of view from this range, degrees "
+                        "(with --distance-range; either alone takes the other's default: 30,60 and 0.85,1.6)")
+    p.add_argument("--distance-range", default=None, metavar="MIN,MAX",
+                   help="sphere/hemisphere rigs: camera distance per view, multiples of the distance at which the "
+                        "object's bounding sphere fills the view")
     p.add_argument("--seed", type=int, default=0, help="seed of random rigs and splits")
     p.add_argument("--category", default=None, help="category folder for mesh files / selected objects (default: custom)")
     p.add_argument("--split", default=None, choices=["train", "val", "test"], help="put every object into this split")
@@ -62,10 +68,18 @@ def config_from_args(args):
 
     from ..scene.render import RenderConfig
 
+    from ..geometry import rigs
+
+    fov_range = dist_range = None
+    if args.fov_range is not None or args.distance_range is not None:
+        fov_range = rigs.parse_range(args.fov_range, "--fov-range", 0.0, 179.0) if args.fov_range else rigs.FOV_RANGE_DEG
+        dist_range = (rigs.parse_range(args.distance_range, "--distance-range", 0.0, 100.0) if args.distance_range
+                      else rigs.DISTANCE_RANGE)
     return RenderConfig(out=Path(args.out), sources=tuple(args.source), rig=args.rig, views=args.views,
                         resolution=parse_resolution(args.resolution), engine=args.engine, samples=args.samples,
                         rgba=args.rgba, fov_deg=args.fov, elevation_deg=args.elevation, seed=args.seed,
-                        category=args.category, shard=parse_shard(args.shard), force=args.force, split=args.split)
+                        category=args.category, shard=parse_shard(args.shard), force=args.force, split=args.split,
+                        fov_range_deg=fov_range, distance_range=dist_range)
 
 
 def run(args) -> int:

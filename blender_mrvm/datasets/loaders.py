@@ -56,14 +56,22 @@ class ObjectScene:
     masks: np.ndarray | None = None
     """(N, H, W) bool object masks (True = object) when the source has them for every view (our
     renders' mask/ part ids > 0), else None."""
+    background: str = "white"
+    """What the views show behind the object: "white" (object sets: composited on white, ``bbox`` is the
+    object's box) or "scene" (capture-like renders, meta.json ``background``: a whole room, ``bbox`` is the
+    room's box, masks cover every surface, sky excepted)."""
 
     def __len__(self) -> int:
         return self.images.shape[0]
 
     def foreground_boxes(self, thresh: float = 0.99) -> np.ndarray:
-        """(N, 4) [x0, y0, x1, y1) pixel boxes of the non-white pixels (whole image when none)."""
+        """(N, 4) [x0, y0, x1, y1) pixel boxes of the non-white pixels (whole image when none, and
+        always for a scene background, whose bright walls are not empty space)."""
         out = np.zeros((len(self), 4), np.int64)
         for i, im in enumerate(self.images):
+            if self.background == "scene":
+                out[i] = (0, 0, im.shape[1], im.shape[0])
+                continue
             fg = (im < thresh).any(-1)
             ys, xs = np.nonzero(fg)
             h, w = fg.shape
@@ -125,7 +133,8 @@ def load_ours(obj_dir: Path) -> ObjectScene:
             raise InputError(f"{obj_dir}: masks are {masks.shape[2]}x{masks.shape[1]}, images {w}x{h}")
     return ObjectScene(str(meta.get("object_id", Path(obj_dir).name)), str(meta.get("category", Path(obj_dir).parent.name)),
                        images, np.stack(ov.c2w_opencv), intrs,
-                       (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices), masks)
+                       (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices), masks,
+                       "scene" if meta.get("background") == "scene" else "white")
 
 
 def list_ours(root: Path, split: str | None = None) -> list[Path]:

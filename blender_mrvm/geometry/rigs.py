@@ -72,6 +72,79 @@ def rig_poses(rig: str, n: int, radius: float, seed: int = 0, elevation_deg: flo
     return [look_at_opencv(p) for p in pos]
 
 
+def parse_range(text: str, name: str, lo: float, hi: float, inclusive_lo: bool = False) -> tuple[float, float]:
+    """``"a,b"`` (or a single number) -> (a, b) with ``lo < a <= b <= hi`` (``lo <= a`` when inclusive);
+    InputError naming ``name`` otherwise."""
+    try:
+        vals = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        raise InputError(f"{name} must be 'min,max' (two numbers), got {text!r}") from None
+    if len(vals) == 1:
+        vals = vals * 2
+    if len(vals) != 2 or not all(math.isfinite(v) for v in vals):
+        raise InputError(f"{name} must be 'min,max' (two finite numbers), got {text!r}")
+    a, b = vals
+    if a > b:
+        raise InputError(f"{name} min {a:g} exceeds its max {b:g}")
+    if (a < lo if inclusive_lo else a <= lo) or b > hi:
+        raise InputError(f"{name} must lie within {'[' if inclusive_lo else '('}{lo:g}, {hi:g}], got {text!r}")
+    return a, b
+
+
+VARIED_RIGS = ("sphere", "hemisphere")
+"""Rigs that :func:`varied_cameras` draws (per-view distance and field of view)."""
+FOV_RANGE_DEG = (30.0, 60.0)
+"""Default horizontal field of view range of :func:`varied_cameras`, degrees (phone main cameras: ~65)."""
+DISTANCE_RANGE = (0.85, 1.6)
+"""Default distance range of :func:`varied_cameras`, as multiples of the distance at which the object's
+bounding sphere just fills that view's narrower field of view (below 1 crops a little of the sphere,
+rarely of the object, which is smaller than its sphere)."""
+
+
+def varied_cameras(rig: str, n: int, bound_radius: float, width: int, height: int,
+                   fov_range_deg: tuple[float, float] = FOV_RANGE_DEG,
+                   distance_range: tuple[float, float] = DISTANCE_RANGE,
+                   seed: int = 0) -> tuple[list[np.ndarray], list, list[dict]]:
+    """``n`` cameras on ``rig`` (sphere or hemisphere) with a field of view and a distance drawn per view.
+
+    Directions are uniform on the sphere (or the upper half), seeded; each view's horizontal field of
+    view is uniform in ``fov_range_deg``; its distance from the origin is the framing distance of the
+    bounding sphere at that view's narrower field of view (:func:`framing_distance`) times a factor
+    uniform in ``distance_range``. Every camera looks at the origin (world z up). Returns (OpenCV
+    camera-to-world poses, :class:`Intrinsics` per view, one record per view: fov_x_deg, distance,
+    distance_factor), all exactly what the views are rendered with.
+    """
+    from .cameras import intrinsics_from_fov
+
+    if rig not in VARIED_RIGS:
+        raise InputError(f"varied cameras need the sphere or hemisphere rig, got {rig!r}")
+    if n <= 0:
+        raise InputError(f"number of views must be positive, got {n}")
+    if not bound_radius > 0:
+        raise InputError(f"object radius must be positive, got {bound_radius}")
+    f0, f1 = fov_range_deg
+    d0, d1 = distance_range
+    if not 0.0 < f0 <= f1 < 180.0:
+        raise InputError(f"field of view range must lie within (0, 180) degrees, got {f0:g}..{f1:g}")
+    if not 0.0 < d0 <= d1:
+        raise InputError(f"distance range must be positive multiples, got {d0:g}..{d1:g}")
+    rng = np.random.default_rng([int(seed), 7])
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    if rig == "hemisphere":
+        dirs[:, 2] = np.abs(dirs[:, 2])
+    fovs = rng.uniform(f0, f1, n)
+    factors = rng.uniform(d0, d1, n)
+    poses, intrs, records = [], [], []
+    for d, fov, k in zip(dirs, fovs, factors):
+        intr = intrinsics_from_fov(math.radians(float(fov)), width, height)
+        dist = framing_distance(bound_radius, min(intr.fov_x, intr.fov_y), margin=1.0) * float(k)
+        poses.append(look_at_opencv(d * dist))
+        intrs.append(intr)
+        records.append({"fov_x_deg": float(fov), "distance": float(dist), "distance_factor": float(k)})
+    return poses, intrs, records
+
+
 def framing_distance(bound_radius: float, fov_min: float, margin: float = 1.05) -> float:
     """Camera distance at which a sphere of ``bound_radius`` just fills the narrower field of view."""
     if not 0 < fov_min < math.pi:

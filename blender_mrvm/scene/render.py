@@ -91,6 +91,11 @@ class RenderConfig:
     """Put every object of this run into this split (train/val/test); None = seeded by the fractions."""
     split_fractions: tuple[float, float, float] = (0.8, 0.1, 0.1)
     """Train/val/test shares for the seeded assignment."""
+    fov_range_deg: tuple[float, float] | None = None
+    """Sphere / hemisphere rigs: draw each view's horizontal field of view from this range (degrees) and its
+    distance from ``distance_range``, seeded per object (``rigs.varied_cameras``); None = one ``fov_deg``."""
+    distance_range: tuple[float, float] | None = None
+    """With ``fov_range_deg``: camera distance as multiples of the framing distance at the view's field of view."""
 
     def validate(self) -> None:
         w, h = self.resolution
@@ -115,17 +120,32 @@ class RenderConfig:
             raise InputError(f"shard must be i/n with 0 <= i < n, got {i}/{n}")
         if self.split is not None and self.split not in F.SPLITS:
             raise InputError(f"split must be one of {', '.join(F.SPLITS)}, got {self.split!r}")
+        if (self.fov_range_deg is None) != (self.distance_range is None):
+            raise InputError("varied cameras need both a field of view range and a distance range")
+        if self.fov_range_deg is not None:
+            if self.rig not in rigs.VARIED_RIGS:
+                raise InputError(f"varied field of view and distance need the sphere or hemisphere rig, got {self.rig!r}")
+            f0, f1 = self.fov_range_deg
+            d0, d1 = self.distance_range
+            if not 0.0 < f0 <= f1 < 180.0:
+                raise InputError(f"field of view range must lie within (0, 180) degrees, got {f0:g},{f1:g}")
+            if not 0.0 < d0 <= d1 <= 100.0:
+                raise InputError(f"distance range must be positive multiples up to 100, got {d0:g},{d1:g}")
         fr = self.split_fractions
         if len(fr) != 3 or min(fr) < 0 or not math.isclose(sum(fr), 1.0, abs_tol=1e-6):
             raise InputError(f"split fractions must be three non-negative numbers summing to 1, got {fr}")
 
     def settings(self) -> dict:
         """What makes two renders of the same object the same dataset (resume / overwrite checks)."""
-        return {"rig": self.rig, "views": self.views if self.rig != "scene" else None,
-                "resolution": list(self.resolution), "engine": self.engine, "samples": self.samples,
-                "rgba": self.rgba, "fov_deg": self.fov_deg,
-                "elevation_deg": self.elevation_deg if self.rig == "turntable" else None,
-                "seed": self.seed}
+        d = {"rig": self.rig, "views": self.views if self.rig != "scene" else None,
+             "resolution": list(self.resolution), "engine": self.engine, "samples": self.samples,
+             "rgba": self.rgba, "fov_deg": self.fov_deg,
+             "elevation_deg": self.elevation_deg if self.rig == "turntable" else None,
+             "seed": self.seed}
+        if self.fov_range_deg is not None:  # only then: settings of earlier datasets stay byte-identical
+            d.update({"fov_range_deg": list(self.fov_range_deg), "distance_range": list(self.distance_range),
+                      "camera_seed": "per object"})
+        return d
 
 
 @dataclass
@@ -178,6 +198,11 @@ def prepare_output(cfg: RenderConfig) -> None:
                           "use --force to write into it or choose an empty folder")
     F.atomic_write_json(manifest, {"format": "blender_mrvm dataset", "format_version": F.FORMAT_VERSION,
                                    "generator": f"blender_mrvm {__version__}", "settings": settings})
+
+
+def object_camera_seed(cfg: RenderConfig, key: str) -> int:
+    """The seed of an object's varied cameras: the run's seed and the object's key (other objects, other views)."""
+    return int(hashlib.sha1(f"cameras:{cfg.seed}:{key}".encode()).hexdigest()[:8], 16)
 
 
 def assign_split(cfg: RenderConfig, key: str) -> str:
@@ -620,6 +645,10 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             intrs = [c[0] for c in scene_cams]
             poses = [_normalize_pose(c[1], norm) for c in scene_cams]
             cam_names = [c[2] for c in scene_cams]
+        elif cfg.fov_range_deg is not None:
+            poses, intrs, cam_records = rigs.varied_cameras(cfg.rig, cfg.views, radius, w, h, cfg.fov_range_deg,
+                                                            cfg.distance_range, seed=object_camera_seed(cfg, spec.key))
+            cam_names = []
         else:
             intr = C.intrinsics_from_fov(math.radians(cfg.fov_deg), w, h)
             fov_min = min(intr.fov_x, intr.fov_y)
@@ -659,6 +688,10 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         }
         if cam_names:
             meta["scene_cameras"] = cam_names
+        if cfg.fov_range_deg is not None:
+            meta["render"].update({"fov_range_deg": list(cfg.fov_range_deg), "distance_range": list(cfg.distance_range),
+                                   "camera_seed": object_camera_seed(cfg, spec.key)})
+            meta["cameras"] = cam_records  # per view: fov_x_deg, distance, distance_factor (exact: see transforms.json)
         F.atomic_write_json(meta_path, meta)
         for k in F.VIEW_DIRS:
             (obj_dir / k).mkdir(exist_ok=True)

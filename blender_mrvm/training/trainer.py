@@ -5,6 +5,7 @@ Per step and process: ``objects_per_step`` objects, each with a random 1..K refe
 target view; ``rays_per_object`` target pixels drawn inside the object's 2D box during the first
 ``bbox_sampling_frac`` of training (pixelNeRF) and over the whole image afterwards. Rays that miss
 the object's 3D box are background: they are scored (prediction = white) but never evaluated.
+On capture-like data (``background: scene``) the references are the target's k nearest views.
 
 Distributed: under ``torchrun`` (``WORLD_SIZE > 1``) each rank draws its own batch (seed + rank),
 parameters start identical (broadcast from rank 0) and gradients are averaged with one all-reduce
@@ -34,6 +35,7 @@ from ..models import registry
 from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
 from ..models.rays import make_rays
 from ..progress import Progress
+from ..synthesis import nearest_views
 from . import checkpoint as ckpt
 from .config import TrainConfig, run_config_dict
 
@@ -122,6 +124,13 @@ class RayBatcher:
         k = int(rng.integers(c.min_ref_views, min(c.max_ref_views, len(s) - 1) + 1))
         perm = rng.permutation(len(s))
         refs, tgt = perm[:k], int(perm[k])
+        if s.background == "scene":
+            # A capture: the target's nearest views are its references, as eval and synthesis give them
+            # (random views of a walk round a room rarely see what the target sees).
+            others = [int(v) for v in perm[k:] if v != tgt] + [int(v) for v in perm[:k]]
+            centre = 0.5 * (np.asarray(s.bbox[0], np.float64) + np.asarray(s.bbox[1], np.float64))
+            near = nearest_views([s.c2w[v] for v in others], s.c2w[tgt], centre, k)
+            refs = np.array([others[i] for i in near])
         ns = normalized_scene(s.bbox[0], s.bbox[1], self.padding)
         cams = ref_cameras([ns.pose(s.c2w[i]) for i in refs], [s.intrinsics[i] for i in refs])
         images = torch.from_numpy(np.ascontiguousarray(s.images[refs])).permute(0, 3, 1, 2).contiguous()

@@ -1,0 +1,247 @@
+"""make-captures (issue 10): library objects in textured rooms along hand-held camera paths, written in
+the dataset format with held-out in-between views and held-out scenes."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from blender_mrvm.cli import main
+from blender_mrvm.geometry import paths as P
+
+
+def _path(seed, n=24, **kw):
+    spec = P.draw_path(np.random.default_rng(seed), **kw)
+    return spec, np.stack(P.handheld_poses(spec, n, target=(0.0, 0.0, 0.3)))
+
+
+def _angle(a, b):
+    r = a[:3, :3].T @ b[:3, :3]
+    return math.degrees(math.acos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("n", [12, 24, 60])
+def test_paths_are_smooth_like_a_walk(seed, n):
+    spec, poses = _path(seed, n)
+    c = poses[:, :3, 3]
+    if spec.span_deg >= 360:  # a loop joins up: the step back to the first camera is an ordinary step
+        c = np.concatenate([c, c[:1]])
+        poses = np.concatenate([poses, poses[:1]])
+    step = np.linalg.norm(np.diff(c, axis=0), axis=1)
+    mean = step.mean()
+    arc = math.radians(spec.span_deg) * spec.distance / (len(c) - 1)
+    assert mean == pytest.approx(arc, rel=0.25)  # it walks round the object, not back and forth
+    assert step.max() < 2.2 * mean and step.min() > 0.35 * mean  # bounded step, never standing still
+    accel = np.linalg.norm(c[2:] - 2 * c[1:-1] + c[:-2], axis=1)
+    bend = mean * math.radians(spec.span_deg) / (len(c) - 1)  # what walking round a circle alone gives
+    if n >= 24:  # 12 views round a loop are 30 degrees apart: sparse, not jerky
+        assert accel.max() < bend + 0.3 * mean  # smooth: the step changes little from one camera to the next
+    turn = [_angle(a, b) for a, b in zip(poses[:-1], poses[1:])]
+    assert max(turn) < 1.6 * spec.span_deg / (len(c) - 1) + 3.0  # no sudden swings of the view direction
+    # hand-held: height, distance, roll and aim all drift, within their bounds
+    d = np.linalg.norm(c[:, :2], axis=1)
+    assert d.max() <= spec.distance * (1 + spec.distance_jitter) + 1e-9 and d.ptp() > 0.01 * spec.distance
+    assert c[:, 2].ptp() > 0.005 and np.all(np.abs(c[:, 2] - 0.3 - spec.height) <= spec.height_jitter + 1e-9)
+    for p in poses:  # the camera looks at the object, give or take the aim's wander
+        fwd, to = p[:3, 2], np.array([0, 0, 0.3]) - p[:3, 3]
+        assert math.degrees(math.acos(fwd @ to / np.linalg.norm(to))) < 6.0
+
+
+def test_paths_are_seeded():
+    a, pa = _path(5)
+    b, pb = _path(5)
+    _, pc = _path(6)
+    assert a == b and np.array_equal(pa, pb) and not np.allclose(pa, pc)
+    rolls = []
+    for s in range(20):
+        _, p = _path(s)
+        side = p[:, :3, 0]
+        rolls.append(np.degrees(np.arcsin(np.clip(side[:, 2], -1, 1))))  # right axis tilts with roll
+    r = np.abs(np.concatenate(rolls))
+    assert 0.3 < r.max() < 5.0  # a small roll, never a tilted horizon
+
+
+def test_held_out_views_and_their_neighbours():
+    from blender_mrvm.scene.capture_scenes import held_out_views, protocol, scene_splits
+
+    assert held_out_views(24, 4) == [2, 6, 10, 14, 18, 22]
+    rec = protocol(24, 4)
+    assert rec["target_inputs_1"]["2"] == [1] and rec["target_inputs_2"]["6"] == [5, 7]
+    assert rec["target_inputs_4"]["22"] == [20, 21, 23, 19][:0] + [19, 20, 21, 23]
+    for n in range(1, 7):
+        per = rec[f"target_inputs_{n}"]
+        assert all(len(v) == n and not set(v) & set(rec[f"target_views_{n}"]) for v in per.values())
+        assert set(rec[f"input_views_{n}"]) == {r for v in per.values() for r in v}
+    assert set(rec["train_views"]).isdisjoint(rec["target_views_2"]) and len(rec["train_views"]) == 18
+    assert scene_splits(1) == ["train"] and scene_splits(2) == ["train", "test"]
+    assert scene_splits(12) == ["train"] * 9 + ["val"] + ["test"] * 2
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--views", "3"], "--views must be between"),
+    (["--scenes", "0"], "--scenes must be between"),
+    (["--resolution", "4"], "resolution must be between"),
+    (["--resolution", "abc"], "resolution must be"),
+    (["--holdout-every", "1"], "--holdout-every"),
+    (["--fov-range", "70,50"], "exceeds its max"),
+    (["--fov-range", "5,50"], "field of view range"),
+    (["--engine", "FOO"], "unknown engine"),
+    (["--shard", "2/2"], "shard"),
+    (["--samples", "0"], "--samples"),
+    (["--seed", "-1"], "--seed"),
+])
+def test_bad_arguments_are_one_line_errors_with_nothing_written(tmp_path, capsys, argv, match):
+    out = tmp_path / "caps"
+    assert main(["make-captures", "--out", str(out), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and match in err[0], err
+    assert not out.exists()
+
+
+def test_refuses_a_folder_holding_other_files(tmp_path, capsys, bpy_empty):
+    out = tmp_path / "caps"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert main(["make-captures", "--out", str(out), "--scenes", "1", "--views", "4", "--resolution", "8"]) == 2
+    assert "not empty" in capsys.readouterr().err and sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """2 scenes x 6 views at 24 px, Cycles at 2 samples (a few seconds)."""
+    import bpy  # noqa: F401
+
+    out = tmp_path_factory.mktemp("caps") / "tiny"
+    assert main(["make-captures", "--scenes", "2", "--views", "6", "--resolution", "24", "--samples", "2",
+                 "--seed", "3", "--out", str(out)]) == 0
+    return out
+
+
+def test_tiny_capture_render_is_a_valid_dataset_with_a_scene_background(tiny):
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.datasets.loaders import load_dataset
+
+    assert F.read_split(tiny, "train") == ["captures/scene_000003"]
+    assert F.read_split(tiny, "test") == ["captures/scene_000004"]  # a held-out scene
+    (scene,) = load_dataset(tiny, "test")
+    assert len(scene) == 6 and scene.images.shape == (6, 24, 24, 3) and scene.background == "scene"
+    meta = json.loads((tiny / "captures" / "scene_000004" / "meta.json").read_text())
+    assert meta["complete"] and meta["background"] == "scene"
+    lo, hi = np.array(meta["bbox"])
+    olo, ohi = np.array(meta["object_bbox"])
+    assert np.allclose(scene.bbox[0], lo) and np.all(lo <= olo) and np.all(ohi < hi)  # models clip to the room
+    assert olo[2] == pytest.approx(0.0, abs=1e-9) == lo[2]  # the object stands on the floor
+    for c in scene.c2w:
+        assert np.all(lo < c[:3, 3]) and np.all(c[:3, 3] < hi)  # every camera inside the room
+    assert (scene.foreground_boxes() == [0, 0, 24, 24]).all()
+    # not on white: the room fills the frame; the masks label the object's parts and the room's surfaces
+    assert scene.images.mean() < 0.9 and (scene.images > 0.98).all(-1).mean() < 0.5
+    ids = {int(i) for i in np.unique(np.stack([F.read_png(p) for p in sorted((tiny / "captures" / "scene_000004" / "mask").glob("*.png"))]))}
+    assert {250, 251} <= ids and any(0 < i < 250 for i in ids) and {str(i) for i in ids} <= set(meta["labels"])
+    proto = json.loads((tiny / "splits" / "eval_views.json").read_text())
+    assert proto["target_views_2"] == [2] and proto["target_inputs_2"] == {"2": [1, 3]}
+
+
+def test_tiny_capture_poses_reproject_and_paths_are_smooth(tiny):
+    from blender_mrvm.datasets import format as F
+    from tests.helpers import depth_consistency
+
+    for sid in ("scene_000003", "scene_000004"):
+        ov = F.read_object(tiny / "captures" / sid)
+        tf = F.read_transforms(tiny / "captures" / sid / "transforms.json")
+        assert all(np.allclose(f.c2w_opencv, p, atol=1e-7) for f, p in zip(tf, ov.c2w_opencv))
+        # every surface has depth (room + object): neighbouring views must agree wherever both see it
+        errs = np.concatenate([depth_consistency(ov, a, a + 1) for a in range(5)] +
+                              [depth_consistency(ov, a + 1, a) for a in range(5)])
+        # (24 px: bilinear interpolation of planar depth across the floor costs ~2e-3 of relative error)
+        assert errs.size > 500 and np.median(errs) < 5e-3, np.median(errs)
+        shifted = F.ObjectViews(ov.path, ov.meta, ov.intrinsics, [p.copy() for p in ov.c2w_opencv], ov.indices,
+                                ov.intrinsics_per_view)
+        shifted.c2w_opencv[1][:3, 3] += 0.03 * np.linalg.norm(ov.c2w_opencv[1][:3, 3])  # a 3 % pose error
+        assert np.median(depth_consistency(shifted, 0, 1)) > 4 * np.median(errs)  # ... would show
+        c = np.stack([p[:3, 3] for p in ov.c2w_opencv])
+        step = np.linalg.norm(np.diff(c, axis=0), axis=1)
+        assert step.max() < 2.2 * step.mean()
+
+
+def test_capture_seeds_are_deterministic(tiny, tmp_path, bpy_empty):
+    """The same seed renders the same scene (cameras, room, lights, images); the next seed another one."""
+    from blender_mrvm.datasets import format as F
+
+    out = tmp_path / "again"
+    assert main(["make-captures", "--scenes", "1", "--views", "6", "--resolution", "24", "--samples", "2",
+                 "--seed", "4", "--out", str(out)]) == 0
+    a, b = tiny / "captures" / "scene_000004", out / "captures" / "scene_000004"
+    ma, mb = (json.loads((d / "meta.json").read_text()) for d in (a, b))
+    for k in ("path", "room", "lights", "subject", "bbox", "intrinsics"):
+        assert ma[k] == mb[k], k
+    for v in range(6):
+        assert (a / "pose" / f"{v:06d}.txt").read_text() == (b / "pose" / f"{v:06d}.txt").read_text()
+        assert np.array_equal(F.read_png(a / "rgb" / f"{v:06d}.png"), F.read_png(b / "rgb" / f"{v:06d}.png"))
+    m3 = json.loads((tiny / "captures" / "scene_000003" / "meta.json").read_text())
+    assert m3["path"] != ma["path"] and m3["subject"] != ma["subject"]
+
+
+def test_eval_scores_each_held_out_view_from_its_neighbours(tiny):
+    """eval's per-target protocol: the model gets the target's neighbours; the nearest-photo baseline is one of them."""
+    import torch
+
+    from blender_mrvm.datasets.loaders import load_dataset
+    from blender_mrvm.training.evaluate import evaluate, protocol_target_inputs, protocol_views
+
+    class Stub(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.calls = []
+
+        def synthesize(self, images, c2w, intr, bbox, tc2w, tintr, chunk=None, **_skipping):
+            self.calls.append([tuple(np.round(p[:3, 3], 6)) for p in c2w])
+            return {"color": torch.from_numpy(np.asarray(images).mean(0)), "acc": torch.ones(images.shape[1:3])}
+
+    scenes = load_dataset(tiny, "train")
+    inputs, targets, _ = protocol_views(tiny, 2)
+    per = protocol_target_inputs(tiny, 2)
+    assert per == {2: [1, 3]} and targets == [2] and inputs == [1, 3]
+    model = Stub()
+    gen = evaluate(model, scenes, inputs, target_views=targets, target_inputs=per)
+    try:
+        while True:
+            next(gen)
+    except StopIteration as stop:
+        report = stop.value
+    s = scenes[0]
+    assert model.calls == [[tuple(np.round(s.c2w[i][:3, 3], 6)) for i in (1, 3)]]
+    assert report["overall"]["n"] == 1 and report["protocol"]["input_views"] == "per target"
+    assert report["overall"]["baseline_nearest"]["psnr"] is not None
+    blend = np.mean([s.images[1], s.images[3]], 0)  # the two neighbours' pixel-wise mean, as the stub answers
+    assert report["overall"]["baseline_blend"]["psnr"] == pytest.approx(report["overall"]["psnr"], abs=1e-4)
+    assert report["overall"]["baseline_blend"]["psnr"] == pytest.approx(
+        -10 * np.log10(((blend - s.images[2]) ** 2).mean()), abs=1e-3)
+
+
+def test_training_on_captures_draws_the_targets_nearest_views_as_references(tiny):
+    from blender_mrvm.datasets.loaders import load_dataset
+    from blender_mrvm.models.base import normalized_scene
+    from blender_mrvm.synthesis import nearest_views
+    from blender_mrvm.training.config import TrainConfig
+    from blender_mrvm.training.trainer import RayBatcher
+
+    scenes = load_dataset(tiny, "train")
+    b = RayBatcher(scenes, TrainConfig(min_ref_views=2, max_ref_views=2, rays_per_object=8), 0.05, seed=0)
+    s = scenes[0]
+    sc = normalized_scene(s.bbox[0], s.bbox[1], 0.05)
+    centres = np.stack([sc.pose(p)[:3, 3] for p in s.c2w])
+    centre = 0.5 * (s.bbox[0] + s.bbox[1])
+    for _ in range(10):
+        d = b.draw(False)
+        # cameras are inside the room's box: every ray starts at the target camera's centre
+        tgt = int(np.argmin(np.linalg.norm(centres - d["rays"].origins[0].numpy(), axis=1)))
+        assert np.allclose(d["rays"].origins.numpy(), centres[tgt], atol=1e-9)
+        refs = sorted(int(np.argmin(np.linalg.norm(centres - np.linalg.inv(w)[:3, 3], axis=1)))
+                      for w in d["cams"].w2c.numpy())
+        others = [v for v in range(len(s)) if v != tgt]
+        assert refs == sorted(others[i] for i in nearest_views([s.c2w[v] for v in others], s.c2w[tgt], centre, 2))
