@@ -8,6 +8,10 @@ Usage (world units in, world units out)::
 Internally everything runs in the object's normalised frame (``rays.normalization``): the box is
 [-1, 1] on its longest side, rays start at the box entry, rays that miss are background and are not
 evaluated, and large renders are evaluated ``render.chunk_rays`` rays at a time (bounded memory).
+
+Two architectures of the branches (``nerformer.arch``): 'nerformer', the paper's per-view token streams
+(``models/nerformer_streams.py``, every preset), and 'legacy', one summary token per point along the ray
+(``models/nerformer.py``), which configs that predate the field read as (the shipped checkpoint).
 """
 
 from __future__ import annotations
