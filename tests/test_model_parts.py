@@ -23,13 +23,14 @@ TINY = {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model":
 
 
 def test_presets_are_named_valid_and_round_trip():
-    assert set(C.PRESETS) == {"fast", "balanced", "accurate"}
+    assert set(C.PRESETS) == {"fast", "balanced", "accurate", "paper"}
     for name, cfg in C.PRESETS.items():
         C.validate(cfg)
         assert cfg.name == name
         assert C.from_dict(C.ModelConfig, C.to_dict(cfg)) == cfg
-    sizes = [sum(p.numel() for p in GeneralizableNeRF(C.PRESETS[n]).parameters()) for n in ("fast", "balanced", "accurate")]
-    assert sizes[0] < sizes[1] < sizes[2]
+    sizes = [sum(p.numel() for p in GeneralizableNeRF(C.PRESETS[n], load_pretrained=False).parameters())
+             for n in ("fast", "balanced", "accurate", "paper")]
+    assert sizes[0] < sizes[1] < sizes[2] < sizes[3]
     assert C.model_config("balanced", {"mrvm": {"lambda_max": 0.2}}).mrvm.lambda_max == 0.2
     with pytest.raises(InputError, match="unknown"):
         C.model_config("balanced", {"mrvm": {"lambda": 0.2}})

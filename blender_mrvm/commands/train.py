@@ -1,8 +1,8 @@
-"""Train a model of any kind (NeRFormer+MRVM: pretraining then finetuning; GPNR) from a JSON run config.
+"""Train a model of any kind (NeRFormer+MRVM: an MRVM pretraining run, then a finetuning run; GPNR) from a JSON run config.
 
 Single process:  python -m blender_mrvm train --config run.json
 Data-parallel:   torchrun --nproc_per_node N -m blender_mrvm train --config run.json
-Fine-tune:       python -m blender_mrvm train --init shipped --data my_dataset --out runs/ft
+Fine-tune:       python -m blender_mrvm train --init runs/pretrain --data my_dataset --out runs/ft  (or --init shipped)
 Resumes from the run folder's newest complete checkpoint unless --no-resume (which refuses a run folder
 holding a run unless --force).
 """

@@ -1,4 +1,4 @@
-"""Typed, frozen model configs and the named presets ``fast`` / ``balanced`` / ``accurate``.
+"""Typed, frozen model configs and the named presets ``fast`` / ``balanced`` / ``accurate`` / ``paper``.
 
 Every field has a one-line docstring. Presets are whole named configs (:data:`PRESETS`), not
 defaults scattered through the code; :func:`model_config` builds one and applies overrides.
@@ -29,6 +29,8 @@ class EncoderConfig:
     """Channels of the fused per-point feature after concatenating the sampled scales."""
     pretrained: bool = False
     """For 'vgg16': initialise from the cached ImageNet weights (``fetch-weights``); ignored for 'resnet'."""
+    freeze_backbone: bool = False
+    """For 'vgg16': keep the backbone's weights fixed (only the 1x1 fusion layer trains); False fine-tunes it."""
 
 
 @dataclass(frozen=True)
@@ -49,20 +51,36 @@ class SamplerConfig:
     """Weight added to every bin before inverse-CDF sampling (all-zero weights give uniform samples)."""
 
 
+ARCHS = ("legacy", "nerformer")
+"""Implicit-function architectures: 'nerformer' = the paper's per-view token streams, 'legacy' = the first
+version (one summary token per point travels along the ray), kept so its checkpoints load unchanged."""
+
+
 @dataclass(frozen=True)
 class NeRFormerConfig:
     """NeRFormer-style implicit function: attention across views, then along the ray."""
 
+    arch: str = "legacy"
+    """'nerformer' (per-view token streams, ray and view attention alternating, pooled over views: the paper)
+    or 'legacy' (one summary token per point along the ray). Configs that predate the field are 'legacy'."""
     d_model: int = 32
     """Token width."""
     n_heads: int = 2
     """Attention heads (d_model must be divisible by it)."""
     n_layers: int = 1
-    """(view attention, ray attention) layer pairs per branch."""
+    """(view attention, ray attention) layer pairs per branch (the coarse branch's, when fine_layers is set)."""
+    fine_layers: int = 0
+    """Layer pairs of the fine branch ('nerformer' arch; 0 = n_layers). The paper: coarse 4, fine 5."""
+    pos_freqs: int = 6
+    """Harmonic frequencies of the point's position in the normalised box frame ('nerformer' arch)."""
+    color_head: str = "direct"
+    """'nerformer' arch colour: 'direct' (regressed from the pooled feature, the paper) or 'blend' (a softmax
+    blend of the visible reference colours and a predicted colour, IBRNet-style)."""
     ffn_mult: int = 2
     """Feed-forward hidden width as a multiple of d_model."""
     dir_freqs: int = 2
-    """Harmonic frequencies of the target/reference view-direction difference."""
+    """Harmonic frequencies of the target/reference view-direction difference ('legacy') or of the target
+    viewing direction ('nerformer')."""
     depth_freqs: int = 4
     """Harmonic frequencies of the normalised sample depth (ray-attention position code)."""
     share_coarse_fine: bool = False
@@ -78,13 +96,21 @@ class MRVMConfig:
     point_mask_ratio: float = 0.5
     """Share of the points of each ray whose features are masked."""
     view_mask_prob: float = 0.5
-    """Each view of a masked point is masked with this probability (at least one view always is)."""
+    """'prob' view masking: each view of a masked point is masked with this probability (at least one always is)."""
+    view_masking: str = "prob"
+    """How many views of a masked point are masked: 'count' = a uniform number 1..V of random views (the
+    official code), 'prob' = each with view_mask_prob."""
+    target: str = "rerun"
+    """MRVM target: 'coarse' = the coarse branch's features at its own samples, the loss at those positions
+    of the fine (masked) pass, which evaluates coarse + fine samples (the paper); 'rerun' = the coarse branch
+    re-run on the fine points, the loss at the masked points (the legacy arch's)."""
     lambda_max: float = 0.1
     """Final weight of the MRVM loss."""
-    warmup_frac: float = 0.1
-    """Share of pretraining iterations with the MRVM loss off."""
-    ramp_end_frac: float = 1.0
-    """Share of pretraining iterations at which the weight reaches lambda_max (linear ramp from warmup)."""
+    warmup_frac: float = 0.05
+    """Share of pretraining iterations with the MRVM loss off (official: 20k of 400k steps)."""
+    ramp_end_frac: float = 0.0625
+    """Share of pretraining iterations at which the weight reaches lambda_max (linear ramp from warmup_frac;
+    official: 25k of 400k), kept there to the end of pretraining."""
     ema_momentum: float = 0.99
     """Momentum of the target projector (EMA of the online projector)."""
     proj_dim: int = 32
@@ -125,26 +151,40 @@ class ModelConfig:
     """Largest number of reference views the model is used with."""
 
 
+_PAPER_MRVM = dict(view_masking="count", target="coarse")
+"""MRVM as published (the masking, the target and its positions; the schedule is MRVMConfig's default)."""
+
 PRESETS: dict[str, ModelConfig] = {
     "fast": ModelConfig(
         name="fast",
         encoder=EncoderConfig(widths=(16, 32, 48), out_dim=32),
-        sampler=SamplerConfig(n_coarse=8, n_fine=8, fine_includes_coarse=False),
-        nerformer=NeRFormerConfig(d_model=24, n_heads=2, n_layers=1),
-        mrvm=MRVMConfig(proj_dim=24),
+        sampler=SamplerConfig(n_coarse=8, n_fine=8, fine_includes_coarse=True),
+        nerformer=NeRFormerConfig(arch="nerformer", d_model=24, n_heads=2, n_layers=1, pos_freqs=4,
+                                  color_head="blend"),
+        mrvm=MRVMConfig(proj_dim=24, **_PAPER_MRVM),
     ),
     "balanced": ModelConfig(
         name="balanced",
         encoder=EncoderConfig(widths=(32, 48, 64), out_dim=48),
-        sampler=SamplerConfig(n_coarse=12, n_fine=8, fine_includes_coarse=False),
-        nerformer=NeRFormerConfig(d_model=32, n_heads=2, n_layers=1),
+        sampler=SamplerConfig(n_coarse=12, n_fine=8, fine_includes_coarse=True),
+        nerformer=NeRFormerConfig(arch="nerformer", d_model=32, n_heads=2, n_layers=2, color_head="blend"),
+        mrvm=MRVMConfig(**_PAPER_MRVM),
     ),
     "accurate": ModelConfig(
         name="accurate",
-        encoder=EncoderConfig(widths=(48, 64, 96), blocks_per_stage=2, out_dim=96),
-        sampler=SamplerConfig(n_coarse=48, n_fine=48, fine_includes_coarse=True),
-        nerformer=NeRFormerConfig(d_model=64, n_heads=4, n_layers=2),
-        mrvm=MRVMConfig(proj_dim=64),
+        encoder=EncoderConfig(backbone="vgg16", pretrained=True, out_dim=96),
+        sampler=SamplerConfig(n_coarse=32, n_fine=16, fine_includes_coarse=True),
+        nerformer=NeRFormerConfig(arch="nerformer", d_model=64, n_heads=4, n_layers=2, fine_layers=3,
+                                  ffn_mult=4, color_head="blend"),
+        mrvm=MRVMConfig(proj_dim=64, **_PAPER_MRVM),
+    ),
+    "paper": ModelConfig(
+        name="paper",
+        encoder=EncoderConfig(backbone="vgg16", pretrained=True, out_dim=256),
+        sampler=SamplerConfig(n_coarse=64, n_fine=32, fine_includes_coarse=True),
+        nerformer=NeRFormerConfig(arch="nerformer", d_model=128, n_heads=4, n_layers=4, fine_layers=5, ffn_mult=4,
+                                  color_head="direct"),
+        mrvm=MRVMConfig(proj_dim=64, **_PAPER_MRVM),
     ),
 }
 """Named model configs."""
@@ -230,6 +270,20 @@ def validate(cfg: ModelConfig) -> None:
         raise InputError("mrvm: need 0 <= warmup_frac <= ramp_end_frac <= 1")
     if cfg.render.density_activation not in ("softplus", "relu"):
         raise InputError("render.density_activation must be 'softplus' or 'relu'")
+    if n.arch not in ARCHS:
+        raise InputError(f"nerformer.arch must be one of {', '.join(ARCHS)}, got {n.arch!r}")
+    if n.color_head not in ("direct", "blend"):
+        raise InputError(f"nerformer.color_head must be 'direct' or 'blend', got {n.color_head!r}")
+    if n.n_layers < 1 or n.fine_layers < 0 or n.pos_freqs < 0 or n.dir_freqs < 0:
+        raise InputError("nerformer.n_layers must be >= 1; fine_layers, pos_freqs and dir_freqs >= 0")
+    if m.view_masking not in ("count", "prob") or m.target not in ("coarse", "rerun"):
+        raise InputError("mrvm.view_masking must be 'count' or 'prob', mrvm.target 'coarse' or 'rerun'")
+    if n.arch == "legacy" and (m.target != "rerun" or m.view_masking != "prob" or n.fine_layers):
+        raise InputError("the legacy arch takes mrvm.target 'rerun', view_masking 'prob' and no fine_layers; "
+                         "use nerformer.arch 'nerformer' for the paper's settings")
+    if m.enabled and m.target == "coarse" and not (cfg.sampler.n_fine > 0 and cfg.sampler.fine_includes_coarse):
+        raise InputError("mrvm.target 'coarse' compares the fine pass at the coarse samples: it needs sampler.n_fine "
+                         "> 0 and fine_includes_coarse")
 
 
 __all__ = [n for n in dir() if not n.startswith("_") and n not in ("annotations", "dataclasses", "Any")]

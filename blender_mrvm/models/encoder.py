@@ -2,12 +2,15 @@
 
 ``resnet``: a small ResNet-like network trained from scratch (GroupNorm, so batches of 1 view
 work), features at strides 2, 4 and 8. ``vgg16``: ImageNet VGG16 blocks 1-3 (strides 1, 2, 4) from
-the offline cache. Either way every scale is upsampled to the finest scale kept (stride 2) and fused
+the offline cache (``pretrained``; a missing cache is a one-line error naming ``fetch-weights``),
+frozen (``freeze_backbone``) or fine-tuned. Either way every scale is upsampled to the finest scale kept (stride 2) and fused
 by a 1x1 convolution into one (V, out_dim, H/2, W/2) map, computed once per reference set, so each
 3D point needs a single bilinear lookup per view.
 """
 
 from __future__ import annotations
+
+from contextlib import nullcontext
 
 import torch
 import torch.nn.functional as F
@@ -47,7 +50,8 @@ class BasicBlock(nn.Module):
 class ImageEncoder(nn.Module):
     """(V, 3, H, W) images in [0, 1] -> (V, out_dim, ceil(H/2), ceil(W/2)) pixel-aligned features."""
 
-    def __init__(self, cfg: EncoderConfig):
+    def __init__(self, cfg: EncoderConfig, load_pretrained: bool = True):
+        """``load_pretrained`` False leaves a 'vgg16, pretrained' backbone random (a checkpoint's weights follow)."""
         super().__init__()
         self.cfg = cfg
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
@@ -56,7 +60,10 @@ class ImageEncoder(nn.Module):
             from .vgg import load_vgg16_features, vgg16_features
 
             # Up to relu3_3 (index 15): strides 1, 2, 4 with 64, 128, 256 channels.
-            self.vgg = load_vgg16_features(16) if cfg.pretrained else vgg16_features(16)
+            self.vgg = load_vgg16_features(16) if cfg.pretrained and load_pretrained else vgg16_features(16)
+            if cfg.freeze_backbone:
+                for p in self.vgg.parameters():
+                    p.requires_grad_(False)
             self.taps = (3, 8, 15)
             chans = (64, 128, 256)
         else:
@@ -82,10 +89,11 @@ class ImageEncoder(nn.Module):
                               align_corners=False)
         feats = []
         if self.cfg.backbone == "vgg16":
-            for i, layer in enumerate(self.vgg):
-                x = layer(x)
-                if i in self.taps:
-                    feats.append(x)
+            with torch.no_grad() if self.cfg.freeze_backbone else nullcontext():
+                for i, layer in enumerate(self.vgg):
+                    x = layer(x)
+                    if i in self.taps:
+                        feats.append(x)
             feats[0] = F.avg_pool2d(feats[0], 2, ceil_mode=True)  # stride 1 -> 2
         else:
             x = self.stem(x)

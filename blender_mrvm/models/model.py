@@ -8,6 +8,10 @@ Usage (world units in, world units out)::
 Internally everything runs in the object's normalised frame (``rays.normalization``): the box is
 [-1, 1] on its longest side, rays start at the box entry, rays that miss are background and are not
 evaluated, and large renders are evaluated ``render.chunk_rays`` rays at a time (bounded memory).
+
+Two architectures of the branches (``nerformer.arch``): 'nerformer', the paper's per-view token streams
+(``models/nerformer_streams.py``, every preset), and 'legacy', one summary token per point along the ray
+(``models/nerformer.py``), which configs that predate the field read as (the shipped checkpoint).
 """
 
 from __future__ import annotations
@@ -20,8 +24,9 @@ from . import samplers
 from .config import ModelConfig
 from .encoder import ImageEncoder
 from .base import NormalizedScene, RayModel, TrainPhase, normalized_scene, ref_cameras  # noqa: F401 (re-exported)
-from .mrvm import MRVMHead, lambda_at, make_mask
+from .mrvm import MRVMHead, coarse_positions, lambda_at, make_mask
 from .nerformer import NeRFormerBranch, activate_density, harmonic
+from .nerformer_streams import StreamBranch, relative_direction
 from .projection import RefCameras, project_samples, rays_in_cameras, sample_maps
 from .rays import RayBundle
 from .renderer import volume_render
@@ -44,13 +49,20 @@ class GeneralizableNeRF(RayModel):
 
     kind = "nerformer_mrvm"
 
-    def __init__(self, cfg: ModelConfig):
+    def __init__(self, cfg: ModelConfig, load_pretrained: bool = True):
+        """``load_pretrained`` False skips loading the encoder's ImageNet weights (a checkpoint's come next)."""
         super().__init__()
         self.cfg = cfg
-        self.encoder = ImageEncoder(cfg.encoder)
-        self.coarse = NeRFormerBranch(cfg.nerformer, cfg.encoder.out_dim)
-        self.fine = self.coarse if cfg.nerformer.share_coarse_fine else NeRFormerBranch(cfg.nerformer, cfg.encoder.out_dim)
-        self.mrvm = MRVMHead(cfg.nerformer.d_model, cfg.mrvm)
+        n = cfg.nerformer
+        self.encoder = ImageEncoder(cfg.encoder, load_pretrained=load_pretrained)
+        if n.arch == "nerformer":
+            self.coarse = StreamBranch(n, cfg.encoder.out_dim, n.n_layers)
+            self.fine = self.coarse if n.share_coarse_fine else StreamBranch(n, cfg.encoder.out_dim,
+                                                                             n.fine_layers or n.n_layers)
+        else:
+            self.coarse = NeRFormerBranch(n, cfg.encoder.out_dim)
+            self.fine = self.coarse if n.share_coarse_fine else NeRFormerBranch(n, cfg.encoder.out_dim)
+        self.mrvm = MRVMHead(n.d_model, cfg.mrvm)
 
     @property
     def box_padding(self) -> float:
@@ -72,7 +84,10 @@ class GeneralizableNeRF(RayModel):
         return TrainPhase({"mask_views": masking}, {"mrvm": lam}, {"lambda": lam, "masking": masking})
 
     def after_step(self, phase: TrainPhase) -> None:
-        if phase.kwargs.get("mask_views"):
+        if not phase.kwargs.get("mask_views"):
+            return
+        # the paper's arch (as the official code) moves the target projector once the MRVM loss is on
+        if self.cfg.nerformer.arch == "legacy" or phase.loss_weights.get("mrvm", 0.0) > 0:
             self.mrvm.update_target()
 
     # -- reference views -------------------------------------------------------------------------
@@ -111,6 +126,8 @@ class GeneralizableNeRF(RayModel):
                     generator: torch.Generator | None = None) -> dict:
         """Render rays that hit the box (``rays.hit`` all true). Returns coarse/fine colour, depth (from
         the camera, normalised units), accumulation, and the MRVM loss (or None)."""
+        if self.cfg.nerformer.arch == "nerformer":
+            return self._render_streams(ctx, rays, train, mask_views, generator)
         sc = self.cfg.sampler
         R = len(rays)
         far = rays.far.float()
@@ -136,12 +153,84 @@ class GeneralizableNeRF(RayModel):
                     target = self.coarse(g[0], g[1], g[2], t_all)["latent"]
                 out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
                 out["n_masked"] = int(point_mask.sum())
+        return self._finish(out, rays)
+
+    def _finish(self, out: dict, rays: RayBundle) -> dict:
         off = rays.depth_offset.float()
         for k in ("coarse", "fine"):
             out[k]["depth_cam"] = out[k]["depth"] + off
         f = out["fine"]
         out["color"], out["acc"] = f["color"], f["acc"]
         out["depth"] = (f["weights"].float() * f["t"].float()).sum(-1) / f["acc"].float().clamp_min(1e-8)
-        out["aux_heads"] = {"coarse": out["coarse"]} if sc.n_fine > 0 else {}
+        out["aux_heads"] = {"coarse": out["coarse"]} if self.cfg.sampler.n_fine > 0 else {}
         out["aux_losses"] = {"mrvm": out["mrvm_loss"]} if out["mrvm_loss"] is not None else {}
         return out
+
+    # -- the paper's arch ------------------------------------------------------------------------------
+
+    def _gather_streams(self, ctx: Context, o_c, d_c, t, origins, dirs):
+        """Per (ray, sample, view) inputs of a :class:`StreamBranch` for samples at distances ``t`` (R, S)."""
+        uv, valid, p = project_samples(ctx.cams, o_c, d_c, t)
+        f = sample_maps(ctx.feats.float(), uv.float())
+        c = sample_maps(ctx.images.float(), uv.float())
+        Rw = ctx.cams.w2c[:, :3, :3].float()
+        pn = p / p.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        dref = torch.einsum("vji,vrsj->vrsi", Rw, pn)  # reference ray direction, world frame (R^T)
+        rel = relative_direction(dirs[None, :, None, :].expand_as(dref), dref)
+        vf = valid[..., None].to(f.dtype)
+        points = origins[:, None, :] + t[..., None] * dirs[:, None, :]
+        return {"feats": (f * vf).permute(1, 2, 0, 3), "ref_rgb": (c * vf).permute(1, 2, 0, 3),
+                "rel_dir": (rel * vf).permute(1, 2, 0, 3), "valid": valid.permute(1, 2, 0), "points": points,
+                "dirs": dirs}
+
+    def _branch_streams(self, branch: StreamBranch, g: dict, t, far, view_mask=None):
+        out = branch(**g, view_mask=view_mask)
+        sigma = activate_density(out["sigma_raw"], self.cfg.render.density_activation, self.cfg.render.density_bias)
+        ren = volume_render(sigma, out["rgb"], t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
+        ren["latent"] = out["latent"]
+        ren["t"] = t
+        return ren
+
+    def _render_streams(self, ctx: Context, rays: RayBundle, train: bool, mask_views: bool,
+                        generator: torch.Generator | None) -> dict:
+        """The paper's arch: coarse pass at stratified samples; the fine pass at the sorted union of the coarse
+        and importance samples (``sampler.fine_includes_coarse``). MRVM masks the fine pass; its target is the
+        coarse pass's feature at its own samples (``mrvm.target`` 'coarse', the paper) or the coarse branch
+        re-run on the fine points ('rerun')."""
+        sc, mc = self.cfg.sampler, self.cfg.mrvm
+        R = len(rays)
+        far = rays.far.float()
+        dirs = rays.dirs.float()
+        origins = rays.origins.float()
+        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
+        t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
+        coarse = self._branch_streams(self.coarse, self._gather_streams(ctx, o_c, d_c, t_c, origins, dirs), t_c, far)
+        out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0}
+        if sc.n_fine > 0:
+            edges = samplers.bin_edges(t_c, far)
+            t_f = samplers.sample_pdf(edges, coarse["weights"], sc.n_fine, deterministic=not (train and sc.perturb),
+                                      eps=sc.pdf_eps, generator=generator)
+            if sc.fine_includes_coarse:
+                t_all, order = torch.sort(torch.cat([t_c.detach(), t_f], -1), -1)
+            else:
+                t_all, order = t_f, None
+            g = self._gather_streams(ctx, o_c, d_c, t_all, origins, dirs)
+            point_mask = view_mask = None
+            if mask_views:
+                point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), mc, generator, device=t_all.device)
+            fine = self._branch_streams(self.fine, g, t_all, far, view_mask)
+            out["fine"] = fine
+            if mask_views:
+                if mc.target == "coarse":  # validated: the fine pass holds the coarse samples
+                    pos = coarse_positions(order, sc.n_coarse)  # (R, n_coarse) index of each coarse sample in t_all
+                    online = torch.gather(fine["latent"], 1, pos[..., None].expand(-1, -1, fine["latent"].shape[-1]))
+                    out["mrvm_loss"] = self.mrvm.loss(online.reshape(-1, online.shape[-1]),
+                                                      coarse["latent"].detach().reshape(-1, online.shape[-1]))
+                    out["mrvm_positions"] = pos
+                else:
+                    with torch.no_grad():
+                        target = self.coarse(**g)["latent"]
+                    out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
+                out["n_masked"] = int(point_mask.sum())
+                out["point_mask"] = point_mask
+        return self._finish(out, rays)

@@ -1,13 +1,21 @@
 """MRVM: masked ray-and-view modeling (the auxiliary loss) and its schedule.
 
 During pretraining, a share of the points of each ray in the *fine* branch (default 50%) is chosen;
-for each chosen point a random non-empty subset of the views is replaced by a learned mask token.
-The fine branch's latent features at the masked points go through an online projector and a
-predictor; the target is the *coarse* branch's latent feature at the same points (unmasked, computed
-without gradient) through a target projector that is an exponential moving average of the online
-projector. Loss: 2 - 2 cos(prediction, target), averaged over masked points. Its weight is 0 for
-the first ``warmup_frac`` of pretraining iterations, then ramps linearly to ``lambda_max`` at
-``ramp_end_frac``.
+for each chosen point a random non-empty subset of the views is replaced by a learned mask token
+(``view_masking`` 'count': a uniform number 1..V of random views, as the official code; 'prob': each
+view with ``view_mask_prob``). The fine branch's latent features go through an online projector and a
+predictor; the target, without gradient, goes through a target projector that is an exponential
+moving average of the online projector. Loss: 2 - 2 cos(prediction, target), averaged.
+
+Targets (``target``): 'coarse' (the paper) - the coarse pass's own features at its own samples; the
+fine pass evaluates the sorted union of coarse and fine samples, and the loss compares them at every
+coarse sample's position in that union (masked or not: the official code averages over all of them).
+'rerun' (the legacy arch) - the coarse branch re-run, unmasked, on the fine points; the loss at the
+masked points.
+
+Weight: 0 for the first ``warmup_frac`` of pretraining iterations, then a linear ramp to
+``lambda_max`` at ``ramp_end_frac``, kept to the end of pretraining (official: 0 until 20k of 400k
+steps, 0.1 from 25k on); 0 while finetuning.
 """
 
 from __future__ import annotations
@@ -25,17 +33,28 @@ def make_mask(R: int, S: int, V: int, cfg: MRVMConfig, generator: torch.Generato
               device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """Random mask: (point_mask (R, S) bool, view_mask (R, S, V) bool).
 
-    Exactly round(point_mask_ratio * S) points per ray are masked; each masked point masks every view
-    with probability view_mask_prob and always at least one view; unmasked points mask no view."""
+    Exactly round(point_mask_ratio * S) points per ray are masked; each masked point masks a uniform
+    number 1..V of its views ('count') or every view with probability view_mask_prob and always at least
+    one ('prob'); unmasked points mask no view."""
     k = int(round(cfg.point_mask_ratio * S))
     scores = torch.rand((R, S), generator=generator, device=device)
     point = torch.zeros((R, S), dtype=torch.bool, device=device)
     if k > 0:
         point.scatter_(1, scores.topk(k, dim=1).indices, True)
+    if cfg.view_masking == "count":  # a uniform number 1..V of the views, chosen at random
+        rank = torch.rand((R, S, V), generator=generator, device=device).argsort(-1).argsort(-1)
+        n = torch.randint(0, V, (R, S), generator=generator, device=device)
+        return point, (rank <= n[..., None]) & point[..., None]
     views = torch.rand((R, S, V), generator=generator, device=device) < cfg.view_mask_prob
     forced = torch.randint(0, V, (R, S), generator=generator, device=device)
     views |= F.one_hot(forced, V).bool()
     return point, views & point[..., None]
+
+
+def coarse_positions(order: torch.Tensor, n_coarse: int) -> torch.Tensor:
+    """Where the coarse samples went: ``order`` (R, S) is the argsort that sorted ``cat([t_coarse, t_fine])``;
+    returns (R, n_coarse), the index in the sorted union of each coarse sample, in coarse order."""
+    return order.argsort(-1)[:, :n_coarse]
 
 
 def lambda_at(step: int, pretrain_steps: int, cfg: MRVMConfig) -> float:

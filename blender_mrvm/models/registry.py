@@ -129,9 +129,15 @@ def validate(cfg: Any) -> None:
     mod.validate(cfg)
 
 
-def build_model(cfg: Any):
-    """A fresh torch module for ``cfg`` (any kind)."""
-    return _load(kind(kind_of(cfg)).model)(cfg)
+def build_model(cfg: Any, load_pretrained: bool = True):
+    """A fresh torch module for ``cfg`` (any kind). ``load_pretrained`` False skips loading offline pretrained
+    weights (ImageNet encoders) where a checkpoint's weights replace them anyway."""
+    import inspect
+
+    cls = _load(kind(kind_of(cfg)).model)
+    if not load_pretrained and "load_pretrained" in inspect.signature(cls).parameters:
+        return cls(cfg, load_pretrained=False)
+    return cls(cfg)
 
 
 def kind_from_meta(meta: dict[str, str]) -> str:

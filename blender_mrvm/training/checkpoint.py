@@ -118,7 +118,7 @@ def load_model(path: Path, device: str = "cpu"):
     """(model, model_cfg, meta) from a checkpoint of any kind (any form :func:`find_checkpoint` accepts)."""
     model_file, meta = checked_header(path)
     cfg = config_from_meta(meta, model_file)
-    model = registry.build_model(cfg)
+    model = registry.build_model(cfg, load_pretrained=False)  # the checkpoint holds every weight
     load_weights(model, model_file, device)
     return model.to(device), cfg, meta
 

@@ -39,9 +39,12 @@ class TrainConfig:
     seed: int = 0
     """Seed for initialisation and all sampling (per rank: seed + rank)."""
     iterations: int = 20000
-    """Optimizer steps in all (pretraining + finetuning)."""
-    pretrain_frac: float = 0.8
-    """Share of iterations in the MRVM pretraining phase; the rest finetunes without masking."""
+    """Optimizer steps of this run."""
+    pretrain_frac: float = 1.0
+    """Share of iterations in the MRVM pretraining phase (masking); the rest trains without it. The paper
+    pretrains in one run (1.0) and finetunes in a second that starts from its checkpoint (``init_checkpoint``,
+    :data:`FINETUNE`: no masking, the learning-rate schedule restarted). Runs before this field's default
+    changed name their own value (0.8)."""
     objects_per_step: int = 2
     """Objects per step per process (each with its own reference set)."""
     rays_per_object: int = 256
@@ -50,8 +53,9 @@ class TrainConfig:
     """Fewest reference views drawn per object."""
     max_ref_views: int = 3
     """Most reference views drawn per object (random 1..K)."""
-    bbox_sampling_frac: float = 0.1
-    """Share of early iterations drawing target rays only inside the object's 2D box (pixelNeRF)."""
+    bbox_sampling_frac: float = 0.75
+    """Share of early iterations drawing target rays only inside the object's 2D box (pixelNeRF; the official
+    MRVM pretraining: 300k of 400k steps; finetuning: none)."""
     lr: float = 5e-4
     """Peak AdamW learning rate."""
     lr_warmup: int = 200
@@ -144,10 +148,12 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     return mcfg, tcfg
 
 
-FINETUNE = {"pretrain_frac": 0.0, "lr": 1e-4, "lr_warmup": 50}
+FINETUNE = {"pretrain_frac": 0.0, "lr": 1e-4, "lr_warmup": 50, "bbox_sampling_frac": 0.0}
 """The fine-tuning policy: a run that starts from a checkpoint (``init_checkpoint``) has no MRVM masking
-phase (the paper pretrains with masking, then finetunes without), a lower peak learning rate, and a
-short warm-up (at most a tenth of the run). Settings a run config names itself win."""
+phase (the paper pretrains with masking in one run, then finetunes without in a second), restarts the
+learning-rate schedule at a lower peak with a short warm-up (at most a tenth of the run), and draws target
+rays from the whole image (no bbox sampling, as the official finetuning). Settings a run config names
+itself win."""
 
 
 def finetune_policy(tcfg: TrainConfig, named: set[str] = frozenset()) -> TrainConfig:
