@@ -70,7 +70,7 @@ def test_two_step_training_checkpoint_and_resume(data, tmp_path):
     from blender_mrvm.training.sem2nerf import load_masked_object
 
     ob = load_masked_object(sorted(data.glob("spheres/obj*"))[0])
-    code = model.encode(torch.from_numpy(build_inputs(ob.masks[0], mcfg.labels))[None], ob.c2w[:1])
+    code = model.encode(torch.from_numpy(build_inputs(ob.masks[0], mcfg.labels))[None], ob.c2w[:1], ob.intrinsics[0])
     img = model.render_image(ob.intrinsics[0], ob.c2w[0], code, model.default_style())
     assert img["rgb"].shape == (16, 16, 3) and torch.isfinite(img["rgb"]).all()
     assert not any(p.name.startswith(".") for p in (out / "checkpoints").iterdir())
