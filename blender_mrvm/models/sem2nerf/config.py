@@ -127,12 +127,24 @@ def sem2nerf_config(preset: str = "balanced", overrides: dict[str, Any] | None =
     return validate(cfg)
 
 
+def resolve_sem2nerf_checkpoint(path) -> Path:
+    """'' / 'shipped' / 'shipped:sem2nerf' -> the shipped Sem2NeRF model file (InputError when this copy
+    lacks it); anything else is that path."""
+    raw = "" if path is None else str(path).strip()
+    if raw.lower() in ("", "shipped", "shipped:sem2nerf"):
+        from ..pretrained import shipped_checkpoint
+
+        return shipped_checkpoint("sem2nerf")
+    return Path(path)
+
+
 def read_sem2nerf_header(path: Path) -> tuple[Path, dict[str, str]]:
-    """(model file, metadata) of a Sem2NeRF checkpoint (model file, checkpoint or run folder);
-    InputError if it is none. Torch-free: the add-on checks a picked file on Blender's main thread."""
+    """(model file, metadata) of a Sem2NeRF checkpoint (model file, checkpoint or run folder, or
+    ``shipped:sem2nerf``); InputError if it is none. Torch-free: the add-on checks a picked file on
+    Blender's main thread."""
     from ..checkpoint_files import checked_header
 
-    model_file, meta = checked_header(Path(path))
+    model_file, meta = checked_header(resolve_sem2nerf_checkpoint(path))
     if meta.get("model_kind") != MODEL_KIND:
         raise InputError(f"{model_file} is not a Sem2NeRF checkpoint (model kind {meta.get('model_kind', 'mrvm')!r})")
     return model_file, meta
