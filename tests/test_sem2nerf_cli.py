@@ -163,6 +163,9 @@ def test_eval_writes_metrics(tmp_path, trained):
     assert len(np.unique(m[m > 0])) >= 2  # the held-out object has parts to edit (precondition)
     assert ed["edited"] in np.unique(m) and res["edit_locality"]["n_objects"] == 1
     assert ed["near_change"] > 0 and ed["far_change"] >= 0
+    sb = res["style_blend"]  # the one object's input view along a 5-step blend between two seeds' styles
+    assert sb["n_objects"] == 1 and len(sb["per_object"][0]["from_start"]) == 5
+    assert sb["per_object"][0]["from_start"][0] == 0.0 and sb["monotonic"] in (0, 1)
 
 
 def test_bench_cli(tmp_path):

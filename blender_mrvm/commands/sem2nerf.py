@@ -51,7 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     t.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
 
     r = sub.add_parser("render", help="free-viewpoint images + semantic maps from one part mask and its camera")
-    r.add_argument("--checkpoint", required=True, help="Sem2NeRF model file, checkpoint folder or run folder")
+    r.add_argument("--checkpoint", required=True,
+                   help="Sem2NeRF model file, checkpoint folder or run folder, or shipped:sem2nerf")
     r.add_argument("--mask", required=True, help="part-id mask PNG (uint8, the checkpoint's image size)")
     r.add_argument("--pose", required=True, help="the mask's camera: SRN pose .txt (4x4 OpenCV camera-to-world)")
     r.add_argument("--intrinsics", default="", help="SRN intrinsics.txt (default: the pose's object folder's)")
@@ -74,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
-    e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint")
+    e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint, or shipped:sem2nerf")
     e.add_argument("--data", required=True, help="dataset root")
     e.add_argument("--split", default="train", help="split the objects come from (default train)")
     e.add_argument("--holdout", type=int, default=0,
@@ -84,6 +85,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--input-view", type=int, default=0, help="view whose mask is the input (default 0)")
     e.add_argument("--views-every", type=int, default=3,
                    help="score the input view and every N-th other view (default 3)")
+    e.add_argument("--blend-objects", type=int, default=3,
+                   help="objects whose input view is rendered along a 5-step style blend (default 3)")
     e.add_argument("--out", required=True, help="output folder for eval.json")
     e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
@@ -157,7 +160,7 @@ def run(args) -> int:
         res = run_with_tqdm(T.evaluate(Path(args.checkpoint), Path(args.data), Path(args.out), split=args.split,
                                        holdout=args.holdout, max_objects=args.max_objects,
                                        input_view=args.input_view, views_every=args.views_every,
-                                       threads=args.threads),
+                                       threads=args.threads, blend_objects=args.blend_objects),
                             desc="sem2nerf eval", unit="obj")
         print(json.dumps(res["overall"]))
         return 0

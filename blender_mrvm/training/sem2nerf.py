@@ -560,6 +560,20 @@ def _edit_locality(model, cfg, ob: MaskedObject, v_in: int, code: torch.Tensor) 
             "near_change": float(change[near].mean()), "far_change": float(change[~near].mean()) if (~near).any() else 0.0}
 
 
+def _style_blend(model, ob: MaskedObject, v_in: int, code, steps: int = 5, seeds: tuple[int, int] = (1, 2)) -> dict:
+    """Render the input view along the linear blend between the styles of two seeds: the images should
+    move monotonically away from the first end and toward the second (mean absolute differences)."""
+    with torch.no_grad():
+        s0, s1 = model.style_from_seed(seeds[0]), model.style_from_seed(seeds[1])
+    imgs = [model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code, (1 - a) * s0 + a * s1)["rgb"].numpy()
+            for a in np.linspace(0.0, 1.0, steps)]
+    d0 = [float(np.abs(im - imgs[0]).mean()) for im in imgs]
+    d1 = [float(np.abs(im - imgs[-1]).mean()) for im in imgs]
+    mono = all(x < y for x, y in zip(d0, d0[1:])) and all(x > y for x, y in zip(d1, d1[1:]))
+    return {"object": f"{ob.category}/{ob.name}", "seeds": list(seeds), "from_start": d0, "to_end": d1,
+            "monotonic": bool(mono)}
+
+
 def _summarise_edits(rows: list[dict]) -> dict:
     rows = [r for r in rows if r.get("edited") is not None]
     if not rows:
@@ -571,7 +585,7 @@ def _summarise_edits(rows: list[dict]) -> dict:
 
 
 def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
-             input_view: int = 0, views_every: int = 3, threads: int = 0):
+             input_view: int = 0, views_every: int = 3, threads: int = 0, blend_objects: int = 3):
     """Progress generator over objects; writes ``out/eval.json`` and returns its dict.
 
     For every evaluated object the mask of ``input_view`` is encoded and the input view plus every
@@ -580,7 +594,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     object image, masked by the true mask of that view), and the mIoU between the true part mask and
     the rendered semantic map (in the input view: the input mask itself). ``eval_grid.png`` shows, per
     object (first 16): input mask | true, rendered and semantic input view | the same for the first
-    novel view."""
+    novel view. Also: editing locality (every object) and style-blend monotonicity (the first
+    ``blend_objects`` objects)."""
     from ..models import metrics as M
     from ..models.sem2nerf.inputs import build_inputs
 
@@ -600,6 +615,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     labels_t = torch.as_tensor(cfg.labels)
     per_view = []
     edit_rows = []
+    blend_rows: list[dict] = []
     grid_rows: list[np.ndarray] = []
     t0 = time.time()
     for k, ob in enumerate(evals):
@@ -634,6 +650,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
         if row:
             grid_rows.append(np.concatenate(row[:7], 1))
         edit_rows.append(_edit_locality(model, cfg, ob, v_in, code))
+        if k < blend_objects:
+            blend_rows.append(_style_blend(model, ob, v_in, code))
         yield Progress(k + 1, len(evals), ob.name)
 
     def summarise(rows):
@@ -649,6 +667,10 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
                                 "novel_views": summarise([r for r in per_view if r["category"] == c and not r["input_view"]])}
                             for c in sorted({r["category"] for r in per_view})},
            "edit_locality": _summarise_edits(edit_rows),
+           "style_blend": {"n_objects": len(blend_rows), "steps": 5,
+                           "monotonic": sum(r["monotonic"] for r in blend_rows),
+                           "end_to_end_change": float(np.mean([r["from_start"][-1] for r in blend_rows]))
+                           if blend_rows else None, "per_object": blend_rows},
            "per_view": per_view, "per_object_edits": edit_rows}
     Path(out).mkdir(parents=True, exist_ok=True)
     from ..datasets.format import atomic_write_json
