@@ -325,3 +325,26 @@ def test_pixel_aligned_input_view_semantics_follow_the_mask(tiny):
     fg = gt > 0
     assert (sem[fg] == gt[fg]).all()
     assert miou(np.where(fg, gt, 0), np.where(fg, sem, 0)) == 1.0
+
+
+def test_global_only_configs_still_load_and_render(tiny):
+    """A checkpoint config written before pixel_aligned existed reads as global-only (its weights have no
+    local branch), and that model still encodes to a plain code tensor and renders."""
+    from dataclasses import replace
+
+    from blender_mrvm.models.config import from_dict, to_dict
+    from blender_mrvm.models.sem2nerf.config import Sem2NeRFConfig
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF
+
+    d = to_dict(tiny.cfg)
+    for k in ("pixel_aligned", "local_channels", "local_hidden"):
+        d.pop(k)
+    old = from_dict(Sem2NeRFConfig, d)
+    assert old.pixel_aligned is False
+    m = Sem2NeRF(replace(old, style_mean_samples=10)).eval()
+    assert not any(k.startswith(("field.local", "encoder.local")) for k in m.state_dict())
+    code = m.encode(_mask_inputs(old), _rays()[2][None])
+    assert isinstance(code, torch.Tensor) and code.shape == (1, 2 * old.n_layers * old.hidden)
+    b, _, _ = _rays()
+    assert torch.isfinite(m.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code,
+                                        m.default_style())["rgb"]).all()
