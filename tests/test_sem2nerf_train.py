@@ -70,7 +70,7 @@ def test_two_step_training_checkpoint_and_resume(data, tmp_path):
     from blender_mrvm.training.sem2nerf import load_masked_object
 
     ob = load_masked_object(sorted(data.glob("spheres/obj*"))[0])
-    code = model.encode(torch.from_numpy(build_inputs(ob.masks[0], mcfg.labels))[None], ob.c2w[:1])
+    code = model.encode(torch.from_numpy(build_inputs(ob.masks[0], mcfg.labels))[None], ob.c2w[:1], ob.intrinsics[0])
     img = model.render_image(ob.intrinsics[0], ob.c2w[0], code, model.default_style())
     assert img["rgb"].shape == (16, 16, 3) and torch.isfinite(img["rgb"]).all()
     assert not any(p.name.startswith(".") for p in (out / "checkpoints").iterdir())
@@ -126,3 +126,28 @@ def test_miou_and_category_means():
     o = T.MaskedObject("a", "cat", ims, masks, np.tile(np.eye(4), (2, 1, 1)), [None, None], {})
     mean = T.category_mean_images([o])["cat"]
     assert np.allclose(mean[0, 0], 0.4) and np.allclose(mean[1, 1], 0.4)  # uncovered pixels: overall object mean
+
+
+def test_input_weight_and_lr_decay(data, tmp_path):
+    """--lr-end-factor decays every learning rate exponentially to that factor at the last step;
+    --input-weight is validated through the same config and the run stays finite."""
+    cfg = T.train_config(data=str(data), out_dir=str(tmp_path / "d"), preset="fast", model_overrides=TINY_MODEL,
+                         iterations=2, objects_per_step=1, patch_size=8, lpips_weight=0.0, input_weight=3.0,
+                         lr=1e-3, encoder_lr=4e-4, code_lr=2e-3, lr_end_factor=0.25, checkpoint_every=2,
+                         log_every=1, threads=1)
+    run_to_end(T.train(cfg, resume=False))
+    st = torch.load(tmp_path / "d" / "checkpoints" / "step_0000002" / "trainer_state.pt", weights_only=True)
+    lrs = [g["lr"] for g in st["opt"]["param_groups"]]
+    assert lrs == pytest.approx([1e-3 * 0.25, 4e-4 * 0.25, 2e-3 * 0.25])  # the last step ran at the end factor
+    rows = [json.loads(x) for x in (tmp_path / "d" / "metrics.jsonl").read_text().splitlines()]
+    assert all(np.isfinite(r["loss"]) for r in rows)
+
+
+def test_model_overrides_on_the_command_line():
+    from blender_mrvm.commands.sem2nerf import parse_model_overrides
+
+    assert parse_model_overrides(["n_coarse=16", "pixel_aligned=false", "density_scale=5"]) == {
+        "n_coarse": 16, "pixel_aligned": False, "density_scale": 5.0}
+    for bad in ("nope=1", "n_coarse", "n_coarse=x", "pixel_aligned=maybe", "labels=1"):
+        with pytest.raises(InputError, match="--model"):
+            parse_model_overrides([bad])

@@ -35,6 +35,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     t.add_argument("--lpips-weight", type=float, default=0.2, help="LPIPS loss weight (default 0.2)")
     t.add_argument("--ce-weight", type=float, default=0.1, help="semantic cross-entropy weight (default 0.1)")
     t.add_argument("--gan-weight", type=float, default=0.0, help="patch discriminator weight (default 0 = off)")
+    t.add_argument("--input-weight", type=float, default=1.0,
+                   help="weight of the input view's losses relative to each other view's (default 1)")
+    t.add_argument("--lr", type=float, default=2e-4, help="generator + mapping learning rate (default 2e-4)")
+    t.add_argument("--encoder-lr", type=float, default=1e-4, help="mask encoder learning rate (default 1e-4)")
+    t.add_argument("--lr-end-factor", type=float, default=1.0,
+                   help="learning rates decay exponentially to this factor at the last step (default 1 = constant)")
+    t.add_argument("--model", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override a field of the model preset (e.g. n_coarse=16, pixel_aligned=false); repeatable")
     t.add_argument("--scale-anneal-steps", type=float, default=2000.0, help="e-folding steps of the patch scale bound")
     t.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
@@ -43,7 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     t.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
 
     r = sub.add_parser("render", help="free-viewpoint images + semantic maps from one part mask and its camera")
-    r.add_argument("--checkpoint", required=True, help="Sem2NeRF model file, checkpoint folder or run folder")
+    r.add_argument("--checkpoint", required=True,
+                   help="Sem2NeRF model file, checkpoint folder or run folder, or shipped:sem2nerf")
     r.add_argument("--mask", required=True, help="part-id mask PNG (uint8, the checkpoint's image size)")
     r.add_argument("--pose", required=True, help="the mask's camera: SRN pose .txt (4x4 OpenCV camera-to-world)")
     r.add_argument("--intrinsics", default="", help="SRN intrinsics.txt (default: the pose's object folder's)")
@@ -66,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
-    e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint")
+    e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint, or shipped:sem2nerf")
     e.add_argument("--data", required=True, help="dataset root")
     e.add_argument("--split", default="train", help="split the objects come from (default train)")
     e.add_argument("--holdout", type=int, default=0,
@@ -76,6 +85,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--input-view", type=int, default=0, help="view whose mask is the input (default 0)")
     e.add_argument("--views-every", type=int, default=3,
                    help="score the input view and every N-th other view (default 3)")
+    e.add_argument("--blend-objects", type=int, default=3,
+                   help="objects whose input view is rendered along a 5-step style blend (default 3)")
     e.add_argument("--out", required=True, help="output folder for eval.json")
     e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
@@ -83,6 +94,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     b.add_argument("--out", default="bench_out", help="output folder (default bench_out)")
     b.add_argument("--size", type=int, default=512, help="mask size in pixels (default 512)")
     b.add_argument("--repeats", type=int, default=50, help="timed repeats per builder (default 50)")
+
+
+def parse_model_overrides(items: list[str]) -> dict:
+    """['n_coarse=16', 'pixel_aligned=false'] -> {'n_coarse': 16, 'pixel_aligned': False}; InputError for
+    fields the model config lacks or values of the wrong type."""
+    from dataclasses import fields
+
+    from ..errors import InputError
+    from ..models.sem2nerf.config import Sem2NeRFConfig
+
+    types = {f.name: f.type for f in fields(Sem2NeRFConfig)}
+    out = {}
+    for item in items:
+        key, sep, val = item.partition("=")
+        key = key.strip()
+        if not sep or key not in types or key in ("labels", "label_names", "image_size", "name"):
+            raise InputError(f"--model {item!r}: expected FIELD=VALUE with a field of the model config")
+        t = str(types[key])
+        try:
+            if t == "bool":
+                if val.strip().lower() not in ("true", "false", "1", "0"):
+                    raise ValueError(val)
+                out[key] = val.strip().lower() in ("true", "1")
+            else:
+                out[key] = int(val) if t == "int" else float(val)
+        except ValueError:
+            raise InputError(f"--model {item!r}: {val!r} is not a valid {t}") from None
+    return out
 
 
 def run(args) -> int:
@@ -97,6 +136,8 @@ def run(args) -> int:
                              objects_per_step=args.objects_per_step, other_views=args.other_views,
                              patch_size=args.patch_size, lpips_weight=args.lpips_weight, ce_weight=args.ce_weight,
                              gan_weight=args.gan_weight, scale_anneal_steps=args.scale_anneal_steps,
+                             input_weight=args.input_weight, lr=args.lr, encoder_lr=args.encoder_lr,
+                             lr_end_factor=args.lr_end_factor, model_overrides=parse_model_overrides(args.model),
                              checkpoint_every=args.checkpoint_every, seed=args.seed, threads=args.threads,
                              device=args.device)
         summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step")
@@ -119,7 +160,7 @@ def run(args) -> int:
         res = run_with_tqdm(T.evaluate(Path(args.checkpoint), Path(args.data), Path(args.out), split=args.split,
                                        holdout=args.holdout, max_objects=args.max_objects,
                                        input_view=args.input_view, views_every=args.views_every,
-                                       threads=args.threads),
+                                       threads=args.threads, blend_objects=args.blend_objects),
                             desc="sem2nerf eval", unit="obj")
         print(json.dumps(res["overall"]))
         return 0

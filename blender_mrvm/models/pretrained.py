@@ -18,6 +18,8 @@ DEFAULT_NAME = "mrvm_shapenet13_all"
 """Stem of the default checkpoint: ``<stem>.safetensors`` (weights + config) and ``<stem>.json`` (run config)."""
 SHIPPED = {"nerformer_mrvm": DEFAULT_NAME, "gpnr": "gpnr_shapenet13_all"}
 """Stem of the shipped checkpoint of each model kind (the first is the default)."""
+SEM2NERF_NAME = "sem2nerf_shapenet13_all"
+"""Stem of the shipped Sem2NeRF checkpoint (not a novel-view kind of the registry: ``shipped:sem2nerf``)."""
 
 
 FIGURES = {
@@ -32,6 +34,12 @@ def shipped_checkpoint(kind: str | None = None) -> Path:
     of the package lacks it or ships no model of that kind."""
     from .registry import kind as kind_of_name
 
+    if str(kind or "").strip().lower() == "sem2nerf":
+        p = ASSET_DIR / f"{SEM2NERF_NAME}.safetensors"
+        if not p.is_file():
+            raise InputError(f"this copy ships no Sem2NeRF model ({p} is missing); pass a checkpoint of "
+                             "`python -m blender_mrvm sem2nerf train`")
+        return p
     k = kind_of_name(kind).name
     if k not in SHIPPED:
         raise InputError(f"no {k} model is shipped; pass --checkpoint or train one with `python -m blender_mrvm train`")

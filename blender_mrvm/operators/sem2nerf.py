@@ -82,7 +82,13 @@ def plan_from_props(context) -> Sem2NeRFJob:
 
     p = context.scene.mrvm_sem2nerf
     scene = context.scene
-    ck = _path_setting(p.checkpoint, "a Sem2NeRF checkpoint (trained with `python -m blender_mrvm sem2nerf train`)")
+    from ..models.pretrained import shipped_or_none
+
+    shipped = shipped_or_none("sem2nerf")
+    if not p.checkpoint.strip() and shipped is not None:
+        ck = shipped  # empty = the shipped Sem2NeRF model
+    else:
+        ck = _path_setting(p.checkpoint, "a Sem2NeRF checkpoint (trained with `python -m blender_mrvm sem2nerf train`)")
     if not ck.exists():
         raise InputError(f"checkpoint {ck} does not exist")
     info = R.checkpoint_info(ck)

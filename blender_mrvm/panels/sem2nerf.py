@@ -16,14 +16,17 @@ def _label_colors(checkpoint: str) -> list[tuple[int, str, str]]:
     """(id, name, '#rrggbb') of the chosen checkpoint's labels; [] when it cannot be read. Reads the
     file's small header once per path and modification time (draw() runs on every redraw)."""
     raw = checkpoint.strip()
-    if not raw or (raw.startswith("//") and not bpy.data.filepath):
+    from ..models.pretrained import shipped_or_none
+
+    shipped = shipped_or_none("sem2nerf")
+    if (not raw and shipped is None) or (raw.startswith("//") and not bpy.data.filepath):
         return []
     from pathlib import Path
 
     from ..errors import MRVMError
     from ..models.sem2nerf.render import checkpoint_info, label_colors
 
-    path = Path(bpy.path.abspath(raw))
+    path = Path(bpy.path.abspath(raw)) if raw else shipped
     try:
         key = (str(path), path.stat().st_mtime)
     except OSError:

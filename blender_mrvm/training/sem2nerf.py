@@ -89,6 +89,10 @@ class Sem2NeRFTrainConfig:
     """Weight of the LPIPS-VGG loss (0 = off; needs the offline weights)."""
     ce_weight: float = 0.1
     """Weight of the semantic cross-entropy loss."""
+    input_weight: float = 1.0
+    """Weight of the input view's losses relative to each other view's (items are weight-averaged)."""
+    lr_end_factor: float = 1.0
+    """Learning rates decay exponentially to this factor of their value at the last step (1 = constant)."""
     gan_weight: float = 0.0
     """Weight of the non-saturating patch-discriminator loss (0 = no discriminator)."""
     disc_lr: float = 2e-4
@@ -406,13 +410,14 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         for step in range(start, cfg.iterations):
             lo = scale_lower_bound(step, cfg)
             obj_ids = rng.choice(n_obj, size=cfg.objects_per_step, replace=n_obj < cfg.objects_per_step)
-            enc_cam, enc_in, item_obj, o_list, d_list, f_list, h_list, gt_rgb, gt_idx = [], [], [], [], [], [], [], [], []
+            enc_intr, enc_cam, enc_in, item_obj, item_w, o_list, d_list, f_list, h_list, gt_rgb, gt_idx = ([] for _ in range(11))
             for j, o in enumerate(obj_ids):
                 ob = objects[o]
                 nv = len(ob.images)
                 vin = int(rng.integers(nv))
                 enc_in.append(inputs_of(o, vin))
                 enc_cam.append(ob.c2w[vin])
+                enc_intr.append(ob.intrinsics[vin])
                 others = [v for v in range(nv) if v != vin]
                 pick = list(rng.choice(others, size=min(cfg.other_views, len(others)), replace=False)) if others else []
                 for v in [vin] + [int(x) for x in pick]:
@@ -421,6 +426,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                     b = _normalized_rays(ob.intrinsics[v], ob.c2w[v], px, mcfg.scene_box)
                     rgb, idx = gather_patch(ob.images[v], idx_of(o, v), px)
                     item_obj.append(j)
+                    item_w.append(cfg.input_weight if v == vin else 1.0)
                     o_list.append(b.origins)
                     d_list.append(b.dirs)
                     f_list.append(b.far)
@@ -428,7 +434,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                     gt_rgb.append(rgb)
                     gt_idx.append(idx)
             enc = torch.stack(enc_in).to(dev)
-            mask_code = model.encode(enc, np.stack(enc_cam))
+            mask_code = model.encode(enc, np.stack(enc_cam), enc_intr)
             zs = codes[torch.as_tensor(obj_ids, device=dev)]
             zs = zs / zs.norm(dim=-1, keepdim=True).clamp_min(1e-8) * math.sqrt(mcfg.z_dim)
             style = model.style(zs)
@@ -438,8 +444,11 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
             B = len(item_obj)
             gt = torch.stack(gt_rgb).to(dev)
             gi = torch.stack(gt_idx).to(dev)
-            l2 = F.mse_loss(res["rgb"], gt)
-            ce = F.nll_loss(res["semantic"].reshape(-1, mcfg.n_labels), gi.reshape(-1))
+            wts = torch.as_tensor(item_w, dtype=torch.float32, device=dev)
+            wts = wts / wts.sum()
+            l2 = (((res["rgb"] - gt) ** 2).mean(dim=(1, 2)) * wts).sum()
+            ce = (F.nll_loss(res["semantic"].reshape(-1, mcfg.n_labels), gi.reshape(-1), reduction="none")
+                  .view(B, -1).mean(1) * wts).sum()
             loss = cfg.l2_weight * l2 + cfg.ce_weight * ce
             pred_img = res["rgb"].view(B, P, P, 3).permute(0, 3, 1, 2)
             gt_img = gt.view(B, P, P, 3).permute(0, 3, 1, 2)
@@ -451,6 +460,9 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
             if disc is not None:
                 g_adv = F.softplus(-disc(pred_img)).mean()
                 loss = loss + cfg.gan_weight * g_adv
+            decay = cfg.lr_end_factor ** (step / max(cfg.iterations - 1, 1))
+            for group, lr in zip(opt.param_groups, (cfg.lr, cfg.encoder_lr, cfg.code_lr)):
+                group["lr"] = lr * decay
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if cfg.grad_clip > 0:
@@ -537,7 +549,8 @@ def _edit_locality(model, cfg, ob: MaskedObject, v_in: int, code: torch.Tensor) 
     edited = np.where(m == src, 0, m).astype(np.uint8)
     style = model.default_style()
     with torch.no_grad():
-        code_e = model.encode(torch.from_numpy(build_inputs(edited, cfg.labels))[None], ob.c2w[v_in][None])
+        code_e = model.encode(torch.from_numpy(build_inputs(edited, cfg.labels))[None], ob.c2w[v_in][None],
+                              ob.intrinsics[v_in])
     a = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code, style)["rgb"].numpy()
     b = model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code_e, style)["rgb"].numpy()
     r = max(2, cfg.image_size // 16)
@@ -545,6 +558,20 @@ def _edit_locality(model, cfg, ob: MaskedObject, v_in: int, code: torch.Tensor) 
     change = np.abs(a - b).mean(-1)
     return {"object": f"{ob.category}/{ob.name}", "edited": src, "edited_px": int((m == src).sum()), "radius_px": r,
             "near_change": float(change[near].mean()), "far_change": float(change[~near].mean()) if (~near).any() else 0.0}
+
+
+def _style_blend(model, ob: MaskedObject, v_in: int, code, steps: int = 5, seeds: tuple[int, int] = (1, 2)) -> dict:
+    """Render the input view along the linear blend between the styles of two seeds: the images should
+    move monotonically away from the first end and toward the second (mean absolute differences)."""
+    with torch.no_grad():
+        s0, s1 = model.style_from_seed(seeds[0]), model.style_from_seed(seeds[1])
+    imgs = [model.render_image(ob.intrinsics[v_in], ob.c2w[v_in], code, (1 - a) * s0 + a * s1)["rgb"].numpy()
+            for a in np.linspace(0.0, 1.0, steps)]
+    d0 = [float(np.abs(im - imgs[0]).mean()) for im in imgs]
+    d1 = [float(np.abs(im - imgs[-1]).mean()) for im in imgs]
+    mono = all(x < y for x, y in zip(d0, d0[1:])) and all(x > y for x, y in zip(d1, d1[1:]))
+    return {"object": f"{ob.category}/{ob.name}", "seeds": list(seeds), "from_start": d0, "to_end": d1,
+            "monotonic": bool(mono)}
 
 
 def _summarise_edits(rows: list[dict]) -> dict:
@@ -558,7 +585,7 @@ def _summarise_edits(rows: list[dict]) -> dict:
 
 
 def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
-             input_view: int = 0, views_every: int = 3, threads: int = 0):
+             input_view: int = 0, views_every: int = 3, threads: int = 0, blend_objects: int = 3):
     """Progress generator over objects; writes ``out/eval.json`` and returns its dict.
 
     For every evaluated object the mask of ``input_view`` is encoded and the input view plus every
@@ -567,7 +594,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     object image, masked by the true mask of that view), and the mIoU between the true part mask and
     the rendered semantic map (in the input view: the input mask itself). ``eval_grid.png`` shows, per
     object (first 16): input mask | true, rendered and semantic input view | the same for the first
-    novel view."""
+    novel view. Also: editing locality (every object) and style-blend monotonicity (the first
+    ``blend_objects`` objects)."""
     from ..models import metrics as M
     from ..models.sem2nerf.inputs import build_inputs
 
@@ -587,6 +615,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     labels_t = torch.as_tensor(cfg.labels)
     per_view = []
     edit_rows = []
+    blend_rows: list[dict] = []
     grid_rows: list[np.ndarray] = []
     t0 = time.time()
     for k, ob in enumerate(evals):
@@ -594,7 +623,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
             raise InputError(f"{ob.name}: images are not {cfg.image_size} px like the checkpoint's training images")
         v_in = input_view % len(ob.images)
         with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None], ob.c2w[v_in][None])
+            code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None], ob.c2w[v_in][None],
+                                ob.intrinsics[v_in])
         views = [v_in] + [v for v in range(len(ob.images)) if v != v_in and (v - v_in) % views_every == 0]
         row: list[np.ndarray] = []
         for v in views:
@@ -620,6 +650,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
         if row:
             grid_rows.append(np.concatenate(row[:7], 1))
         edit_rows.append(_edit_locality(model, cfg, ob, v_in, code))
+        if k < blend_objects:
+            blend_rows.append(_style_blend(model, ob, v_in, code))
         yield Progress(k + 1, len(evals), ob.name)
 
     def summarise(rows):
@@ -635,6 +667,10 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
                                 "novel_views": summarise([r for r in per_view if r["category"] == c and not r["input_view"]])}
                             for c in sorted({r["category"] for r in per_view})},
            "edit_locality": _summarise_edits(edit_rows),
+           "style_blend": {"n_objects": len(blend_rows), "steps": 5,
+                           "monotonic": sum(r["monotonic"] for r in blend_rows),
+                           "end_to_end_change": float(np.mean([r["from_start"][-1] for r in blend_rows]))
+                           if blend_rows else None, "per_object": blend_rows},
            "per_view": per_view, "per_object_edits": edit_rows}
     Path(out).mkdir(parents=True, exist_ok=True)
     from ..datasets.format import atomic_write_json

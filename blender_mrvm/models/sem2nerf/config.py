@@ -40,6 +40,15 @@ class Sem2NeRFConfig:
     """Width of the code head's hidden layer."""
     pose_conditioning: bool = True
     """The code head also sees the input camera (rotation + centre): the mask's viewpoint is known."""
+    pixel_aligned: bool = False
+    """Every sample point also sees the mask inputs and backbone features at its projection into the
+    input view (pixelNeRF-style local conditioning beside the global FiLM codes): the rendered input
+    view then follows the input mask pixel for pixel. False = global codes only (the paper's design;
+    older checkpoints)."""
+    local_channels: int = 32
+    """Backbone feature channels sampled per point (a 1x1 projection of the VGG map) when pixel_aligned."""
+    local_hidden: int = 64
+    """Width of the per-point local-feature MLP when pixel_aligned."""
     hidden: int = 64
     """Width of the SIREN layers."""
     n_layers: int = 4
@@ -81,8 +90,8 @@ class Sem2NeRFConfig:
 
 PRESETS: dict[str, Sem2NeRFConfig] = {
     "fast": Sem2NeRFConfig(name="fast", vgg_layers=9, encoder_hidden=128, hidden=32, n_layers=3, z_dim=16,
-                           mapping_hidden=32, n_coarse=16, n_fine=8),
-    "balanced": Sem2NeRFConfig(name="balanced"),
+                           mapping_hidden=32, n_coarse=16, n_fine=8, pixel_aligned=True),
+    "balanced": Sem2NeRFConfig(name="balanced", pixel_aligned=True),
 }
 """Named Sem2NeRF configs."""
 
@@ -101,6 +110,8 @@ def validate(cfg: Sem2NeRFConfig) -> Sem2NeRFConfig:
         raise InputError("sem2nerf vgg_layers must be 4, 9, 16 or 23 (ends of VGG16 blocks before pooling)")
     if cfg.image_size < 8 or cfg.hidden < 4 or cfg.n_layers < 1 or cfg.z_dim < 1:
         raise InputError("sem2nerf image_size >= 8, hidden >= 4, n_layers >= 1, z_dim >= 1")
+    if cfg.pixel_aligned and (cfg.local_channels < 1 or cfg.local_hidden < 1):
+        raise InputError("sem2nerf local_channels >= 1 and local_hidden >= 1 with pixel_aligned")
     if cfg.n_coarse < 2 or cfg.n_fine < 0 or cfg.scene_box <= 0 or cfg.style_mean_samples < 1:
         raise InputError("sem2nerf n_coarse >= 2, n_fine >= 0, scene_box > 0, style_mean_samples >= 1")
     return cfg
@@ -116,12 +127,24 @@ def sem2nerf_config(preset: str = "balanced", overrides: dict[str, Any] | None =
     return validate(cfg)
 
 
+def resolve_sem2nerf_checkpoint(path) -> Path:
+    """'' / 'shipped' / 'shipped:sem2nerf' -> the shipped Sem2NeRF model file (InputError when this copy
+    lacks it); anything else is that path."""
+    raw = "" if path is None else str(path).strip()
+    if raw.lower() in ("", "shipped", "shipped:sem2nerf"):
+        from ..pretrained import shipped_checkpoint
+
+        return shipped_checkpoint("sem2nerf")
+    return Path(path)
+
+
 def read_sem2nerf_header(path: Path) -> tuple[Path, dict[str, str]]:
-    """(model file, metadata) of a Sem2NeRF checkpoint (model file, checkpoint or run folder);
-    InputError if it is none. Torch-free: the add-on checks a picked file on Blender's main thread."""
+    """(model file, metadata) of a Sem2NeRF checkpoint (model file, checkpoint or run folder, or
+    ``shipped:sem2nerf``); InputError if it is none. Torch-free: the add-on checks a picked file on
+    Blender's main thread."""
     from ..checkpoint_files import checked_header
 
-    model_file, meta = checked_header(Path(path))
+    model_file, meta = checked_header(resolve_sem2nerf_checkpoint(path))
     if meta.get("model_kind") != MODEL_KIND:
         raise InputError(f"{model_file} is not a Sem2NeRF checkpoint (model kind {meta.get('model_kind', 'mrvm')!r})")
     return model_file, meta

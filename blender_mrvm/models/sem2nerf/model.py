@@ -10,6 +10,13 @@
 - :class:`SirenField`: FiLM-SIREN trunk (mask code) -> density and per-point part logits; a FiLM
   colour layer (style code, view direction) -> RGB. Geometry and parts depend on the mask only,
   appearance on both, so mask edits and style changes act on separate things.
+- pixel-aligned conditioning (``cfg.pixel_aligned``): :meth:`Sem2NeRF.encode` then returns a
+  :class:`MaskCode` that also holds the mask inputs, a projected backbone feature map and the input
+  camera; every sample point is projected into the input view and the mask channels and features
+  there (plus its depth in that camera) go through a small MLP whose output adds to the density and
+  part logits and feeds the colour layer; the sampled one-hot label adds ``label_gain`` to its logit.
+  Along a ray of the input view every point sees the same input pixel, so the rendered input-view
+  semantic map follows the input mask (the global codes alone gave category-average shapes).
 - :meth:`Sem2NeRF.render_rays`: box-clipped rays (``models/rays.py``), stratified + importance
   samples (``models/samplers.py``), ``models/renderer.volume_render``; the semantic map is the
   weight-composited part probabilities plus the background for the transmitted remainder, returned as
@@ -30,6 +37,65 @@ from .config import Sem2NeRFConfig
 CAMERA_FEATURES = 12
 """Camera features of the encoder head: the 3x3 rotation and the centre (in scene-box units)."""
 VGG_CHANNELS = {4: 64, 9: 128, 16: 256, 23: 512}
+
+
+# ------------------------------------------------------------------------------------------- codes
+
+class MaskCode:
+    """What a pixel-aligned encoder gives per input mask (batch-indexable like a tensor).
+
+    code (B, D) global FiLM codes; fmap (B, L, S, S) local feature map (a 1x1 convolution of the
+    builder channels and the upsampled backbone features: linear, so sampling it equals sampling its
+    inputs and projecting, at a fraction of the channels); index (B, 1, S, S) label index of each
+    input pixel (float); K (B, 3, 3) input intrinsics at S px; w2c (B, 4, 4) input camera,
+    world-to-camera in the normalised frame (OpenCV axes)."""
+
+    def __init__(self, code, fmap, index, K, w2c):
+        self.code, self.fmap, self.index, self.K, self.w2c = code, fmap, index, K, w2c
+
+    def __getitem__(self, idx) -> "MaskCode":
+        return MaskCode(self.code[idx], self.fmap[idx], self.index[idx], self.K[idx], self.w2c[idx])
+
+    @property
+    def device(self):
+        return self.code.device
+
+    @property
+    def shape(self):
+        return self.code.shape
+
+
+def _global(mask_code) -> torch.Tensor:
+    return mask_code.code if isinstance(mask_code, MaskCode) else mask_code
+
+
+def project_to_input(pts: torch.Tensor, mc: MaskCode) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points (B, N, 3) in the normalised frame -> (grid (B, N, 2) in grid_sample's [-1, 1] units,
+    camera depth z (B, N)) in the input view (pixel-centre convention, align_corners=False)."""
+    R, t = mc.w2c[:, :3, :3].to(pts), mc.w2c[:, :3, 3].to(pts)
+    cam = torch.einsum("bij,bnj->bni", R, pts) + t[:, None]
+    z = cam[..., 2]
+    zs = torch.where(z.abs() < 1e-6, torch.full_like(z, 1e-6), z)
+    K = mc.K.to(pts)
+    u = (K[:, None, 0, 0] * cam[..., 0] + K[:, None, 0, 1] * cam[..., 1]) / zs + K[:, None, 0, 2]
+    v = K[:, None, 1, 1] * cam[..., 1] / zs + K[:, None, 1, 2]
+    S = mc.fmap.shape[-1]
+    grid = torch.stack([u / S * 2 - 1, v / S * 2 - 1], -1)
+    return grid, z
+
+
+def local_features(pts: torch.Tensor, mc: MaskCode) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """At each point's projection into the input view: features (B, N, L + 2) (the local map, the
+    point's depth in that camera, whether it projects inside the image in front of the camera; zeros
+    elsewhere), the input label index (B, N) (nearest pixel; 0 = background outside) and inside (B, N)."""
+    grid, z = project_to_input(pts, mc)
+    inside = ((grid.abs() <= 1).all(-1) & (z > 1e-3)).to(pts.dtype)
+    grid = torch.where(inside[..., None] > 0, grid, torch.full_like(grid, 2.0)).clamp(-2, 2)
+    g = grid[:, :, None]  # (B, N, 1, 2)
+    a = F.grid_sample(mc.fmap.to(pts), g, mode="bilinear", padding_mode="zeros", align_corners=False)
+    idx = F.grid_sample(mc.index.to(pts), g, mode="nearest", padding_mode="zeros", align_corners=False)
+    feat = torch.cat([a[..., 0].transpose(1, 2), (z * inside)[..., None], inside[..., None]], -1)
+    return feat, idx[:, 0, :, 0].round().long(), inside
 
 
 # ------------------------------------------------------------------------------------------- SIREN
@@ -69,27 +135,48 @@ class SirenField(nn.Module):
         self.trunk = nn.ModuleList([FiLMLayer(3 if i == 0 else h, h) for i in range(cfg.n_layers)])
         self.sigma = nn.Linear(h, 1)
         self.parts = nn.Linear(h, cfg.n_labels)
-        self.color_film = FiLMLayer(h + 3, h)
+        lh = cfg.local_hidden if cfg.pixel_aligned else 0
+        self.color_film = FiLMLayer(h + 3 + lh, h)
         self.color_out = nn.Linear(h, 3)
         for m in [*self.trunk[1:], self.color_film]:
             _frequency_init(m.layer)
         for m in (self.sigma, self.parts):  # color_out keeps the default init (colours vary from the start)
             _frequency_init(m)
         _first_layer_init(self.trunk[0].layer)
+        if cfg.pixel_aligned:
+            self.local = nn.Sequential(nn.Linear(cfg.local_channels + 2 + h, lh), nn.ReLU(), nn.Linear(lh, lh), nn.ReLU())
+            self.local_sigma = nn.Linear(lh, 1)
+            self.local_parts = nn.Linear(lh, cfg.n_labels)
+            self.label_gain = nn.Parameter(torch.tensor(4.0))
+            with torch.no_grad():
+                for m in (self.local_sigma, self.local_parts):
+                    m.weight.mul_(0.1)
+                    m.bias.zero_()
 
-    def forward(self, pts: torch.Tensor, dirs: torch.Tensor, mask_code: torch.Tensor, style_code: torch.Tensor):
+    def forward(self, pts: torch.Tensor, dirs: torch.Tensor, mask_code, style_code: torch.Tensor, local=None):
         cfg = self.cfg
         h = cfg.hidden
-        freqs = mask_code[:, : cfg.n_layers * h].view(-1, cfg.n_layers, h) * cfg.freq_scale + cfg.freq_bias
-        phases = mask_code[:, cfg.n_layers * h:].view(-1, cfg.n_layers, h)
+        g = _global(mask_code)
+        freqs = g[:, : cfg.n_layers * h].view(-1, cfg.n_layers, h) * cfg.freq_scale + cfg.freq_bias
+        phases = g[:, cfg.n_layers * h:].view(-1, cfg.n_layers, h)
         x = pts
         for i, layer in enumerate(self.trunk):
             x = layer(x, freqs[:, i], phases[:, i])
         raw_sigma = self.sigma(x)[..., 0]
         logits = self.parts(x)
+        feats = [dirs, x]
+        if cfg.pixel_aligned:
+            if local is None:
+                raise ValueError("a pixel-aligned Sem2NeRF field needs the points' local features")
+            feat, idx, inside = local
+            lf = self.local(torch.cat([feat, x], -1))
+            raw_sigma = raw_sigma + self.local_sigma(lf)[..., 0]
+            gain = (self.label_gain * inside)[..., None]
+            logits = (logits + self.local_parts(lf)).scatter_add(-1, idx[..., None], gain)
+            feats.append(lf)
         s_freq = style_code[:, :h] * cfg.freq_scale + cfg.freq_bias
         s_phase = style_code[:, h:]
-        c = self.color_film(torch.cat([dirs, x], -1), s_freq, s_phase)
+        c = self.color_film(torch.cat(feats, -1), s_freq, s_phase)
         rgb = torch.sigmoid(self.color_out(c))
         return raw_sigma, logits, rgb
 
@@ -141,15 +228,23 @@ class MaskEncoder(nn.Module):
         with torch.no_grad():
             self.head[-1].weight.mul_(0.25)
             self.head[-1].bias.zero_()
+        if cfg.pixel_aligned:
+            self.local_proj = nn.Conv2d(ch + cfg.in_channels, cfg.local_channels, 1)
 
-    def forward(self, x: torch.Tensor, cam: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, cam: torch.Tensor | None = None, return_map: bool = False):
+        inputs = x
         x = x * 2.0 - 1.0  # channels in [0, 1] -> [-1, 1], centred like normalised ImageNet input
-        f = self.pool(self.backbone(x)).flatten(1)
+        fmap = self.backbone(x)
+        f = self.pool(fmap).flatten(1)
         if self.cfg.pose_conditioning:
             if cam is None:
                 raise ValueError("this Sem2NeRF encoder needs the input camera (pose_conditioning)")
             f = torch.cat([f, cam.to(f)], 1)
-        return self.head(f)
+        code = self.head(f)
+        if return_map:
+            up = F.interpolate(fmap, size=inputs.shape[-2:], mode="bilinear", align_corners=False)
+            return code, self.local_proj(torch.cat([inputs, up], 1))
+        return code
 
 
 # ------------------------------------------------------------------------------------------- model
@@ -174,10 +269,37 @@ class Sem2NeRF(nn.Module):
         c = torch.as_tensor(c2w, dtype=torch.float64).reshape(-1, 4, 4)
         return torch.cat([c[:, :3, :3].reshape(-1, 9), c[:, :3, 3] / self.cfg.scene_box], 1).float()
 
-    def encode(self, inputs: torch.Tensor, c2w=None) -> torch.Tensor:
-        """(B, C + 2, S, S) builder outputs (+ (B, 4, 4) world c2w of the mask's camera) -> (B, 2 * n_layers * hidden) mask codes."""
+    def encode(self, inputs: torch.Tensor, c2w=None, intr=None):
+        """(B, C + 2, S, S) builder outputs (+ (B, 4, 4) world c2w of the mask's camera, + its
+        intrinsics: one or a list of B, any resolution of the same aspect) -> (B, 2 * n_layers * hidden)
+        mask codes, or with ``cfg.pixel_aligned`` a :class:`MaskCode` (which needs c2w and intr)."""
         cam = self.camera_features(c2w).to(inputs.device) if c2w is not None else None
-        return self.encoder(inputs, cam)
+        if not self.cfg.pixel_aligned:
+            return self.encoder(inputs, cam)
+        if c2w is None or intr is None:
+            raise ValueError("a pixel-aligned Sem2NeRF needs the input camera's pose and intrinsics")
+        code, fmap = self.encoder(inputs, cam, return_map=True)
+        K, w2c = self.input_cameras(c2w, intr, inputs.shape[-1])
+        index = inputs[:, : self.cfg.n_labels].argmax(1, keepdim=True).float()
+        return MaskCode(code, fmap, index, K.to(inputs.device), w2c.to(inputs.device))
+
+    def input_cameras(self, c2w, intr, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(K (B, 3, 3) at ``size`` px, w2c (B, 4, 4) in the normalised frame) of the input cameras."""
+        import numpy as np
+
+        from ..rays import normalize_pose
+
+        c = np.asarray(c2w, np.float64).reshape(-1, 4, 4)
+        intrs = list(intr) if isinstance(intr, (list, tuple)) else [intr] * len(c)
+        if len(intrs) != len(c):
+            raise ValueError(f"{len(intrs)} intrinsics for {len(c)} input cameras")
+        Ks, w2cs = [], []
+        for m, it in zip(c, intrs):
+            if it.width != size:
+                it = it.scaled(size / it.width)
+            Ks.append([[it.fx, it.skew, it.cx], [0.0, it.fy, it.cy], [0.0, 0.0, 1.0]])
+            w2cs.append(np.linalg.inv(normalize_pose(m, np.zeros(3), self.cfg.scene_box)))
+        return torch.tensor(np.array(Ks), dtype=torch.float32), torch.tensor(np.array(w2cs), dtype=torch.float32)
 
     def style(self, z: torch.Tensor) -> torch.Tensor:
         """(B, z_dim) random codes -> (B, 2 * hidden) style codes."""
@@ -201,9 +323,10 @@ class Sem2NeRF(nn.Module):
         return self.style(z)
 
     # -- field
-    def query(self, pts: torch.Tensor, dirs: torch.Tensor, mask_code: torch.Tensor, style_code: torch.Tensor):
+    def query(self, pts: torch.Tensor, dirs: torch.Tensor, mask_code, style_code: torch.Tensor):
         """Points (B, N, 3) (normalised frame), unit dirs (B, N, 3) -> sigma (B, N), logits (B, N, C), rgb (B, N, 3)."""
-        raw, logits, rgb = self.field(pts, dirs, mask_code, style_code)
+        local = local_features(pts, mask_code) if isinstance(mask_code, MaskCode) else None
+        raw, logits, rgb = self.field(pts, dirs, mask_code, style_code, local)
         sigma = F.softplus(raw * self.cfg.density_scale + self.cfg.density_bias)
         return sigma, logits, rgb
 

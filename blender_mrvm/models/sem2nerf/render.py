@@ -355,7 +355,8 @@ def render_from_mask(req: RenderRequest):
     try:
         labels_t = torch.as_tensor(cfg.labels)
         with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(device), p.c2w[None])
+            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(device), p.c2w[None],
+                                p.intr)
             style = model.style_from_seed(req.style_seed) if req.style_seed is not None else model.default_style()
             if req.mix_seed is not None and req.mix > 0:
                 style = mix_styles(style, model.style_from_seed(req.mix_seed), req.mix)
