@@ -242,6 +242,14 @@ def test_panel_new_gpnr_run_and_shipped_model_choice(train_ready, tmp_path):
     mcfg, _ = load_run_config(tmp_path / "train.json")
     assert type(mcfg).__name__ == "GPNRConfig" and mcfg.name == "fast"
     assert "model_kind" in {e[1] for e in _draw(MRVM_PT_model) if e[0] == "prop"}
-    p.model_kind, p.preset = "nerformer_mrvm", "paper"
-    with pytest.raises(Exception, match="has no 'paper' size"):
-        T.plan_from_props(bpy.context)
+    p.model_kind, p.preset = "nerformer_mrvm", "paper"  # the paper's NeRFormer size exists since session 4
+    assert T.plan_from_props(bpy.context).model == {"kind": "nerformer_mrvm", "preset": "paper"}
+    from blender_mrvm.models import registry
+
+    real = registry.presets
+    try:  # a size the kind lacks is one clear error
+        registry.presets = lambda k: {n: c for n, c in real(k).items() if n != "paper"}
+        with pytest.raises(Exception, match="has no 'paper' size"):
+            T.plan_from_props(bpy.context)
+    finally:
+        registry.presets = real
