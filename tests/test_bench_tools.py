@@ -91,3 +91,10 @@ def test_omp_policy_is_set_unless_the_user_chose(monkeypatch):
     monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
     monkeypatch.delenv(threads.KEEP_ENV, raising=False)
     assert worker.worker_env()["OMP_WAIT_POLICY"] == "PASSIVE"
+
+
+def test_auto_thread_count_leaves_a_core():
+    assert [threads.auto_threads(c) for c in (1, 2, 3, 16)] == [1, 1, 2, 15]
+    n = threads.set_torch_threads(0)
+    assert torch.get_num_threads() == n == threads.auto_threads()
+    assert threads.set_torch_threads(1) == 1 and torch.get_num_threads() == 1

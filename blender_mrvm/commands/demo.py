@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model: 0 (default) shrinks "
                    "references larger than the model's training images to that size, -1 keeps them, N pixels")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default: all cores)")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--no-picture", action="store_true", help="do not render demo_out/scene.png")
     p.add_argument("--force", action="store_true", help="re-render objects rendered with other settings and write "
@@ -137,10 +137,9 @@ def novel_views_demo(args) -> int:
     from .make_shapenet import eval_views
 
     t_start = time.perf_counter()
-    if args.threads > 0:
-        import torch
+    from ..threads import set_torch_threads
 
-        torch.set_num_threads(args.threads)
+    set_torch_threads(args.threads)
     out = Path(args.out)
     protocol = eval_views(args.views)
     refs, target_views = protocol["input_views_2"], protocol["target_views_2"]

@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-targets", type=int, default=0, help="score at most this many views per object (0 = all)")
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
                    help="empty-space skipping through the references' visual hull where the dataset has masks "
                    "(as synthesize; default cull)")
@@ -79,17 +79,16 @@ def read_compare_to(path: Path) -> dict:
 
 
 def run(args) -> int:
-    import torch
-
     from ..datasets.loaders import check_finished, detect_format, list_objects, load_object
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
     from ..training.evaluate import compare_reports, evaluate, per_category, protocol_target_inputs, protocol_views
 
+    from ..threads import set_torch_threads
+
     check_args(args)
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    set_torch_threads(args.threads)
     other = None
     if args.compare_to is not None:
         other = read_compare_to(args.compare_to)

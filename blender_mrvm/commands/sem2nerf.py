@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     t.add_argument("--scale-anneal-steps", type=float, default=2000.0, help="e-folding steps of the patch scale bound")
     t.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    t.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    t.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     t.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     t.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
 
@@ -71,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--targets", default="",
                    help="targets.json (the add-on's format) of the cameras to render instead of the orbit")
     r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
-    r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
@@ -88,7 +88,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--blend-objects", type=int, default=3,
                    help="objects whose input view is rendered along a 5-step style blend (default 3)")
     e.add_argument("--out", required=True, help="output folder for eval.json")
-    e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
 
     b = sub.add_parser("bench", help="time the input builders at 512 px -> CSV")
     b.add_argument("--out", default="bench_out", help="output folder (default bench_out)")

@@ -75,7 +75,7 @@ class SynthesisConfig:
     bbox: tuple | None = None
     """Object box ((min x, y, z), (max x, y, z)) in world units; None = from the references."""
     threads: int = 0
-    """torch CPU threads (0 = torch's default)."""
+    """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
     skip_empty: str = "cull"
     """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
     masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
@@ -479,11 +479,10 @@ def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
 
 def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     """Progress generator (events in rays); returns a :class:`SynthesisSummary`. See the module doc."""
-    import torch
+    from ..threads import set_torch_threads
 
     t0 = time.perf_counter()
-    if cfg.threads and cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
+    set_torch_threads(cfg.threads)
     out = Path(cfg.out)
     _check_out(out, cfg)
     targets, depth_wanted = read_targets(Path(cfg.targets))

@@ -106,7 +106,7 @@ class Sem2NeRFTrainConfig:
     keep: int = 2
     """Checkpoints kept."""
     threads: int = 0
-    """torch CPU threads (0 = leave as is)."""
+    """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
     device: str = "cpu"
     """Torch device ('cpu', 'cuda')."""
 
@@ -317,13 +317,12 @@ def _normalized_rays(intr, c2w, px: np.ndarray, box: float):
 def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObject] | None = None):
     """Progress generator: trains, writes checkpoints and metrics.jsonl; returns a summary dict."""
     from ..models.checkpoint_files import STATE_FILE, find_checkpoint
-    from ..models.config import merge
     from ..models.sem2nerf.config import sem2nerf_config
     from ..models.sem2nerf.inputs import build_inputs, to_index
     from ..models.sem2nerf.model import Sem2NeRF
+    from ..threads import set_torch_threads
 
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+    set_torch_threads(cfg.threads)
     dev = torch.device(cfg.device)
     out = Path(cfg.out_dir)
     if objects is None:
@@ -601,8 +600,9 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
 
     if views_every < 1:
         raise InputError("--views-every must be >= 1")
-    if threads:
-        torch.set_num_threads(threads)
+    from ..threads import set_torch_threads
+
+    set_torch_threads(threads)
     model, cfg, meta = load_sem2nerf(checkpoint)
     if holdout > 0:
         evals = load_masked_dataset(Path(data), split, max_objects, holdout, held_out=True)

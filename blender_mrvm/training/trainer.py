@@ -175,8 +175,9 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     if device.startswith("cuda") and dd.world > 1:
         device = f"cuda:{dd.local_rank}"
         torch.cuda.set_device(device)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+    from ..threads import set_torch_threads
+
+    set_torch_threads(cfg.threads)
     run_dir = Path(cfg.out_dir)
     if scenes is None:
         scenes = load_dataset(Path(cfg.data), cfg.split, cfg.data_format or None, cfg.max_objects or None)

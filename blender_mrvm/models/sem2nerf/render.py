@@ -63,7 +63,7 @@ class RenderRequest:
     force: bool = False
     """Write into a non-empty output folder (files of the same name are replaced)."""
     threads: int = 0
-    """torch CPU threads (0 = leave)."""
+    """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
     device: str = "cpu"
     """Torch device."""
     targets: str = ""
@@ -343,8 +343,9 @@ def render_from_mask(req: RenderRequest):
     from ...training.sem2nerf import load_sem2nerf
     from .inputs import build_inputs
 
-    if req.threads:
-        torch.set_num_threads(req.threads)
+    from ...threads import set_torch_threads
+
+    set_torch_threads(req.threads)
     from ...synthesis.views import resolve_device
 
     device = str(resolve_device(req.device))
