@@ -44,6 +44,16 @@ def sphere_hull(n_refs=3, box=1.1):
     return build_hull(masks, cams, box, resolution=32), poses, intr
 
 
+def model_and_scene():
+    """A fast random-weight model, 2 random reference images of the sphere rig with its masks, a target."""
+    torch.manual_seed(0)
+    model = registry.build_model(registry.build_config(None, "fast")).eval()
+    poses, intr = rig(2)
+    imgs = np.random.default_rng(1).random((2, SIZE, SIZE, 3)).astype(np.float32)
+    masks = np.stack([sphere_hits(intr, p)[0].reshape(SIZE, SIZE) for p in poses])
+    return model, imgs, poses, intr, masks, (np.full(3, -0.5), np.full(3, 0.5)), rig(1, dist=2.3, seed=3)[0][0]
+
+
 def test_hull_contains_the_object_and_carves_empty_space():
     hull, _, _ = sphere_hull()
     G = hull.resolution
@@ -79,13 +89,7 @@ def test_cull_keeps_every_ray_that_meets_the_object_and_drops_many_others():
 
 
 def test_culling_changes_nothing_on_kept_rays():
-    torch.manual_seed(0)
-    model = registry.build_model(registry.build_config(None, "fast")).eval()
-    poses, intr = rig(2)
-    imgs = np.random.default_rng(1).random((2, SIZE, SIZE, 3)).astype(np.float32)
-    masks = np.stack([sphere_hits(intr, p)[0].reshape(SIZE, SIZE) for p in poses])
-    bbox = (np.full(3, -0.5), np.full(3, 0.5))
-    target = rig(1, dist=2.3, seed=3)[0][0]
+    model, imgs, poses, intr, masks, bbox, target = model_and_scene()
     a = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr)
     b = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip="cull")
     assert b["evaluated"] < a["evaluated"] and b["box_rays"] == a["box_rays"]
@@ -116,13 +120,7 @@ def test_rays_made_in_row_blocks_give_the_same_image(monkeypatch):
     culling, gives the same pixels as one block."""
     import blender_mrvm.models.base as B
 
-    torch.manual_seed(0)
-    model = registry.build_model(registry.build_config(None, "fast")).eval()
-    poses, intr = rig(2)
-    imgs = np.random.default_rng(1).random((2, SIZE, SIZE, 3)).astype(np.float32)
-    masks = np.stack([sphere_hits(intr, p)[0].reshape(SIZE, SIZE) for p in poses])
-    bbox = (np.full(3, -0.5), np.full(3, 0.5))
-    target = rig(1, dist=2.3, seed=3)[0][0]
+    model, imgs, poses, intr, masks, bbox, target = model_and_scene()
     whole = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip="cull")
     monkeypatch.setattr(B, "RAY_BLOCK", SIZE * 5 + 7)  # 5 rows a block, the last one short
     blocks = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip="cull")

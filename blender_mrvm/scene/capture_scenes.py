@@ -311,17 +311,9 @@ def render_captures(cfg: CaptureConfig) -> ProgressGen:
 
 def write_capture_splits(root: Path, cfg: CaptureConfig) -> dict[str, list[str]]:
     """``splits/*.lst`` from the finished scenes on disk, and the protocol file."""
-    settings = cfg.settings()
-    splits: dict[str, list[str]] = {s: [] for s in F.SPLITS}
-    for meta_path in sorted(Path(root).glob(f"{CATEGORY}/*/meta.json")):
-        try:
-            meta = json.loads(meta_path.read_text())
-        except ValueError:
-            continue
-        if meta.get("complete") and meta.get("settings") == settings and meta.get("split") in splits:
-            splits[meta["split"]].append(f"{CATEGORY}/{meta['object_id']}")
-    for s, entries in splits.items():
-        F.write_split(root, s, entries)
+    from .render import write_splits
+
+    splits = write_splits(root, cfg.settings())  # scenes are <CATEGORY>/<scene id>, as objects are
     F.atomic_write_json(Path(root) / "splits" / "eval_views.json", protocol(cfg.views, cfg.holdout_every))
     return splits
 

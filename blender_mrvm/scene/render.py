@@ -213,10 +213,12 @@ def assign_split(cfg: RenderConfig, key: str) -> str:
     return "train" if u < tr else ("val" if u < tr + va else "test")
 
 
-def write_splits(root: Path) -> dict[str, list[str]]:
-    """Rewrite ``splits/*.lst`` from the finished objects on disk that match the root's settings."""
+def write_splits(root: Path, settings: dict | None = None) -> dict[str, list[str]]:
+    """Rewrite ``splits/*.lst`` from the finished objects on disk that match ``settings`` (default: the
+    root manifest's)."""
     root = Path(root)
-    settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
+    if settings is None:
+        settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
     splits: dict[str, list[str]] = {s: [] for s in F.SPLITS}
     for meta_path in sorted(root.glob("*/*/meta.json")):
         try:
