@@ -33,17 +33,20 @@ def apply_omp_defaults(env: MutableMapping[str, str] | None = None) -> MutableMa
     return env
 
 
+def usable_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def auto_threads(cpus: int | None = None) -> int:
     """The torch thread count for ``threads = 0``: every usable core but one (Blender, the writer thread
     or the user's other work keep it), at least 1. On the 2-core box that is 1 thread, which measured
     best both idle (1.83 s per shipped `balanced` 128 px view against 2.25 s for 2 passive threads) and
     beside a busy process (11.4 s, where 2 spinning threads took 71.7 s)."""
-    if cpus is None:
-        try:
-            cpus = len(os.sched_getaffinity(0))
-        except (AttributeError, OSError):
-            cpus = os.cpu_count() or 1
-    return max(1, int(cpus) - 1)
+    return max(1, int(usable_cores() if cpus is None else cpus) - 1)
 
 
 def set_torch_threads(requested: int = 0) -> int:
@@ -54,3 +57,20 @@ def set_torch_threads(requested: int = 0) -> int:
     n = int(requested) if requested and requested > 0 else auto_threads()
     torch.set_num_threads(n)
     return n
+
+
+def render_workers(requested: int = 0) -> int:
+    """Rendering views (synthesis, eval, the demo, the benches): ``n`` ray chunks rendered side by side on
+    threads, each chunk's ops on one core, so torch's own thread count is set to 1; returns ``n``:
+    ``requested``, or every usable core when 0 (``RayModel.image_chunks``' ``workers``).
+
+    The models' ops are small (a chunk is 512 rays), so OpenMP's per-op fork/join costs more than it gives:
+    on the 2-core box, idle, a shipped `balanced` 128 px view took 0.78-0.88 s with 2 chunk workers against
+    1.40-1.60 s with 1 thread and 1.56-1.74 s with 2 OpenMP threads (passive). Chunk workers share no
+    barrier, so a busy core slows them down and nothing more (``bench threads``: the spin-wait cliff of 2
+    OpenMP threads beside a busy process does not apply). Training keeps :func:`set_torch_threads`."""
+    import torch
+
+    n = int(requested) if requested and requested > 0 else usable_cores()
+    torch.set_num_threads(1)
+    return max(1, n)

@@ -44,6 +44,9 @@ def test_sweep_moves_one_knob_at_a_time():
                  if getattr(p, f) != getattr(base, f)]
         assert len(moved) == 1, (p.label, moved)
     assert not any(p.precision == "fp16" for p in pts)  # fp16 only on a GPU
+    gates = [p.overrides["render"]["fine_min_acc"] for p in pts if p.axis == "gate"]
+    g = cfg.render.fine_min_acc
+    assert sorted(gates) == [0.0, g / 10, 10 * g]  # off, a tenth of the default and 10x it
     g = tr.sweep("gpnr", registry.build_config("gpnr", "fast"), ["samples"], "cuda")
     assert {p.overrides["n_samples"] for p in g} == {12, 48}
     assert tr.ref_views(24, 2) == [3, 15] and len(set(tr.ref_views(24, 5))) == 5

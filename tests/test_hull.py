@@ -80,6 +80,7 @@ def test_cull_keeps_every_ray_that_meets_the_object_and_drops_many_others():
         dropped = (rays.hit & ~culled.hit).sum() / rays.hit.sum()
         assert dropped > 0.2, f"only {dropped:.0%} of the box rays were skipped"
         tight = clip_rays(rays, hull, "tighten", keep=keep)
+        assert torch.equal(tight.hit, culled.hit)  # cull's early-out march meets the voxels the full one does
         hit = torch.from_numpy(hits)
         t0 = tight.depth_offset[hit].numpy()
         t1 = t0 + tight.far[hit].numpy()

@@ -31,6 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sizes", default="128", help="comma-separated square render sizes")
     p.add_argument("--repeats", type=int, default=3, help="timed renders per configuration (median reported)")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    p.add_argument("--workers", type=int, default=1,
+                   help="ray chunks rendered side by side on threads (threads.render_workers; torch threads then 1)")
     p.add_argument("--ref-size", type=int, default=0,
                    help="reference images' side in pixels (default 0: the view's size); synthesis gives a model its "
                    "training size (64 px for the shipped ones), so large views are best measured with --ref-size 64")
@@ -43,7 +45,7 @@ def run(args) -> int:
     from ..geometry import cameras
     from ..models import registry
 
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(1 if args.workers > 1 else args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -64,19 +66,20 @@ def run(args) -> int:
                 rintr = [intr.resized(rs, rs)] * nv
                 ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
-                model.synthesize(refs, ref_poses, rintr, bbox, target, intr)  # warm-up
+                model.synthesize(refs, ref_poses, rintr, bbox, target, intr, workers=args.workers)  # warm-up
                 times, cpus, peaks = [], [], []
                 for _ in range(args.repeats):
                     with PeakMemory("cpu") as pm:
                         t0, c0 = time.perf_counter(), time.process_time()
-                        res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr)
+                        res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr, workers=args.workers)
                         times.append(time.perf_counter() - t0)
                         cpus.append(time.process_time() - c0)
                     peaks.append(pm.mib)
                 sec = statistics.median(times)
                 pts_ray = points_per_ray(cfg)
                 rows.append({
-                    "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv, "threads": args.threads, "params": n_params,
+                    "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv, "threads": 1 if args.workers > 1 else args.threads,
+                    "workers": args.workers, "params": n_params,
                     "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4),
                     "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
                     "chunk_rays": model.chunk_rays, "load_1min": round(os.getloadavg()[0], 2),

@@ -1,5 +1,7 @@
 """The thread-count cliff: seconds per view at 1..N torch threads, OpenMP's default wait policy against
-ours (``OMP_WAIT_POLICY=PASSIVE``, ``threads.py``), on a quiet machine and beside a competing process.
+``OMP_WAIT_POLICY=PASSIVE`` (``threads.py``), and 1..N ray chunks rendered side by side on threads with
+one torch thread each (``threads.render_workers``, what synthesis and eval use), on a quiet machine and
+beside a competing process.
 
 Each setting runs ``bench model`` in a fresh process (libgomp reads its policy when torch is imported).
 ``--competitors K`` busy processes (a pure-Python spin loop each, like Blender or a second job holding a
@@ -31,9 +33,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="balanced", help="model preset (KIND:PRESET for another kind)")
     p.add_argument("--size", type=int, default=128, help="view side in pixels")
     p.add_argument("--views", type=int, default=2, help="reference views")
-    p.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
+    p.add_argument("--threads", default="1,2", help="comma-separated thread counts (torch threads, or chunk workers)")
     p.add_argument("--competitors", type=int, default=1, help="busy processes beside the 'busy' settings")
     p.add_argument("--repeats", type=int, default=3, help="timed renders per setting (median)")
+
+
+POLICIES = ("openmp default", "PASSIVE", "chunk workers (ours)")
 
 
 def _one(policy: str, threads: int, args) -> float:
@@ -47,8 +52,8 @@ def _one(policy: str, threads: int, args) -> float:
         env.pop(KEEP_ENV, None)
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "blender_mrvm", "bench", "model", "--presets", args.preset, "--views",
-               str(args.views), "--sizes", str(args.size), "--repeats", str(args.repeats), "--threads", str(threads),
-               "--out", tmp]
+               str(args.views), "--sizes", str(args.size), "--repeats", str(args.repeats), "--out", tmp]
+        cmd += ["--threads", "1", "--workers", str(threads)] if policy.startswith("chunk") else ["--threads", str(threads)]
         subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
         with open(Path(tmp) / "bench_model.csv") as f:
             return float(next(csv.DictReader(f))["seconds_median"])
@@ -60,7 +65,7 @@ def run(args) -> int:
     for busy in (0, args.competitors):
         procs = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
         try:
-            for policy in ("openmp default", "PASSIVE (ours)"):
+            for policy in POLICIES:
                 base = None
                 for t in threads:
                     sec = _one(policy, t, args)

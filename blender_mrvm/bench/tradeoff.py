@@ -7,6 +7,8 @@ own setting one knob at a time, at inference (the weights stay; every point is a
 - ``refs``: number of reference views (1, 2, 5), spread evenly around each object;
 - ``ref_size``: reference resolution (the references resized before encoding);
 - ``precision``: fp32, bf16 autocast (and fp16 on a GPU);
+- ``gate``: NeRFormer's fine pass skipped on rays whose coarse opacity is below ``render.fine_min_acc``
+  (off, a tenth of the default and 10x it);
 - ``skip``: box clipping only, visual-hull culling (``models/hull.py``), hull tightening;
 - ``chunk``: rays per forward pass (time and memory only: the numbers are the same).
 
@@ -44,7 +46,7 @@ import numpy as np
 
 from . import PeakMemory, write_csv
 
-AXES = ("base", "samples", "refs", "ref_size", "precision", "skip", "chunk")
+AXES = ("base", "samples", "gate", "refs", "ref_size", "precision", "skip", "chunk")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -58,6 +60,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=int, default=128, help="timed view's side in pixels (default 128)")
     p.add_argument("--repeats", type=int, default=3, help="timed renders per point (median reported)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="ray chunks rendered side by side on threads (threads.render_workers; torch threads then 1)")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (the front then uses PSNR only)")
     p.add_argument("--out", type=Path, default=Path("bench_out"), help="folder for the CSV, PNG and front")
@@ -92,6 +96,11 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
             for cc, ff in [(max(4, c // 2), f // 2), (c, 0), (c * 2, f * 2)]:
                 if (cc, ff) != (c, f):
                     pts.append(Point("samples", f"{cc}+{ff} samples", {"sampler": {"n_coarse": cc, "n_fine": ff}}))
+    if "gate" in axes and kind != "gpnr":
+        g = float(cfg.render.fine_min_acc)
+        for v in sorted({0.0, g / 10 if g > 0 else 1e-3, 10 * g if g > 0 else 1e-2} - {g}):
+            pts.append(Point("gate", f"fine gate {v:g}" if v else "fine pass everywhere",
+                             {"render": {"fine_min_acc": v}}))
     if "refs" in axes:
         pts += [Point("refs", f"{r} refs", refs=r) for r in (1, 5)]
     if "ref_size" in axes:
@@ -123,7 +132,8 @@ def _autocast(precision: str, device: str):
     return torch.autocast("cuda" if device.startswith("cuda") else "cpu", dtype=dtype)
 
 
-def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: int, device: str) -> dict:
+def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: int, device: str,
+                  workers: int = 1) -> dict:
     """Median wall / CPU seconds of one ``size`` x ``size`` view, rays, and peak extra memory (MiB)."""
     import torch
 
@@ -136,7 +146,7 @@ def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: 
     intr = scene.intrinsics[t].resized(size, size)
     args = (np.stack([im for im, _ in mr]), [scene.c2w[r] for r in refs], [k for _, k in mr], scene.bbox,
             scene.c2w[t], intr)
-    kw = dict(chunk=pt.chunk or None, ref_masks=masks, skip=pt.skip)
+    kw = dict(chunk=pt.chunk or None, ref_masks=masks, skip=pt.skip, workers=workers)
     with _autocast(pt.precision, device):
         model.synthesize(*args, **kw)  # warm-up
         walls, cpus, peaks = [], [], []
@@ -193,7 +203,7 @@ def run(args) -> int:
     from ..synthesis import load_checkpoint
     from ..models.pretrained import resolve_checkpoint
 
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(1 if args.workers > 1 else args.threads)
     axes = [a.strip() for a in args.axes.split(",") if a.strip()]
     bad = [a for a in axes if a not in AXES]
     if bad:
@@ -224,7 +234,7 @@ def run(args) -> int:
             model.cfg = merge(cfg0, pt.overrides) if pt.overrides else cfg0
             t0 = time.perf_counter()
             speed = measure_speed(model, scenes[0], ref_views(len(scenes[0]), pt.refs), pt, args.size, args.repeats,
-                                  args.device)
+                                  args.device, args.workers)
             quality = measure_quality(model, scenes, pt, args.targets, lpips, args.device) if pt.quality else {}
             row = {"kind": kind, "checkpoint": spec, "preset": getattr(cfg0, "name", ""), "params": n_params,
                    "axis": pt.axis, "point": pt.label, "refs": pt.refs, "ref_size": pt.ref_size or "native",
@@ -232,7 +242,8 @@ def run(args) -> int:
                    "size": args.size, **speed,
                    "psnr": quality.get("psnr", ""), "ssim": quality.get("ssim", ""), "lpips": quality.get("lpips", ""),
                    "quality": "measured" if pt.quality else "same numbers as 'as trained' (chunking only)",
-                   "objects": len(scenes), "targets_per_object": args.targets, "threads": args.threads,
+                   "objects": len(scenes), "targets_per_object": args.targets,
+                   "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers,
                    "device": args.device, "load_1min": round(os.getloadavg()[0], 2),
                    "cpu": platform.processor() or platform.machine(), "torch": torch.__version__}
             rows.append(row)

@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model: 0 (default) shrinks "
                    "references larger than the model's training images to that size, -1 keeps them, N pixels")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
+    p.add_argument("--threads", type=int, default=0, help="CPU threads (0 = every core): views render that many ray chunks side by side, one core each")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--no-picture", action="store_true", help="do not render demo_out/scene.png")
     p.add_argument("--force", action="store_true", help="re-render objects rendered with other settings and write "
@@ -173,7 +173,7 @@ def novel_views_demo(args) -> int:
         write_targets(job / "targets.json", targets)
         syn = SynthesisConfig(references=obj, targets=job / "targets.json", out=job / "out", views=tuple(refs),
                               checkpoint=ck, device=args.device, depth=False, ref_size=args.ref_size,
-                              force=True)  # novel/ is the demo's own working folder
+                              threads=args.threads, force=True)  # novel/ is the demo's own working folder
         run_with_tqdm(synthesize_views(syn), desc=f"synthesize {cat}", unit="ray")
         ov = F.read_object(obj)
         pos = {v: k for k, v in enumerate(ov.indices)}
@@ -325,7 +325,7 @@ def build_scene(args, obj_dir: Path, source: str, refs: list[int], ck: Path, out
     job = out / "novel" / "scene"
     write_targets(job / "targets.json", targets)
     run_with_tqdm(synthesize_views(SynthesisConfig(obj_dir, job / "targets.json", job / "out", tuple(refs), ck,
-                                                   args.device, depth=False, force=True)),
+                                                   args.device, depth=False, threads=args.threads, force=True)),
                   desc="synthesize scene", unit="ray")
     meta = ov.meta
     bbox = (np.asarray(meta["bbox"][0]), np.asarray(meta["bbox"][1]))

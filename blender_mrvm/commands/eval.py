@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-targets", type=int, default=0, help="score at most this many views per object (0 = all)")
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
+    p.add_argument("--threads", type=int, default=0, help="CPU threads (0 = every core): views render that many ray chunks side by side, one core each")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
                    help="empty-space skipping through the references' visual hull where the dataset has masks "
                    "(as synthesize; default cull)")
@@ -85,10 +85,10 @@ def run(args) -> int:
     from ..training.checkpoint import load_model
     from ..training.evaluate import compare_reports, evaluate, per_category, protocol_target_inputs, protocol_views
 
-    from ..threads import set_torch_threads
+    from ..threads import render_workers
 
     check_args(args)
-    set_torch_threads(args.threads)
+    workers = render_workers(args.threads)
     other = None
     if args.compare_to is not None:
         other = read_compare_to(args.compare_to)
@@ -132,7 +132,7 @@ def run(args) -> int:
                       "max_objects_per_category": args.max_objects_per_category}}
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
                                     extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
-                                    skip=args.skip_empty, target_inputs=per_target),
+                                    skip=args.skip_empty, target_inputs=per_target, workers=workers),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

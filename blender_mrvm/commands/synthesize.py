@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "-1 keeps the first reference's size")
     p.add_argument("--bbox", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                    help="object box in world units (default: from the reference folder)")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
+    p.add_argument("--threads", type=int, default=0, help="CPU threads (0 = every core): views render that many ray chunks side by side, one core each")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
                    help="empty-space skipping inside the object's box when the references have masks: cull "
                    "(default; rays missing the references' visual hull are background, same images to < 1/255), "

@@ -13,7 +13,10 @@ are evaluated ``chunk_rays`` rays at a time (bounded memory).
 
 from __future__ import annotations
 
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from itertools import islice
 from typing import Any, Sequence
 
 import numpy as np
@@ -147,7 +150,7 @@ class RayModel(nn.Module):
 
     @torch.no_grad()
     def image_chunks(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float, chunk: int | None = None,
-                     hull=None, skip: str = "off"):
+                     hull=None, skip: str = "off", workers: int = 1):
         """Generator over one view in the normalised frame: yields the rays finished so far in each step
         (misses first, then every chunk), returns dict(color (H, W, 3) on the background, acc (H, W),
         depth (H, W) distance from the camera along the ray to the expected surface (0 where acc = 0),
@@ -155,7 +158,10 @@ class RayModel(nn.Module):
         share of each evaluated ray's box length left to sample)).
 
         ``hull`` (:class:`models.hull.Hull`) with ``skip`` "cull" or "tighten": empty-space skipping
-        inside the box (``models/hull.py``)."""
+        inside the box (``models/hull.py``).
+
+        ``workers`` > 1 renders that many chunks at once on threads (CPU: each chunk's ops on one core,
+        ``threads.render_workers``); results are written and yielded in chunk order all the same."""
         from .hull import clip_rays, footprint
 
         H, W = int(intr.height), int(intr.width)
@@ -166,36 +172,63 @@ class RayModel(nn.Module):
         acc = torch.zeros(n)
         chunk = int(chunk or self.chunk_rays)
         keep = footprint(hull, intr, c2w_norm) if hull is not None and skip != "off" else None
-        dev = self.device
         box_rays = evaluated = 0
         span = 0.0
         rows = max(1, RAY_BLOCK // W)  # rays are made a block of rows at a time: memory does not grow with the view
-        for r0 in range(0, H, rows):
-            r1 = min(H, r0 + rows)
-            vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
-            rays = make_rays(intr, c2w_norm, np.stack([uu, vv], -1).reshape(-1, 2), box=box)
-            base = r0 * W
-            box_rays += int(rays.hit.sum())
-            box_far = rays.far
-            if keep is not None:
-                rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)])
-            idx = torch.nonzero(rays.hit).flatten()
-            yield len(rays) - idx.numel()
-            for s in range(0, idx.numel(), chunk):
-                sel = idx[s:s + chunk]
-                sub = rays_to(rays.select(sel), dev)
-                o = self.render_rays(ctx, sub)
-                a = o["acc"].float()
-                out = sel + base
-                color[out] = o["color"].float().cpu()
-                acc[out] = a.cpu()
-                depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
-                yield sel.numel()
-            evaluated += int(idx.numel())
-            span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
+        workers = int(workers) if self.device.type == "cpu" else 1  # a GPU takes one chunk at a time
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="mrvm-chunk") if workers > 1 else None
+        try:
+            for r0 in range(0, H, rows):
+                r1 = min(H, r0 + rows)
+                vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
+                rays = make_rays(intr, c2w_norm, np.stack([uu, vv], -1).reshape(-1, 2), box=box)
+                base = r0 * W
+                box_rays += int(rays.hit.sum())
+                box_far = rays.far
+                if keep is not None:
+                    rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)])
+                idx = torch.nonzero(rays.hit).flatten()
+                yield len(rays) - idx.numel()
+                sels = [idx[s:s + chunk] for s in range(0, idx.numel(), chunk)]
+                for sel, sub, o in self._chunk_results(ctx, rays, sels, pool, workers):
+                    a = o["acc"].float()
+                    out = sel + base
+                    color[out] = o["color"].float().cpu()
+                    acc[out] = a.cpu()
+                    depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
+                    yield sel.numel()
+                evaluated += int(idx.numel())
+                span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
+        finally:  # a caller that stops between chunks (Esc) waits only for the chunks already running
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
         span = span / evaluated if evaluated else 0.0
         return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
                 "rays": n, "box_rays": box_rays, "evaluated": evaluated, "span": span}
+
+    def _chunk_results(self, ctx, rays: RayBundle, sels: list, pool, workers: int):
+        """(sel, rays, outputs) of each chunk of ray indices in ``sels``, in order; with a thread ``pool``, up to
+        twice its workers chunks are in flight (torch's ops release the GIL, so they run side by side)."""
+        dev = self.device
+
+        def one(sel):
+            sub = rays_to(rays.select(sel), dev)
+            with torch.no_grad():  # grad mode is per thread
+                return sub, self.render_rays(ctx, sub)
+
+        if pool is None:
+            for sel in sels:
+                yield (sel, *one(sel))
+            return
+        todo = iter(sels)
+        pending = deque((sel, pool.submit(one, sel)) for sel in islice(todo, 2 * workers))
+        while pending:
+            sel, fut = pending.popleft()
+            sub, o = fut.result()
+            nxt = next(todo, None)
+            if nxt is not None:
+                pending.append((nxt, pool.submit(one, nxt)))
+            yield sel, sub, o
 
     @staticmethod
     def hull(ctx, ref_masks: np.ndarray, box: float):
@@ -206,9 +239,9 @@ class RayModel(nn.Module):
 
     @torch.no_grad()
     def render_image(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,
-                     chunk: int | None = None, hull=None, skip: str = "off") -> dict:
+                     chunk: int | None = None, hull=None, skip: str = "off", workers: int = 1) -> dict:
         """A full view (normalised frame), chunk by chunk; misses are background, not evaluated."""
-        gen = self.image_chunks(ctx, intr, c2w_norm, box, chunk, hull, skip)
+        gen = self.image_chunks(ctx, intr, c2w_norm, box, chunk, hull, skip, workers)
         while True:
             try:
                 next(gen)
@@ -218,13 +251,14 @@ class RayModel(nn.Module):
     @torch.no_grad()
     def synthesize(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
                    bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None,
-                   ref_masks: np.ndarray | None = None, skip: str = "off") -> dict:
+                   ref_masks: np.ndarray | None = None, skip: str = "off", workers: int = 1) -> dict:
         """Novel view in world units (see :meth:`encode_world`). Depth is along the ray, world units.
 
         ``ref_masks`` (V, H, W) bool object masks of the references with ``skip`` "cull" or "tighten":
-        empty-space skipping inside the box through their visual hull (``models/hull.py``)."""
+        empty-space skipping inside the box through their visual hull (``models/hull.py``). ``workers``: chunks
+        rendered at once (:meth:`image_chunks`)."""
         ctx, ns = self.encode_world(ref_images, ref_c2w, ref_intr, bbox)
         hull = self.hull(ctx, ref_masks, ns.box) if ref_masks is not None and skip != "off" else None
-        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk, hull, skip)
+        out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk, hull, skip, workers)
         out["depth"] = out["depth"] * ns.scale
         return out

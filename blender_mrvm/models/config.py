@@ -129,6 +129,11 @@ class RenderConfig:
     """'softplus' or 'relu' on the raw density."""
     density_bias: float = -1.0
     """Added to the raw density before the activation (starts training mostly empty)."""
+    fine_min_acc: float = 0.01
+    """Inference only: rays whose coarse opacity is below this skip the fine pass and keep the coarse result
+    (empty space the hull did not cull); 0 runs the fine pass on every ray. Training always runs it. The
+    shipped `balanced` model on 13 held-out objects x 3 views: PSNR 19.024 / LPIPS 0.291 at 0.01 and
+    19.022 / 0.292 with the fine pass everywhere, for 25% less CPU (``bench tradeoff --axes gate``)."""
 
 
 @dataclass(frozen=True)
@@ -259,6 +264,8 @@ def validate(cfg: ModelConfig) -> None:
         raise InputError("model nerformer.d_model, nerformer.n_heads, render.chunk_rays and max_ref_views must be >= 1")
     if n.d_model % n.n_heads:
         raise InputError(f"nerformer.d_model ({n.d_model}) must be divisible by n_heads ({n.n_heads})")
+    if not 0.0 <= cfg.render.fine_min_acc < 1.0:
+        raise InputError(f"render.fine_min_acc must be in [0, 1), got {cfg.render.fine_min_acc}")
     if cfg.sampler.n_coarse < 1 or cfg.sampler.n_fine < 0:
         raise InputError("sampler.n_coarse must be >= 1 and n_fine >= 0")
     if cfg.encoder.backbone not in ("resnet", "vgg16"):

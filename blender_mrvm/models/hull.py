@@ -162,12 +162,39 @@ def clip_rays(rays: RayBundle, hull: Hull, mode: str = "cull", keep: torch.Tenso
     return out
 
 
+def _meets_hull(rays: RayBundle, hull: Hull, ts: torch.Tensor, far: torch.Tensor, group: int = 16) -> torch.Tensor:
+    """(R,) bool: whether a march point of each ray (at the distances ``ts``, those up to its ``far``) lies in
+    a kept voxel. The same points and voxels as marching every ray to the end, ``group`` steps at a time,
+    dropping rays once they meet a voxel or run out of box (``cull`` needs no more; ~10x faster)."""
+    G = hull.resolution
+    occ_flat = hull.occupied.reshape(-1).to(rays.origins.device)
+    origins, dirs = rays.origins.float(), rays.dirs.float()
+    met = torch.zeros(len(rays), dtype=torch.bool)
+    live = torch.nonzero(rays.hit).flatten()
+    for s0 in range(0, len(ts), group):
+        if live.numel() == 0:
+            break
+        t = ts[s0:s0 + group]
+        pts = origins[live, None, :] + t.float()[None, :, None] * dirs[live, None, :]
+        ijk = ((pts + hull.box) * (G / (2 * hull.box))).long().clamp_(0, G - 1)
+        lin = (ijk[..., 0] * G + ijk[..., 1]) * G + ijk[..., 2]
+        f = far[live]
+        now = (occ_flat[lin] & (t[None, :] <= f[:, None] + 1e-9)).any(-1)
+        met[live[now]] = True
+        live = live[~now & (f + 1e-9 >= float(ts[min(s0 + group, len(ts) - 1)]))]
+    return met
+
+
 def _clip(rays: RayBundle, hull: Hull, mode: str, steps_per_voxel: int) -> RayBundle:
     G = hull.resolution
     far = rays.far.double()
     step = hull.box / (G * steps_per_voxel)  # march spacing: 1 / steps_per_voxel of a half voxel edge
     n = int(np.ceil(float(far.max()) / step)) + 1 if len(rays) else 1
     ts = torch.arange(n, dtype=torch.float64) * step
+    if mode == "cull":
+        hit = rays.hit & _meets_hull(rays, hull, ts, far)
+        far_new = torch.where(hit, far, torch.zeros_like(far))
+        return RayBundle(rays.origins, rays.dirs, far_new.to(rays.far.dtype), hit, rays.depth_offset, rays.up)
     pts = rays.origins.float()[:, None, :] + ts.float()[None, :, None] * rays.dirs.float()[:, None, :]  # (R, n, 3)
     inside = ts[None, :] <= far[:, None] + 1e-9
     ijk = ((pts + hull.box) * (G / (2 * hull.box))).long().clamp_(0, G - 1)
@@ -175,9 +202,6 @@ def _clip(rays: RayBundle, hull: Hull, mode: str, steps_per_voxel: int) -> RayBu
     occ = hull.occupied.reshape(-1).to(lin.device)[lin] & inside & rays.hit[:, None]
     any_occ = occ.any(-1)
     hit = rays.hit & any_occ
-    if mode == "cull":
-        far_new = torch.where(hit, far, torch.zeros_like(far))
-        return RayBundle(rays.origins, rays.dirs, far_new.to(rays.far.dtype), hit, rays.depth_offset, rays.up)
     first = torch.where(any_occ, occ.float().argmax(-1), torch.zeros_like(any_occ, dtype=torch.long))
     last = torch.where(any_occ, n - 1 - occ.flip(-1).float().argmax(-1), torch.zeros_like(first))
     t0 = (ts[first] - step).clamp_min(0.0)

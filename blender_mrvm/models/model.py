@@ -120,6 +120,7 @@ class GeneralizableNeRF(RayModel):
         ren = volume_render(sigma, out["rgb"], t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
         ren["latent"] = out["latent"]
         ren["t"] = t
+        ren["depth_exp"] = (ren["weights"] * t.float()).sum(-1) / ren["acc"].clamp_min(1e-8)
         return ren
 
     def render_rays(self, ctx: Context, rays: RayBundle, train: bool = False, mask_views: bool = False,
@@ -136,11 +137,14 @@ class GeneralizableNeRF(RayModel):
         t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
         coarse = self._branch(self.coarse, self._gather(ctx, o_c, d_c, dirs, t_c), t_c, far)
         out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0}
-        if sc.n_fine > 0:
-            edges = samplers.bin_edges(t_c, far)
-            t_f = samplers.sample_pdf(edges, coarse["weights"], sc.n_fine, deterministic=not (train and sc.perturb),
-                                      eps=sc.pdf_eps, generator=generator)
-            t_all = torch.sort(torch.cat([t_c.detach(), t_f], -1), -1).values if sc.fine_includes_coarse else t_f
+        sel = self._fine_rays(coarse, train)
+        if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
+            if sel.numel():
+                sub = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
+                g = self._gather(ctx, o_c[:, sel], d_c[:, sel], dirs[sel], sub)
+                out["fine"] = merge_rays(coarse, self._branch(self.fine, g, sub, far[sel]), sel)
+        elif sc.n_fine > 0:
+            t_all = self._fine_samples(coarse["weights"], t_c, far, train, generator)
             g = self._gather(ctx, o_c, d_c, dirs, t_all)
             point_mask = view_mask = None
             if mask_views:
@@ -155,13 +159,33 @@ class GeneralizableNeRF(RayModel):
                 out["n_masked"] = int(point_mask.sum())
         return self._finish(out, rays)
 
+    def _fine_rays(self, coarse: dict, train: bool) -> torch.Tensor | None:
+        """At inference, the rays (indices) whose coarse opacity reaches ``render.fine_min_acc``, when that
+        leaves some out; None means the fine pass runs on every ray (training, the switch off, all busy)."""
+        thr = self.cfg.render.fine_min_acc
+        if train or thr <= 0 or self.cfg.sampler.n_fine == 0:
+            return None
+        busy = coarse["acc"] >= thr
+        return None if bool(busy.all()) else torch.nonzero(busy).flatten()  # may be empty: no fine pass
+
+    def _fine_samples(self, weights, t_c, far, train: bool, generator, with_order: bool = False):
+        """The fine pass's sample distances: importance samples of the coarse weights, with the coarse
+        samples sorted in when ``sampler.fine_includes_coarse`` (``with_order``: also the sort order)."""
+        sc = self.cfg.sampler
+        t_f = samplers.sample_pdf(samplers.bin_edges(t_c, far), weights, sc.n_fine,
+                                  deterministic=not (train and sc.perturb), eps=sc.pdf_eps, generator=generator)
+        if not sc.fine_includes_coarse:
+            return (t_f, None) if with_order else t_f
+        t_all, order = torch.sort(torch.cat([t_c.detach(), t_f], -1), -1)
+        return (t_all, order) if with_order else t_all
+
     def _finish(self, out: dict, rays: RayBundle) -> dict:
         off = rays.depth_offset.float()
         for k in ("coarse", "fine"):
             out[k]["depth_cam"] = out[k]["depth"] + off
         f = out["fine"]
         out["color"], out["acc"] = f["color"], f["acc"]
-        out["depth"] = (f["weights"].float() * f["t"].float()).sum(-1) / f["acc"].float().clamp_min(1e-8)
+        out["depth"] = f["depth_exp"]
         out["aux_heads"] = {"coarse": out["coarse"]} if self.cfg.sampler.n_fine > 0 else {}
         out["aux_losses"] = {"mrvm": out["mrvm_loss"]} if out["mrvm_loss"] is not None else {}
         return out
@@ -189,6 +213,7 @@ class GeneralizableNeRF(RayModel):
         ren = volume_render(sigma, out["rgb"], t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
         ren["latent"] = out["latent"]
         ren["t"] = t
+        ren["depth_exp"] = (ren["weights"] * t.float()).sum(-1) / ren["acc"].clamp_min(1e-8)
         return ren
 
     def _render_streams(self, ctx: Context, rays: RayBundle, train: bool, mask_views: bool,
@@ -206,14 +231,14 @@ class GeneralizableNeRF(RayModel):
         t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
         coarse = self._branch_streams(self.coarse, self._gather_streams(ctx, o_c, d_c, t_c, origins, dirs), t_c, far)
         out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0}
-        if sc.n_fine > 0:
-            edges = samplers.bin_edges(t_c, far)
-            t_f = samplers.sample_pdf(edges, coarse["weights"], sc.n_fine, deterministic=not (train and sc.perturb),
-                                      eps=sc.pdf_eps, generator=generator)
-            if sc.fine_includes_coarse:
-                t_all, order = torch.sort(torch.cat([t_c.detach(), t_f], -1), -1)
-            else:
-                t_all, order = t_f, None
+        sel = self._fine_rays(coarse, train)
+        if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
+            if sel.numel():
+                sub = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
+                g = self._gather_streams(ctx, o_c[:, sel], d_c[:, sel], sub, origins[sel], dirs[sel])
+                out["fine"] = merge_rays(coarse, self._branch_streams(self.fine, g, sub, far[sel]), sel)
+        elif sc.n_fine > 0:
+            t_all, order = self._fine_samples(coarse["weights"], t_c, far, train, generator, with_order=True)
             g = self._gather_streams(ctx, o_c, d_c, t_all, origins, dirs)
             point_mask = view_mask = None
             if mask_views:
@@ -234,3 +259,14 @@ class GeneralizableNeRF(RayModel):
                 out["n_masked"] = int(point_mask.sum())
                 out["point_mask"] = point_mask
         return self._finish(out, rays)
+
+
+def merge_rays(coarse: dict, fine: dict, sel: torch.Tensor) -> dict:
+    """The fine result of every ray when the fine pass ran only on rays ``sel``: the coarse one elsewhere
+    (per-ray outputs only: colour, depth, opacity; per-sample ones differ in length and are dropped)."""
+    out = {}
+    for k in ("color", "depth", "acc", "depth_exp"):
+        v = coarse[k].clone()
+        v[sel] = fine[k].to(v.dtype)
+        out[k] = v
+    return out

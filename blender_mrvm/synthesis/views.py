@@ -75,7 +75,7 @@ class SynthesisConfig:
     bbox: tuple | None = None
     """Object box ((min x, y, z), (max x, y, z)) in world units; None = from the references."""
     threads: int = 0
-    """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
+    """CPU threads (0 = every core): ray chunks rendered side by side, one core each (``threads.render_workers``)."""
     skip_empty: str = "cull"
     """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
     masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
@@ -407,7 +407,7 @@ def reference_hull(model, ctx, ns, refs: References, skip: str):
 
 
 def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device=None, hull=None,
-                  skip: str = "off"):
+                  skip: str = "off", workers: int = 1):
     """Progress generator over one view: yields rays finished, returns dict(color (H, W, 3) on white,
     acc (H, W), depth_z (H, W) planar z-depth in world units, evaluated rays).
 
@@ -415,7 +415,7 @@ def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: in
     so a caller can report progress and stop between chunks."""
     import torch
 
-    res = yield from model.image_chunks(ctx, intr, ns.pose(c2w), ns.box, chunk, hull, skip)
+    res = yield from model.image_chunks(ctx, intr, ns.pose(c2w), ns.box, chunk, hull, skip, workers)
     # Distance along the ray (normalised units) -> planar z in world units: z = dist * scale * d_cam.z.
     _, d = C.rays_opencv(intr, np.eye(4))
     zdir = torch.from_numpy(d[..., 2].astype(np.float32))
@@ -479,10 +479,10 @@ def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
 
 def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     """Progress generator (events in rays); returns a :class:`SynthesisSummary`. See the module doc."""
-    from ..threads import set_torch_threads
+    from ..threads import render_workers
 
     t0 = time.perf_counter()
-    set_torch_threads(cfg.threads)
+    workers = render_workers(cfg.threads)
     out = Path(cfg.out)
     _check_out(out, cfg)
     targets, depth_wanted = read_targets(Path(cfg.targets))
@@ -527,7 +527,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         for i, t in enumerate(targets):
             ts = time.perf_counter()
             (ctx, ns, hull), used = context_for(t)
-            gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device, hull, cfg.skip_empty)
+            gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device, hull, cfg.skip_empty, workers)
             msg = f"view {i + 1}/{len(targets)} ({t.name})"
             while True:
                 try:

@@ -125,13 +125,14 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
              ref_size: int = 0, max_ref_size: int = 0, target_inputs: dict[int, Sequence[int]] | None = None,
-             skip: str = "off"):
+             skip: str = "off", workers: int = 1):
     """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
 
     ``ref_size`` / ``max_ref_size``: the model sees the references resized as synthesis does
     (``synthesize.reference_shape``); baselines and ground truth stay at the dataset's size.
 
-    ``skip``: empty-space skipping mode (``models/hull.py``) for objects with masks.
+    ``skip``: empty-space skipping mode (``models/hull.py``) for objects with masks; ``workers``: ray chunks
+    rendered side by side (``threads.render_workers``).
 
     ``target_views``: view ids to score (None = every view that is not an input); ``extra``: entries
     added to the report (e.g. the checkpoint and the protocol's source); ``target_inputs``: {target view
@@ -189,7 +190,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         for ti, t in enumerate(targets):
             out = model.synthesize(np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
                                    [k for _, k in model_refs], s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
-                                   ref_masks=ref_masks, skip=skip)
+                                   ref_masks=ref_masks, skip=skip, workers=workers)
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}

@@ -1,0 +1,88 @@
+"""Inference-time savings (issue 13): the fine pass skipped where the coarse pass saw nothing
+(``render.fine_min_acc``), ray chunks rendered side by side on threads (``image_chunks(workers=)``,
+``threads.render_workers``). Each must leave what the model renders unchanged where it promises to. bpy-free."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+import torch
+
+from blender_mrvm import threads
+from blender_mrvm.errors import InputError
+from blender_mrvm.models import registry
+from blender_mrvm.models.config import merge, validate
+from blender_mrvm.models.rays import make_rays
+
+from test_hull import SIZE, model_and_scene
+
+
+def _rays_and_context(model, imgs, poses, intr, bbox, target):
+    ctx, ns = model.encode_world(imgs, poses, [intr] * 2, bbox)
+    rays = make_rays(intr, ns.pose(target), box=ns.box)
+    return ctx, rays.select(torch.nonzero(rays.hit).flatten())
+
+
+@pytest.mark.parametrize("arch", ["legacy", "nerformer"])
+def test_fine_pass_skipped_only_where_the_coarse_pass_is_empty(arch):
+    model, imgs, poses, intr, _, bbox, target = model_and_scene()
+    base = merge(model.cfg, {"nerformer": {"arch": arch}, "render": {"fine_min_acc": 0.0}})
+    torch.manual_seed(0)
+    model = registry.build_model(base).eval()
+    ctx, rays = _rays_and_context(model, imgs, poses, intr, bbox, target)
+    with torch.no_grad():
+        full = model.render_rays(ctx, rays)
+        thr = float(full["coarse"]["acc"].median())  # half the rays below: both paths are exercised
+        model.cfg = merge(base, {"render": {"fine_min_acc": thr}})
+        gated = model.render_rays(ctx, rays)
+    busy = full["coarse"]["acc"] >= thr
+    assert 0 < int(busy.sum()) < len(busy)
+    for k in ("color", "acc", "depth"):  # rays the gate keeps: the fine pass, unchanged
+        assert torch.allclose(gated[k][busy], full[k][busy], atol=1e-5), k
+    for k, ck in (("color", "color"), ("acc", "acc")):  # the others: the coarse pass's own result
+        assert torch.equal(gated[k][~busy], full["coarse"][ck][~busy]), k
+    # training never skips: every ray's fine pass runs (its per-sample outputs are there)
+    model.train()
+    tr = model.render_rays(ctx, rays, train=True, generator=torch.Generator().manual_seed(0))
+    assert tr["fine"]["weights"].shape[0] == len(rays)
+
+
+def test_fine_pass_gate_with_nothing_busy_and_bad_values():
+    model, imgs, poses, intr, _, bbox, target = model_and_scene()
+    ctx, rays = _rays_and_context(model, imgs, poses, intr, bbox, target)
+    model.cfg = merge(model.cfg, {"render": {"fine_min_acc": 0.999999}})
+    with torch.no_grad():
+        out = model.render_rays(ctx, rays)
+    assert torch.equal(out["color"], out["coarse"]["color"])  # no ray busy enough: the coarse image
+    for bad in (-0.1, 1.0):
+        with pytest.raises(InputError, match="fine_min_acc"):
+            validate(merge(model.cfg, {"render": {"fine_min_acc": bad}}))
+
+
+@pytest.mark.parametrize("kind", ["nerformer_mrvm", "gpnr"])
+def test_chunk_workers_give_the_same_image_in_the_same_order(kind):
+    model, imgs, poses, intr, masks, bbox, target = model_and_scene()
+    if kind == "gpnr":
+        torch.manual_seed(0)
+        model = registry.build_model(registry.build_config("gpnr", "fast")).eval()
+    one = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, chunk=97, ref_masks=masks, skip="cull")
+    two = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, chunk=97, ref_masks=masks, skip="cull",
+                           workers=3)
+    for k in ("color", "acc", "depth"):
+        assert torch.equal(one[k], two[k]), k
+    ctx, ns = model.encode_world(imgs, poses, [intr] * 2, bbox)
+    gen = model.image_chunks(ctx, intr, ns.pose(target), ns.box, chunk=97, workers=2)
+    steps = [next(gen) for _ in range(4)]  # stop in the middle (Esc): the pool is shut down, nothing hangs
+    gen.close()
+    assert sum(steps) <= SIZE * SIZE and all(s > 0 for s in steps[1:])
+    assert not any(t.name.startswith("mrvm-chunk") and t.is_alive() for t in threading.enumerate())
+
+
+def test_render_workers_use_every_core_with_one_torch_thread_each():
+    before = torch.get_num_threads()
+    try:
+        assert threads.render_workers(3) == 3 and torch.get_num_threads() == 1
+        assert threads.render_workers(0) == threads.usable_cores() >= 1
+    finally:
+        torch.set_num_threads(before)
