@@ -499,7 +499,10 @@ def test_operator_writes_the_job_for_the_worker(ready, tmp_path):
     assert depth and [t.name for t in targets] == ["MRVM orbit 000", "MRVM orbit 001", "MRVM orbit 002"]
     assert args == ["--references", str(tmp_path / "job" / "references"), "--views", "0", "1",
                     "--targets", str(tmp_path / "job" / "targets.json"), "--checkpoint", p.checkpoint,
-                    "--device", "auto", "--ref-size", "0", "--out", str(tmp_path / "job" / "out")]
+                    "--device", "auto", "--ref-size", "0", "--quality", "full", "--out", str(tmp_path / "job" / "out")]
+    p.quality = "PREVIEW"  # the panel's Quality reaches the worker
+    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-3]
+    p.quality = "FULL"
     # Reference size: auto (0, the model's training size for larger references), as they are (-1), custom.
     for sizing, want in [("NATIVE", "-1"), ("CUSTOM", "96")]:
         p.reference_sizing, p.reference_size = sizing, 96

@@ -344,3 +344,29 @@ def test_nearest_views_by_angle_and_distance():
     refs = [eye([3, 0, 0]), eye([0, 3, 0]), eye([-3, 0, 0]), eye([30, 0.5, 0]), eye([2.9, 0.3, 0.2])]
     assert S.nearest_views(refs, eye([3, 0.2, 0]), np.zeros(3), 2) == (0, 4)
     assert S.nearest_views(refs, eye([0.2, 3, 0]), np.zeros(3), 1) == (1,)
+
+
+def test_quality_preview_renders_half_the_samples_of_either_kind(setup, tmp_path, capsys, monkeypatch):
+    """--quality preview: the model's samples per ray halved (registry.quality_overrides, what bench tradeoff
+    measures), recorded in synthesis.json; the images differ from full quality but stay valid."""
+    from blender_mrvm.models import registry
+
+    root, obj, ck, tg = setup
+    seen = []
+    import blender_mrvm.models.config as MC
+
+    real_merge = MC.merge
+    monkeypatch.setattr(MC, "merge", lambda cfg, ov: seen.append(ov) or real_merge(cfg, ov))
+    outs = {}
+    for q in ("full", "preview"):
+        outs[q] = tmp_path / q
+        assert main(_args(root, obj, ck, outs[q], "--quality", q)) == 0
+        assert json.loads((outs[q] / "synthesis.json").read_text())["quality"] == q
+    assert {"sampler": {"n_coarse": 4, "n_fine": 1}} in seen  # TINY has 4 + 2 samples
+    a, b = (F.read_png(outs[q] / tg[0].rgb_path(0)) for q in ("full", "preview"))
+    assert a.shape == b.shape and not np.array_equal(a, b)
+    g = registry.build_config("gpnr", "fast")
+    assert registry.quality_overrides(g, "preview") == {"n_samples": max(4, g.n_samples // 2)}
+    assert registry.quality_overrides(g, "full") == {}
+    with pytest.raises(InputError, match="quality"):
+        registry.quality_overrides(g, "draft")

@@ -87,13 +87,17 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
     """The points of one checkpoint: its own setting, then each knob moved alone."""
     pts = [Point("base", "as trained")] if "base" in axes else []
     if "samples" in axes:
+        from ..models.registry import quality_overrides
+
+        half = quality_overrides(cfg, "preview")  # what `synthesize --quality preview` renders
         if kind == "gpnr":
             n = int(cfg.n_samples)
-            for s in sorted({max(4, n // 2), n * 2} - {n}):
+            for s in sorted({half["n_samples"], n * 2} - {n}):
                 pts.append(Point("samples", f"{s} depths", {"n_samples": s}))
         else:
             c, f = int(cfg.sampler.n_coarse), int(cfg.sampler.n_fine)
-            for cc, ff in [(max(4, c // 2), f // 2), (c, 0), (c * 2, f * 2)]:
+            h = half["sampler"]
+            for cc, ff in [(h["n_coarse"], h["n_fine"]), (c, 0), (c * 2, f * 2)]:
                 if (cc, ff) != (c, f):
                     pts.append(Point("samples", f"{cc}+{ff} samples", {"sampler": {"n_coarse": cc, "n_fine": ff}}))
     if "gate" in axes and kind != "gpnr":

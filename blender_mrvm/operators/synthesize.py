@@ -56,6 +56,8 @@ class SynthesisJob:
     """Also synthesize and save depth maps (EXR)."""
     ref_size: int = 0
     """The synthesize command's --ref-size: 0 auto, -1 as they are, N pixels on the longer side."""
+    quality: str = "full"
+    """The synthesize command's --quality: full or preview."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:
@@ -141,7 +143,7 @@ def plan_from_props(context) -> SynthesisJob:
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
-                        p.save_depth, ref_size)
+                        p.save_depth, ref_size, p.quality.lower())
 
 
 def prepare(context, job: SynthesisJob):
@@ -170,7 +172,7 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
     write_targets(job_dir / "targets.json", list(job.targets), depth=job.depth)
     return ["--references", str(ref_dir), "--views", *map(str, views), "--targets", str(job_dir / "targets.json"),
             "--checkpoint", str(job.checkpoint), "--device", job.device, "--ref-size", str(job.ref_size),
-            "--out", str(job_dir / "out")]
+            "--quality", job.quality, "--out", str(job_dir / "out")]
 
 
 @dataclass
