@@ -428,10 +428,17 @@ USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2
     Case("usage", ["demo", "--objects", "many"], "invalid int value"),
     Case("usage", ["render-dataset", "--out", "{new}"], "required: --source"),
     Case("usage", ["train", "--bogus"], "unrecognized arguments: --bogus"),
+    Case("usage", ["synthesize", "--references", "{w}/ds/spheres/obj000", "--orbit", "2", "--out", "{new}",
+                   "--quality", "draft"], "invalid choice: 'draft'"),
 ]
 
+BENCH = [
+    Case("tracebacks", ["bench", "model", "--precisions", "fp16", "--out", "{new}"], "fp16 on a GPU"),
+    Case("tracebacks", ["bench", "model", "--precisions", "int4", "--out", "{new}"], "not among fp32"),
+] + ([] if CUDA else [Case("tracebacks", ["bench", "model", "--device", "cuda", "--out", "{new}"], "no CUDA GPU")])
+
 ALL = {"train": TRAIN, "synthesize": SYNTH, "eval": EVAL, "contact-sheet": SHEET, "demo": DEMO,
-       "recover-poses": POSES, "render-dataset": RENDER, "usage": USAGE}
+       "recover-poses": POSES, "render-dataset": RENDER, "usage": USAGE, "bench": BENCH}
 CASES = [(f"{group}-{i:02d}", c) for group, cs in ALL.items() for i, c in enumerate(cs)]
 CLASSES: dict[str, int] = {}
 for _, _c in CASES:

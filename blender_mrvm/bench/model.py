@@ -9,6 +9,12 @@ far (what pixelNeRF does), with the process CPU seconds (steadier than wall time
 the peak extra resident memory of a render (``bench.PeakMemory``: bounded by ``render.chunk_rays``, not
 by the image size). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
 The issue's target: ``balanced``, 128 x 128, 2 reference views, about 1 s on 2 CPU cores.
+
+On a GPU (``--device cuda``) each row also has frames per second and ``--precisions`` compares fp32 with
+bf16 / fp16 autocast (the issue's GPU target: 30 FPS for ``fast`` at 256 x 256)::
+
+    python -m blender_mrvm bench model --device cuda --presets fast,balanced,accurate,gpnr:fast \
+        --views 2 --sizes 128,256 --precisions fp32,bf16 --repeats 10 --out docs/bench_model_gpu
 """
 
 from __future__ import annotations
@@ -33,6 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     p.add_argument("--workers", type=int, default=1,
                    help="ray chunks rendered side by side on threads (threads.render_workers; torch threads then 1)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:N] (GPU timings synchronise before reading the clock)")
+    p.add_argument("--chunk", type=int, default=0, help="rays per forward pass (0 = the model's; a GPU wants 16384+)")
+    p.add_argument("--precisions", default="fp32", help="comma-separated fp32, bf16, fp16 (fp16 on a GPU only)")
     p.add_argument("--ref-size", type=int, default=0,
                    help="reference images' side in pixels (default 0: the view's size); synthesis gives a model its "
                    "training size (64 px for the shipped ones), so large views are best measured with --ref-size 64")
@@ -42,10 +51,19 @@ def run(args) -> int:
     import numpy as np
     import torch
 
+    from ..errors import InputError
     from ..geometry import cameras
     from ..models import registry
+    from ..synthesis.views import resolve_device
+    from .tradeoff import _autocast
 
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
+    device = str(resolve_device(args.device))
+    precisions = [s.strip() for s in args.precisions.split(",") if s.strip()]
+    bad = [s for s in precisions if s not in ("fp32", "bf16", "fp16") or (s == "fp16" and device == "cpu")]
+    if bad or not precisions:
+        raise InputError(f"--precisions: {bad or precisions} not among fp32, bf16 (and fp16 on a GPU)")
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -56,7 +74,7 @@ def run(args) -> int:
         kind, _, name = preset.rpartition(":")
         cfg = registry.build_config(kind or None, name)
         torch.manual_seed(0)
-        model = registry.build_model(cfg).eval()
+        model = registry.build_model(cfg).eval().to(device)
         n_params = sum(p.numel() for p in model.parameters())
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
@@ -66,34 +84,53 @@ def run(args) -> int:
                 rintr = [intr.resized(rs, rs)] * nv
                 ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
-                model.synthesize(refs, ref_poses, rintr, bbox, target, intr, workers=args.workers)  # warm-up
-                times, cpus, peaks = [], [], []
-                for _ in range(args.repeats):
-                    with PeakMemory("cpu") as pm:
-                        t0, c0 = time.perf_counter(), time.process_time()
-                        res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr, workers=args.workers)
-                        times.append(time.perf_counter() - t0)
-                        cpus.append(time.process_time() - c0)
-                    peaks.append(pm.mib)
-                sec = statistics.median(times)
-                pts_ray = points_per_ray(cfg)
-                rows.append({
-                    "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv, "threads": 1 if args.workers > 1 else args.threads,
-                    "workers": args.workers, "params": n_params,
-                    "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4),
-                    "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
-                    "chunk_rays": model.chunk_rays, "load_1min": round(os.getloadavg()[0], 2),
-                    "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
-                    "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
-                    "points_evaluated": res["evaluated"] * pts_ray,
-                    "points_fixed_near_far": res["rays"] * pts_ray,
-                    "rays_per_s": round(res["evaluated"] / sec, 1),
-                    "cpu": platform.processor() or platform.machine(), "torch": torch.__version__,
-                })
-                print(f"{preset:9s} {size}px {nv} ref(s): {sec:.3f} s/view, {res['evaluated']}/{res['rays']} rays evaluated, "
-                      f"peak +{max(peaks):.0f} MiB")
+                for prec in precisions:
+                    with _autocast(prec, device):
+                        model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None,
+                                         workers=args.workers)  # warm-up
+                        sync()
+                        times, cpus, peaks = [], [], []
+                        for _ in range(args.repeats):
+                            with PeakMemory(device) as pm:
+                                t0, c0 = time.perf_counter(), time.process_time()
+                                res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr,
+                                                       chunk=args.chunk or None, workers=args.workers)
+                                sync()
+                                times.append(time.perf_counter() - t0)
+                                cpus.append(time.process_time() - c0)
+                            peaks.append(pm.mib)
+                    rows.append(_row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res,
+                                     args.chunk or model.chunk_rays))
+                    print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: {rows[-1]['seconds_median']:.3f} s/view "
+                          f"({rows[-1]['fps']:.1f} FPS), {res['evaluated']}/{res['rays']} rays evaluated, "
+                          f"peak +{max(peaks):.0f} MiB")
     write_csv(out / "bench_model.csv", rows)
     return 0
+
+
+def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res, chunk_rays) -> dict:
+    """One CSV row: a preset x size x reference count x precision."""
+    import torch
+
+    from ..models import registry
+
+    sec = statistics.median(times)
+    pts_ray = points_per_ray(cfg)
+    gpu = torch.cuda.get_device_name(torch.device(device)) if device.startswith("cuda") else ""
+    return {
+        "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv,
+        "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers, "params": n_params,
+        "device": device, "precision": prec,
+        "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4), "fps": round(1.0 / sec, 2),
+        "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
+        "chunk_rays": chunk_rays, "load_1min": round(os.getloadavg()[0], 2),
+        "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
+        "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
+        "points_evaluated": res["evaluated"] * pts_ray,
+        "points_fixed_near_far": res["rays"] * pts_ray,
+        "rays_per_s": round(res["evaluated"] / sec, 1),
+        "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__,
+    }
 
 
 def points_per_ray(cfg) -> int:
