@@ -169,11 +169,11 @@ def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: 
             "rays_per_s": round(res["evaluated"] / sec, 1), "peak_extra_mib": round(max(peaks), 1)}
 
 
-def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str) -> dict:
+def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str, workers: int = 1) -> dict:
     from ..training.evaluate import evaluate
 
     gen = evaluate(model, scenes, ref_views(len(scenes[0]), pt.refs), lpips, max_targets=targets,
-                   chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip)
+                   chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip, workers=workers)
     with _autocast(pt.precision, device):
         while True:
             try:
@@ -239,7 +239,8 @@ def run(args) -> int:
             t0 = time.perf_counter()
             speed = measure_speed(model, scenes[0], ref_views(len(scenes[0]), pt.refs), pt, args.size, args.repeats,
                                   args.device, args.workers)
-            quality = measure_quality(model, scenes, pt, args.targets, lpips, args.device) if pt.quality else {}
+            quality = (measure_quality(model, scenes, pt, args.targets, lpips, args.device, args.workers)
+                       if pt.quality else {})
             row = {"kind": kind, "checkpoint": spec, "preset": getattr(cfg0, "name", ""), "params": n_params,
                    "axis": pt.axis, "point": pt.label, "refs": pt.refs, "ref_size": pt.ref_size or "native",
                    "precision": pt.precision, "skip_empty": pt.skip, "chunk": pt.chunk or "model",
