@@ -176,39 +176,35 @@ class RayModel(nn.Module):
         span = 0.0
         rows = max(1, RAY_BLOCK // W)  # rays are made a block of rows at a time: memory does not grow with the view
         workers = int(workers) if self.device.type == "cpu" else 1  # a GPU takes one chunk at a time
-        pool = ThreadPoolExecutor(workers, thread_name_prefix="mrvm-chunk") if workers > 1 else None
-        try:
-            for r0 in range(0, H, rows):
-                r1 = min(H, r0 + rows)
-                vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
-                rays = make_rays(intr, c2w_norm, np.stack([uu, vv], -1).reshape(-1, 2), box=box)
-                base = r0 * W
-                box_rays += int(rays.hit.sum())
-                box_far = rays.far
-                if keep is not None:
-                    rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)])
-                idx = torch.nonzero(rays.hit).flatten()
-                yield len(rays) - idx.numel()
-                sels = [idx[s:s + chunk] for s in range(0, idx.numel(), chunk)]
-                for sel, sub, o in self._chunk_results(ctx, rays, sels, pool, workers):
-                    a = o["acc"].float()
-                    out = sel + base
-                    color[out] = o["color"].float().cpu()
-                    acc[out] = a.cpu()
-                    depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
-                    yield sel.numel()
-                evaluated += int(idx.numel())
-                span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
-        finally:  # a caller that stops between chunks (Esc) waits only for the chunks already running
-            if pool is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
+        for r0 in range(0, H, rows):
+            r1 = min(H, r0 + rows)
+            vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
+            rays = make_rays(intr, c2w_norm, np.stack([uu, vv], -1).reshape(-1, 2), box=box)
+            base = r0 * W
+            box_rays += int(rays.hit.sum())
+            box_far = rays.far
+            if keep is not None:
+                rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)])
+            idx = torch.nonzero(rays.hit).flatten()
+            yield len(rays) - idx.numel()
+            sels = [idx[s:s + chunk] for s in range(0, idx.numel(), chunk)]
+            for sel, sub, o in self._chunk_results(ctx, rays, sels, workers):
+                a = o["acc"].float()
+                out = sel + base
+                color[out] = o["color"].float().cpu()
+                acc[out] = a.cpu()
+                depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
+                yield sel.numel()
+            evaluated += int(idx.numel())
+            span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
         span = span / evaluated if evaluated else 0.0
         return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
                 "rays": n, "box_rays": box_rays, "evaluated": evaluated, "span": span}
 
-    def _chunk_results(self, ctx, rays: RayBundle, sels: list, pool, workers: int):
-        """(sel, rays, outputs) of each chunk of ray indices in ``sels``, in order; with a thread ``pool``, up to
-        twice its workers chunks are in flight (torch's ops release the GIL, so they run side by side)."""
+    def _chunk_results(self, ctx, rays: RayBundle, sels: list, workers: int):
+        """(sel, rays, outputs) of each chunk of ray indices in ``sels``, in order. With ``workers`` > 1 they
+        render on a thread pool, up to twice as many chunks in flight as workers (torch's ops release the
+        GIL, so they run side by side); a caller that stops early (Esc) waits only for those."""
         dev = self.device
 
         def one(sel):
@@ -216,19 +212,20 @@ class RayModel(nn.Module):
             with torch.no_grad():  # grad mode is per thread
                 return sub, self.render_rays(ctx, sub)
 
-        if pool is None:
+        if workers <= 1:
             for sel in sels:
                 yield (sel, *one(sel))
             return
         todo = iter(sels)
-        pending = deque((sel, pool.submit(one, sel)) for sel in islice(todo, 2 * workers))
-        while pending:
-            sel, fut = pending.popleft()
-            sub, o = fut.result()
-            nxt = next(todo, None)
-            if nxt is not None:
-                pending.append((nxt, pool.submit(one, nxt)))
-            yield sel, sub, o
+        with ThreadPoolExecutor(workers, thread_name_prefix="mrvm-chunk") as pool:
+            pending = deque((sel, pool.submit(one, sel)) for sel in islice(todo, 2 * workers))
+            while pending:
+                sel, fut = pending.popleft()
+                sub, o = fut.result()
+                nxt = next(todo, None)
+                if nxt is not None:
+                    pending.append((nxt, pool.submit(one, nxt)))
+                yield sel, sub, o
 
     @staticmethod
     def hull(ctx, ref_masks: np.ndarray, box: float):
