@@ -155,6 +155,7 @@ def test_eval_writes_metrics(tmp_path, trained):
     res = json.loads((tmp_path / "e" / "eval.json").read_text())
     iv = res["overall"]["input_view"]
     assert iv["n_views"] == 1 and 0 <= iv["miou"] <= 1 and np.isfinite(iv["psnr"]) and np.isfinite(iv["base_psnr"])
+    assert np.isfinite(iv["base_free_psnr"]) and 0 <= iv["base_free_lpips"]
     assert res["overall"]["novel_views"]["n_views"] == 1  # 4 views, every 3rd other view: view 3
     grid = DF.read_png(tmp_path / "e" / "eval_grid.png")
     assert grid.shape == (16, 16 * 7, 3)

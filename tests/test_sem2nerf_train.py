@@ -126,6 +126,8 @@ def test_miou_and_category_means():
     o = T.MaskedObject("a", "cat", ims, masks, np.tile(np.eye(4), (2, 1, 1)), [None, None], {})
     mean = T.category_mean_images([o])["cat"]
     assert np.allclose(mean[0, 0], 0.4) and np.allclose(mean[1, 1], 0.4)  # uncovered pixels: overall object mean
+    photo = T.category_mean_photos([o])["cat"]  # no mask: the background counts too
+    assert np.allclose(photo[0, 0], 0.4) and np.allclose(photo[1, 1], 1.0)
 
 
 def test_input_weight_and_lr_decay(data, tmp_path):

@@ -524,6 +524,17 @@ def category_mean_images(objects: list[MaskedObject]) -> dict[str, np.ndarray]:
     return out
 
 
+def category_mean_photos(objects: list[MaskedObject]) -> dict[str, np.ndarray]:
+    """Per category: the per-pixel mean of every view of every object, background included ((H, W, 3)): the
+    baseline that knows nothing of the object it is shown (no mask, no pose)."""
+    acc: dict[str, list] = {}
+    for o in objects:
+        s = acc.setdefault(o.category, [0.0, 0])
+        s[0] = s[0] + o.images.astype(np.float64).sum(0)
+        s[1] += len(o.images)
+    return {cat: (s / n).astype(np.float32) for cat, (s, n) in acc.items()}
+
+
 def miou(gt: np.ndarray, pred: np.ndarray) -> float:
     """Mean IoU over the labels present in either map (background included)."""
     ious = []
@@ -590,7 +601,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     For every evaluated object the mask of ``input_view`` is encoded and the input view plus every
     ``views_every``-th other view are rendered with the mean style. Scored per view: PSNR, SSIM,
     LPIPS-VGG against the rendered ground truth, the same for the baseline (the category's mean
-    object image, masked by the true mask of that view), and the mIoU between the true part mask and
+    object image, masked by the true mask of that view: in novel views it knows the true silhouette, which
+    the model must infer) and for the category's mean photo (``base_free_*``: no mask, no pose), and the mIoU between the true part mask and
     the rendered semantic map (in the input view: the input mask itself). ``eval_grid.png`` shows, per
     object (first 16): input mask | true, rendered and semantic input view | the same for the first
     novel view. Also: editing locality (every object) and style-blend monotonicity (the first
@@ -611,6 +623,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
         evals = load_masked_dataset(Path(data), split, max_objects)
         base_objs = load_masked_dataset(Path(data), "train", 0)
     means = category_mean_images(base_objs)
+    photos = category_mean_photos(base_objs)
     lp = M.LPIPS()
     labels_t = torch.as_tensor(cfg.labels)
     per_view = []
@@ -635,11 +648,14 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
             base = np.where(fg[..., None], means.get(ob.category, np.full_like(gt, 0.5)), 1.0).astype(np.float32)
             sem = labels_t[img["semantic"].argmax(-1)].numpy()
             pt, gtt, bt = torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(base)
+            ft = torch.from_numpy(photos.get(ob.category, np.full_like(gt, 1.0)))
             per_view.append({
                 "object": f"{ob.category}/{ob.name}", "category": ob.category, "view": int(v), "input_view": v == v_in,
                 "psnr": float(M.psnr(pt, gtt)[0]), "ssim": float(M.ssim(pt, gtt)[0]), "lpips": float(lp(pt, gtt)[0]),
                 "base_psnr": float(M.psnr(bt, gtt)[0]), "base_ssim": float(M.ssim(bt, gtt)[0]),
-                "base_lpips": float(lp(bt, gtt)[0]), "miou": miou(ob.masks[v], sem),
+                "base_lpips": float(lp(bt, gtt)[0]), "base_free_psnr": float(M.psnr(ft, gtt)[0]),
+                "base_free_ssim": float(M.ssim(ft, gtt)[0]), "base_free_lpips": float(lp(ft, gtt)[0]),
+                "miou": miou(ob.masks[v], sem),
                 "fg_iou": float((fg & (sem > 0)).sum() / max((fg | (sem > 0)).sum(), 1))})
             if len(grid_rows) < 16 and (v == v_in or len(row) < 6):
                 from ..models.sem2nerf.render import colorize
@@ -655,7 +671,8 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
         yield Progress(k + 1, len(evals), ob.name)
 
     def summarise(rows):
-        keys = ("psnr", "ssim", "lpips", "base_psnr", "base_ssim", "base_lpips", "miou", "fg_iou")
+        keys = ("psnr", "ssim", "lpips", "base_psnr", "base_ssim", "base_lpips", "base_free_psnr", "base_free_ssim",
+                "base_free_lpips", "miou", "fg_iou")
         return {"n_views": len(rows), **{key: float(np.mean([r[key] for r in rows])) for key in keys}} if rows else {}
 
     res = {"checkpoint": str(checkpoint), "step": meta.get("step"), "data": str(data), "split": split,
