@@ -1,6 +1,7 @@
 """GPNR (model kind ``gpnr``): a target ray's colour straight from patches on its epipolar lines.
 
-For a target ray, M depths t_m between the object's box entry and exit are projected into each of the
+For a target ray, M depths t_m between the object's box entry and exit (linear, or even in inverse depth
+from a near plane when the camera is inside the box, e.g. a room: ``cfg.depth_spacing``) are projected into each of the
 K reference views (``models/projection.py``, float64-exact camera frames, points behind a camera or
 outside its image masked). Around every projection a patch is read through a linear patch embedding
 (a p x p convolution of the reference image, computed once per reference set and read bilinearly at
@@ -90,6 +91,9 @@ class GPNR(RayModel):
     """The light-field transformer; see the module doc."""
 
     kind = "gpnr"
+    blends_references = True
+    """Colour is a blend of reference pixels: the background only fills rays no reference sees
+    (``models/background.py``)."""
 
     def __init__(self, cfg: GPNRConfig):
         super().__init__()
@@ -138,6 +142,26 @@ class GPNR(RayModel):
         x = (images - self.mean.to(images.dtype)) / self.std.to(images.dtype)
         return GPNRContext(self.patch_embed(x), images, cams)
 
+    def sample_depths(self, rays: RayBundle, train: bool = False,
+                      generator: torch.Generator | None = None) -> torch.Tensor:
+        """(R, M) depths from the box entry (``cfg.depth_spacing``): linear between entry and exit, or even
+        in inverse depth from the near plane to the exit ('auto': the latter for rays whose camera is inside
+        the box, i.e. starts at its entry)."""
+        cfg = self.cfg
+        perturb = train and cfg.perturb
+        far = rays.far.float()
+        if cfg.depth_spacing == "linear":
+            return samplers.stratified(far, cfg.n_samples, perturb=perturb, generator=generator)
+        if cfg.depth_spacing == "auto":
+            inside = rays.depth_offset <= 0
+            if not bool(inside.any()):
+                return samplers.stratified(far, cfg.n_samples, perturb=perturb, generator=generator)
+            if not bool(inside.all()):
+                lin = samplers.stratified(far, cfg.n_samples, perturb=perturb, generator=generator)
+                disp = samplers.disparity(rays.far, rays.depth_offset, cfg.near, cfg.n_samples, perturb, generator)
+                return torch.where(inside[:, None].to(lin.device), disp, lin)
+        return samplers.disparity(rays.far, rays.depth_offset, cfg.near, cfg.n_samples, perturb, generator)
+
     def render_rays(self, ctx: GPNRContext, rays: RayBundle, train: bool = False,
                     generator: torch.Generator | None = None) -> dict:
         """Rays that hit the box -> colour (R, 3) on the background, acc (R,), depth (R,) from the box entry,
@@ -145,7 +169,7 @@ class GPNR(RayModel):
         cfg = self.cfg
         R, V = len(rays), len(ctx.cams)
         far = rays.far.float()
-        t = samplers.stratified(far, cfg.n_samples, perturb=train and cfg.perturb, generator=generator)  # (R, M)
+        t = self.sample_depths(rays, train, generator)  # (R, M)
         M = t.shape[1]
         o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
         uv, valid, _ = project_samples(ctx.cams, o_c, d_c, t)  # (V, R, M, 2), (V, R, M)
