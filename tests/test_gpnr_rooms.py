@@ -210,3 +210,38 @@ def test_scene_box_from_sparse_points_is_robust_to_outliers():
         c[:3, 3] = [i, 0, 0]
     lo4, hi4, how4 = align.scene_box(pts[:5], cams)
     assert "cameras" in how4 and np.all(hi4 > lo4)
+
+
+def test_inference_temperatures_sharpen_the_weights_and_default_to_the_paper():
+    from blender_mrvm.models.base import ref_cameras
+
+    stored = to_dict(registry.build_config("gpnr", "fast"))
+    for k in ("alpha_temperature", "beta_temperature"):
+        stored.pop(k)
+    assert registry.config_from_dict("gpnr", stored).alpha_temperature == 1.0
+    intr = C.Intrinsics.from_K(np.array([[7.0, 0, 4], [0, 7.0, 4], [0, 0, 1]]), 8, 8)
+    poses = []
+    for x in (-0.3, 0.3):
+        p = np.eye(4)
+        p[:3, 3] = [x, 0.0, -3.0]
+        poses.append(p)
+    cams = ref_cameras(poses, [intr, intr])
+    torch.manual_seed(1)
+    images = torch.rand(2, 3, 8, 8)
+    rays = _rays(inside=False)
+    outs = {}
+    for t in (1.0, 0.2):
+        model, _ = _gpnr(alpha_temperature=t, beta_temperature=t)
+        with torch.no_grad():
+            outs[t] = model.render_rays(model.encode(images, cams), rays)
+            train_out = model.render_rays(model.encode(images, cams), rays, train=True,
+                                          generator=torch.Generator().manual_seed(0))
+        if t != 1.0:  # training ignores the temperatures
+            ref, _ = _gpnr()
+            with torch.no_grad():
+                want = ref.render_rays(ref.encode(images, cams), rays, train=True, generator=torch.Generator().manual_seed(0))
+            assert torch.equal(train_out["color"], want["color"])
+    ent = lambda a: float(-(a.clamp_min(1e-12).log() * a).sum(-1).mean())  # noqa: E731
+    assert ent(outs[0.2]["alpha"]) < ent(outs[1.0]["alpha"]) and ent(outs[0.2]["beta"]) < ent(outs[1.0]["beta"])
+    s = outs[0.2]["alpha"].sum(-1)
+    assert (((s - 1).abs() < 1e-5) | (s == 0)).all()

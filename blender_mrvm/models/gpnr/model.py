@@ -230,7 +230,10 @@ class GPNR(RayModel):
             seq = blk(seq, kv)
         seq = self.norm_e(seq).reshape(R, V, M + 1, d)
         q_e, keys = seq[:, :, :1], seq[:, :, 1:]
-        alpha = masked_softmax(self.alpha_head(torch.cat([q_e.expand_as(keys), keys], -1))[..., 0], valid_vm, -1)  # (R, V, M)
+        a_logit = self.alpha_head(torch.cat([q_e.expand_as(keys), keys], -1))[..., 0]
+        if not train and cfg.alpha_temperature != 1.0:
+            a_logit = a_logit / cfg.alpha_temperature
+        alpha = masked_softmax(a_logit, valid_vm, -1)  # (R, V, M)
         feat_v = (alpha[..., None] * keys).sum(2)  # (R, V, d)
         col_v = (alpha[..., None] * rgb.permute(0, 2, 1, 3)).sum(2)  # (R, V, 3)
         dep_v = (alpha * t[:, None, :]).sum(2)  # (R, V)
@@ -242,7 +245,10 @@ class GPNR(RayModel):
             seq = blk(seq, kv)
         seq = self.norm_v(seq)
         q_v, keys_v = seq[:, :1], seq[:, 1:]
-        beta = masked_softmax(self.beta_head(torch.cat([q_v.expand_as(keys_v), keys_v], -1))[..., 0], view_ok, -1)  # (R, V)
+        b_logit = self.beta_head(torch.cat([q_v.expand_as(keys_v), keys_v], -1))[..., 0]
+        if not train and cfg.beta_temperature != 1.0:
+            b_logit = b_logit / cfg.beta_temperature
+        beta = masked_softmax(b_logit, view_ok, -1)  # (R, V)
         seen = view_ok.any(-1)  # (R,)
         bg = 1.0 if cfg.white_background else 0.0
         if self.rgb_head is None:
