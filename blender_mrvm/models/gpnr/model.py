@@ -1,9 +1,9 @@
 """GPNR (model kind ``gpnr``): a target ray's colour straight from patches on its epipolar lines.
 
-For a target ray, M depths t_m between the object's box entry and exit (linear, or even in inverse depth
-from a near plane when the camera is inside the box, e.g. a room: ``cfg.depth_spacing``) are projected into each of the
-K reference views (``models/projection.py``, float64-exact camera frames, points behind a camera or
-outside its image masked). Around every projection a patch is read through a linear patch embedding
+For a target ray, M depths t_m between the object's box entry and exit (linear, or even in inverse
+depth from a near plane when the camera is inside the box, e.g. a room: ``cfg.depth_spacing``) are
+projected into each of the K reference views (``models/projection.py``, float64-exact camera frames,
+points behind a camera or outside its image masked). Around every projection a patch is read through a linear patch embedding
 (a p x p convolution of the reference image, computed once per reference set and read bilinearly at
 the projection, which equals embedding the bilinearly resampled patch). Each patch token is
 
@@ -168,7 +168,6 @@ class GPNR(RayModel):
         and the attention weights alpha (R, V, M), beta (R, V) and the colour weights (R, V, M)."""
         cfg = self.cfg
         R, V = len(rays), len(ctx.cams)
-        far = rays.far.float()
         t = self.sample_depths(rays, train, generator)  # (R, M)
         M = t.shape[1]
         o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
