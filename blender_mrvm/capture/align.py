@@ -163,3 +163,34 @@ def auto_normalization(c2w: list[np.ndarray], points: np.ndarray) -> Normalizati
     radius = float(np.percentile(near, 90)) if len(near) >= 10 else 0.5 * cam_dist
     radius = max(radius, 1e-6)
     return Normalization(rot, centre, 1.0 / radius, method)
+
+
+def scene_box(points: np.ndarray, c2w: list[np.ndarray] | None = None, percentile: float = 2.0,
+              margin: float = 0.1) -> tuple[np.ndarray, np.ndarray, str]:
+    """(min xyz, max xyz, how) of the scene the sparse points show, robust to outliers.
+
+    Per axis, the ``percentile``-th and (100 - ``percentile``)-th percentiles of the points, grown by
+    ``margin`` times the box's extent on each side (a few stray triangulations far away move a
+    percentile by at most their share of the points, so they cannot blow the box up). An axis the points
+    hardly span (a flat wall) is given a tenth of the largest extent. With fewer than 10 points: a cube
+    around the cameras' centroid, half-size the largest camera distance from it (or the unit cube).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(1)]
+    if len(pts) >= 10:
+        lo = np.percentile(pts, percentile, axis=0)
+        hi = np.percentile(pts, 100.0 - percentile, axis=0)
+        ext = hi - lo
+        big = float(ext.max())
+        if big <= 0:
+            big = 1.0
+        pad = np.maximum(ext, 0.1 * big)
+        grow = 0.5 * (pad - ext) + margin * pad
+        return lo - grow, hi + grow, (f"sparse points: {percentile:g}th..{100 - percentile:g}th percentile per axis, "
+                                      f"+{margin:g} x extent margin")
+    if c2w:
+        centres = np.array([np.asarray(p, np.float64)[:3, 3] for p in c2w])
+        c = centres.mean(0)
+        r = float(np.linalg.norm(centres - c, axis=1).max()) or 1.0
+        return c - r, c + r, "cameras (fewer than 10 sparse points)"
+    return -np.ones(3), np.ones(3), "unit cube (no points, no cameras)"

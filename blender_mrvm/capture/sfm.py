@@ -492,6 +492,13 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),
     }
+    # The scene's box, so a scene model (GPNR) can clip rays to it: the photos show a whole scene.
+    lo, hi, how = align.scene_box(xyz, c2ws)
+    meta.update({"background": "scene", "bbox": [lo.tolist(), hi.tolist()], "bbox_source": how,
+                 "background_note": "real photos: no white background; 'bbox' is the scene's box from the sparse "
+                                    "points (what models clip rays to)"})
+    if cfg.normalize:
+        meta["object_bbox"] = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]  # the normalization's unit sphere
     write_capture(out_dir, views, xyz, rgb, meta)
     stages.close()
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -127,7 +128,14 @@ def run(args) -> int:
     if not objs:
         raise InputError(f"{args.data}: no objects for split {args.split!r}")
     scenes = [load_object(f, p, args.split) for f, p in objs]
+    from ..models import background as bgrule
+
+    data_bg = bgrule.of_scenes(scenes)
+    bg_note = bgrule.for_rendering(model, data_bg)  # the data decides; a mismatch is said, never silent
+    if bg_note:
+        print(f"note: {bg_note}", file=sys.stderr)
     extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None},
+             "background": {"data": data_bg, "white_background": model.white_background, "note": bg_note},
              "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
                       "max_objects_per_category": args.max_objects_per_category}}
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,

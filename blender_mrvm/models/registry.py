@@ -135,7 +135,11 @@ def config_from_dict(name: str | None, data: dict[str, Any]):
     """A validated config of kind ``name`` from a plain dict (as stored in checkpoints and run configs)."""
     from .config import from_dict
 
-    cfg = from_dict(config_class(name), data)
+    cls = config_class(name)
+    legacy = getattr(importlib.import_module(cls.__module__), "STORED_DEFAULTS", {})
+    if isinstance(data, dict) and legacy:  # fields newer than the stored config: what the code did before them
+        data = {**{k: v for k, v in legacy.items() if k not in data}, **data}
+    cfg = from_dict(cls, data)
     validate(cfg)
     return cfg
 

@@ -22,6 +22,41 @@ def stratified(far: torch.Tensor, n: int, perturb: bool, generator: torch.Genera
     return (lo + (hi - lo) * u) * far[:, None]
 
 
+def disparity(far: torch.Tensor, offset: torch.Tensor, near: float, n: int, perturb: bool,
+              generator: torch.Generator | None = None) -> torch.Tensor:
+    """(R,) box lengths and (R,) camera-to-box-entry distances -> (R, n) sorted sample distances from the
+    box entry, one per equal bin of *inverse depth* (disparity) between the near plane and the box exit.
+
+    Depth is measured from the camera: the samples run from ``max(near, offset)`` (the near plane, or the
+    box entry when the camera is farther than ``near`` from the box) to ``offset + far`` (the exit), with
+    their reciprocals evenly spaced (bin centres if not perturbed), so they are evenly spaced along the
+    epipolar line of a reference camera near the target camera (as the light-field / LLFF code samples real
+    scenes between the data's near and far bounds). A near plane beyond the exit falls back to the entry.
+    Returned distances are from the box entry (``t - offset``), in [0, far], float32 like :func:`stratified`.
+    """
+    far = far.double().clamp_min(0.0)
+    off = offset.double().clamp_min(0.0)
+    t1 = off + far
+    t0 = torch.maximum(off, torch.full_like(off, float(near)))
+    t0 = torch.where(t0 < t1, t0, off)
+    ok = t0 > 0  # a ray starting at the camera with no near plane cannot be spaced in disparity: linear
+    d0 = 1.0 / torch.where(ok, t0, torch.ones_like(t0))
+    d1 = 1.0 / torch.where(ok, t1, torch.ones_like(t1)).clamp_min(1e-300)
+    edges = torch.linspace(0.0, 1.0, n + 1, device=far.device, dtype=torch.float64)
+    lo, hi = edges[:-1], edges[1:]
+    if perturb:
+        u = torch.rand((far.shape[0], n), device=far.device, generator=generator).double()
+    else:
+        u = torch.full((far.shape[0], n), 0.5, device=far.device, dtype=torch.float64)
+    s = lo + (hi - lo) * u  # (R, n) in [0, 1], increasing
+    disp = d0[:, None] + s * (d1 - d0)[:, None]
+    t = 1.0 / disp - off[:, None]
+    lin = s * far[:, None]
+    t = torch.where(ok[:, None], t, lin)
+    t = torch.minimum(t.clamp_min(0.0), far[:, None])
+    return t.float()
+
+
 def bin_edges(t: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
     """(R, S) sample distances -> (R, S + 1) bin edges (midpoints, clamped to [0, far])."""
     mid = 0.5 * (t[..., 1:] + t[..., :-1])

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -134,13 +135,15 @@ class References:
     """Where the box came from."""
     masks: np.ndarray | None = None
     """(V, H, W) bool object masks at the images' size when every reference has one (``mask/``), else None."""
+    background: str = "white"
+    """What the views show (meta.json ``background``): 'white' (an object on white) or 'scene'."""
 
     def subset(self, keep: Sequence[int]) -> "References":
         """The references at positions ``keep``."""
         keep = list(keep)
         return References(self.folder, tuple(self.views[k] for k in keep), self.images[keep],
                           [self.c2w[k] for k in keep], [self.intrinsics[k] for k in keep], self.bbox, self.bbox_source,
-                          None if self.masks is None else self.masks[keep])
+                          None if self.masks is None else self.masks[keep], self.background)
 
 
 def nearest_views(ref_c2w: Sequence[np.ndarray], target_c2w: np.ndarray, centre, k: int) -> tuple[int, ...]:
@@ -346,8 +349,10 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
         box, src = parse_bbox([*bbox[0], *bbox[1]]), "given"
     else:
         box, src = object_box(ov.meta, poses)
+    from ..models.background import of_meta
+
     return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src,
-                      _reference_masks(folder, ov, [pos[v] for v in views], w0, h0))
+                      _reference_masks(folder, ov, [pos[v] for v in views], w0, h0), of_meta(ov.meta))
 
 
 def _reference_masks(folder: Path, ov, ks: Sequence[int], w: int, h: int) -> np.ndarray | None:
@@ -432,13 +437,18 @@ def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: in
             "evaluated": res["evaluated"], "rays": res["rays"], "box_rays": res["box_rays"]}
 
 
-def rgba_image(color_on_white: np.ndarray, acc: np.ndarray) -> np.ndarray:
+def rgba_image(color_on_white: np.ndarray, acc: np.ndarray, scene: bool = False) -> np.ndarray:
     """uint8 RGBA with straight colour such that compositing over white gives ``color_on_white``.
+
+    ``scene``: the view shows a whole scene (``background: scene``): the colour as it is, opaque.
 
     The model's colour is c * a + (1 - a) (white background); the straight colour is
     (colour - (1 - a)) / a, computed with the 8-bit alpha that is stored so the round trip is exact
     to within the 8-bit rounding of the colour; where alpha rounds to 0 the colour is kept as is.
     """
+    if scene:
+        rgb8 = F.to_uint8(np.clip(color_on_white, 0.0, 1.0))
+        return np.concatenate([rgb8, np.full(rgb8.shape[:-1] + (1,), 255, np.uint8)], axis=-1)
     a8 = F.to_uint8(np.clip(acc, 0.0, 1.0))
     a = a8.astype(np.float32)[..., None] / 255.0
     straight = np.where(a > 0, (color_on_white - (1.0 - a)) / np.maximum(a, 1e-6), color_on_white)
@@ -465,6 +475,8 @@ class SynthesisSummary:
     references: list = field(default_factory=list)
     reference_size: list = field(default_factory=list)
     """[width, height] of the references as the model saw them."""
+    background: dict = field(default_factory=dict)
+    """What the references show and what the model rendered on (``models/background.py``)."""
 
 
 def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
@@ -503,10 +515,14 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                          "or --ref-size -1 to use them as they are")
     device = resolve_device(cfg.device)
     model, mcfg, meta, ck_path = load_checkpoint(cfg.checkpoint, device)
+    from ..models.background import SCENE, for_rendering
     from ..models.config import merge
     from ..models.registry import quality_overrides
 
     model.cfg = merge(model.cfg, quality_overrides(model.cfg, cfg.quality))
+    bg_note = for_rendering(model, refs.background)  # the data decides; a mismatch is said, never silent
+    if bg_note:
+        print(f"note: {bg_note}", file=sys.stderr)
     if len(refs.views) < model.min_ref_views:
         model.check_reference_count(len(refs.views))
     per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
@@ -515,7 +531,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
-                               reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height])
+                               reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height],
+                               background={"data": refs.background, "white_background": model.white_background,
+                                           "note": bg_note})
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
     encoded: dict[tuple[int, ...], Any] = {}
 
@@ -547,7 +565,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                     res = stop.value
                     break
                 yield Progress(done, total, msg)
-            F.write_png(tmp / t.rgb_path(i), rgba_image(res["color"], res["acc"]))
+            F.write_png(tmp / t.rgb_path(i), rgba_image(res["color"], res["acc"], refs.background == SCENE))
             files = {"rgb": t.rgb_path(i)}
             if depth:
                 F.write_depth(tmp / t.depth_path(i), res["depth_z"].astype(np.float32))
@@ -582,7 +600,9 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg) -> dict[str, Any]:
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
-            "rgb": "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)",
+            "background": s.background,
+            "rgb": ("RGBA PNG, opaque: the whole scene" if s.background.get("data") == "scene" else
+                    "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)"),
             "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}"}
 
 

@@ -141,8 +141,13 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     k = named_kind or kind
     if "config" in m:  # a full config (as saved in a checkpoint)
         mcfg = registry.config_from_dict(k, m["config"])
-    elif not m and tcfg.init_checkpoint and not kind:  # fine-tuning: the checkpoint's own model
+    elif set(m) <= {"overrides"} and tcfg.init_checkpoint and not kind:  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
+        if m.get("overrides"):  # e.g. {"depth_spacing": "auto"}: settings that keep the weights' shapes
+            from ..models import registry as _reg
+
+            mcfg = merge(mcfg, m["overrides"])
+            _reg.validate(mcfg)
     else:
         mcfg = registry.build_config(k, m.get("preset", preset), m.get("overrides"))
     return mcfg, tcfg

@@ -4,7 +4,9 @@ then finetuning, JSONL metrics, atomic checkpoints and exact resume; data-parall
 Per step and process: ``objects_per_step`` objects, each with a random 1..K reference set and one
 target view; ``rays_per_object`` target pixels drawn inside the object's 2D box during the first
 ``bbox_sampling_frac`` of training (pixelNeRF) and over the whole image afterwards. Rays that miss
-the object's 3D box are background: they are scored (prediction = white) but never evaluated.
+the object's 3D box are background: they are scored (prediction = white) but never evaluated; on
+scene data (``background: scene``) they are not scored, and the model is set up for the data's
+background before it is built (``models/background.py``).
 On capture-like data (``background: scene``) the references are the target's k nearest views.
 
 Distributed: under ``torchrun`` (``WORLD_SIZE > 1``) each rank draws its own batch (seed + rank),
@@ -20,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -141,7 +144,8 @@ class RayBatcher:
         rays = make_rays(intr, ns.pose(s.c2w[tgt]), np.stack([px + 0.5, py + 0.5], -1), box=ns.box)
         gt = torch.from_numpy(s.images[tgt][py, px].astype(np.float32))
         mask = torch.from_numpy(s.masks[tgt][py, px].astype(np.float32)) if s.masks is not None else None
-        return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k}
+        return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k,
+                "scene": s.background == "scene"}
 
 
 # ------------------------------------------------------------------------------------------- training
@@ -181,6 +185,12 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     run_dir = Path(cfg.out_dir)
     if scenes is None:
         scenes = load_dataset(Path(cfg.data), cfg.split, cfg.data_format or None, cfg.max_objects or None)
+    from ..models import background as bgrule
+
+    data_bg = bgrule.of_scenes(scenes)
+    model_cfg, note = bgrule.for_training(model_cfg, data_bg)  # the data decides what the images sit on
+    if note and dd.main:
+        print(f"note: {note}", file=sys.stderr)
     torch.manual_seed(cfg.seed)
     model = registry.build_model(model_cfg).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
@@ -281,7 +291,11 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
     hit = rays.hit.to(device)
     n = gt.shape[0]
     bg = 1.0 if model.white_background else 0.0
-    miss_err = ((bg - gt[~hit]) ** 2).sum()
+    if b.get("scene"):  # a whole scene: what lies outside the box is not the model's to say (background.py)
+        n = max(1, int(hit.sum()))
+        miss_err = gt.new_zeros(())
+    else:
+        miss_err = ((bg - gt[~hit]) ** 2).sum()
     parts = {"hit": float(hit.float().mean())}
     cams = b["cams"]
     cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)

@@ -24,6 +24,21 @@ class GPNRConfig:
     """Width of the linear patch embedding."""
     n_samples: int = 32
     """Depths sampled along the target ray inside the object's box (M); each is projected into every view."""
+    depth_spacing: str = "auto"
+    """How the M depths are spread along the target ray: 'linear' (evenly between the box entry and exit, as
+    for an object seen from outside its box), 'disparity' (evenly in inverse depth between the near plane and
+    the box exit: a room or a real scene seen from inside its box), or 'auto' (per ray: 'disparity' when the
+    camera is inside the box, i.e. a scene dataset, else 'linear'). Checkpoints written before this field
+    existed read as 'linear' (``STORED_DEFAULTS``)."""
+    near: float = 0.2
+    """Near plane of the 'disparity' spacing: distance from the target camera, in the normalised frame's
+    units (the box's longest half-side is 1; in a 5 m room, 0.2 is 0.5 m). Depths start at the farther of
+    the near plane and the box entry."""
+    alpha_temperature: float = 1.0
+    """Temperature of the epipolar weights' softmax at inference (training always uses 1): below 1 each view's
+    colour comes from fewer depths along its epipolar line, i.e. less blur along the line. 1 = the paper."""
+    beta_temperature: float = 1.0
+    """Temperature of the reference-view weights' softmax at inference (training always uses 1)."""
     ray_freqs: int = 4
     """Harmonic frequencies of the reference ray's Plücker coordinates (the first positional code)."""
     depth_freqs: int = 6
@@ -73,6 +88,12 @@ PRESETS: dict[str, GPNRConfig] = {
 }
 """Named GPNR configs."""
 
+STORED_DEFAULTS: dict[str, object] = {"depth_spacing": "linear"}
+"""Values of fields a stored config (checkpoint, run config) lacks because it was written before the field
+existed: what the code did then, so an old checkpoint renders bit-identically."""
+
+DEPTH_SPACINGS = ("linear", "disparity", "auto")
+
 
 def validate(cfg: GPNRConfig) -> None:
     """Raise :class:`InputError` for configs that cannot work."""
@@ -93,5 +114,13 @@ def validate(cfg: GPNRConfig) -> None:
         raise InputError(f"gpnr colour_from must be 'references' or 'features', got {cfg.colour_from!r}")
     if cfg.min_ref_views > cfg.max_ref_views:
         raise InputError("gpnr needs min_ref_views <= max_ref_views")
+    if cfg.depth_spacing not in DEPTH_SPACINGS:
+        raise InputError(f"gpnr depth_spacing must be one of {', '.join(DEPTH_SPACINGS)}, got {cfg.depth_spacing!r}")
+    if isinstance(cfg.near, bool) or not isinstance(cfg.near, (int, float)) or not 0.0 < float(cfg.near) < 1e6:
+        raise InputError(f"gpnr near must be a positive number (normalised units), got {cfg.near!r}")
+    for name in ("alpha_temperature", "beta_temperature"):
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 1e-3 <= float(v) <= 1e3:
+            raise InputError(f"gpnr {name} must be a number in [0.001, 1000], got {v!r}")
     if not 0.0 <= float(cfg.box_padding) <= 1.0:
         raise InputError(f"gpnr box_padding must be in [0, 1], got {cfg.box_padding}")

@@ -1,8 +1,9 @@
 """GPNR (model kind ``gpnr``): a target ray's colour straight from patches on its epipolar lines.
 
-For a target ray, M depths t_m between the object's box entry and exit are projected into each of the
-K reference views (``models/projection.py``, float64-exact camera frames, points behind a camera or
-outside its image masked). Around every projection a patch is read through a linear patch embedding
+For a target ray, M depths t_m between the object's box entry and exit (linear, or even in inverse
+depth from a near plane when the camera is inside the box, e.g. a room: ``cfg.depth_spacing``) are
+projected into each of the K reference views (``models/projection.py``, float64-exact camera frames,
+points behind a camera or outside its image masked). Around every projection a patch is read through a linear patch embedding
 (a p x p convolution of the reference image, computed once per reference set and read bilinearly at
 the projection, which equals embedding the bilinearly resampled patch). Each patch token is
 
@@ -90,6 +91,9 @@ class GPNR(RayModel):
     """The light-field transformer; see the module doc."""
 
     kind = "gpnr"
+    blends_references = True
+    """Colour is a blend of reference pixels: the background only fills rays no reference sees
+    (``models/background.py``)."""
 
     def __init__(self, cfg: GPNRConfig):
         super().__init__()
@@ -138,14 +142,33 @@ class GPNR(RayModel):
         x = (images - self.mean.to(images.dtype)) / self.std.to(images.dtype)
         return GPNRContext(self.patch_embed(x), images, cams)
 
+    def sample_depths(self, rays: RayBundle, train: bool = False,
+                      generator: torch.Generator | None = None) -> torch.Tensor:
+        """(R, M) depths from the box entry (``cfg.depth_spacing``): linear between entry and exit, or even
+        in inverse depth from the near plane to the exit ('auto': the latter for rays whose camera is inside
+        the box, i.e. starts at its entry)."""
+        cfg = self.cfg
+        perturb = train and cfg.perturb
+        far = rays.far.float()
+        if cfg.depth_spacing == "linear":
+            return samplers.stratified(far, cfg.n_samples, perturb=perturb, generator=generator)
+        if cfg.depth_spacing == "auto":
+            inside = rays.depth_offset <= 0
+            if not bool(inside.any()):
+                return samplers.stratified(far, cfg.n_samples, perturb=perturb, generator=generator)
+            if not bool(inside.all()):
+                lin = samplers.stratified(far, cfg.n_samples, perturb=perturb, generator=generator)
+                disp = samplers.disparity(rays.far, rays.depth_offset, cfg.near, cfg.n_samples, perturb, generator)
+                return torch.where(inside[:, None].to(lin.device), disp, lin)
+        return samplers.disparity(rays.far, rays.depth_offset, cfg.near, cfg.n_samples, perturb, generator)
+
     def render_rays(self, ctx: GPNRContext, rays: RayBundle, train: bool = False,
                     generator: torch.Generator | None = None) -> dict:
         """Rays that hit the box -> colour (R, 3) on the background, acc (R,), depth (R,) from the box entry,
         and the attention weights alpha (R, V, M), beta (R, V) and the colour weights (R, V, M)."""
         cfg = self.cfg
         R, V = len(rays), len(ctx.cams)
-        far = rays.far.float()
-        t = samplers.stratified(far, cfg.n_samples, perturb=train and cfg.perturb, generator=generator)  # (R, M)
+        t = self.sample_depths(rays, train, generator)  # (R, M)
         M = t.shape[1]
         o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
         uv, valid, _ = project_samples(ctx.cams, o_c, d_c, t)  # (V, R, M, 2), (V, R, M)
@@ -206,7 +229,10 @@ class GPNR(RayModel):
             seq = blk(seq, kv)
         seq = self.norm_e(seq).reshape(R, V, M + 1, d)
         q_e, keys = seq[:, :, :1], seq[:, :, 1:]
-        alpha = masked_softmax(self.alpha_head(torch.cat([q_e.expand_as(keys), keys], -1))[..., 0], valid_vm, -1)  # (R, V, M)
+        a_logit = self.alpha_head(torch.cat([q_e.expand_as(keys), keys], -1))[..., 0]
+        if not train and cfg.alpha_temperature != 1.0:
+            a_logit = a_logit / cfg.alpha_temperature
+        alpha = masked_softmax(a_logit, valid_vm, -1)  # (R, V, M)
         feat_v = (alpha[..., None] * keys).sum(2)  # (R, V, d)
         col_v = (alpha[..., None] * rgb.permute(0, 2, 1, 3)).sum(2)  # (R, V, 3)
         dep_v = (alpha * t[:, None, :]).sum(2)  # (R, V)
@@ -218,7 +244,10 @@ class GPNR(RayModel):
             seq = blk(seq, kv)
         seq = self.norm_v(seq)
         q_v, keys_v = seq[:, :1], seq[:, 1:]
-        beta = masked_softmax(self.beta_head(torch.cat([q_v.expand_as(keys_v), keys_v], -1))[..., 0], view_ok, -1)  # (R, V)
+        b_logit = self.beta_head(torch.cat([q_v.expand_as(keys_v), keys_v], -1))[..., 0]
+        if not train and cfg.beta_temperature != 1.0:
+            b_logit = b_logit / cfg.beta_temperature
+        beta = masked_softmax(b_logit, view_ok, -1)  # (R, V)
         seen = view_ok.any(-1)  # (R,)
         bg = 1.0 if cfg.white_background else 0.0
         if self.rgb_head is None:
