@@ -205,7 +205,8 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
         ("fast", "Fast", "Smallest model: quick experiments (the shipped GPNR's size)"),
         ("balanced", "Balanced", "The shipped NeRFormer+MRVM's size (about a second per 128 px view on 2 CPU cores)"),
         ("accurate", "Accurate", "Large model: slow on a CPU"),
-        ("paper", "Paper (GPNR)", "GPNR at the paper's size (8 blocks, 256 wide): needs a GPU"),
+        ("paper", "Paper", "The paper's size (NeRFormer: 4/5 layer pairs 128 wide, VGG16 encoder, 5.7M parameters; "
+                           "GPNR: 8 blocks 256 wide): needs a GPU"),
     ], default="balanced")
     iterations: IntProperty(name="Iterations", default=2000, min=1, soft_max=200000,
                             description="Optimizer steps in all; a continued run trains up to this step")

@@ -225,6 +225,11 @@ TRAIN = [
     _t("the pose holds NaN", ["--data", "{w}/bad/ds_nanpose"], garbage=True),
     _t("cannot read image", ["--data", "{w}/bad/ds_truncpng"]),
     _t("not a dataset this tool reads", ["--data", "{w}/emptydir"]),
+    _t("not a dataset this tool reads", ["--data", "{w}/ds", "--data", "{w}/emptydir"]),  # the second of two
+    _t("is half-rendered: 2 of 2 objects", ["--data", "{w}/ds", "--data", "{w}/bad/ds_half"], garbage=True),
+    _t("names the dataset", ["--data", "{w}/ds", "--data", "{w}/ds/"], garbage=True),
+    _t("train.data has an empty dataset root", train={"data": ["{w}/ds", ""]}),
+    _t("train.data must be a string", train={"data": ["{w}/ds", 5]}),
     _t("does not load: truncated", ["--init", "{w}/bad/ck_trunc"]),
     _t("does not load", ["--init", "{w}/bad/ck_text.safetensors"]),
     _t("holds NaN or infinite weights", ["--init", "{w}/bad/ck_nan"], garbage=True),

@@ -279,3 +279,40 @@ def test_opacity_loss_and_masks(tmp_path, data):
     bare = [dataclasses.replace(x, masks=None) for x in scenes]
     with pytest.raises(InputError, match="opacity_weight needs object masks"):
         run_to_end(train(mcfg, replace(tcfg, out_dir=str(tmp_path / "p")), scenes=bare))
+
+
+def test_several_datasets_pooled(tmp_path, data):
+    """`train --data A --data B` pools both datasets' objects (at most max_objects of each), stores the list
+    in config.json, resumes from it, and a config's list is replaced, not split, by one --data."""
+    from blender_mrvm.cli import main
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.training.trainer import load_training_scenes
+
+    root, scenes = data
+    other = make_sphere_dataset(tmp_path / "other", n_objects=4, n_views=5, resolution=16, seed=7)
+    theirs = load_dataset(other, "train")
+    assert len(scenes) >= 2 and len(theirs) >= 2
+    tcfg = TrainConfig(data=[str(root), str(other)])  # a JSON list
+    assert tcfg.data == (str(root), str(other))
+    pooled = load_training_scenes(tcfg)
+    assert len(pooled) == len(scenes) + len(theirs)
+    assert np.array_equal(pooled[len(scenes)].images, theirs[0].images)  # in the order given
+    assert len(load_training_scenes(replace(tcfg, max_objects=1))) == 2
+    with pytest.raises(InputError, match="twice"):
+        TrainConfig(data=[str(root), str(root) + "/"])
+    with pytest.raises(InputError, match="empty dataset root"):
+        TrainConfig(data=[str(root), " "])
+    with pytest.raises(InputError, match="train.data must be a string"):
+        TrainConfig(data=[str(root), 3])
+    cfg = tmp_path / "run.json"
+    cfg.write_text(json.dumps({"model": {"preset": "fast", "overrides": TINY},
+                               "train": {"rays_per_object": 16, "objects_per_step": 1, "threads": 1,
+                                         "max_ref_views": 2, "ckpt_every": 1}}))
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(cfg), "--data", str(root), "--data", str(other), "--out", str(out),
+                 "--iterations", "1"]) == 0
+    assert json.loads((out / "config.json").read_text())["train"]["data"] == [str(root), str(other)]
+    assert main(["train", "--config", str(out / "config.json"), "--iterations", "2"]) == 0
+    assert json.loads((out / "summary_rank0.json").read_text())["resumed_from"] == 1
+    _, one = load_run_config(out / "config.json", {"data": str(other)})
+    assert one.data == str(other)

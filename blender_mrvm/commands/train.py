@@ -3,6 +3,7 @@
 Single process:  python -m blender_mrvm train --config run.json
 Data-parallel:   torchrun --nproc_per_node N -m blender_mrvm train --config run.json
 Fine-tune:       python -m blender_mrvm train --init runs/pretrain --data my_dataset --out runs/ft  (or --init shipped)
+Several datasets: --data turntable_set --data sphere_set  (objects pooled; train.data as a JSON list)
 Resumes from the run folder's newest complete checkpoint unless --no-resume (which refuses a run folder
 holding a run unless --force).
 """
@@ -20,7 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model kind when the config names none: nerformer_mrvm (default) or gpnr")
     p.add_argument("--preset", default=None,
                    help="model preset (fast, balanced, accurate, ...) when the config names none")
-    p.add_argument("--data", default=None, help="dataset root (overrides train.data)")
+    p.add_argument("--data", action="append", default=None, metavar="ROOT",
+                   help="dataset root (overrides train.data); repeat to pool the objects of several datasets, "
+                        "e.g. a turntable and a sphere-rig rendering")
     p.add_argument("--out", dest="out_dir", default=None, help="run folder (overrides train.out_dir)")
     p.add_argument("--iterations", type=int, default=None, help="overrides train.iterations")
     p.add_argument("--init", dest="init_checkpoint", default=None,
@@ -37,11 +40,14 @@ def run(args) -> int:
     from ..training.config import load_run_config
     from ..training.trainer import train
 
-    mcfg, tcfg = load_run_config(args.config, {"data": args.data, "out_dir": args.out_dir,
+    data = args.data if args.data is None or len(args.data) > 1 else args.data[0]  # one root stays a string
+    mcfg, tcfg = load_run_config(args.config, {"data": data, "out_dir": args.out_dir,
                                                "iterations": args.iterations,
                                                "init_checkpoint": args.init_checkpoint},
                                   kind=args.kind, preset=args.preset)
-    if not tcfg.data:
+    from ..training.config import data_roots
+
+    if not data_roots(tcfg):
         raise InputError("no dataset: give --data or train.data in the config")
     import os
 

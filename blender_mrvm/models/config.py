@@ -237,9 +237,9 @@ def merge(cfg: Any, overrides: dict[str, Any]) -> Any:
         cur = getattr(cfg, k)
         if is_dataclass(cur) and isinstance(v, dict):
             kw[k] = merge(cur, v)
-        elif isinstance(cur, tuple):
+        elif isinstance(cur, tuple) and isinstance(v, (list, tuple)):
             kw[k] = tuple(v)
-        else:
+        else:  # (a string for a tuple field is not split into characters: the field's check judges it)
             kw[k] = v
     return replace(cfg, **kw)
 

@@ -26,14 +26,16 @@ class TrainConfig:
 
     config_label = "train"  # not a field: how messages name the fields ("train.lr")
 
-    data: str = ""
-    """Dataset root (ours, SRN, NMR/DVR or NeRF-synthetic)."""
+    data: str | tuple[str, ...] = ""
+    """Dataset root (ours, SRN, NMR/DVR or NeRF-synthetic), or a list of roots whose objects are pooled
+    (e.g. a turntable and a sphere-rig rendering: objects are drawn uniformly from all of them). Every root
+    is read with ``data_format`` and ``split``; :func:`data_roots` is the one reader of this field."""
     data_format: str = ""
     """Dataset format; '' detects it."""
     split: str = "train"
     """Split to train on."""
     max_objects: int = 0
-    """Use at most this many objects (0 = all)."""
+    """Use at most this many objects of each dataset (0 = all)."""
     out_dir: str = "runs/mrvm"
     """Run folder: metrics.jsonl, checkpoints/, config.json."""
     seed: int = 0
@@ -206,6 +208,7 @@ def validate(c: TrainConfig) -> None:
     V.check_device_name("train.device", c.device, allow_auto=False)
     if c.data_format not in ("", "ours", "srn", "nmr", "nerf"):
         raise InputError(f"train.data_format must be '', ours, srn, nmr or nerf, got {c.data_format!r}")
+    data_roots(c)  # no empty or repeated dataset roots
     if not c.split.strip():
         raise InputError("train.split is empty")
     if c.iterations < 1:
@@ -222,10 +225,28 @@ def validate(c: TrainConfig) -> None:
         raise InputError("rays_per_object and objects_per_step must be >= 1")
 
 
+def data_roots(c: TrainConfig) -> tuple[str, ...]:
+    """The dataset roots ``train.data`` names, in order (``()`` when it names none); InputError for an
+    empty entry in a list or a root named twice (its objects would be drawn twice as often)."""
+    if isinstance(c.data, str):
+        return (c.data,) if c.data.strip() else ()
+    roots = tuple(c.data)
+    seen: dict[str, str] = {}
+    for r in roots:
+        if not r.strip():
+            raise InputError("train.data has an empty dataset root in its list")
+        key = str(Path(r).expanduser().resolve())
+        if key in seen:
+            raise InputError(f"train.data names the dataset {r!r} twice"
+                             + (f" (as {seen[key]!r} too)" if seen[key] != r else ""))
+        seen[key] = r
+    return roots
+
+
 def run_config_dict(mcfg: Any, tcfg: TrainConfig) -> dict:
     from ..models import registry
 
     return {"model": {"kind": registry.kind_of(mcfg), "config": to_dict(mcfg)}, "train": to_dict(tcfg)}
 
 
-__all__ = ["TrainConfig", "load_run_config", "run_config_dict", "validate", "replace"]
+__all__ = ["TrainConfig", "data_roots", "load_run_config", "run_config_dict", "validate", "replace"]

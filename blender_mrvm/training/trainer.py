@@ -40,7 +40,7 @@ from ..models.rays import make_rays
 from ..progress import Progress
 from ..synthesis import nearest_views
 from . import checkpoint as ckpt
-from .config import TrainConfig, run_config_dict
+from .config import TrainConfig, data_roots, run_config_dict
 
 
 # ------------------------------------------------------------------------------------------- distributed
@@ -184,7 +184,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     set_torch_threads(cfg.threads)
     run_dir = Path(cfg.out_dir)
     if scenes is None:
-        scenes = load_dataset(Path(cfg.data), cfg.split, cfg.data_format or None, cfg.max_objects or None)
+        scenes = load_training_scenes(cfg)
     from ..models import background as bgrule
 
     data_bg = bgrule.of_scenes(scenes)
@@ -277,6 +277,19 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
             "resumed_from": start, "initialized_from": str(init_from) if init_from else None,
             "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
+
+
+def load_training_scenes(cfg: TrainConfig) -> list[ObjectScene]:
+    """The training objects of every dataset ``train.data`` names, pooled in the order given (each read
+    with ``data_format`` and ``split``, at most ``max_objects`` from each); every root is loaded, and so
+    checked, before the run folder is touched."""
+    roots = data_roots(cfg)
+    if not roots:
+        raise InputError("no dataset: give --data or train.data in the config")
+    scenes: list[ObjectScene] = []
+    for root in roots:
+        scenes += load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None)
+    return scenes
 
 
 def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: TrainPhase,
