@@ -184,7 +184,7 @@ class RayModel(nn.Module):
             box_rays += int(rays.hit.sum())
             box_far = rays.far
             if keep is not None:
-                rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)])
+                rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)], workers=workers)
             idx = torch.nonzero(rays.hit).flatten()
             yield len(rays) - idx.numel()
             sels = [idx[s:s + chunk] for s in range(0, idx.numel(), chunk)]

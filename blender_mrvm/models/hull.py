@@ -141,11 +141,12 @@ def footprint(hull: Hull, intr, c2w_norm: np.ndarray) -> torch.Tensor:
 
 
 def clip_rays(rays: RayBundle, hull: Hull, mode: str = "cull", keep: torch.Tensor | None = None,
-              steps_per_voxel: int = 2, block: int = 2048) -> RayBundle:
+              steps_per_voxel: int = 2, block: int = 2048, workers: int = 1) -> RayBundle:
     """Rays after empty-space skipping (see the module doc). Rays already missing stay misses.
 
     ``keep``: the view's :func:`footprint` when known (rays outside it are dropped without marching).
-    "tighten" marches the remaining rays ``block`` at a time (memory ~ block x 450 points at 64^3)."""
+    The remaining rays are marched ``block`` at a time (memory ~ block x 450 points at 64^3), ``workers``
+    blocks side by side on threads."""
     if mode == "off":
         return rays
     if mode not in MODES:
@@ -154,11 +155,22 @@ def clip_rays(rays: RayBundle, hull: Hull, mode: str = "cull", keep: torch.Tenso
         rays = RayBundle(rays.origins, rays.dirs, torch.where(keep, rays.far, torch.zeros_like(rays.far)),
                          rays.hit & keep, rays.depth_offset, rays.up)
     live = torch.nonzero(rays.hit).flatten()
-    parts = [_clip(rays.select(live[s:s + block]), hull, mode, steps_per_voxel) for s in range(0, live.numel(), block)]
+    starts = range(0, live.numel(), block)
+
+    def part(s):
+        return _clip(rays.select(live[s:s + block]), hull, mode, steps_per_voxel)
+
+    if workers > 1 and len(starts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(workers, len(starts))) as pool:
+            parts = list(pool.map(part, starts))
+    else:
+        parts = [part(s) for s in starts]
     out = RayBundle(rays.origins.clone(), rays.dirs, rays.far.clone(), rays.hit.clone(), rays.depth_offset.clone(), rays.up)
-    for s, part in zip(range(0, live.numel(), block), parts):
+    for s, p in zip(starts, parts):
         sel = live[s:s + block]
-        out.origins[sel], out.far[sel], out.hit[sel], out.depth_offset[sel] = part.origins, part.far, part.hit, part.depth_offset
+        out.origins[sel], out.far[sel], out.hit[sel], out.depth_offset[sel] = p.origins, p.far, p.hit, p.depth_offset
     return out
 
 
