@@ -65,10 +65,13 @@ def render_workers(requested: int = 0) -> int:
     ``requested``, or every usable core when 0 (``RayModel.image_chunks``' ``workers``).
 
     The models' ops are small (a chunk is 512 rays), so OpenMP's per-op fork/join costs more than it gives:
-    on the 2-core box, idle, a shipped `balanced` 128 px view took 0.78-0.88 s with 2 chunk workers against
-    1.40-1.60 s with 1 thread and 1.56-1.74 s with 2 OpenMP threads (passive). Chunk workers share no
-    barrier, so a busy core slows them down and nothing more (``bench threads``: the spin-wait cliff of 2
-    OpenMP threads beside a busy process does not apply). Training keeps :func:`set_torch_threads`."""
+    on the 2-core box, idle, the chunks of a shipped `balanced` 128 px view took 0.78-0.88 s with 2 chunk
+    workers against 1.40-1.60 s with 1 thread and 1.56-1.74 s with 2 OpenMP threads (passive); the whole
+    view (``bench tradeoff``) 1.01-1.06 s against 1.75 s. Chunk workers share no
+    barrier, so a busy core slows them down and nothing more (the spin-wait cliff of 2
+    OpenMP threads beside a busy process does not apply: ``bench threads``, `fast`, 128 px, beside a spinning
+    process, 2 chunk workers 1.78 s against 2.47 s for 1 and 5.45 s for 2 spinning OpenMP threads). Training
+    keeps :func:`set_torch_threads`."""
     import torch
 
     n = int(requested) if requested and requested > 0 else usable_cores()
