@@ -23,10 +23,13 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 
 FIGURES = {
-    "nerformer_mrvm": "2 views 20.4 dB / LPIPS 0.247, 5 views 23.9 / 0.143 (held-out 64 px objects)",
-    "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); best with many nearby views",
+    "nerformer_mrvm": "2 views 20.4 dB / LPIPS 0.247, 5 views 23.9 / 0.143 (held-out 64 px objects); "
+                      "~1.0 s per 128 px view on 2 CPU cores",
+    "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); ~1.7 s per 128 px view "
+            "on 2 CPU cores; best with many nearby views",
 }
-"""What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details)."""
+"""What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
+speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy")."""
 
 
 def shipped_checkpoint(kind: str | None = None) -> Path:
