@@ -166,6 +166,8 @@ def _t(needle, argv=(), **kw):
 
 
 TRAIN = [
+    _t("data_weights has 2 weight(s) for 1 dataset(s)", ["--data-weights", "1", "2"]),
+    _t("data_weights must be positive", train={"data_weights": [0]}),
     _t("train.iterations must be an integer", train={"iterations": "abc"}),
     _t("train.iterations must be at least 1", train={"iterations": 0}),
     _t("train.iterations must be at least 1", train={"iterations": -5}),

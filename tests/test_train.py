@@ -316,3 +316,30 @@ def test_several_datasets_pooled(tmp_path, data):
     assert json.loads((out / "summary_rank0.json").read_text())["resumed_from"] == 1
     _, one = load_run_config(out / "config.json", {"data": str(other)})
     assert one.data == str(other)
+
+
+def test_dataset_weights_set_each_datasets_share_of_draws(data, tmp_path):
+    """train.data_weights: dataset k is drawn with share w_k / sum(w) whatever its size; without weights every
+    object is alike; bad weights are refused."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.training.trainer import RayBatcher, load_training_sets, object_weights
+
+    root, _ = data
+    other = make_sphere_dataset(tmp_path / "other", n_objects=6, n_views=5, resolution=16, seed=7)
+    tcfg = TrainConfig(data=[str(root), str(other)], data_weights=(3.0, 1.0), min_ref_views=1, max_ref_views=2,
+                       rays_per_object=4)
+    sets = load_training_sets(tcfg)
+    counts = [len(s) for s in sets]
+    assert counts[0] != counts[1]  # sizes differ: the weights, not the sizes, decide
+    w = object_weights(tcfg.data_weights, counts)
+    assert np.isclose(w[:counts[0]].sum(), 0.75) and np.isclose(w.sum(), 1.0)
+    assert object_weights((), counts) is None
+    scenes = [s for objs in sets for s in objs]
+    b = RayBatcher(scenes, tcfg, 0.05, seed=0, weights=w)
+    first = {id(s) for s in sets[0]}
+    share = np.mean([id(b.scenes[int(b.rng.choice(len(scenes), p=w))]) in first for _ in range(4000)])
+    assert abs(share - 0.75) < 0.03
+    assert b.draw(False)["images"].shape[0] in (1, 2)  # a weighted draw gives a batch
+    for bad, match in [((1.0,), "1 weight"), ((1.0, 0.0), "positive"), ((1.0, float("nan")), "data_weights")]:
+        with pytest.raises(InputError, match=match):
+            TrainConfig(data=[str(root), str(other)], data_weights=bad)

@@ -24,6 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", action="append", default=None, metavar="ROOT",
                    help="dataset root (overrides train.data); repeat to pool the objects of several datasets, "
                         "e.g. a turntable and a sphere-rig rendering")
+    p.add_argument("--data-weights", type=float, nargs="+", default=None, metavar="W",
+                   help="each --data dataset's share of the objects drawn, e.g. 2 1 (overrides train.data_weights; "
+                        "default: every object alike)")
     p.add_argument("--out", dest="out_dir", default=None, help="run folder (overrides train.out_dir)")
     p.add_argument("--iterations", type=int, default=None, help="overrides train.iterations")
     p.add_argument("--init", dest="init_checkpoint", default=None,
@@ -41,7 +44,7 @@ def run(args) -> int:
     from ..training.trainer import train
 
     data = args.data if args.data is None or len(args.data) > 1 else args.data[0]  # one root stays a string
-    mcfg, tcfg = load_run_config(args.config, {"data": data, "out_dir": args.out_dir,
+    mcfg, tcfg = load_run_config(args.config, {"data": data, "data_weights": args.data_weights, "out_dir": args.out_dir,
                                                "iterations": args.iterations,
                                                "init_checkpoint": args.init_checkpoint},
                                   kind=args.kind, preset=args.preset)

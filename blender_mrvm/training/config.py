@@ -11,6 +11,8 @@ the model section may hold a whole ``config`` (as saved in checkpoints and run f
 
 from __future__ import annotations
 
+import math
+
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -30,6 +32,9 @@ class TrainConfig:
     """Dataset root (ours, SRN, NMR/DVR or NeRF-synthetic), or a list of roots whose objects are pooled
     (e.g. a turntable and a sphere-rig rendering: objects are drawn uniformly from all of them). Every root
     is read with ``data_format`` and ``split``; :func:`data_roots` is the one reader of this field."""
+    data_weights: tuple[float, ...] = ()
+    """With several roots in ``data``: each dataset's share of the objects drawn (normalised), e.g. (2, 1) for
+    two turntable draws per sphere-rig draw; () draws every object alike, so datasets count by their size."""
     data_format: str = ""
     """Dataset format; '' detects it."""
     split: str = "train"
@@ -208,7 +213,12 @@ def validate(c: TrainConfig) -> None:
     V.check_device_name("train.device", c.device, allow_auto=False)
     if c.data_format not in ("", "ours", "srn", "nmr", "nerf"):
         raise InputError(f"train.data_format must be '', ours, srn, nmr or nerf, got {c.data_format!r}")
-    data_roots(c)  # no empty or repeated dataset roots
+    roots = data_roots(c)  # no empty or repeated dataset roots
+    if c.data_weights and roots:  # a config may name weights and leave the roots to --data
+        if len(c.data_weights) != len(roots):
+            raise InputError(f"train.data_weights has {len(c.data_weights)} weight(s) for {len(roots)} dataset(s)")
+        if not all(math.isfinite(w) and w > 0 for w in c.data_weights):
+            raise InputError(f"train.data_weights must be positive numbers, got {list(c.data_weights)}")
     if not c.split.strip():
         raise InputError("train.split is empty")
     if c.iterations < 1:

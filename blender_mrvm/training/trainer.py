@@ -103,13 +103,16 @@ def lr_at(step: int, cfg: TrainConfig) -> float:
 class RayBatcher:
     """Draws (reference set, target rays) per object from a list of scenes with one numpy generator."""
 
-    def __init__(self, scenes: list[ObjectScene], cfg: TrainConfig, box_padding: float, seed: int):
+    def __init__(self, scenes: list[ObjectScene], cfg: TrainConfig, box_padding: float, seed: int,
+                 weights: np.ndarray | None = None):
+        """``weights``: per scene, its probability of being drawn (:func:`object_weights`); None = uniform."""
         if not scenes:
             raise InputError("no training objects")
         for s in scenes:
             if len(s) < 2:
                 raise InputError(f"object {s.category}/{s.name} has {len(s)} view(s); training needs >= 2")
         self.scenes = scenes
+        self.weights = weights
         self.cfg = cfg
         self.padding = float(box_padding)
         self.rng = np.random.default_rng(seed)
@@ -122,7 +125,7 @@ class RayBatcher:
 
     def draw(self, bbox_phase: bool) -> dict[str, Any]:
         c, rng = self.cfg, self.rng
-        j = int(rng.integers(len(self.scenes)))
+        j = int(rng.integers(len(self.scenes))) if self.weights is None else int(rng.choice(len(self.scenes), p=self.weights))
         s = self.scenes[j]
         k = int(rng.integers(c.min_ref_views, min(c.max_ref_views, len(s) - 1) + 1))
         perm = rng.permutation(len(s))
@@ -183,8 +186,11 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
 
     set_torch_threads(cfg.threads)
     run_dir = Path(cfg.out_dir)
+    weights = None
     if scenes is None:
-        scenes = load_training_scenes(cfg)
+        sets = load_training_sets(cfg)
+        scenes = [s for objs in sets for s in objs]
+        weights = object_weights(cfg.data_weights, [len(objs) for objs in sets])
     from ..models import background as bgrule
 
     data_bg = bgrule.of_scenes(scenes)
@@ -196,7 +202,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     scaler = torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
-    batcher = RayBatcher(scenes, cfg, model.box_padding, cfg.seed * 7919 + dd.rank)
+    batcher = RayBatcher(scenes, cfg, model.box_padding, cfg.seed * 7919 + dd.rank, weights)
     # The sampling generator lives where the model samples (a CPU generator cannot feed CUDA tensors).
     gen = torch.Generator(device=torch.device(device)).manual_seed(cfg.seed * 104729 + dd.rank)
     torch.manual_seed(cfg.seed + dd.rank)
@@ -279,17 +285,28 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
 
 
-def load_training_scenes(cfg: TrainConfig) -> list[ObjectScene]:
-    """The training objects of every dataset ``train.data`` names, pooled in the order given (each read
-    with ``data_format`` and ``split``, at most ``max_objects`` from each); every root is loaded, and so
+def load_training_sets(cfg: TrainConfig) -> list[list[ObjectScene]]:
+    """The training objects of each dataset ``train.data`` names, in the order given (each read with
+    ``data_format`` and ``split``, at most ``max_objects`` from each); every root is loaded, and so
     checked, before the run folder is touched."""
     roots = data_roots(cfg)
     if not roots:
         raise InputError("no dataset: give --data or train.data in the config")
-    scenes: list[ObjectScene] = []
-    for root in roots:
-        scenes += load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None)
-    return scenes
+    return [load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None) for root in roots]
+
+
+def load_training_scenes(cfg: TrainConfig) -> list[ObjectScene]:
+    """Every dataset's training objects pooled (:func:`load_training_sets`)."""
+    return [s for objs in load_training_sets(cfg) for s in objs]
+
+
+def object_weights(data_weights, counts: list[int]) -> np.ndarray | None:
+    """Per pooled object, the probability of being drawn when dataset k (``counts[k]`` objects) gets the share
+    ``data_weights[k]`` (normalised) of the draws; None (uniform over objects) without weights."""
+    if not data_weights:
+        return None
+    w = np.concatenate([np.full(n, float(dw) / n) for dw, n in zip(data_weights, counts) if n])
+    return w / w.sum()
 
 
 def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: TrainPhase,
