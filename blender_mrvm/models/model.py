@@ -140,11 +140,11 @@ class GeneralizableNeRF(RayModel):
         sel = self._fine_rays(coarse, train)
         if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
             if sel.numel():
-                sub = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
+                sub, _ = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
                 g = self._gather(ctx, o_c[:, sel], d_c[:, sel], dirs[sel], sub)
                 out["fine"] = merge_rays(coarse, self._branch(self.fine, g, sub, far[sel]), sel)
         elif sc.n_fine > 0:
-            t_all = self._fine_samples(coarse["weights"], t_c, far, train, generator)
+            t_all, _ = self._fine_samples(coarse["weights"], t_c, far, train, generator)
             g = self._gather(ctx, o_c, d_c, dirs, t_all)
             point_mask = view_mask = None
             if mask_views:
@@ -168,16 +168,15 @@ class GeneralizableNeRF(RayModel):
         busy = coarse["acc"] >= thr
         return None if bool(busy.all()) else torch.nonzero(busy).flatten()  # may be empty: no fine pass
 
-    def _fine_samples(self, weights, t_c, far, train: bool, generator, with_order: bool = False):
-        """The fine pass's sample distances: importance samples of the coarse weights, with the coarse
-        samples sorted in when ``sampler.fine_includes_coarse`` (``with_order``: also the sort order)."""
+    def _fine_samples(self, weights, t_c, far, train: bool, generator):
+        """The fine pass's sample distances and their sort order: importance samples of the coarse weights,
+        with the coarse samples sorted in when ``sampler.fine_includes_coarse`` (else the order is None)."""
         sc = self.cfg.sampler
         t_f = samplers.sample_pdf(samplers.bin_edges(t_c, far), weights, sc.n_fine,
                                   deterministic=not (train and sc.perturb), eps=sc.pdf_eps, generator=generator)
         if not sc.fine_includes_coarse:
-            return (t_f, None) if with_order else t_f
-        t_all, order = torch.sort(torch.cat([t_c.detach(), t_f], -1), -1)
-        return (t_all, order) if with_order else t_all
+            return t_f, None
+        return torch.sort(torch.cat([t_c.detach(), t_f], -1), -1)
 
     def _finish(self, out: dict, rays: RayBundle) -> dict:
         off = rays.depth_offset.float()
@@ -234,11 +233,11 @@ class GeneralizableNeRF(RayModel):
         sel = self._fine_rays(coarse, train)
         if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
             if sel.numel():
-                sub = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
+                sub, _ = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
                 g = self._gather_streams(ctx, o_c[:, sel], d_c[:, sel], sub, origins[sel], dirs[sel])
                 out["fine"] = merge_rays(coarse, self._branch_streams(self.fine, g, sub, far[sel]), sel)
         elif sc.n_fine > 0:
-            t_all, order = self._fine_samples(coarse["weights"], t_c, far, train, generator, with_order=True)
+            t_all, order = self._fine_samples(coarse["weights"], t_c, far, train, generator)
             g = self._gather_streams(ctx, o_c, d_c, t_all, origins, dirs)
             point_mask = view_mask = None
             if mask_views:
