@@ -173,7 +173,8 @@ def _recover(photos: Path, out: Path, cfg: CaptureConfig):
 def opencv_capture(lens, tmp_path_factory):
     photos, truth, _, _ = lens
     return _recover(photos, tmp_path_factory.mktemp("lens_opencv") / "cap",
-                    CaptureConfig(camera_model="OPENCV", num_threads=2))
+                    CaptureConfig(camera_model="OPENCV", num_threads=1))  # 1 thread: deterministic (2 threads
+                    # once gave fx 3 % off and a 0.77 px residual: bundle adjustment order varies with threads)
 
 
 @pytest.fixture(scope="module")
@@ -186,7 +187,7 @@ def radial_capture(lens, tmp_path_factory):
     for v in truth["views"][:12]:
         shutil.copy(photos / v["name"], arc / v["name"])
     return _recover(arc, tmp_path_factory.mktemp("lens_radial") / "cap",
-                    CaptureConfig(camera_model="SIMPLE_RADIAL", num_threads=2))
+                    CaptureConfig(camera_model="SIMPLE_RADIAL", num_threads=1))
 
 
 def _check_pinhole_folder(out: Path, n: int) -> list[F.TransformsFrame]:
