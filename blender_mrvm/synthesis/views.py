@@ -576,8 +576,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                     "empty_space_skipping": cfg.skip_empty if hull is not None else "off", "seconds": time.perf_counter() - ts,
                                     "reference_views": [int(refs.views[k]) for k in used]})
         summary.seconds = time.perf_counter() - t0
-        F.atomic_write_json(tmp / "synthesis.json", {**_summary_json(summary, meta, mcfg), "quality": cfg.quality,
-                                                     "skip_empty": cfg.skip_empty})
+        F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg, cfg))
         if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
             shutil.copyfile(cfg.targets, tmp / "targets.json")  # the cameras, beside their images
         F.move_into(tmp, out)
@@ -594,10 +593,11 @@ def _kind(mcfg) -> str:
     return kind_of(mcfg)
 
 
-def _summary_json(s: SynthesisSummary, meta: dict, mcfg) -> dict[str, Any]:
+def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -> dict[str, Any]:
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
+            "quality": cfg.quality, "skip_empty": cfg.skip_empty,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
             "background": s.background,
