@@ -32,6 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", dest="init_checkpoint", default=None,
                    help="fine-tune: start from this checkpoint's weights ('shipped' = the default model) "
                         "instead of a random initialisation (overrides train.init_checkpoint)")
+    p.add_argument("--lpips-weight", type=float, default=None, metavar="W",
+                   help="perceptual loss: rays drawn as 16x16 patches with LPIPS-VGG at this weight besides MSE "
+                        "(overrides train.lpips_weight; 0 = off, the default; sharper views, see RECIPE.md)")
     p.add_argument("--no-resume", action="store_true", help="start from scratch; a run folder that holds a run "
                    "needs --force too (its checkpoints and metrics are then removed)")
     p.add_argument("--force", action="store_true", help="with --no-resume: start over in a run folder that holds a run")
@@ -46,7 +49,8 @@ def run(args) -> int:
     data = args.data if args.data is None or len(args.data) > 1 else args.data[0]  # one root stays a string
     mcfg, tcfg = load_run_config(args.config, {"data": data, "data_weights": args.data_weights, "out_dir": args.out_dir,
                                                "iterations": args.iterations,
-                                               "init_checkpoint": args.init_checkpoint},
+                                               "init_checkpoint": args.init_checkpoint,
+                                               "lpips_weight": args.lpips_weight},
                                   kind=args.kind, preset=args.preset)
     from ..training.config import data_roots
 

@@ -79,6 +79,18 @@ class TrainConfig:
     """Weight of a binary cross-entropy between each branch's accumulated opacity and the object mask
     (needs masks: our renders have them). Colour over white alone leaves faint white density in empty
     space, a haze in the alpha of image planes; this loss removes it. 0 = off."""
+    lpips_weight: float = 0.0
+    """Weight of LPIPS-VGG between each object's rendered patch and the photo (0 = off). A per-pixel loss
+    on scattered rays is minimised by a blur; with this > 0 each object's rays form one ``patch_size`` x
+    ``patch_size`` patch (``training/patches.py``; ``rays_per_object`` is then unused) so a perceptual loss
+    can see edges and texture."""
+    patch_size: int = 16
+    """Patch side in rays when ``lpips_weight`` > 0 (at least 16: LPIPS-VGG pools four times)."""
+    patch_scale_min: float = 0.25
+    """A patch covers ``scale`` ~ U[patch_scale_min, 1] of the image side: 1 is the whole view at
+    patch_size x patch_size, small scales full-resolution detail."""
+    patch_fg_prob: float = 0.8
+    """Probability that a patch is centred on an object pixel (else anywhere in the image)."""
     amp: str = "none"
     """Autocast: 'none', 'bf16' (CPU/GPU) or 'fp16' (GPU, with a grad scaler)."""
     log_every: int = 10
@@ -233,6 +245,12 @@ def validate(c: TrainConfig) -> None:
         raise InputError(f"opacity_weight must be >= 0, got {c.opacity_weight}")
     if c.rays_per_object < 1 or c.objects_per_step < 1:
         raise InputError("rays_per_object and objects_per_step must be >= 1")
+    if not c.lpips_weight >= 0.0:
+        raise InputError(f"lpips_weight must be >= 0, got {c.lpips_weight}")
+    if c.lpips_weight > 0 and c.patch_size < 16:
+        raise InputError(f"lpips_weight needs patch_size >= 16 (LPIPS-VGG pools four times), got {c.patch_size}")
+    V.in_range(c, "patch_scale_min", 1e-3, 1.0)
+    V.in_range(c, "patch_fg_prob", 0.0, 1.0)
 
 
 def data_roots(c: TrainConfig) -> tuple[str, ...]:

@@ -39,6 +39,7 @@ from torch import nn
 from ..errors import InputError
 from ..models.sem2nerf.config import MODEL_KIND, read_sem2nerf_header  # noqa: F401 (torch-free owner)
 from ..progress import Progress
+from .patches import bilinear, lpips_loss, sample_patch  # noqa: F401 (sample_patch: tests)
 
 
 @dataclass(frozen=True)
@@ -214,37 +215,12 @@ def label_table(objects: list[MaskedObject]) -> tuple[tuple[int, ...], tuple[str
 
 # ------------------------------------------------------------------------------------------- patches
 
-def sample_patch(rng: np.random.Generator, mask: np.ndarray, patch: int, scale: float, fg_prob: float) -> np.ndarray:
-    """(P*P, 2) continuous pixel coordinates (x, y) of a P x P patch covering ``scale`` of the image side.
-
-    Sample spacing is scale * side / P; with probability ``fg_prob`` the patch is centred on a random
-    object pixel of ``mask`` (clamped so it stays inside the image)."""
-    h, w = mask.shape
-    side_x, side_y = scale * w, scale * h
-    fg = np.flatnonzero(mask.ravel() > 0)
-    if fg.size and rng.random() < fg_prob:
-        k = fg[rng.integers(fg.size)]
-        cy, cx = k // w + 0.5, k % w + 0.5
-        x0 = float(np.clip(cx - side_x / 2, 0, w - side_x))
-        y0 = float(np.clip(cy - side_y / 2, 0, h - side_y))
-    else:
-        x0 = float(rng.uniform(0, w - side_x)) if w > side_x else 0.0
-        y0 = float(rng.uniform(0, h - side_y)) if h > side_y else 0.0
-    g = (np.arange(patch) + 0.5) / patch
-    xs, ys = x0 + g * side_x, y0 + g * side_y
-    X, Y = np.meshgrid(xs, ys)
-    return np.stack([X.ravel(), Y.ravel()], -1)
-
-
 def gather_patch(image: np.ndarray, mask_idx: np.ndarray, px: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
     """Bilinear colour (N, 3) and nearest part index (N,) at continuous pixel coordinates ``px``."""
     h, w = mask_idx.shape
-    img = torch.from_numpy(image).permute(2, 0, 1)[None]
-    grid = torch.from_numpy(np.stack([px[:, 0] / w * 2 - 1, px[:, 1] / h * 2 - 1], -1)).float()[None, None]
-    rgb = F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)[0, :, 0].T
     xi = np.clip(np.floor(px[:, 0]).astype(np.int64), 0, w - 1)
     yi = np.clip(np.floor(px[:, 1]).astype(np.int64), 0, h - 1)
-    return rgb, torch.from_numpy(mask_idx[yi, xi])
+    return bilinear(image, px), torch.from_numpy(mask_idx[yi, xi])
 
 
 # ------------------------------------------------------------------------------------------- losses
@@ -261,17 +237,6 @@ class PatchDiscriminator(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net(x * 2 - 1).mean(dim=(1, 2, 3))
-
-
-def lpips_loss(lp, pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """Mean LPIPS-VGG (v0.1) of (B, 3, P, P) patches, differentiable w.r.t. ``pred``."""
-    fa, fb = lp.features(pred), lp.features(gt)
-    total = 0.0
-    for a, b, w in zip(fa, fb, lp.lins):
-        a = a / (a.norm(dim=1, keepdim=True) + 1e-10)
-        b = b / (b.norm(dim=1, keepdim=True) + 1e-10)
-        total = total + F.conv2d((a - b) ** 2, w).mean(dim=(1, 2, 3))
-    return total.mean()
 
 
 # ------------------------------------------------------------------------------------------- checkpoints

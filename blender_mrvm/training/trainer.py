@@ -38,6 +38,7 @@ from ..models import registry
 from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
 from ..models.rays import make_rays
 from ..progress import Progress
+from .patches import bilinear, lpips_loss, sample_patch
 from ..synthesis import nearest_views
 from . import checkpoint as ckpt
 from .config import TrainConfig, data_roots, run_config_dict
@@ -141,14 +142,33 @@ class RayBatcher:
         cams = ref_cameras([ns.pose(s.c2w[i]) for i in refs], [s.intrinsics[i] for i in refs])
         images = torch.from_numpy(np.ascontiguousarray(s.images[refs])).permute(0, 3, 1, 2).contiguous()
         intr = s.intrinsics[tgt]
-        x0, y0, x1, y1 = self._boxes[j][tgt] if bbox_phase else (0, 0, intr.width, intr.height)
-        px = rng.integers(x0, x1, c.rays_per_object)
-        py = rng.integers(y0, y1, c.rays_per_object)
-        rays = make_rays(intr, ns.pose(s.c2w[tgt]), np.stack([px + 0.5, py + 0.5], -1), box=ns.box)
-        gt = torch.from_numpy(s.images[tgt][py, px].astype(np.float32))
-        mask = torch.from_numpy(s.masks[tgt][py, px].astype(np.float32)) if s.masks is not None else None
+        patch = 0
+        if c.lpips_weight > 0:  # one P x P patch at a random scale, region-aware (training/patches.py)
+            patch = c.patch_size
+            px = sample_patch(rng, self._foreground(s, tgt), patch, float(rng.uniform(c.patch_scale_min, 1.0)),
+                              c.patch_fg_prob)
+            gt = bilinear(s.images[tgt], px)
+            mask = bilinear(s.masks[tgt], px)[:, 0] if s.masks is not None else None
+        else:
+            x0, y0, x1, y1 = self._boxes[j][tgt] if bbox_phase else (0, 0, intr.width, intr.height)
+            ix = rng.integers(x0, x1, c.rays_per_object)
+            iy = rng.integers(y0, y1, c.rays_per_object)
+            px = np.stack([ix + 0.5, iy + 0.5], -1)
+            gt = torch.from_numpy(s.images[tgt][iy, ix].astype(np.float32))
+            mask = torch.from_numpy(s.masks[tgt][iy, ix].astype(np.float32)) if s.masks is not None else None
+        rays = make_rays(intr, ns.pose(s.c2w[tgt]), px, box=ns.box)
         return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k,
-                "scene": s.background == "scene"}
+                "scene": s.background == "scene", "patch": patch}
+
+    @staticmethod
+    def _foreground(s: ObjectScene, view: int) -> np.ndarray:
+        """Where a region-aware patch may be centred: the object mask, else the non-white pixels (an
+        empty mask lets ``sample_patch`` place the patch anywhere)."""
+        if s.masks is not None:
+            return s.masks[view]
+        if s.background == "scene":
+            return np.zeros(s.images.shape[1:3], bool)
+        return (s.images[view] < 0.99).any(-1)
 
 
 # ------------------------------------------------------------------------------------------- training
@@ -203,6 +223,12 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     scaler = torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
     batcher = RayBatcher(scenes, cfg, model.box_padding, cfg.seed * 7919 + dd.rank, weights)
+    lp = None
+    if cfg.lpips_weight > 0:
+        from ..models.metrics import LPIPS
+
+        lp = LPIPS().to(device)  # frozen VGG16 + linear heads from the offline weights (fetch-weights);
+        # loaded before the run folder is touched, so missing weights write nothing
     # The sampling generator lives where the model samples (a CPU generator cannot feed CUDA tensors).
     gen = torch.Generator(device=torch.device(device)).manual_seed(cfg.seed * 104729 + dd.rank)
     torch.manual_seed(cfg.seed + dd.rank)
@@ -244,7 +270,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
                 with _autocast(cfg, device):
-                    loss, parts = object_loss(model, b, cfg, phase, gen, device)
+                    loss, parts = object_loss(model, b, cfg, phase, gen, device, lp)
                 for k, v in parts.items():
                     tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
@@ -310,13 +336,14 @@ def object_weights(data_weights, counts: list[int]) -> np.ndarray | None:
 
 
 def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: TrainPhase,
-                gen: torch.Generator, device) -> tuple[torch.Tensor, dict[str, float]]:
+                gen: torch.Generator, device, lp=None) -> tuple[torch.Tensor, dict[str, float]]:
     """The loss of one object's batch and its parts, for any model kind.
 
     Photometric MSE over all drawn rays (rays that miss the box are predicted as the background and
     cost nothing to evaluate), the same for each auxiliary head (``coarse_weight``), the opacity BCE
-    against the object mask when ``opacity_weight`` > 0, and the model's auxiliary losses with the
-    weights of its training phase (e.g. MRVM's lambda)."""
+    against the object mask when ``opacity_weight`` > 0, LPIPS of the final colour's patch when the
+    batch is a patch and ``lp`` (:class:`models.metrics.LPIPS`) is given (``lpips_weight``), and the
+    model's auxiliary losses with the weights of its training phase (e.g. MRVM's lambda)."""
     rays, gt = b["rays"], b["gt"].to(device)
     hit = rays.hit.to(device)
     n = gt.shape[0]
@@ -350,6 +377,14 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
     if opa is not None:
         loss = loss + cfg.opacity_weight * opa
         parts["opacity"] = float(opa.detach())
+    if lp is not None and b.get("patch"):
+        # the whole patch: rays that miss the box show the background (or, in a scene, the photo itself)
+        full = gt.clone() if b.get("scene") else torch.full_like(gt, bg)
+        full = full.index_put((hit.nonzero().flatten(),), out["color"].float())
+        p = b["patch"]
+        lpv = lpips_loss(lp, full.T.reshape(1, 3, p, p), gt.T.reshape(1, 3, p, p))
+        loss = loss + cfg.lpips_weight * lpv
+        parts["lpips"] = float(lpv.detach())
     for name, value in out.get("aux_losses", {}).items():
         if value is not None:
             loss = loss + phase.loss_weights.get(name, 0.0) * value
