@@ -39,6 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="weight of the input view's losses relative to each other view's (default 1)")
     t.add_argument("--lr", type=float, default=2e-4, help="generator + mapping learning rate (default 2e-4)")
     t.add_argument("--encoder-lr", type=float, default=1e-4, help="mask encoder learning rate (default 1e-4)")
+    t.add_argument("--code-lr", type=float, default=None,
+                   help="learning rate of the per-object style codes (default 1e-3); each code moves only when its "
+                        "object is drawn")
     t.add_argument("--lr-end-factor", type=float, default=1.0,
                    help="learning rates decay exponentially to this factor at the last step (default 1 = constant)")
     t.add_argument("--model", action="append", default=[], metavar="FIELD=VALUE",
@@ -139,7 +142,8 @@ def run(args) -> int:
                              input_weight=args.input_weight, lr=args.lr, encoder_lr=args.encoder_lr,
                              lr_end_factor=args.lr_end_factor, model_overrides=parse_model_overrides(args.model),
                              checkpoint_every=args.checkpoint_every, seed=args.seed, threads=args.threads,
-                             device=args.device)
+                             device=args.device,
+                             **({"code_lr": args.code_lr} if args.code_lr is not None else {}))
         summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step")
         print(json.dumps(summary))
         return 0

@@ -273,6 +273,13 @@ def load_sem2nerf(path: Path, device: str = "cpu"):
 
 # ------------------------------------------------------------------------------------------- training
 
+def code_styles(model, codes: torch.Tensor) -> torch.Tensor:
+    """Style codes of training objects' latent codes (B, z_dim): each projected onto the sphere of radius
+    sqrt(z_dim), where random normal codes live, then through the mapping network."""
+    zs = codes / codes.norm(dim=-1, keepdim=True).clamp_min(1e-8) * math.sqrt(model.cfg.z_dim)
+    return model.style(zs)
+
+
 def _normalized_rays(intr, c2w, px: np.ndarray, box: float):
     from ..models.rays import make_rays, normalize_pose
 
@@ -399,9 +406,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                     gt_idx.append(idx)
             enc = torch.stack(enc_in).to(dev)
             mask_code = model.encode(enc, np.stack(enc_cam), enc_intr)
-            zs = codes[torch.as_tensor(obj_ids, device=dev)]
-            zs = zs / zs.norm(dim=-1, keepdim=True).clamp_min(1e-8) * math.sqrt(mcfg.z_dim)
-            style = model.style(zs)
+            style = code_styles(model, codes[torch.as_tensor(obj_ids, device=dev)])
             sel = torch.as_tensor(item_obj, device=dev)
             res = model.render_rays(torch.stack(o_list), torch.stack(d_list), torch.stack(f_list), torch.stack(h_list),
                                     mask_code[sel], style[sel], perturb=True)
