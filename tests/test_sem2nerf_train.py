@@ -183,3 +183,36 @@ def test_style_codes_learn_each_objects_appearance(data, tmp_path):
     err = [[float(((ims[i] - o.images[v])[fg[v, ..., 0]] ** 2).mean()) for o in (a, b)] for i in (0, 1)]
     print("object-pixel MSE [style][object]", err)
     assert err[0][0] < 0.85 * err[0][1] and err[1][1] < 0.85 * err[1][0]
+
+
+def test_init_checkpoint_adds_the_style_colour_head(data, tmp_path):
+    """--init fine-tunes an older model (trained without per-part style colours) with the head added at
+    zero: before any step it renders exactly as the old model; training moves the head; an override that
+    changes a weight's shape is a one-line InputError."""
+    old_cfg = T.train_config(data=str(data), out_dir=str(tmp_path / "old"), preset="fast",
+                             model_overrides=TINY_MODEL + (("style_part_colours", False),), iterations=2,
+                             objects_per_step=2, patch_size=8, lpips_weight=0.0, checkpoint_every=1000, threads=1)
+    run_to_end(T.train(old_cfg, resume=False))
+    old, ocfg, _ = T.load_sem2nerf(tmp_path / "old")
+    new, ncfg, codes = T.init_model(tmp_path / "old", {"style_part_colours": True})
+    objs = T.load_masked_dataset(data, "train")
+    assert not ocfg.style_part_colours and ncfg.style_part_colours and codes is not None and codes.shape[0] == len(objs)
+    from blender_mrvm.models.sem2nerf.inputs import build_inputs
+
+    o, v = objs[0], 1
+    with torch.no_grad():
+        inp = torch.from_numpy(build_inputs(o.masks[v], ocfg.labels))[None]
+        a = old.render_image(o.intrinsics[v], o.c2w[v], old.encode(inp, o.c2w[v][None], o.intrinsics[v]),
+                             old.style_from_seed(4))["rgb"]
+        new.eval()
+        b = new.render_image(o.intrinsics[v], o.c2w[v], new.encode(inp, o.c2w[v][None], o.intrinsics[v]),
+                             new.style_from_seed(4))["rgb"]
+    assert torch.allclose(a, b, atol=1e-6)
+    ft = T.train_config(data=str(data), out_dir=str(tmp_path / "ft"), init_checkpoint=str(tmp_path / "old"),
+                        model_overrides=(("style_part_colours", True),), iterations=3, objects_per_step=2,
+                        patch_size=8, lpips_weight=0.0, code_lr=0.03, checkpoint_every=1000, threads=1)
+    run_to_end(T.train(ft, resume=False))
+    tuned, tcfg, _ = T.load_sem2nerf(tmp_path / "ft")
+    assert tcfg.style_part_colours and float(tuned.field.style_part_rgb.weight.abs().sum()) > 0
+    with pytest.raises(InputError, match="does not fit"):
+        T.init_model(tmp_path / "old", {"hidden": 8})

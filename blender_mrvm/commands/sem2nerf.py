@@ -39,6 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="weight of the input view's losses relative to each other view's (default 1)")
     t.add_argument("--lr", type=float, default=2e-4, help="generator + mapping learning rate (default 2e-4)")
     t.add_argument("--encoder-lr", type=float, default=1e-4, help="mask encoder learning rate (default 1e-4)")
+    t.add_argument("--init", default="", metavar="CHECKPOINT",
+                   help="fine-tune from this Sem2NeRF checkpoint (its config with the --model overrides; heads they "
+                        "add, e.g. style_part_colours=true, start at zero)")
     t.add_argument("--code-lr", type=float, default=None,
                    help="learning rate of the per-object style codes (default 1e-3); each code moves only when its "
                         "object is drawn")
@@ -142,7 +145,7 @@ def run(args) -> int:
                              input_weight=args.input_weight, lr=args.lr, encoder_lr=args.encoder_lr,
                              lr_end_factor=args.lr_end_factor, model_overrides=parse_model_overrides(args.model),
                              checkpoint_every=args.checkpoint_every, seed=args.seed, threads=args.threads,
-                             device=args.device,
+                             device=args.device, init_checkpoint=args.init,
                              **({"code_lr": args.code_lr} if args.code_lr is not None else {}))
         summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step")
         print(json.dumps(summary))

@@ -110,6 +110,10 @@ class Sem2NeRFTrainConfig:
     """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
     device: str = "cpu"
     """Torch device ('cpu', 'cuda')."""
+    init_checkpoint: str = ""
+    """Fine-tune: start from this Sem2NeRF checkpoint's weights (and its per-object codes when the objects
+    are the same) with ``model_overrides`` applied to its config, instead of the preset at random; the
+    optimizer starts afresh. Ignored when the run folder has a checkpoint to resume from."""
 
 
 def train_config(**kw) -> Sem2NeRFTrainConfig:
@@ -280,6 +284,39 @@ def code_styles(model, codes: torch.Tensor) -> torch.Tensor:
     return model.style(zs)
 
 
+NEW_HEADS = ("field.style_part_rgb.",)
+"""Parameters a fine-tuning run may add to an older checkpoint's model (zero-initialised heads)."""
+
+
+def init_model(path, overrides: dict[str, Any], device: str = "cpu"):
+    """(model, config, codes or None) to fine-tune from a Sem2NeRF checkpoint: its config with ``overrides``
+    applied (e.g. ``style_part_colours=true``), its weights, and heads the overrides add (:data:`NEW_HEADS`)
+    at their zero start; the per-object codes of its trainer state when it has one. InputError when the
+    overrides change the shape of a weight it has."""
+    from safetensors.torch import load_file
+
+    from ..models.checkpoint_files import STATE_FILE
+    from ..models.config import from_dict, merge
+    from ..models.sem2nerf.config import Sem2NeRFConfig, validate
+    from ..models.sem2nerf.model import Sem2NeRF
+
+    model_file, meta = read_sem2nerf_header(Path(path))
+    cfg = validate(merge(from_dict(Sem2NeRFConfig, json.loads(meta["model_config"])), overrides))
+    model = Sem2NeRF(replace(cfg, pretrained=False, style_mean_samples=1))
+    model.cfg = model.field.cfg = cfg
+    try:
+        res = model.load_state_dict(load_file(str(model_file), device="cpu"), strict=False)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"init checkpoint {model_file} does not fit the overridden model: {first[:300]}") from None
+    lost = [k for k in res.missing_keys if not k.startswith(NEW_HEADS)] + list(res.unexpected_keys)
+    if lost:
+        raise InputError(f"init checkpoint {model_file} does not fit the overridden model (weights {lost[:3]})")
+    state = model_file.parent / STATE_FILE
+    codes = torch.load(state, map_location="cpu", weights_only=True)["codes"] if state.is_file() else None
+    return model.to(device), cfg, codes
+
+
 def _normalized_rays(intr, c2w, px: np.ndarray, box: float):
     from ..models.rays import make_rays, normalize_pose
 
@@ -311,13 +348,18 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
 
     ck = find_checkpoint(out) if resume and out.exists() else None
     torch.manual_seed(cfg.seed)
-    if ck is not None:
-        model, mcfg, _ = load_sem2nerf(ck, cfg.device)
+    init_codes = None
+    if ck is not None or cfg.init_checkpoint:
+        if ck is not None:
+            model, mcfg, _ = load_sem2nerf(ck, cfg.device)
+        else:
+            model, mcfg, init_codes = init_model(cfg.init_checkpoint, dict(cfg.model_overrides), cfg.device)
+        src = f"run {out}" if ck is not None else f"init checkpoint {cfg.init_checkpoint}"
         if mcfg.image_size != h:
-            raise InputError(f"run {out} was trained at {mcfg.image_size} px; this data is {h} px")
+            raise InputError(f"{src} was trained at {mcfg.image_size} px; this data is {h} px")
         missing = set(labels) - set(mcfg.labels)
         if missing:
-            raise InputError(f"run {out} does not know label id(s) {sorted(missing)} of this data")
+            raise InputError(f"{src} does not know label id(s) {sorted(missing)} of this data")
         labels, names = mcfg.labels, mcfg.label_names
     else:
         overrides = dict(cfg.model_overrides)
@@ -336,6 +378,9 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         d_opt = torch.optim.Adam(disc.parameters(), lr=cfg.disc_lr, betas=(0.0, 0.99))
     start = 0
     rng = np.random.default_rng(cfg.seed)
+    if init_codes is not None and init_codes.shape == codes.shape:  # the same objects: keep their styles
+        with torch.no_grad():
+            codes.copy_(init_codes.to(dev))
     if ck is not None:
         st = torch.load(Path(ck) / STATE_FILE, map_location="cpu", weights_only=True)
         if st["codes"].shape[0] != n_obj:

@@ -49,6 +49,12 @@ class Sem2NeRFConfig:
     """Backbone feature channels sampled per point (a 1x1 projection of the VGG map) when pixel_aligned."""
     local_hidden: int = 64
     """Width of the per-point local-feature MLP when pixel_aligned."""
+    style_part_colours: bool = False
+    """The style code also gives every part label an RGB offset (added to the colour logits, weighted by the
+    point's part probabilities). The style's FiLM of the one colour layer alone could barely recolour a part
+    (fitting the style vector itself to a recoloured chair: 18.5 -> 19.9 dB), so random styles all looked
+    alike; this head starts at zero, so a model trained without it renders the same. False = older
+    checkpoints."""
     hidden: int = 64
     """Width of the SIREN layers."""
     n_layers: int = 4
@@ -90,8 +96,8 @@ class Sem2NeRFConfig:
 
 PRESETS: dict[str, Sem2NeRFConfig] = {
     "fast": Sem2NeRFConfig(name="fast", vgg_layers=9, encoder_hidden=128, hidden=32, n_layers=3, z_dim=16,
-                           mapping_hidden=32, n_coarse=16, n_fine=8, pixel_aligned=True),
-    "balanced": Sem2NeRFConfig(name="balanced", pixel_aligned=True),
+                           mapping_hidden=32, n_coarse=16, n_fine=8, pixel_aligned=True, style_part_colours=True),
+    "balanced": Sem2NeRFConfig(name="balanced", pixel_aligned=True, style_part_colours=True),
 }
 """Named Sem2NeRF configs."""
 

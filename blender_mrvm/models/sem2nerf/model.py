@@ -138,6 +138,10 @@ class SirenField(nn.Module):
         lh = cfg.local_hidden if cfg.pixel_aligned else 0
         self.color_film = FiLMLayer(h + 3 + lh, h)
         self.color_out = nn.Linear(h, 3)
+        if cfg.style_part_colours:  # style -> an RGB logit offset per part label, zero at the start
+            self.style_part_rgb = nn.Linear(2 * h, cfg.n_labels * 3)
+            nn.init.zeros_(self.style_part_rgb.weight)
+            nn.init.zeros_(self.style_part_rgb.bias)
         for m in [*self.trunk[1:], self.color_film]:
             _frequency_init(m.layer)
         for m in (self.sigma, self.parts):  # color_out keeps the default init (colours vary from the start)
@@ -177,7 +181,12 @@ class SirenField(nn.Module):
         s_freq = style_code[:, :h] * cfg.freq_scale + cfg.freq_bias
         s_phase = style_code[:, h:]
         c = self.color_film(torch.cat(feats, -1), s_freq, s_phase)
-        rgb = torch.sigmoid(self.color_out(c))
+        rgb_logit = self.color_out(c)
+        if cfg.style_part_colours:
+            offsets = self.style_part_rgb(style_code).view(-1, cfg.n_labels, 3)  # (B, C, 3)
+            probs = torch.softmax(logits.detach(), -1)  # the colour loss does not reshape the parts
+            rgb_logit = rgb_logit + torch.einsum("bnc,bck->bnk", probs, offsets)
+        rgb = torch.sigmoid(rgb_logit)
         return raw_sigma, logits, rgb
 
 
