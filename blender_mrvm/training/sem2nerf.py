@@ -254,19 +254,25 @@ def save_checkpoint(run_dir: Path, step: int, model, train_image_size: int, trai
     return ckpt.save_checkpoint(run_dir, step, model, model.cfg, trainer_state, meta, keep=keep, kind=MODEL_KIND)
 
 
+def _unloaded_model(cfg):
+    """A model of ``cfg`` whose weights will come from a file (no ImageNet load, no 10,000-code style mean)."""
+    from ..models.sem2nerf.model import Sem2NeRF
+
+    model = Sem2NeRF(replace(cfg, pretrained=False, style_mean_samples=1))
+    model.cfg = model.field.cfg = cfg
+    return model
+
+
 def load_sem2nerf(path: Path, device: str = "cpu"):
     """(model, config, metadata) from a Sem2NeRF checkpoint (run folder, checkpoint folder or model file)."""
     from safetensors.torch import load_model as st_load
 
     from ..models.config import from_dict
     from ..models.sem2nerf.config import Sem2NeRFConfig, validate
-    from ..models.sem2nerf.model import Sem2NeRF
 
     model_file, meta = read_sem2nerf_header(path)
     cfg = validate(from_dict(Sem2NeRFConfig, json.loads(meta["model_config"])))
-    model = Sem2NeRF(replace(cfg, pretrained=False, style_mean_samples=1))  # weights come from the file
-    model.cfg = cfg
-    model.field.cfg = cfg
+    model = _unloaded_model(cfg)
     try:
         st_load(model, str(model_file), strict=True, device=device)
     except RuntimeError as e:
@@ -298,12 +304,10 @@ def init_model(path, overrides: dict[str, Any], device: str = "cpu"):
     from ..models.checkpoint_files import STATE_FILE
     from ..models.config import from_dict, merge
     from ..models.sem2nerf.config import Sem2NeRFConfig, validate
-    from ..models.sem2nerf.model import Sem2NeRF
 
     model_file, meta = read_sem2nerf_header(Path(path))
     cfg = validate(merge(from_dict(Sem2NeRFConfig, json.loads(meta["model_config"])), overrides))
-    model = Sem2NeRF(replace(cfg, pretrained=False, style_mean_samples=1))
-    model.cfg = model.field.cfg = cfg
+    model = _unloaded_model(cfg)
     try:
         res = model.load_state_dict(load_file(str(model_file), device="cpu"), strict=False)
     except RuntimeError as e:
