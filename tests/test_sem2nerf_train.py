@@ -166,7 +166,10 @@ def test_style_codes_learn_each_objects_appearance(data, tmp_path):
     (a,) = T.load_masked_dataset(data, "train", limit=1)
     fg = a.masks[..., None] > 0
     b = dc_replace(a, name="recoloured", images=np.where(fg, a.images[..., ::-1] * 0.5, a.images).astype(np.float32))
-    cfg = T.train_config(out_dir=str(tmp_path / "st"), preset="fast", model_overrides=TINY_MODEL, iterations=120,
+    # 200 steps with faster codes: at 120 steps and the default code lr the margin was 0.86 against the 0.85
+    # asked on one machine and passed on another (float order); here seeds 3-6 give 0.60-0.69 (measured).
+    cfg = T.train_config(out_dir=str(tmp_path / "st"), preset="fast", model_overrides=TINY_MODEL, iterations=200,
+                         code_lr=1e-2,
                          objects_per_step=2, other_views=1, patch_size=8, lpips_weight=0.0, ce_weight=0.1,
                          lr=2e-3, encoder_lr=1e-3, checkpoint_every=1000, threads=1, seed=3)
     run_to_end(T.train(cfg, resume=False, objects=[a, b]))
