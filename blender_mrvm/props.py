@@ -19,6 +19,12 @@ MODEL_KINDS = [
 ]
 """The model kinds (``models/registry.py``) the panel offers."""
 
+SHIPPED_MODELS = MODEL_KINDS + [
+    ("gpnr_captures", "GPNR for rooms and captures", "GPNR fine-tuned on capture-like rooms: for scenes and photo "
+                                                     "captures (Recover Poses), not objects on white"),
+]
+"""The shipped novel-view models the panel offers (``models.pretrained``: one per kind, and scene models)."""
+
 DEVICES = [
     ("AUTO", "Auto", "CUDA when available, else CPU"),
     ("CPU", "CPU", "Always the CPU"),
@@ -154,7 +160,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                              description="Field of view of the orbit cameras (along the longer image side)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
-    shipped_model: EnumProperty(name="Shipped model", items=MODEL_KINDS, default="nerformer_mrvm",
+    shipped_model: EnumProperty(name="Shipped model", items=SHIPPED_MODELS, default="nerformer_mrvm",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
     device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
     quality: EnumProperty(name="Quality", items=[

@@ -546,6 +546,15 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
         _fails("no checkpoint chosen, and this version ships no trained model yet")
     else:  # empty = the shipped model
         assert plan_from_props(bpy.context).checkpoint == default_checkpoint()
+    from blender_mrvm.models.pretrained import FIGURES, shipped_or_none
+    from blender_mrvm.panels.novel_views import MRVM_PT_novel_views
+
+    for name in ("gpnr", "gpnr_captures"):  # the panel's other shipped models: chosen by name, figures shown
+        p.shipped_model = name
+        if shipped_or_none(name) is not None:
+            assert plan_from_props(bpy.context).checkpoint == shipped_or_none(name)
+            assert any(e[0] == "label" and FIGURES[name] in e[1] for e in _draw(MRVM_PT_novel_views))
+    p.shipped_model = "nerformer_mrvm"
     p.checkpoint = str(tmp_path / "run")
     # A checkpoint that does not load: the worker's one-line error, nothing added.
     (tmp_path / "junk.safetensors").write_bytes(b"junk" * 8)

@@ -111,3 +111,29 @@ def test_shipped_gpnr_checkpoint_format_config_and_render(sphere_scene):
     p_model = float(psnr(out["color"], gt)[0])
     p_near = float(psnr(torch.from_numpy(s.images[4]), gt)[0])
     assert torch.isfinite(out["color"]).all() and p_model > p_near + 2.0 and p_model > 14.5, (p_model, p_near)
+
+
+def test_shipped_capture_model_resolves_or_says_so():
+    """'shipped:gpnr_captures' (the panel's "GPNR for rooms and captures") names a GPNR model fine-tuned on
+    capture-like rooms: small, kind gpnr, spacing its depths for scenes, its sidecar the file's config and
+    training; a copy without it says so in one line."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models import registry
+    from blender_mrvm.models.pretrained import SHIPPED_SCENES, resolve_checkpoint
+
+    stem = SHIPPED_SCENES["gpnr_captures"]
+    path = ASSET_DIR / f"{stem}.safetensors"
+    if not path.is_file():
+        with pytest.raises(InputError, match="ships no gpnr_captures model"):
+            resolve_checkpoint("shipped:gpnr-captures")
+        return
+    assert resolve_checkpoint("shipped:gpnr-captures") == path == resolve_checkpoint("shipped:gpnr_captures")
+    assert path.stat().st_size <= 25 * 1024 * 1024
+    meta = ckpt.read_meta(path)
+    _, cfg, _ = ckpt.load_model(path)
+    side = json.loads((ASSET_DIR / f"{stem}.json").read_text())
+    assert registry.kind_of(cfg) == "gpnr" == side["model"]["kind"] == meta["model_kind"]
+    assert cfg == registry.config_from_dict("gpnr", side["model"]["config"])
+    assert cfg.depth_spacing == "auto" and not cfg.white_background  # rooms: inverse depths, the scene's background
+    assert int(meta["step"]) == side["step"] and side["train"]["data"].endswith("captures64")
+    assert side["commands"] and all("blender_mrvm" in c or "scripts/" in c for c in side["commands"])

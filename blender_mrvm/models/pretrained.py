@@ -18,6 +18,9 @@ DEFAULT_NAME = "mrvm_shapenet13_all"
 """Stem of the default checkpoint: ``<stem>.safetensors`` (weights + config) and ``<stem>.json`` (run config)."""
 SHIPPED = {"nerformer_mrvm": DEFAULT_NAME, "gpnr": "gpnr_shapenet13_all"}
 """Stem of the shipped checkpoint of each model kind (the first is the default)."""
+SHIPPED_SCENES = {"gpnr_captures": "gpnr_captures64"}
+"""Shipped models for scenes rather than objects on white, by name (``shipped:gpnr_captures``): a kind's
+model fine-tuned on capture-like rooms (``make-captures``), for synthesis from photo captures."""
 SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 """Stem of the shipped Sem2NeRF checkpoint (not a novel-view kind of the registry: ``shipped:sem2nerf``)."""
 
@@ -27,21 +30,34 @@ FIGURES = {
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
+    "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.3 dB / LPIPS 0.194 (the objects-on-white "
+                     "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~5 s per 128 px view on 2 CPU cores",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
 speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy")."""
 
 
+def _normal_name(name: str | None) -> str:
+    return str(name or "").strip().lower().replace("-", "_")
+
+
 def shipped_checkpoint(kind: str | None = None) -> Path:
-    """Path of the shipped model file of ``kind`` (None = the default model); :class:`InputError` if this copy
-    of the package lacks it or ships no model of that kind."""
+    """Path of the shipped model file named ``kind``: a model kind or alias (None = the default model),
+    ``sem2nerf`` or a scene model of :data:`SHIPPED_SCENES`; :class:`InputError` if this copy of the package
+    lacks it or ships no such model."""
     from .registry import kind as kind_of_name
 
-    if str(kind or "").strip().lower() == "sem2nerf":
+    name = _normal_name(kind)
+    if name == "sem2nerf":
         p = ASSET_DIR / f"{SEM2NERF_NAME}.safetensors"
         if not p.is_file():
             raise InputError(f"this copy ships no Sem2NeRF model ({p} is missing); pass a checkpoint of "
                              "`python -m blender_mrvm sem2nerf train`")
+        return p
+    if name in SHIPPED_SCENES:
+        p = ASSET_DIR / f"{SHIPPED_SCENES[name]}.safetensors"
+        if not p.is_file():
+            raise InputError(f"this copy ships no {name} model ({p} is missing); pass --checkpoint")
         return p
     k = kind_of_name(kind).name
     if k not in SHIPPED:
