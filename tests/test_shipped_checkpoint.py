@@ -44,12 +44,17 @@ def test_default_checkpoint_file_format_and_config():
     assert meta["train_image_size"] == "64"  # the data command's --resolution: synthesis shrinks larger references to it
     assert train["data"].endswith("shapenet13_all")
     assert (ASSET_DIR / "RECIPE.md").is_file()
-    # Two stages: stage 2 fine-tunes stage 1 with the opacity loss; stage 1's run config is kept beside it.
+    # Three stages: stage 2 fine-tunes stage 1 with the opacity loss, stage 3 stage 2 with the LPIPS patch loss;
+    # the earlier stages' run configs are kept beside it.
     assert train["init_checkpoint"] and train["opacity_weight"] > 0 and train["pretrain_frac"] == 0.0
+    assert train["lpips_weight"] > 0 and train["patch_size"] > 0
     from blender_mrvm.training.config import load_run_config
 
     m1, t1 = load_run_config(ASSET_DIR / "mrvm_shapenet13_all_stage1.json")
     assert m1 == cfg and t1.pretrain_frac == 0.8 and t1.init_checkpoint == "" and t1.data == train["data"]
+    side2 = json.loads((ASSET_DIR / "mrvm_shapenet13_all_stage2.json").read_text())
+    assert from_dict(ModelConfig, side2["model"]["config"]) == cfg and side2["train"]["init_checkpoint"]
+    assert side2["train"]["opacity_weight"] > 0 and side2["train"].get("lpips_weight", 0) == 0
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,7 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 
 FIGURES = {
-    "nerformer_mrvm": "2 views 20.4 dB / LPIPS 0.247, 5 views 23.9 / 0.143 (held-out 64 px objects); "
+    "nerformer_mrvm": "2 views 20.3 dB / LPIPS 0.215 (held-out 64 px objects; nearest view 0.234); "
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
