@@ -216,6 +216,6 @@ def test_init_checkpoint_adds_the_style_colour_head(data, tmp_path):
                         patch_size=8, lpips_weight=0.0, code_lr=0.03, checkpoint_every=1000, threads=1)
     run_to_end(T.train(ft, resume=False))
     tuned, tcfg, _ = T.load_sem2nerf(tmp_path / "ft")
-    assert tcfg.style_part_colours and float(tuned.field.style_part_rgb.weight.abs().sum()) > 0
+    assert tcfg.style_part_colours and float(tuned.field.style_part_rgb.weight.detach().abs().sum()) > 0
     with pytest.raises(InputError, match="does not fit"):
         T.init_model(tmp_path / "old", {"hidden": 8})

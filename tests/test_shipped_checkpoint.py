@@ -126,6 +126,8 @@ def test_shipped_capture_model_resolves_or_says_so():
     from blender_mrvm.models import registry
     from blender_mrvm.models.pretrained import SHIPPED_SCENES, resolve_checkpoint
 
+    with pytest.raises(InputError, match="no shipped model is called 'nope'; this version ships .*gpnr_captures"):
+        resolve_checkpoint("shipped:nope")
     stem = SHIPPED_SCENES["gpnr_captures"]
     path = ASSET_DIR / f"{stem}.safetensors"
     if not path.is_file():

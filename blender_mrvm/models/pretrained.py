@@ -48,18 +48,19 @@ def shipped_checkpoint(kind: str | None = None) -> Path:
     from .registry import kind as kind_of_name
 
     name = _normal_name(kind)
-    if name == "sem2nerf":
-        p = ASSET_DIR / f"{SEM2NERF_NAME}.safetensors"
+    named = {"sem2nerf": (SEM2NERF_NAME, "Sem2NeRF", "a checkpoint of `python -m blender_mrvm sem2nerf train`"),
+             **{n: (stem, n, "--checkpoint") for n, stem in SHIPPED_SCENES.items()}}
+    if name in named:
+        stem, title, instead = named[name]
+        p = ASSET_DIR / f"{stem}.safetensors"
         if not p.is_file():
-            raise InputError(f"this copy ships no Sem2NeRF model ({p} is missing); pass a checkpoint of "
-                             "`python -m blender_mrvm sem2nerf train`")
+            raise InputError(f"this copy ships no {title} model ({p} is missing); pass {instead}")
         return p
-    if name in SHIPPED_SCENES:
-        p = ASSET_DIR / f"{SHIPPED_SCENES[name]}.safetensors"
-        if not p.is_file():
-            raise InputError(f"this copy ships no {name} model ({p} is missing); pass --checkpoint")
-        return p
-    k = kind_of_name(kind).name
+    try:
+        k = kind_of_name(kind).name
+    except InputError:
+        raise InputError(f"no shipped model is called {kind!r}; this version ships "
+                         f"{', '.join(sorted([*SHIPPED, *named]))}") from None
     if k not in SHIPPED:
         raise InputError(f"no {k} model is shipped; pass --checkpoint or train one with `python -m blender_mrvm train`")
     p = ASSET_DIR / f"{SHIPPED[k]}.safetensors"
