@@ -30,7 +30,7 @@ FIGURES = {
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
-    "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.3 dB / LPIPS 0.194 (the objects-on-white "
+    "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.185 (the objects-on-white "
                      "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~5 s per 128 px view on 2 CPU cores",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
