@@ -34,7 +34,8 @@ FIGURES = {
                      "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~5 s per 128 px view on 2 CPU cores",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
-speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy")."""
+object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy";
+the capture model's a median of 3 room views with 2 threads)."""
 
 
 def _normal_name(name: str | None) -> str:
