@@ -208,7 +208,8 @@ def test_ddp_two_cpu_processes(tmp_path, data):
 
 
 def test_cli_init_flag(tmp_path, data, capsys):
-    """`train --init` reaches the trainer: a missing checkpoint is a one-line error, a good one fine-tunes."""
+    """`train --init` reaches the trainer: a missing checkpoint is a one-line error, a good one fine-tunes;
+    `--seed` overrides the config's seed (a negative one is refused before anything is written)."""
     from blender_mrvm.cli import main
 
     root, scenes = data
@@ -219,10 +220,13 @@ def test_cli_init_flag(tmp_path, data, capsys):
     cfg = tmp_path / "ft.json"
     cfg.write_text(json.dumps({"train": {"iterations": 1, "rays_per_object": 16, "objects_per_step": 1, "threads": 1,
                                          "max_ref_views": 2, "lr": 0.0}}))
+    assert main(["train", "--config", str(cfg), "--seed", "-1", "--data", str(root), "--out", str(tmp_path / "d")]) == 2
+    assert "train.seed" in capsys.readouterr().err and not (tmp_path / "d").exists()
     assert main(["train", "--config", str(cfg), "--init", str(tmp_path / "a"), "--data", str(root),
-                 "--out", str(tmp_path / "c")]) == 0
+                 "--out", str(tmp_path / "c"), "--seed", "7"]) == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert line["initialized_from"].endswith("model.safetensors") and line["step"] == 1
+    assert json.loads((tmp_path / "c" / "config.json").read_text())["train"]["seed"] == 7
     assert json.loads((tmp_path / "c" / "config.json").read_text())["model"]["config"] == \
         json.loads((tmp_path / "a" / "config.json").read_text())["model"]["config"]
 

@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "default: every object alike)")
     p.add_argument("--out", dest="out_dir", default=None, help="run folder (overrides train.out_dir)")
     p.add_argument("--iterations", type=int, default=None, help="overrides train.iterations")
+    p.add_argument("--seed", type=int, default=None,
+                   help="overrides train.seed (initialisation and all sampling), e.g. a second seed of an ablation")
     p.add_argument("--init", dest="init_checkpoint", default=None,
                    help="fine-tune: start from this checkpoint's weights ('shipped' = the default model) "
                         "instead of a random initialisation (overrides train.init_checkpoint)")
@@ -48,7 +50,7 @@ def run(args) -> int:
 
     data = args.data if args.data is None or len(args.data) > 1 else args.data[0]  # one root stays a string
     mcfg, tcfg = load_run_config(args.config, {"data": data, "data_weights": args.data_weights, "out_dir": args.out_dir,
-                                               "iterations": args.iterations,
+                                               "iterations": args.iterations, "seed": args.seed,
                                                "init_checkpoint": args.init_checkpoint,
                                                "lpips_weight": args.lpips_weight},
                                   kind=args.kind, preset=args.preset)

@@ -1,0 +1,56 @@
+"""The table of scripts/mrvm_budgets.sh: MRVM minus the identical model without it, per training budget.
+
+    python scripts/mrvm_budgets_table.py [data/eval]
+
+Reads ``budget_{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder, pairs each MRVM evaluation with
+the baseline's on the same views (``training.evaluate.compare_reports``: objects are the unit) and prints,
+per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
+difference with its 95% interval over objects (mean +- 1.96 standard errors).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from blender_mrvm.training.evaluate import compare_reports  # noqa: E402
+
+NAME = re.compile(r"budget_mrvm_s(\d+)_p(\d+)_(\d)v$")
+
+
+def interval(s: dict) -> str:
+    if s.get("se_objects") is None:
+        return f"{s['diff']:+.3f}"
+    h = 1.96 * s["se_objects"]
+    return f"{s['diff']:+.3f} [{s['diff'] - h:+.3f}, {s['diff'] + h:+.3f}]"
+
+
+def main(root: Path) -> str:
+    rows = []
+    for d in sorted(root.glob("budget_mrvm_s*_p*_*v"), key=lambda p: [int(x) for x in NAME.search(p.name).groups()]):
+        seed, steps, views = NAME.search(d.name).groups()
+        other = root / d.name.replace("budget_mrvm_", "budget_base_")
+        if not (d / "eval.json").is_file() or not (other / "eval.json").is_file():
+            continue
+        a, b = json.loads((d / "eval.json").read_text()), json.loads((other / "eval.json").read_text())
+        c = compare_reports(a, b)["overall"]
+        oa, ob = a["overall"], b["overall"]
+        total = int(steps) + int(steps) // 3
+        rows.append(f"| {seed} | {steps} + {int(steps) // 3} = {total} | {views} | {c['views']} "
+                    f"| {oa['psnr']:.2f} / {oa['ssim']:.3f} / {oa['lpips']:.3f} "
+                    f"| {ob['psnr']:.2f} / {ob['ssim']:.3f} / {ob['lpips']:.3f} "
+                    f"| {oa['baseline_nearest']['psnr']:.2f} / {oa['baseline_nearest']['lpips']:.3f} "
+                    f"| {interval(c['psnr'])} | {interval(c['ssim'])} | {interval(c['lpips'])} "
+                    f"| {c['psnr']['wins']:.0%} |")
+    head = ("| seed | steps (pretrain + finetune) | refs | views | MRVM PSNR / SSIM / LPIPS | without MRVM "
+            "| nearest view PSNR / LPIPS | PSNR diff [95%] | SSIM diff [95%] | LPIPS diff [95%] "
+            "| objects where MRVM has the higher PSNR |\n|---|---|---:|---:|---|---|---|---|---|---|---:|\n")
+    return head + "\n".join(rows) + "\n"
+
+
+if __name__ == "__main__":
+    print(main(Path(sys.argv[1] if len(sys.argv) > 1 else "data/eval")), end="")
