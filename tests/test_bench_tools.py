@@ -35,6 +35,19 @@ def test_plot_draws_both_panels(tmp_path):
         assert hit[:, :550].any() and hit[:, 550:].any()
 
 
+def test_front_names_the_model_of_each_point(tmp_path):
+    """Several trained models of one kind share a front (e.g. `fast` and `balanced` at one budget): every
+    front row names its preset and checkpoint, so two models' "as trained" points are told apart."""
+    rows = [{"kind": "nerformer_mrvm", "checkpoint": f"runs/{c}", "preset": c, "point": "as trained",
+             "cpu_seconds_per_view": s, "psnr": q, "ssim": 0.6, "lpips": l, "quality": "measured", "size": 128}
+            for c, s, q, l in [("fast", 0.8, 15.2, 0.40), ("balanced", 2.0, 15.3, 0.35)]]
+    tr.write_front(rows, tmp_path, 1.0)
+    text = (tmp_path / "bench_tradeoff_front.md").read_text()
+    assert "| fast (fast) | as trained | 0.800 |" in text and "| balanced (balanced) | as trained | 2.000 |" in text
+    assert tr.point_name(rows[0], rows) == "fast (fast): as trained"
+    assert tr.point_name(rows[0], rows[:1]) == "as trained"
+
+
 def test_sweep_moves_one_knob_at_a_time():
     cfg = registry.build_config(None, "balanced")
     pts = tr.sweep("nerformer_mrvm", cfg, list(tr.AXES), "cpu")

@@ -262,6 +262,18 @@ def run(args) -> int:
     return 0
 
 
+def model_name(r: dict) -> str:
+    """A point's model in the fronts: its preset and checkpoint (several trained models of one kind share a
+    front, e.g. `fast` and `balanced` at the same budget)."""
+    return f"{r.get('preset', '')} ({Path(str(r.get('checkpoint', ''))).name or r.get('checkpoint', '')})"
+
+
+def point_name(r: dict, rows: list[dict]) -> str:
+    """The point's label, prefixed by its model's preset when its kind has points of several checkpoints."""
+    several = len({x.get("checkpoint") for x in rows if x["kind"] == r["kind"]}) > 1
+    return f"{model_name(r)}: {r['point']}" if several else r["point"]
+
+
 def write_front(rows: list[dict], out: Path, load0: float) -> None:
     """The Pareto fronts (markdown) and the plot (PNG)."""
     lines = ["# Pareto fronts (CPU seconds per view against LPIPS / PSNR)", "",
@@ -272,9 +284,9 @@ def write_front(rows: list[dict], out: Path, load0: float) -> None:
             for r in kr:
                 r["neg_psnr"] = -float(r["psnr"]) if r["psnr"] != "" else ""
             front = pareto(kr, "cpu_seconds_per_view", loss)
-            lines += [f"## {kind}: seconds against {lab}", "", "| point | s/view (cpu) | PSNR | SSIM | LPIPS |",
-                      "|---|---|---|---|---|"]
-            lines += [f"| {r['point']} | {r['cpu_seconds_per_view']:.3f} | {r['psnr']} | {r['ssim']} | {r['lpips']} |"
+            lines += [f"## {kind}: seconds against {lab}", "", "| model | point | s/view (cpu) | PSNR | SSIM | LPIPS |",
+                      "|---|---|---|---|---|---|"]
+            lines += [f"| {model_name(r)} | {r['point']} | {r['cpu_seconds_per_view']:.3f} | {r['psnr']} | {r['ssim']} | {r['lpips']} |"
                       for r in front]
             lines.append("")
             for r in kr:
@@ -343,7 +355,7 @@ def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
                 on = r in front
                 d.ellipse([x - 4, y - 4, x + 4, y + 4], fill=col if on else "white", outline=col)
                 if on:
-                    d.text((x + 5, y - 12), r["point"], fill=col)
+                    d.text((x + 5, y - 12), point_name(r, rows), fill=col)
             for r in kr:
                 r.pop("_loss", None)
             d.text((ox + 8 + 170 * ki, oy + phei + 24), f"o {kind}", fill=col)
