@@ -1,24 +1,27 @@
 #!/usr/bin/env bash
 # MRVM against the identical model without it at three training budgets (issue 11), on `unseen` (train on
-# airplane, car, chair; test on the other ten categories), the paper's recipe in two runs: a pretraining run
-# (masking throughout for the MRVM arm; rays inside the object's box for its first 75%) of P steps, then a
-# finetuning run of P/3 steps started from it (training.config.FINETUNE: no masking, lr 1e-4, whole image).
-# One arm per call, so the two arms run side by side on two cores:
-#   scripts/mrvm_budgets.sh mrvm & scripts/mrvm_budgets.sh base
+# airplane, car, chair; test on the other ten categories) or `all` (SETTING=all), the paper's recipe in two
+# runs: a pretraining run (masking throughout for the MRVM arm; rays inside the object's box for its first
+# 75%) of P steps, then a finetuning run of P/3 steps started from it (training.config.FINETUNE: no masking,
+# lr 1e-4, whole image). One arm per call, so the two arms run side by side on two cores:
+#   scripts/mrvm_budgets.sh mrvm & scripts/mrvm_budgets.sh base; SEED=1 ... for a second seed
 # then: python scripts/mrvm_budgets_table.py
-# Needs data/shapenet13_unseen (make-shapenet --setting unseen --objects-per-category 30 --views 24 --resolution 64).
+# Needs data/shapenet13_$SETTING (make-shapenet --setting $SETTING --objects-per-category 30 --views 24 --resolution 64).
 set -eu
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
 ARM=$1                              # mrvm | base | balanced_mrvm (the `balanced` preset, for bench tradeoff)
 BUDGETS=${BUDGETS:-"1000 3000 9000"} # pretraining steps; finetuning adds a third
 SEED=${SEED:-0}
+SETTING=${SETTING:-unseen}          # unseen | all
+NAME=budget_; [ "$SETTING" = unseen ] || NAME=budget_${SETTING}_
 CFG=blender_mrvm/assets/checkpoints/ablation/budget_unseen_$ARM.json
-EV="$PY -m blender_mrvm eval --data data/shapenet13_unseen --max-objects-per-category 2 --max-targets 8 --threads 1"
+DATA=data/shapenet13_$SETTING
+EV="$PY -m blender_mrvm eval --data $DATA --max-objects-per-category 2 --max-targets 8 --threads 1"
 for P in $BUDGETS; do
-  F=$((P / 3)); R=data/runs/budget_${ARM}_s${SEED}_p$P; E=data/eval/budget_${ARM}_s${SEED}_p$P
-  $PY -m blender_mrvm train --config $CFG --iterations $P --seed $SEED --out ${R}_pre --no-resume --force
-  $PY -m blender_mrvm train --config $CFG --init ${R}_pre --iterations $F --seed $SEED --out $R --no-resume --force
+  F=$((P / 3)); R=data/runs/${NAME}${ARM}_s${SEED}_p$P; E=data/eval/${NAME}${ARM}_s${SEED}_p$P
+  $PY -m blender_mrvm train --config $CFG --data $DATA --iterations $P --seed $SEED --out ${R}_pre --no-resume --force
+  $PY -m blender_mrvm train --config $CFG --data $DATA --init ${R}_pre --iterations $F --seed $SEED --out $R --no-resume --force
   $EV --checkpoint $R --n-inputs 2 --out ${E}_2v --force
   $EV --checkpoint $R --n-inputs 1 --out ${E}_1v --force
 done

@@ -2,7 +2,7 @@
 
     python scripts/mrvm_budgets_table.py [data/eval]
 
-Reads ``budget_{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder, pairs each MRVM evaluation with
+Reads ``budget_[all_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` (``all_``: the ``all`` setting) under the folder, pairs each MRVM evaluation with
 the baseline's on the same views (``training.evaluate.compare_reports``: objects are the unit) and prints,
 per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
 difference with its 95% interval over objects (mean +- 1.96 standard errors).
@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from blender_mrvm.training.evaluate import compare_reports  # noqa: E402
 
-NAME = re.compile(r"budget_mrvm_s(\d+)_p(\d+)_(\d)v$")
+NAME = re.compile(r"budget_(all_)?mrvm_s(\d+)_p(\d+)_(\d)v$")
 
 
 def interval(s: dict) -> str:
@@ -31,24 +31,29 @@ def interval(s: dict) -> str:
 
 def main(root: Path) -> str:
     rows = []
-    for d in sorted(root.glob("budget_mrvm_s*_p*_*v"), key=lambda p: [int(x) for x in NAME.search(p.name).groups()]):
-        seed, steps, views = NAME.search(d.name).groups()
-        other = root / d.name.replace("budget_mrvm_", "budget_base_")
+    def order(p):
+        setting, *nums = NAME.search(p.name).groups()
+        return [bool(setting), *map(int, nums)]
+
+    for d in sorted((p for p in root.glob("budget_*mrvm_s*_p*_*v") if NAME.search(p.name)), key=order):
+        setting, seed, steps, views = NAME.search(d.name).groups()
+        setting = "all" if setting else "unseen"
+        other = root / d.name.replace("mrvm_s", "base_s")
         if not (d / "eval.json").is_file() or not (other / "eval.json").is_file():
             continue
         a, b = json.loads((d / "eval.json").read_text()), json.loads((other / "eval.json").read_text())
         c = compare_reports(a, b)["overall"]
         oa, ob = a["overall"], b["overall"]
         total = int(steps) + int(steps) // 3
-        rows.append(f"| {seed} | {steps} + {int(steps) // 3} = {total} | {views} | {c['views']} "
+        rows.append(f"| {setting} | {seed} | {steps} + {int(steps) // 3} = {total} | {views} | {c['views']} "
                     f"| {oa['psnr']:.2f} / {oa['ssim']:.3f} / {oa['lpips']:.3f} "
                     f"| {ob['psnr']:.2f} / {ob['ssim']:.3f} / {ob['lpips']:.3f} "
                     f"| {oa['baseline_nearest']['psnr']:.2f} / {oa['baseline_nearest']['lpips']:.3f} "
                     f"| {interval(c['psnr'])} | {interval(c['ssim'])} | {interval(c['lpips'])} "
                     f"| {c['psnr']['wins']:.0%} |")
-    head = ("| seed | steps (pretrain + finetune) | refs | views | MRVM PSNR / SSIM / LPIPS | without MRVM "
+    head = ("| setting | seed | steps (pretrain + finetune) | refs | views | MRVM PSNR / SSIM / LPIPS | without MRVM "
             "| nearest view PSNR / LPIPS | PSNR diff [95%] | SSIM diff [95%] | LPIPS diff [95%] "
-            "| objects where MRVM has the higher PSNR |\n|---|---|---:|---:|---|---|---|---|---|---|---:|\n")
+            "| objects where MRVM has the higher PSNR |\n|---|---|---|---:|---:|---|---|---|---|---|---|---:|\n")
     return head + "\n".join(rows) + "\n"
 
 
