@@ -2,8 +2,8 @@
 
     python scripts/mrvm_budgets_table.py [data/eval]
 
-Reads ``budget_[all_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` (``all_``: the ``all`` setting) under the folder, pairs each MRVM evaluation with
-the baseline's on the same views (``training.evaluate.compare_reports``: objects are the unit) and prints,
+Reads ``budget_[all_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder (``all_``: the ``all``
+setting), pairs each MRVM evaluation with the baseline's on the same views (``training.evaluate.compare_reports``: objects are the unit) and prints,
 per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
 difference with its 95% interval over objects (mean +- 1.96 standard errors).
 """
@@ -29,12 +29,14 @@ def interval(s: dict) -> str:
     return f"{s['diff']:+.3f} [{s['diff'] - h:+.3f}, {s['diff'] + h:+.3f}]"
 
 
+def order(p: Path) -> list:
+    """`unseen` before `all`, then seed, budget and reference count."""
+    setting, *nums = NAME.search(p.name).groups()
+    return [bool(setting), *map(int, nums)]
+
+
 def main(root: Path) -> str:
     rows = []
-    def order(p):
-        setting, *nums = NAME.search(p.name).groups()
-        return [bool(setting), *map(int, nums)]
-
     for d in sorted((p for p in root.glob("budget_*mrvm_s*_p*_*v") if NAME.search(p.name)), key=order):
         setting, seed, steps, views = NAME.search(d.name).groups()
         setting = "all" if setting else "unseen"

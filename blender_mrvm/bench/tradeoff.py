@@ -269,7 +269,8 @@ def model_name(r: dict) -> str:
 
 
 def point_name(r: dict, rows: list[dict]) -> str:
-    """The point's label, prefixed by its model's preset when its kind has points of several checkpoints."""
+    """The point's label, prefixed by its model (:func:`model_name`) when its kind has points of several
+    checkpoints."""
     several = len({x.get("checkpoint") for x in rows if x["kind"] == r["kind"]}) > 1
     return f"{model_name(r)}: {r['point']}" if several else r["point"]
 
