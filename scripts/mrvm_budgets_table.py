@@ -3,8 +3,8 @@
     python scripts/mrvm_budgets_table.py [data/eval]
 
 Reads ``budget_[all_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder (``all_``: the ``all``
-setting), pairs each MRVM evaluation with the baseline's on the same views (``training.evaluate.compare_reports``: objects are the unit) and prints,
-per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
+setting), pairs each MRVM evaluation with the baseline's on the same views
+(``training.evaluate.compare_reports``: objects are the unit) and prints, per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
 difference with its 95% interval over objects (mean +- 1.96 standard errors).
 """
 
@@ -46,8 +46,8 @@ def main(root: Path) -> str:
         a, b = json.loads((d / "eval.json").read_text()), json.loads((other / "eval.json").read_text())
         c = compare_reports(a, b)["overall"]
         oa, ob = a["overall"], b["overall"]
-        total = int(steps) + int(steps) // 3
-        rows.append(f"| {setting} | {seed} | {steps} + {int(steps) // 3} = {total} | {views} | {c['views']} "
+        finetune = int(steps) // 3  # scripts/mrvm_budgets.sh: F = P / 3
+        rows.append(f"| {setting} | {seed} | {steps} + {finetune} = {int(steps) + finetune} | {views} | {c['views']} "
                     f"| {oa['psnr']:.2f} / {oa['ssim']:.3f} / {oa['lpips']:.3f} "
                     f"| {ob['psnr']:.2f} / {ob['ssim']:.3f} / {ob['lpips']:.3f} "
                     f"| {oa['baseline_nearest']['psnr']:.2f} / {oa['baseline_nearest']['lpips']:.3f} "

@@ -265,7 +265,7 @@ def run(args) -> int:
 def model_name(r: dict) -> str:
     """A point's model in the fronts: its preset and checkpoint (several trained models of one kind share a
     front, e.g. `fast` and `balanced` at the same budget)."""
-    return f"{r.get('preset', '')} ({Path(str(r.get('checkpoint', ''))).name or r.get('checkpoint', '')})"
+    return f"{r.get('preset', '')} ({Path(str(r.get('checkpoint', ''))).name})"
 
 
 def point_name(r: dict, rows: list[dict]) -> str:
