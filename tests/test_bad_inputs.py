@@ -219,6 +219,7 @@ TRAIN = [
     _t("gpnr near must be a positive number", model={"kind": "gpnr", "preset": "fast", "overrides": {"near": "far"}}),
     _t("gpnr depth_spacing must be one of", ["--init", "shipped:gpnr"], model={"overrides": {"depth_spacing": 3}}),
     _t("gpnr alpha_temperature must be a number", ["--init", "shipped:gpnr"], model={"overrides": {"alpha_temperature": 0}}),
+    _t("gpnr colour_filter must be one of", ["--init", "shipped:gpnr"], model={"overrides": {"colour_filter": "lanczos"}}),
     _t("unknown config field", ["--init", "shipped:gpnr"], model={"overrides": {"spacing": "disparity"}}),
     _t("conflicts with the config's own model", ["--preset", "accurate"], model={"preset": "fast"}, garbage=True),
     _t("unknown model preset 'tiny'", ["--preset", "tiny"]),

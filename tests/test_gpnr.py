@@ -201,8 +201,9 @@ def test_canonical_frames_are_rotations_with_ray_as_z():
     assert torch.allclose(torch.einsum("rij,rj->ri", Rf, d), eye[2].expand(64, 3), atol=1e-12)
 
 
-def test_weights_are_distributions_and_colour_is_convex_combination():
-    m = tiny()
+@pytest.mark.parametrize("colour_filter", ["bilinear", "bicubic"])
+def test_weights_are_distributions_and_colour_is_convex_combination(colour_filter):
+    m = tiny(colour_filter=colour_filter)
     poses = ring(4)
     ns = normalized_scene(*BOX, m.box_padding)
     cams = ref_cameras([ns.pose(p) for p in poses[:3]], [INTR] * 3)
@@ -221,13 +222,34 @@ def test_weights_are_distributions_and_colour_is_convex_combination():
     # colour = sum of weights x reference colours read at the projections
     from blender_mrvm.models.projection import sample_maps
 
-    rgb = sample_maps(imgs, out["uv"].float())  # (V, R, M, 3)
+    rgb = sample_maps(imgs, out["uv"].float(), colour_filter).clamp(0, 1)  # (V, R, M, 3)
     recon = torch.einsum("rvm,vrmc->rc", out["weights"], rgb)
     assert torch.allclose(out["color"], recon, atol=1e-5)
     lo = torch.where(valid.permute(1, 0, 2)[..., None], rgb, torch.full_like(rgb, 2.0)).amin((0, 2))
     hi = torch.where(valid.permute(1, 0, 2)[..., None], rgb, torch.full_like(rgb, -1.0)).amax((0, 2))
     assert torch.all(out["color"] >= lo - 1e-5) and torch.all(out["color"] <= hi + 1e-5)
     assert torch.all((out["depth"] >= 0) & (out["depth"] <= rays.far.float() + 1e-5))
+
+
+def test_bicubic_colour_reads_keep_detail_that_bilinear_reads_blur():
+    """The reason for ``colour_filter: bicubic``: at sub-pixel positions a bilinear read of a fine pattern
+    loses contrast (a low-pass filter), a bicubic read keeps more of it, and both agree at pixel centres."""
+    from blender_mrvm.models.projection import sample_maps
+
+    W = 32
+    x = torch.arange(W, dtype=torch.float32)
+    img = (0.5 + 0.4 * torch.sin(2 * math.pi * x / 4.0)).expand(1, 1, 8, W).contiguous()  # period 4 px
+    u = torch.arange(4, W - 4, dtype=torch.float32) + 0.5  # pixel centres (align_corners=False)
+    for shift, cmp in ((0.0, "equal"), (0.25, "sharper"), (0.5, "sharper")):
+        gu = 2.0 * (u + shift) / W - 1.0
+        uv = torch.stack([gu, torch.zeros_like(gu)], -1).view(1, 1, -1, 2)
+        lin = sample_maps(img, uv)[0, 0, :, 0]
+        cub = sample_maps(img, uv, "bicubic")[0, 0, :, 0]
+        amp = lambda v: float(v.max() - v.min())  # noqa: E731
+        if cmp == "equal":
+            assert torch.allclose(lin, cub, atol=1e-5)
+        else:
+            assert amp(cub) > 1.1 * amp(lin)
 
 
 def test_feature_colour_ablation_and_autocast():

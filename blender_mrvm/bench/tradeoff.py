@@ -46,7 +46,7 @@ import numpy as np
 
 from . import PeakMemory, write_csv
 
-AXES = ("base", "samples", "gate", "refs", "ref_size", "precision", "skip", "chunk")
+AXES = ("base", "samples", "gate", "filter", "refs", "ref_size", "precision", "skip", "chunk")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -105,6 +105,9 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
         for v in sorted({0.0, g / 10 if g > 0 else 1e-3, 10 * g if g > 0 else 1e-2} - {g}):
             pts.append(Point("gate", f"fine gate {v:g}" if v else "fine pass everywhere",
                              {"render": {"fine_min_acc": v}}))
+    if "filter" in axes and kind == "gpnr":  # how reference colours are read (GPNR's colour is a blend of them)
+        other = "bilinear" if getattr(cfg, "colour_filter", "bilinear") == "bicubic" else "bicubic"
+        pts.append(Point("filter", f"{other} colour reads", {"colour_filter": other}))
     if "refs" in axes:
         pts += [Point("refs", f"{r} refs", refs=r) for r in (1, 5)]
     if "ref_size" in axes:

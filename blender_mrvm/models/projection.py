@@ -74,9 +74,10 @@ def project_samples(cams: RefCameras, o_c: torch.Tensor, d_c: torch.Tensor, t: t
     return uv, valid, p
 
 
-def sample_maps(maps: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples of (V, C, H, W) maps at (V, R, S, 2) -> (V, R, S, C)."""
+def sample_maps(maps: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
+    """Samples of (V, C, H, W) maps at (V, R, S, 2) -> (V, R, S, C); ``mode`` is ``grid_sample``'s
+    ('bilinear', or 'bicubic': sharper, but it can overshoot the maps' range)."""
     V, R, S, _ = uv.shape
-    out = torch.nn.functional.grid_sample(maps, uv.to(maps.dtype).view(V, R * S, 1, 2), mode="bilinear",
+    out = torch.nn.functional.grid_sample(maps, uv.to(maps.dtype).view(V, R * S, 1, 2), mode=mode,
                                           padding_mode="border", align_corners=False)
     return out.view(V, -1, R, S).permute(0, 2, 3, 1)

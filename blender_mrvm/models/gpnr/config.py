@@ -39,6 +39,11 @@ class GPNRConfig:
     colour comes from fewer depths along its epipolar line, i.e. less blur along the line. 1 = the paper."""
     beta_temperature: float = 1.0
     """Temperature of the reference-view weights' softmax at inference (training always uses 1)."""
+    colour_filter: str = "bilinear"
+    """How reference pixel colours are read at the epipolar projections: 'bilinear' (the paper) or
+    'bicubic' (clamped to [0, 1]; a bilinear read is a low-pass filter at sub-pixel positions, so the
+    blended colour comes out softer than the photos: on capture-like rooms bicubic cuts LPIPS by about
+    0.02 at -0.1 dB, RECIPE.md). Only the colours: the patch features stay bilinear."""
     ray_freqs: int = 4
     """Harmonic frequencies of the reference ray's Plücker coordinates (the first positional code)."""
     depth_freqs: int = 6
@@ -93,6 +98,7 @@ STORED_DEFAULTS: dict[str, object] = {"depth_spacing": "linear"}
 existed: what the code did then, so an old checkpoint renders bit-identically."""
 
 DEPTH_SPACINGS = ("linear", "disparity", "auto")
+COLOUR_FILTERS = ("bilinear", "bicubic")
 
 
 def validate(cfg: GPNRConfig) -> None:
@@ -116,6 +122,8 @@ def validate(cfg: GPNRConfig) -> None:
         raise InputError("gpnr needs min_ref_views <= max_ref_views")
     if cfg.depth_spacing not in DEPTH_SPACINGS:
         raise InputError(f"gpnr depth_spacing must be one of {', '.join(DEPTH_SPACINGS)}, got {cfg.depth_spacing!r}")
+    if cfg.colour_filter not in COLOUR_FILTERS:
+        raise InputError(f"gpnr colour_filter must be one of {', '.join(COLOUR_FILTERS)}, got {cfg.colour_filter!r}")
     if isinstance(cfg.near, bool) or not isinstance(cfg.near, (int, float)) or not 0.0 < float(cfg.near) < 1e6:
         raise InputError(f"gpnr near must be a positive number (normalised units), got {cfg.near!r}")
     for name in ("alpha_temperature", "beta_temperature"):

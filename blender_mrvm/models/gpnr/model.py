@@ -174,7 +174,9 @@ class GPNR(RayModel):
         uv, valid, _ = project_samples(ctx.cams, o_c, d_c, t)  # (V, R, M, 2), (V, R, M)
         uvf = uv.float()
         patch = sample_maps(ctx.patches.float(), uvf).permute(1, 2, 0, 3)  # (R, M, V, P)
-        rgb = sample_maps(ctx.images.float(), uvf).permute(1, 2, 0, 3)  # (R, M, V, 3)
+        rgb = sample_maps(ctx.images.float(), uvf, cfg.colour_filter).permute(1, 2, 0, 3)  # (R, M, V, 3)
+        if cfg.colour_filter != "bilinear":
+            rgb = rgb.clamp(0.0, 1.0)  # bicubic overshoots at edges; the colour stays a blend of [0, 1] values
         valid = valid.permute(1, 2, 0)  # (R, M, V)
 
         # Geometry in float64, then the frame the codes are expressed in.
