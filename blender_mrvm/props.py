@@ -22,8 +22,10 @@ MODEL_KINDS = [
 SHIPPED_MODELS = MODEL_KINDS + [
     ("gpnr_captures", "GPNR for rooms and captures", "GPNR fine-tuned on capture-like rooms: for scenes and photo "
                                                      "captures (Recover Poses), not objects on white"),
+    ("mrvm_anyview", "NeRFormer + MRVM, any viewpoint", "The default model fine-tuned on sphere-rig renders too: "
+                     "for cameras above, below or nearer than the 30-degree turntable (slightly worse on it)"),
 ]
-"""The shipped novel-view models the panel offers (``models.pretrained``: one per kind, and scene models)."""
+"""The shipped novel-view models the panel offers (``models.pretrained``: one per kind, then named models)."""
 
 DEVICES = [
     ("AUTO", "Auto", "CUDA when available, else CPU"),

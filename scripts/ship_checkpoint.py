@@ -4,7 +4,7 @@ and write the sidecar the tests and RECIPE.md read (any model kind).
     python scripts/ship_checkpoint.py RUN_OR_CHECKPOINT STEM [--command "python -m blender_mrvm ..."]... [--force]
 
 ``RUN_OR_CHECKPOINT``: a run folder (its latest checkpoint), a checkpoint folder or a model file.
-``STEM``: the shipped name (``pretrained.SHIPPED``, ``SHIPPED_SCENES`` or ``SEM2NERF_NAME``). The sidecar
+``STEM``: the shipped name (``pretrained.SHIPPED``, ``SHIPPED_NAMED`` or ``SEM2NERF_NAME``). The sidecar
 ``STEM.json`` holds ``model`` (the kind and the exact config stored in the model file), ``train`` (the run's
 training config: ``config.json``'s ``train`` section, or the model file's ``train_config``), ``step``, the
 sha256 of the model file, and every ``--command`` in order (the stages that made it), so the recipe does

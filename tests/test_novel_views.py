@@ -549,11 +549,11 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
     from blender_mrvm.models.pretrained import FIGURES, shipped_or_none
     from blender_mrvm.panels.novel_views import MRVM_PT_novel_views
 
-    from blender_mrvm.models.pretrained import SHIPPED, SHIPPED_SCENES
+    from blender_mrvm.models.pretrained import SHIPPED, SHIPPED_NAMED
     from blender_mrvm.props import SHIPPED_MODELS
 
-    assert [e[0] for e in SHIPPED_MODELS] == [*SHIPPED, *SHIPPED_SCENES]  # the panel offers what is shipped
-    for name in ("gpnr", "gpnr_captures"):  # the panel's other shipped models: chosen by name, figures shown
+    assert [e[0] for e in SHIPPED_MODELS] == [*SHIPPED, *SHIPPED_NAMED]  # the panel offers what is shipped
+    for name in [k for k, *_ in SHIPPED_MODELS[1:]]:  # the panel's other shipped models: chosen by name, figures shown
         p.shipped_model = name
         if shipped_or_none(name) is not None:
             assert plan_from_props(bpy.context).checkpoint == shipped_or_none(name)

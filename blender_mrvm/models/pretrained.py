@@ -18,9 +18,11 @@ DEFAULT_NAME = "mrvm_shapenet13_all"
 """Stem of the default checkpoint: ``<stem>.safetensors`` (weights + config) and ``<stem>.json`` (run config)."""
 SHIPPED = {"nerformer_mrvm": DEFAULT_NAME, "gpnr": "gpnr_shapenet13_all"}
 """Stem of the shipped checkpoint of each model kind (the first is the default)."""
-SHIPPED_SCENES = {"gpnr_captures": "gpnr_captures64"}
-"""Shipped models for scenes rather than objects on white, by name (``shipped:gpnr_captures``): a kind's
-model fine-tuned on capture-like rooms (``make-captures``), for synthesis from photo captures."""
+SHIPPED_NAMED = {"gpnr_captures": "gpnr_captures64", "mrvm_anyview": "mrvm_shapenet13_anyview"}
+"""Further shipped models of a kind, by name (``shipped:<name>``): ``gpnr_captures``, the GPNR model
+fine-tuned on capture-like rooms (``make-captures``) for scenes and photo captures rather than objects on
+white; ``mrvm_anyview``, the default NeRFormer+MRVM model fine-tuned on turntable and sphere-rig renders
+(directions anywhere, field of view 30-60 degrees, varied distance) for cameras off the turntable."""
 SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 """Stem of the shipped Sem2NeRF checkpoint (not a novel-view kind of the registry: ``shipped:sem2nerf``)."""
 
@@ -30,8 +32,11 @@ FIGURES = {
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
-    "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.185 (the objects-on-white "
+    "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.5 dB / LPIPS 0.159 (the objects-on-white "
                      "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~5 s per 128 px view on 2 CPU cores",
+    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.3 dB / LPIPS 0.269 (default model "
+                    "15.9 / 0.336, nearest view 15.2 / 0.259); on the 30-degree turntable 0.9 dB below the default; "
+                    "~1.0 s per 128 px view on 2 CPU cores",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
 object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy";
@@ -44,13 +49,13 @@ def _normal_name(name: str | None) -> str:
 
 def shipped_checkpoint(kind: str | None = None) -> Path:
     """Path of the shipped model file named ``kind``: a model kind or alias (None = the default model),
-    ``sem2nerf`` or a scene model of :data:`SHIPPED_SCENES`; :class:`InputError` if this copy of the package
+    ``sem2nerf`` or a named model of :data:`SHIPPED_NAMED`; :class:`InputError` if this copy of the package
     lacks it or ships no such model."""
     from .registry import kind as kind_of_name
 
     name = _normal_name(kind)
     named = {"sem2nerf": (SEM2NERF_NAME, "Sem2NeRF", "a checkpoint of `python -m blender_mrvm sem2nerf train`"),
-             **{n: (stem, n, "--checkpoint") for n, stem in SHIPPED_SCENES.items()}}
+             **{n: (stem, n, "--checkpoint") for n, stem in SHIPPED_NAMED.items()}}
     if name in named:
         stem, title, instead = named[name]
         p = ASSET_DIR / f"{stem}.safetensors"
