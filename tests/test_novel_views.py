@@ -6,6 +6,7 @@ missing), each leaving the scene as it was."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import types
@@ -384,6 +385,17 @@ def test_operator_synthesizes_through_the_worker(ready, tmp_path, monkeypatch):
     assert got.shape == (H, W, 4)
     assert np.array_equal(got, _reference_synthesis(job, tmp_path))
     assert not list(jobs.glob("mrvm_synth_*")), "the job folder is removed"
+
+
+def test_the_finish_message_carries_the_runs_viewpoint_note(tmp_path):
+    """What synthesis.json says about cameras off the default model's turntable reaches the status line."""
+    from blender_mrvm.operators import synthesize as S
+
+    assert S.run_note(tmp_path) == ""  # no synthesis.json
+    (tmp_path / "synthesis.json").write_text(json.dumps({"viewpoint_note": "use shipped:mrvm_anyview"}))
+    assert S.run_note(tmp_path) == "use shipped:mrvm_anyview"
+    (tmp_path / "synthesis.json").write_text("[1, 2")
+    assert S.run_note(tmp_path) == ""
 
 
 class _FakeWM:

@@ -370,3 +370,34 @@ def test_quality_preview_renders_half_the_samples_of_either_kind(setup, tmp_path
     assert registry.quality_overrides(g, "full") == {}
     with pytest.raises(InputError, match="quality"):
         registry.quality_overrides(g, "draft")
+
+
+def test_default_model_off_its_turntable_says_which_model_to_use(tmp_path, capsys):
+    """The default model was trained on a 30-degree turntable; asked about cameras well above or below it
+    (a sphere rig), synthesis says so in one line on stderr and in synthesis.json and names the any-view
+    model; on the turntable, and for any other checkpoint, it says nothing."""
+    from blender_mrvm.models.pretrained import default_checkpoint, shipped_or_none, viewpoint_note
+
+    if shipped_or_none(None) is None:
+        pytest.skip("this copy ships no default model")
+    centre = np.zeros(3)
+    at = lambda el: C.look_at_opencv(3.0 * np.array([np.cos(np.radians(el)), 0.0, np.sin(np.radians(el))]))  # noqa: E731
+    assert viewpoint_note(default_checkpoint(), [at(30), at(45), at(12)], centre) == ""
+    note = viewpoint_note(default_checkpoint(), [at(30), at(75), at(-40)], centre)
+    assert note.startswith("2 of 3 cameras sit -40 to 75 degrees") and "shipped:mrvm_anyview" in note
+    assert viewpoint_note(tmp_path / "other.safetensors", [at(75)], centre) == ""
+    assert viewpoint_note(shipped_or_none("mrvm_anyview"), [at(75)], centre) == ""
+    # Through the CLI: an analytic sphere-rig object with the default model.
+    data = make_sphere_dataset(tmp_path / "data", n_objects=1, n_views=6, resolution=16, seed=5, rig="sphere")
+    obj = data / "spheres" / "obj000"
+    ov = F.read_object(obj)
+    c = 0.5 * (np.asarray(ov.meta["bbox"][0]) + np.asarray(ov.meta["bbox"][1]))
+    el = [np.degrees(np.arcsin((p[2, 3] - c[2]) / np.linalg.norm(p[:3, 3] - c))) for p in ov.c2w_opencv]
+    assert max(abs(e - 30.0) for e in el) > 20.0  # the rig does leave the turntable
+    write_targets(tmp_path / "targets.json", S.targets_from_views(obj, [1, 2, 4, 5]))
+    out = tmp_path / "out"
+    assert main(["synthesize", "--references", str(obj), "--views", "0,3", "--targets", str(tmp_path / "targets.json"),
+                 "--out", str(out), "--device", "cpu", "--threads", "1", "--ref-size", "-1"]) == 0
+    rep = json.loads((out / "synthesis.json").read_text())
+    assert "shipped:mrvm_anyview" in rep["viewpoint_note"]
+    assert f"note: {rep['viewpoint_note']}" in capsys.readouterr().err

@@ -43,6 +43,34 @@ object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, R
 the capture model's a median of 3 room views with 2 threads)."""
 
 
+DEFAULT_ELEVATION_DEG = 30.0
+"""Where the default model's training cameras sit: the NMR turntable, 30 degrees above the object's centre
+(world z up). Off it the model degrades fast (RECIPE.md: sphere-rig views near-empty, 15.9 dB against 20.7
+on the turntable); ``mrvm_anyview`` is trained for cameras anywhere."""
+ELEVATION_TOLERANCE_DEG = 20.0
+"""How far from :data:`DEFAULT_ELEVATION_DEG` a camera may sit before :func:`viewpoint_note` speaks."""
+
+
+def viewpoint_note(checkpoint, c2ws, centre) -> str:
+    """A one-line hint when the default model is asked about cameras (``c2ws``: 4x4 camera-to-world, world z
+    up) more than :data:`ELEVATION_TOLERANCE_DEG` above or below its training turntable, seen from ``centre``;
+    '' for any other checkpoint or when every camera is near the turntable's elevation."""
+    import numpy as np
+
+    default = shipped_or_none(None)
+    if default is None or checkpoint is None or Path(checkpoint).resolve() != default.resolve():
+        return ""
+    d = np.stack([np.asarray(c, np.float64)[:3, 3] for c in c2ws]) - np.asarray(centre, np.float64)[None]
+    n = np.linalg.norm(d, axis=1)
+    el = np.degrees(np.arcsin(np.clip(d[n > 0, 2] / n[n > 0], -1.0, 1.0)))
+    off = np.abs(el - DEFAULT_ELEVATION_DEG) > ELEVATION_TOLERANCE_DEG
+    if not off.any():
+        return ""
+    return (f"{int(off.sum())} of {len(el)} cameras sit {el.min():.0f} to {el.max():.0f} degrees above the object, "
+            f"off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model was trained on; for such views "
+            "use shipped:mrvm_anyview (the panel's 'NeRFormer + MRVM, any viewpoint')")
+
+
 def _normal_name(name: str | None) -> str:
     return str(name or "").strip().lower().replace("-", "_")
 

@@ -18,6 +18,7 @@ see ``datasets/novel_views.py`` for the files). Steps:
 
 from __future__ import annotations
 
+import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -196,6 +197,15 @@ def run_job(context, job: SynthesisJob, interp) -> "ProgressGen":
     return SynthesisRun(job, job_dir, result.seconds)
 
 
+def run_note(out: Path) -> str:
+    """The hint a finished run left in its ``synthesis.json`` for the user (the default model asked about
+    cameras off its training turntable: ``models.pretrained.viewpoint_note``); '' if none."""
+    try:
+        return str(json.loads((Path(out) / "synthesis.json").read_text()).get("viewpoint_note", "") or "")
+    except (OSError, ValueError, AttributeError):
+        return ""
+
+
 def import_run(context, run: SynthesisRun) -> str:
     """Create the cameras and image planes of a finished run (all or nothing); the success message."""
     from ..scene.novel_views import import_results
@@ -203,11 +213,13 @@ def import_run(context, run: SynthesisRun) -> str:
     job = run.job
     try:
         res = import_results(context.scene, list(job.targets), run.job_dir / "out", job.planes, depth=job.depth)
+        note = run_note(run.job_dir / "out")
     finally:
         shutil.rmtree(run.job_dir, ignore_errors=True)
     made = sum(1 for t in job.targets if t.generated)
     return (f"{len(res.planes)} novel view{'s' if len(res.planes) != 1 else ''} in collection {res.collection.name!r}"
-            + (f" ({made} new cameras)" if made else "") + f", synthesized in {run.seconds:.1f} s")
+            + (f" ({made} new cameras)" if made else "") + f", synthesized in {run.seconds:.1f} s"
+            + (f". Note: {note}" if note else ""))
 
 
 class MRVM_OT_synthesize(ProgressOperator, bpy.types.Operator):

@@ -477,6 +477,8 @@ class SynthesisSummary:
     """[width, height] of the references as the model saw them."""
     background: dict = field(default_factory=dict)
     """What the references show and what the model rendered on (``models/background.py``)."""
+    viewpoint_note: str = ""
+    """The default model asked about cameras off its training turntable (``pretrained.viewpoint_note``)."""
 
 
 def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
@@ -523,6 +525,12 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     bg_note = for_rendering(model, refs.background)  # the data decides; a mismatch is said, never silent
     if bg_note:
         print(f"note: {bg_note}", file=sys.stderr)
+    from ..models.pretrained import viewpoint_note
+
+    centre = 0.5 * (np.asarray(refs.bbox[0], np.float64) + np.asarray(refs.bbox[1], np.float64))
+    view_note = viewpoint_note(ck_path, [*refs.c2w, *[t.c2w_opencv for t in targets]], centre)
+    if view_note:
+        print(f"note: {view_note}", file=sys.stderr)
     if len(refs.views) < model.min_ref_views:
         model.check_reference_count(len(refs.views))
     per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
@@ -533,7 +541,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
                                reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height],
                                background={"data": refs.background, "white_background": model.white_background,
-                                           "note": bg_note})
+                                           "note": bg_note}, viewpoint_note=view_note)
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
     encoded: dict[tuple[int, ...], Any] = {}
 
@@ -600,7 +608,7 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
             "quality": cfg.quality, "skip_empty": cfg.skip_empty,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
-            "background": s.background,
+            "background": s.background, "viewpoint_note": s.viewpoint_note,
             "rgb": ("RGBA PNG, opaque: the whole scene" if s.background.get("data") == "scene" else
                     "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)"),
             "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}"}
