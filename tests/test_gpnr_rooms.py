@@ -93,8 +93,10 @@ def test_old_configs_read_as_linear_and_render_bit_identically():
     stored = to_dict(cfg)
     stored.pop("depth_spacing")
     stored.pop("near")  # a config written before the fields existed
+    stored.pop("colour_filter")
     old = registry.config_from_dict("gpnr", stored)
-    assert old.depth_spacing == "linear"
+    assert old.depth_spacing == "linear" and old.colour_filter == "bilinear"  # the colour reads of then
+    assert registry.build_config("gpnr", "fast").colour_filter == "bicubic"  # new models read bicubic
     assert registry.config_from_dict("gpnr", to_dict(registry.build_config("gpnr", "fast"))).depth_spacing == "auto"
     # The shipped library model (written before the field) reads as linear.
     from blender_mrvm.training.config import init_model_config

@@ -103,11 +103,17 @@ def test_shipped_gpnr_checkpoint_format_config_and_render(sphere_scene):
     assert meta["model_kind"] == "gpnr" and meta["train_image_size"] == "64"
     run = json.loads((ASSET_DIR / "gpnr_shapenet13_all.json").read_text())
     model, cfg, _ = ckpt.load_model(path)
-    # The sidecar predates depth_spacing and the temperatures: read as a stored config, it is the model's.
     assert registry.kind_of(cfg) == "gpnr" and run["model"]["kind"] == "gpnr"
     assert cfg == registry.config_from_dict("gpnr", run["model"]["config"]) and cfg.depth_spacing == "linear"
-    assert {k: v for k, v in to_dict(cfg).items() if k in run["model"]["config"]} == run["model"]["config"]
     assert json.loads(meta["train_config"]) == run["train"] and int(meta["step"]) == run["train"]["iterations"]
+    # Trained with bilinear colour reads (its stage-1 run config predates colour_filter and the depth spacing:
+    # read as a stored config, it is what the code did then), shipped with bicubic ones.
+    import dataclasses
+
+    stage1 = json.loads((ASSET_DIR / "gpnr_shapenet13_all_stage1.json").read_text())
+    assert cfg.colour_filter == "bicubic" and "colour_filter" not in stage1["model"]["config"]
+    assert registry.config_from_dict("gpnr", stage1["model"]["config"]) == dataclasses.replace(cfg, colour_filter="bilinear")
+    assert stage1["train"] == run["train"]
     _, s = sphere_scene
     refs, tgt = [0, 1, 2, 4], 3
     out = model.synthesize(s.images[refs], [s.c2w[r] for r in refs], [s.intrinsics[r] for r in refs], s.bbox,

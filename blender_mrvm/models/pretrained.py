@@ -30,7 +30,7 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 FIGURES = {
     "nerformer_mrvm": "2 views 20.3 dB / LPIPS 0.215 (held-out 64 px objects; nearest view 0.234); "
                       "~1.0 s per 128 px view on 2 CPU cores",
-    "gpnr": "2 views 18.0 dB / LPIPS 0.315, 5 views 24.1 / 0.151 (held-out 64 px objects); ~1.7 s per 128 px view "
+    "gpnr": "2 views 18.0 dB / LPIPS 0.304, 5 views 24.4 / 0.136 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
     "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.5 dB / LPIPS 0.159 (the objects-on-white "
                      "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~5 s per 128 px view on 2 CPU cores",
