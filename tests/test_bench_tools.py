@@ -62,9 +62,10 @@ def test_sweep_moves_one_knob_at_a_time():
     assert sorted(gates) == [0.0, g / 10, 10 * g]  # off, a tenth of the default and 10x it
     g = tr.sweep("gpnr", registry.build_config("gpnr", "fast"), ["samples"], "cuda")
     assert {p.overrides["n_samples"] for p in g} == {12, 48}
-    assert not any(p.axis == "filter" for p in pts)  # a NeRFormer does not blend reference colours
-    g = tr.sweep("gpnr", registry.build_config("gpnr", "fast"), ["filter"], "cpu")
-    assert [p.overrides for p in g] == [{"colour_filter": "bicubic"}]
+    assert not any(p.axis == "filter" for p in pts)  # a GPNR setting
+    for own, other in (("bicubic", "bilinear"), ("bilinear", "bicubic")):  # the other read than the model's
+        g = tr.sweep("gpnr", registry.build_config("gpnr", "fast", {"colour_filter": own}), ["filter"], "cpu")
+        assert [p.overrides for p in g] == [{"colour_filter": other}]
     assert tr.ref_views(24, 2) == [3, 15] and len(set(tr.ref_views(24, 5))) == 5
 
 
