@@ -34,8 +34,8 @@ FIGURES = {
             "on 2 CPU cores; best with many nearby views",
     "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 31.5 dB / LPIPS 0.159 (the objects-on-white "
                      "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~5 s per 128 px view on 2 CPU cores",
-    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.3 dB / LPIPS 0.269 (default model "
-                    "15.9 / 0.336, nearest view 15.2 / 0.259); on the 30-degree turntable 0.9 dB below the default; "
+    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.4 dB / LPIPS 0.269 (default model "
+                    "15.9 / 0.336, nearest view 15.2 / 0.259); on the 30-degree turntable 0.7 dB below the default; "
                     "~1.0 s per 128 px view on 2 CPU cores",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
