@@ -106,7 +106,7 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
             pts.append(Point("gate", f"fine gate {v:g}" if v else "fine pass everywhere",
                              {"render": {"fine_min_acc": v}}))
     if "filter" in axes and kind == "gpnr":  # how reference colours are read (GPNR's colour is a blend of them)
-        other = "bilinear" if getattr(cfg, "colour_filter", "bilinear") == "bicubic" else "bicubic"
+        other = "bilinear" if cfg.colour_filter == "bicubic" else "bicubic"
         pts.append(Point("filter", f"{other} colour reads", {"colour_filter": other}))
     if "refs" in axes:
         pts += [Point("refs", f"{r} refs", refs=r) for r in (1, 5)]
