@@ -130,7 +130,7 @@ def test_recovered_capture_is_a_scene_gpnr_synthesizes_from(recovered):
     assert psnr(col) > near + 1.0
     from blender_mrvm.models.pretrained import shipped_or_none
 
-    # The model fine-tuned on capture-like rooms also beats the nearest photo here, but not the library model
+    # The model trained on capture-like rooms also beats the nearest photo here, but not the library model
     # (21.6 against 22.4 dB when written: this fine Voronoi ground at 80 px with recovered poses is unlike its
     # 64 px rooms, and its sharp epipolar weights commit to one depth; 21.6 again for the session-9 model);
     # on held-out rooms it is 4.7 dB ahead.
