@@ -384,7 +384,8 @@ def test_default_model_off_its_turntable_says_which_model_to_use(tmp_path, capsy
     at = lambda el: C.look_at_opencv(3.0 * np.array([np.cos(np.radians(el)), 0.0, np.sin(np.radians(el))]))  # noqa: E731
     assert viewpoint_note(default_checkpoint(), [at(30), at(45), at(12)], centre) == ""
     note = viewpoint_note(default_checkpoint(), [at(30), at(75), at(-40)], centre)
-    assert note.startswith("2 of 3 cameras sit -40 to 75 degrees") and "shipped:mrvm_anyview" in note
+    assert note.startswith("2 of 3 cameras are off the 30-degree turntable") and "(elevations -40 to 75 degrees)" in note
+    assert "shipped:mrvm_anyview" in note
     assert viewpoint_note(tmp_path / "other.safetensors", [at(75)], centre) == ""
     assert viewpoint_note(shipped_or_none("mrvm_anyview"), [at(75)], centre) == ""
     # Through the CLI: an analytic sphere-rig object with the default model.

@@ -66,8 +66,8 @@ def viewpoint_note(checkpoint, c2ws, centre) -> str:
     off = np.abs(el - DEFAULT_ELEVATION_DEG) > ELEVATION_TOLERANCE_DEG
     if not off.any():
         return ""
-    return (f"{int(off.sum())} of {len(el)} cameras sit {el.min():.0f} to {el.max():.0f} degrees above the object, "
-            f"off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model was trained on; for such views "
+    return (f"{int(off.sum())} of {len(el)} cameras are off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the "
+            f"default model was trained on (elevations {el.min():.0f} to {el.max():.0f} degrees); for such views "
             "use shipped:mrvm_anyview (the panel's 'NeRFormer + MRVM, any viewpoint')")
 
 
