@@ -168,7 +168,7 @@ def test_shipped_anyview_model_is_the_default_fine_tuned_for_cameras_anywhere(tm
     assert resolve_checkpoint("shipped:mrvm-anyview") == path and path.stat().st_size <= 25 * 1024 * 1024
     meta = ckpt.read_meta(path)
     model, cfg, _ = ckpt.load_model(path)
-    _, default_cfg, _ = ckpt.load_model(default_checkpoint())
+    default_model, default_cfg, _ = ckpt.load_model(default_checkpoint())
     assert cfg == default_cfg  # a fine-tune: the same network
     side = json.loads((ASSET_DIR / f"{stem}.json").read_text())
     assert json.loads(meta["train_config"]) == side["train"] and int(meta["step"]) == side["train"]["iterations"]
@@ -185,7 +185,6 @@ def test_shipped_anyview_model_is_the_default_fine_tuned_for_cameras_anywhere(tm
     refs, tgt = [0, 3], 1
     gt = torch.from_numpy(s.images[tgt])
     mean_col = torch.from_numpy(np.broadcast_to(s.images[refs].reshape(-1, 3).mean(0), gt.shape).copy())
-    default_model, _, _ = ckpt.load_model(default_checkpoint())
     p = {}
     for name, m in (("anyview", model), ("default", default_model)):
         out = m.synthesize(s.images[refs], [s.c2w[r] for r in refs], [s.intrinsics[r] for r in refs], s.bbox,
