@@ -131,9 +131,9 @@ def test_recovered_capture_is_a_scene_gpnr_synthesizes_from(recovered):
     from blender_mrvm.models.pretrained import shipped_or_none
 
     # The model trained on capture-like rooms also beats the nearest photo here, but not the library model
-    # (21.6 against 22.4 dB when written: this fine Voronoi ground at 80 px with recovered poses is unlike its
-    # 64 px rooms, and its sharp epipolar weights commit to one depth; 21.6 again for the session-9 model);
-    # on held-out rooms it is 4.7 dB ahead.
+    # (22.0 against 22.4 dB; 21.6 for the session-7 model: this fine Voronoi ground at 80 px with recovered
+    # poses is unlike its 64 px rooms, and its sharp epipolar weights commit to one depth); on held-out rooms
+    # it is 5.6 dB ahead.
     if shipped_or_none("gpnr_captures") is not None:
         room, _, _, _ = S.load_checkpoint("shipped:gpnr_captures")
         rc = room.synthesize(refs.images, refs.c2w, refs.intrinsics, refs.bbox, t.c2w_opencv, intr)["color"].numpy()
