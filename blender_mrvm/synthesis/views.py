@@ -548,7 +548,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     def context_for(target):
         keep = tuple(range(len(refs.views)))
         if per_target:
-            keep = nearest_views(refs.c2w, target.c2w_opencv, 0.5 * (refs.bbox[0] + refs.bbox[1]), model.max_ref_views)
+            keep = nearest_views(refs.c2w, target.c2w_opencv, centre, model.max_ref_views)
         if keep not in encoded:
             encoded.clear()
             sub = refs.subset(keep)
