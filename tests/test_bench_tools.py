@@ -113,6 +113,44 @@ def test_omp_policy_is_set_unless_the_user_chose(monkeypatch):
     assert worker.worker_env()["OMP_WAIT_POLICY"] == "PASSIVE"
 
 
+FAULTS = """
+import json, os, resource, sys
+import numpy as np
+from blender_mrvm import threads
+policy = threads.apply_malloc_defaults()
+def chunk():  # a chunk's forward pass: several blocks of a few MiB alive at once, then all freed
+    live = [np.ones(n << 18, np.float32) for n in (8, 4, 8, 2, 8, 4)]
+    del live
+chunk()
+f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(20):
+    chunk()
+print(json.dumps({"policy": policy, "faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0}))
+"""
+
+
+@pytest.mark.skipif(__import__("platform").libc_ver()[0] != "glibc", reason="glibc's mallopt")
+def test_malloc_thresholds_stop_chunk_sized_blocks_page_faulting_in_again():
+    """Freed blocks of a few MiB are reused, not given back to the kernel and faulted in again page by page."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    def run(**extra):
+        env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != threads.KEEP_MALLOC_ENV}
+        out = subprocess.run([sys.executable, "-c", FAULTS], env={**env, **extra}, capture_output=True, text=True,
+                             check=True, cwd=str(Path(threads.__file__).parents[1]))
+        return json.loads(out.stdout)
+
+    tuned, kept = run(), run(**{threads.KEEP_MALLOC_ENV: "1"})
+    assert tuned["policy"] == "tuned" and kept["policy"] == "glibc defaults"
+    assert kept["faults"] > 20 * 1000  # every block faulted in page by page
+    assert tuned["faults"] < 200
+    assert run(MALLOC_MMAP_THRESHOLD_="65536")["policy"] == "user's MALLOC_* environment"
+
+
 def test_auto_thread_count_leaves_a_core():
     assert [threads.auto_threads(c) for c in (1, 2, 3, 16)] == [1, 1, 2, 15]
     n = threads.set_torch_threads(0)

@@ -112,6 +112,7 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
     """One CSV row: a preset x size x reference count x precision."""
     import torch
 
+    from .. import threads
     from ..models import registry
 
     sec = statistics.median(times)
@@ -123,7 +124,7 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
         "device": device, "precision": prec,
         "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4), "fps": round(1.0 / sec, 2),
         "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
-        "chunk_rays": chunk_rays, "load_1min": round(os.getloadavg()[0], 2),
+        "chunk_rays": chunk_rays, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
         "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
         "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
         "points_evaluated": res["evaluated"] * pts_ray,

@@ -38,18 +38,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=3, help="timed renders per setting (median)")
 
 
-POLICIES = ("openmp default", "PASSIVE", "chunk workers (ours)")
+POLICIES = ("openmp default", "PASSIVE", "chunk workers (ours)", "chunk workers, glibc malloc")
+"""The last one is ours with glibc's own malloc thresholds (``threads.apply_malloc_defaults`` skipped): the
+page faults of freed and re-mapped chunk tensors."""
 
 
 def _one(policy: str, threads: int, args) -> float:
-    from ..threads import KEEP_ENV
+    from ..threads import KEEP_ENV, KEEP_MALLOC_ENV
 
     env = dict(os.environ)
     env.pop("OMP_WAIT_POLICY", None)
+    env.pop(KEEP_ENV, None)
+    env.pop(KEEP_MALLOC_ENV, None)
     if policy == "openmp default":
         env[KEEP_ENV] = "1"
-    else:
-        env.pop(KEEP_ENV, None)
+    if policy.endswith("glibc malloc"):
+        env[KEEP_MALLOC_ENV] = "1"
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "blender_mrvm", "bench", "model", "--presets", args.preset, "--views",
                str(args.views), "--sizes", str(args.size), "--repeats", str(args.repeats), "--out", tmp]

@@ -203,6 +203,7 @@ def pareto(rows: list[dict], cost: str, loss: str) -> list[dict]:
 def run(args) -> int:
     import torch
 
+    from .. import threads
     from ..datasets.loaders import list_objects, load_object
     from ..errors import InputError
     from ..models import registry
@@ -252,7 +253,7 @@ def run(args) -> int:
                    "quality": "measured" if pt.quality else "same numbers as 'as trained' (chunking only)",
                    "objects": len(scenes), "targets_per_object": args.targets,
                    "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers,
-                   "device": args.device, "load_1min": round(os.getloadavg()[0], 2),
+                   "device": args.device, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
                    "cpu": platform.processor() or platform.machine(), "torch": torch.__version__}
             rows.append(row)
             print(f"{kind:15s} {pt.axis:9s} {pt.label:16s} {speed['seconds_per_view']:7.3f} s/view "
