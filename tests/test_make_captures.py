@@ -93,6 +93,7 @@ def test_held_out_views_and_their_neighbours():
     (["--shard", "2/2"], "shard"),
     (["--samples", "0"], "--samples"),
     (["--seed", "-1"], "--seed"),
+    (["--denoise", "--engine", "BLENDER_WORKBENCH"], "--denoise is a Cycles option"),
 ])
 def test_bad_arguments_are_one_line_errors_with_nothing_written(tmp_path, capsys, argv, match):
     out = tmp_path / "caps"
@@ -184,6 +185,30 @@ def test_capture_seeds_are_deterministic(tiny, tmp_path, bpy_empty):
         assert np.array_equal(F.read_png(a / "rgb" / f"{v:06d}.png"), F.read_png(b / "rgb" / f"{v:06d}.png"))
     m3 = json.loads((tiny / "captures" / "scene_000003" / "meta.json").read_text())
     assert m3["path"] != ma["path"] and m3["subject"] != ma["subject"]
+
+
+def test_denoise_renders_the_same_scene_without_the_sampling_noise(tiny, tmp_path, bpy_empty):
+    """--denoise: the same cameras and room, the speckle of 2 samples a pixel smoothed away (OpenImageDenoise)."""
+    from blender_mrvm.datasets import format as F
+
+    out = tmp_path / "clean"
+    assert main(["make-captures", "--scenes", "1", "--views", "6", "--resolution", "24", "--samples", "2",
+                 "--seed", "4", "--denoise", "--out", str(out)]) == 0
+    a, b = tiny / "captures" / "scene_000004", out / "captures" / "scene_000004"
+    mb = json.loads((b / "meta.json").read_text())
+    assert mb["render"]["denoise"] == "OpenImageDenoise" and mb["path"] == json.loads((a / "meta.json").read_text())["path"]
+
+    def speckle(img):  # mean absolute Laplacian: pixel-to-pixel noise
+        x = img.astype(np.float32).mean(-1)
+        return np.abs(4 * x[1:-1, 1:-1] - x[:-2, 1:-1] - x[2:, 1:-1] - x[1:-1, :-2] - x[1:-1, 2:]).mean()
+
+    noisy = [speckle(F.read_png(a / "rgb" / f"{v:06d}.png")) for v in range(6)]
+    clean = [speckle(F.read_png(b / "rgb" / f"{v:06d}.png")) for v in range(6)]
+    assert all(c < 0.7 * n for c, n in zip(clean, noisy)), (clean, noisy)
+    # the scene is the same: the mean colour of each view barely moves
+    for v in range(6):
+        ia, ib = (F.read_png(d / "rgb" / f"{v:06d}.png").astype(np.float32) for d in (a, b))
+        assert abs(ia.mean() - ib.mean()) < 8
 
 
 def test_eval_scores_each_held_out_view_from_its_neighbours(tiny):

@@ -31,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="horizontal field of view per scene, degrees (default 45,65)")
     p.add_argument("--engine", default="CYCLES", type=str.upper, help="CYCLES (default), BLENDER_EEVEE or BLENDER_WORKBENCH")
     p.add_argument("--samples", type=int, default=32, help="samples per pixel (default 32)")
+    p.add_argument("--denoise", action="store_true",
+                   help="Cycles: denoise each view (OpenImageDenoise), so the images carry no Monte Carlo noise a "
+                   "photo would not have; off by default (the recorded capture sets were rendered without)")
     p.add_argument("--seed", type=int, default=0, help="scene k is drawn from seed + k (default 0)")
     p.add_argument("--shard", default="0/1", help="i/n: render only this deterministic share of the scenes")
     p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")
@@ -45,7 +48,7 @@ def config_fields(args) -> dict:
 
     return {"out": Path(args.out), "scenes": args.scenes, "views": args.views,
             "resolution": parse_resolution(args.resolution), "engine": args.engine, "samples": args.samples,
-            "seed": args.seed, "holdout_every": args.holdout_every,
+            "denoise": args.denoise, "seed": args.seed, "holdout_every": args.holdout_every,
             "fov_range_deg": parse_range(args.fov_range, "--fov-range", 0.0, 179.0),
             "shard": parse_shard(args.shard), "force": args.force}
 
