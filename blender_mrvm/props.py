@@ -20,7 +20,7 @@ MODEL_KINDS = [
 """The model kinds (``models/registry.py``) the panel offers."""
 
 SHIPPED_MODELS = MODEL_KINDS + [
-    ("gpnr_captures", "GPNR for rooms and captures", "GPNR fine-tuned on capture-like rooms: for scenes and photo "
+    ("gpnr_captures", "GPNR for rooms and captures", "GPNR trained on capture-like rooms: for scenes and photo "
                                                      "captures (Recover Poses), not objects on white"),
     ("mrvm_anyview", "NeRFormer + MRVM, any viewpoint", "The default model fine-tuned on sphere-rig renders too: "
                      "for cameras above, below or nearer than the 30-degree turntable (slightly worse on it)"),

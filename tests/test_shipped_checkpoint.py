@@ -125,7 +125,7 @@ def test_shipped_gpnr_checkpoint_format_config_and_render(sphere_scene):
 
 
 def test_shipped_capture_model_resolves_or_says_so():
-    """'shipped:gpnr_captures' (the panel's "GPNR for rooms and captures") names a GPNR model fine-tuned on
+    """'shipped:gpnr_captures' (the panel's "GPNR for rooms and captures") names a GPNR model trained on
     capture-like rooms: small, kind gpnr, spacing its depths for scenes, its sidecar the file's config and
     training; a copy without it says so in one line."""
     from blender_mrvm.errors import InputError
