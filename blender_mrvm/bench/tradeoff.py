@@ -173,17 +173,13 @@ def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: 
 
 
 def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str, workers: int = 1) -> dict:
+    from ..progress import run_to_end
     from ..training.evaluate import evaluate
 
     gen = evaluate(model, scenes, ref_views(len(scenes[0]), pt.refs), lpips, max_targets=targets,
                    chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip, workers=workers)
     with _autocast(pt.precision, device):
-        while True:
-            try:
-                next(gen)
-            except StopIteration as stop:
-                rep = stop.value
-                break
+        rep = run_to_end(gen)
     o = rep["overall"]
     return {k: round(float(o[k]), 4) for k in ("psnr", "ssim", "lpips") if o.get(k) is not None}
 
