@@ -60,9 +60,12 @@ def test_sweep_moves_one_knob_at_a_time():
     gates = [p.overrides["render"]["fine_min_acc"] for p in pts if p.axis == "gate"]
     g = cfg.render.fine_min_acc
     assert sorted(gates) == [0.0, g / 10, 10 * g]  # off, a tenth of the default and 10x it
+    stops = [p.overrides["render"]["stop_transmittance"] for p in pts if p.axis == "stop"]
+    assert sorted(stops) == [1e-3, 1e-2, 0.1]  # the model's own (off) is the base point
     g = tr.sweep("gpnr", registry.build_config("gpnr", "fast"), ["samples"], "cuda")
     assert {p.overrides["n_samples"] for p in g} == {12, 48}
     assert not any(p.axis == "filter" for p in pts)  # a GPNR setting
+    assert not tr.sweep("gpnr", registry.build_config("gpnr", "fast"), ["stop"], "cpu")  # a NeRFormer setting
     for own, other in (("bicubic", "bilinear"), ("bilinear", "bicubic")):  # the other read than the model's
         g = tr.sweep("gpnr", registry.build_config("gpnr", "fast", {"colour_filter": own}), ["filter"], "cpu")
         assert [p.overrides for p in g] == [{"colour_filter": other}]

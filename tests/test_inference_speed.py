@@ -86,3 +86,71 @@ def test_render_workers_use_every_core_with_one_torch_thread_each():
         assert threads.render_workers(0) == threads.usable_cores() >= 1
     finally:
         torch.set_num_threads(before)
+
+
+def test_stop_counts_cut_each_ray_where_the_coarse_light_runs_out():
+    from blender_mrvm.models.samplers import stop_counts
+
+    t_c = torch.tensor([[0.0, 1.0, 2.0, 3.0]] * 3)
+    trans = torch.tensor([[1.0, 0.5, 1e-4, 1e-6],   # stops at the coarse sample at 2.0
+                          [1.0, 0.9, 0.8, 0.7],      # never stops
+                          [1e-4, 1e-5, 1e-6, 1e-7]])  # stops at once: still one quantum evaluated
+    t_f = torch.linspace(0.0, 3.5, 8).expand(3, 8)  # 0, 0.5, ..., 3.5
+    keep = stop_counts(t_c, trans, t_f, 1e-3)
+    assert keep.tolist() == [4, 8, 1]  # 0, 0.5, 1.0, 1.5 lie in front of 2.0
+    assert stop_counts(t_c, trans, t_f, 1e-3, quantum=3).tolist() == [6, 8, 3]  # rounded up, at most all
+    assert stop_counts(t_c, trans, t_f, 0.0) is None  # off
+    assert stop_counts(t_c[1:2], trans[1:2], t_f[1:2], 1e-3) is None  # nothing to skip
+
+
+@pytest.mark.parametrize("arch", ["legacy", "nerformer"])
+def test_early_stop_skips_the_samples_behind_an_opaque_coarse_pass(arch):
+    """With ray attention made the identity (no coupling along the ray), early termination must give exactly
+    the full fine pass with the skipped samples emptied: the kept samples' fields unchanged, the skipped ones
+    a suffix of each ray behind its coarse stop point, and the sample count what was evaluated."""
+    model, imgs, poses, intr, _, bbox, target = model_and_scene()
+    base = merge(model.cfg, {"nerformer": {"arch": arch}, "render": {"fine_min_acc": 0.0, "density_bias": 8.0},
+                             "sampler": {"n_coarse": 8, "n_fine": 8, "fine_includes_coarse": True}})
+    torch.manual_seed(0)
+    model = registry.build_model(base).eval()
+    with torch.no_grad():
+        for br in (model.coarse, model.fine):
+            for rb in br.ray_blocks:  # a residual block with zero outputs is the identity
+                for lin in (rb.attn.out, rb.ffn[2]):
+                    lin.weight.zero_()
+                    lin.bias.zero_()
+    ctx, rays = _rays_and_context(model, imgs, poses, intr, bbox, target)
+    seen = []
+    render = model._render
+    model._render = lambda sigma, rgb, t, far: seen.append((sigma.clone(), t)) or render(sigma, rgb, t, far)
+    with torch.no_grad():
+        full = model.render_rays(ctx, rays)
+        sig_full, t_full = seen[-1]
+        model.cfg = merge(base, {"render": {"stop_transmittance": 1e-3}})
+        cut = model.render_rays(ctx, rays)
+        sig_cut, t_cut = seen[-1]
+    R, S = t_full.shape
+    assert torch.equal(t_cut, t_full)
+    kept = sig_cut > 0
+    n_kept = kept.sum(-1)
+    assert cut["samples"] == R * 8 + int(n_kept.sum()) < full["samples"] == R * (8 + S)
+    assert (n_kept < S).float().mean() > 0.3, "the test scene should stop many rays"
+    assert torch.equal(kept, torch.arange(S)[None] < n_kept[:, None]), "skipped samples are a suffix of each ray"
+    assert torch.allclose(sig_cut[kept], sig_full[kept], rtol=1e-5, atol=1e-5)
+    trans = full["coarse"]["transmittance"]
+    stopped = n_kept < S
+    t_stop = torch.gather(full["coarse"]["t"], 1, (trans < 1e-3).float().argmax(-1, keepdim=True))[:, 0]
+    assert (t_full[stopped, :][~kept[stopped]] >= t_stop[stopped, None].expand(-1, S)[~kept[stopped]]).all()
+    # what is lost is the light behind the stop point, which the fine pass too sees as (almost) none
+    assert (cut["color"] - full["color"]).abs().max() < 0.02
+    # training never stops early
+    model.train()
+    tr = model.render_rays(ctx, rays, train=True, generator=torch.Generator().manual_seed(0))
+    assert tr["samples"] == R * (8 + S)
+
+
+def test_stop_transmittance_bad_values():
+    model = model_and_scene()[0]
+    for bad in (-1e-3, 1.0):
+        with pytest.raises(InputError, match="stop_transmittance"):
+            validate(merge(model.cfg, {"render": {"stop_transmittance": bad}}))

@@ -9,6 +9,8 @@ own setting one knob at a time, at inference (the weights stay; every point is a
 - ``precision``: fp32, bf16 autocast (and fp16 on a GPU);
 - ``gate``: NeRFormer's fine pass skipped on rays whose coarse opacity is below ``render.fine_min_acc``
   (off, a tenth of the default and 10x it);
+- ``stop``: NeRFormer's early ray termination (``render.stop_transmittance`` 1e-3, 1e-2, 0.1): the fine pass
+  skips a ray's samples behind the point the coarse pass says almost no light reaches;
 - ``skip``: box clipping only, visual-hull culling (``models/hull.py``), hull tightening;
 - ``chunk``: rays per forward pass (time and memory only: the numbers are the same).
 
@@ -46,7 +48,7 @@ import numpy as np
 
 from . import PeakMemory, write_csv
 
-AXES = ("base", "samples", "gate", "filter", "refs", "ref_size", "precision", "skip", "chunk")
+AXES = ("base", "samples", "gate", "stop", "filter", "refs", "ref_size", "precision", "skip", "chunk")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -105,6 +107,10 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
         for v in sorted({0.0, g / 10 if g > 0 else 1e-3, 10 * g if g > 0 else 1e-2} - {g}):
             pts.append(Point("gate", f"fine gate {v:g}" if v else "fine pass everywhere",
                              {"render": {"fine_min_acc": v}}))
+    if "stop" in axes and kind != "gpnr":
+        st = float(cfg.render.stop_transmittance)
+        for v in sorted({0.0, 1e-3, 1e-2, 0.1} - {st}):
+            pts.append(Point("stop", f"stop at T {v:g}" if v else "no early stop", {"render": {"stop_transmittance": v}}))
     if "filter" in axes and kind == "gpnr":  # how reference colours are read (GPNR's colour is a blend of them)
         other = "bilinear" if cfg.colour_filter == "bicubic" else "bicubic"
         pts.append(Point("filter", f"{other} colour reads", {"colour_filter": other}))
@@ -169,7 +175,8 @@ def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: 
     sec = statistics.median(walls)
     return {"seconds_per_view": round(sec, 4), "cpu_seconds_per_view": round(statistics.median(cpus), 4),
             "rays_total": res["rays"], "rays_box": res["box_rays"], "rays_evaluated": res["evaluated"],
-            "rays_per_s": round(res["evaluated"] / sec, 1), "peak_extra_mib": round(max(peaks), 1)}
+            "rays_per_s": round(res["evaluated"] / sec, 1), "peak_extra_mib": round(max(peaks), 1),
+            "samples_per_ray": round(res.get("samples", 0) / max(1, res["evaluated"]), 2) if res.get("samples") else ""}
 
 
 def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str, workers: int = 1) -> dict:

@@ -155,7 +155,8 @@ class RayModel(nn.Module):
         (misses first, then every chunk), returns dict(color (H, W, 3) on the background, acc (H, W),
         depth (H, W) distance from the camera along the ray to the expected surface (0 where acc = 0),
         rays, box_rays (rays that cross the box), evaluated (rays the model rendered), span (mean
-        share of each evaluated ray's box length left to sample)).
+        share of each evaluated ray's box length left to sample), samples (points the model evaluated, where
+        its ``render_rays`` counts them in ``"samples"``; 0 otherwise)).
 
         ``hull`` (:class:`models.hull.Hull`) with ``skip`` "cull" or "tighten": empty-space skipping
         inside the box (``models/hull.py``).
@@ -172,7 +173,7 @@ class RayModel(nn.Module):
         acc = torch.zeros(n)
         chunk = int(chunk or self.chunk_rays)
         keep = footprint(hull, intr, c2w_norm) if hull is not None and skip != "off" else None
-        box_rays = evaluated = 0
+        box_rays = evaluated = samples = 0
         span = 0.0
         rows = max(1, RAY_BLOCK // W)  # rays are made a block of rows at a time: memory does not grow with the view
         workers = int(workers) if self.device.type == "cpu" else 1  # a GPU takes one chunk at a time
@@ -194,12 +195,13 @@ class RayModel(nn.Module):
                 color[out] = o["color"].float().cpu()
                 acc[out] = a.cpu()
                 depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
+                samples += int(o.get("samples", 0))
                 yield sel.numel()
             evaluated += int(idx.numel())
             span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
         span = span / evaluated if evaluated else 0.0
         return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
-                "rays": n, "box_rays": box_rays, "evaluated": evaluated, "span": span}
+                "rays": n, "box_rays": box_rays, "evaluated": evaluated, "span": span, "samples": samples}
 
     def _chunk_results(self, ctx, rays: RayBundle, sels: list, workers: int):
         """(sel, rays, outputs) of each chunk of ray indices in ``sels``, in order. With ``workers`` > 1 they

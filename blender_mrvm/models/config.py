@@ -134,6 +134,10 @@ class RenderConfig:
     (empty space the hull did not cull); 0 runs the fine pass on every ray. Training always runs it. The
     shipped `balanced` model on 13 held-out objects x 3 views: PSNR 19.024 / LPIPS 0.291 at 0.01 and
     19.022 / 0.292 with the fine pass everywhere, for 25% less CPU (``bench tradeoff --axes gate``)."""
+    stop_transmittance: float = 0.0
+    """Inference only: early ray termination in the fine pass. A ray's fine samples behind its first coarse
+    sample that less than this share of the light reaches are not evaluated (``samplers.stop_counts``); 0
+    evaluates them all. Training always does."""
 
 
 @dataclass(frozen=True)
@@ -266,6 +270,8 @@ def validate(cfg: ModelConfig) -> None:
         raise InputError(f"nerformer.d_model ({n.d_model}) must be divisible by n_heads ({n.n_heads})")
     if not 0.0 <= cfg.render.fine_min_acc < 1.0:
         raise InputError(f"render.fine_min_acc must be in [0, 1), got {cfg.render.fine_min_acc}")
+    if not 0.0 <= cfg.render.stop_transmittance < 1.0:
+        raise InputError(f"render.stop_transmittance must be in [0, 1), got {cfg.render.stop_transmittance}")
     if cfg.sampler.n_coarse < 1 or cfg.sampler.n_fine < 0:
         raise InputError("sampler.n_coarse must be >= 1 and n_fine >= 0")
     if cfg.encoder.backbone not in ("resnet", "vgg16"):

@@ -116,11 +116,8 @@ class GeneralizableNeRF(RayModel):
     def _branch(self, branch: NeRFormerBranch, gathered, t, far, view_mask=None):
         inputs, valid, rgb = gathered
         out = branch(inputs, valid, rgb, t, view_mask)
-        sigma = activate_density(out["sigma_raw"], self.cfg.render.density_activation, self.cfg.render.density_bias)
-        ren = volume_render(sigma, out["rgb"], t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
+        ren = self._render(*self._fields(out), t, far)
         ren["latent"] = out["latent"]
-        ren["t"] = t
-        ren["depth_exp"] = (ren["weights"] * t.float()).sum(-1) / ren["acc"].clamp_min(1e-8)
         return ren
 
     def render_rays(self, ctx: Context, rays: RayBundle, train: bool = False, mask_views: bool = False,
@@ -136,13 +133,16 @@ class GeneralizableNeRF(RayModel):
         o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
         t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
         coarse = self._branch(self.coarse, self._gather(ctx, o_c, d_c, dirs, t_c), t_c, far)
-        out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0}
+        out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0, "samples": R * t_c.shape[1]}
         sel = self._fine_rays(coarse, train)
         if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
-            if sel.numel():
-                sub, _ = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
-                g = self._gather(ctx, o_c[:, sel], d_c[:, sel], dirs[sel], sub)
-                out["fine"] = merge_rays(coarse, self._branch(self.fine, g, sub, far[sel]), sel)
+
+            def fields(rows, t):
+                idx = sel[rows]
+                inputs, valid, rgb = self._gather(ctx, o_c[:, idx], d_c[:, idx], dirs[idx], t)
+                return self.fine(inputs, valid, rgb, t)
+
+            self._fine_at_inference(out, t_c, far, sel, fields)
         elif sc.n_fine > 0:
             t_all, _ = self._fine_samples(coarse["weights"], t_c, far, train, generator)
             g = self._gather(ctx, o_c, d_c, dirs, t_all)
@@ -152,6 +152,7 @@ class GeneralizableNeRF(RayModel):
                                                       device=t_all.device)
             fine = self._branch(self.fine, g, t_all, far, view_mask)
             out["fine"] = fine
+            out["samples"] += t_all.numel()
             if mask_views:
                 with torch.no_grad():
                     target = self.coarse(g[0], g[1], g[2], t_all)["latent"]
@@ -160,13 +161,60 @@ class GeneralizableNeRF(RayModel):
         return self._finish(out, rays)
 
     def _fine_rays(self, coarse: dict, train: bool) -> torch.Tensor | None:
-        """At inference, the rays (indices) whose coarse opacity reaches ``render.fine_min_acc``, when that
-        leaves some out; None means the fine pass runs on every ray (training, the switch off, all busy)."""
-        thr = self.cfg.render.fine_min_acc
-        if train or thr <= 0 or self.cfg.sampler.n_fine == 0:
+        """At inference, the rays (indices) that take the fine pass: those whose coarse opacity reaches
+        ``render.fine_min_acc`` (every ray when that is 0; may be empty). None in training, or without a fine
+        pass: the fine pass then runs on every ray, at every sample."""
+        if train or self.cfg.sampler.n_fine == 0:
             return None
-        busy = coarse["acc"] >= thr
-        return None if bool(busy.all()) else torch.nonzero(busy).flatten()  # may be empty: no fine pass
+        thr = self.cfg.render.fine_min_acc
+        busy = coarse["acc"] >= thr if thr > 0 else torch.ones_like(coarse["acc"], dtype=torch.bool)
+        return torch.nonzero(busy).flatten()
+
+    def _fine_at_inference(self, out: dict, t_c, far, sel: torch.Tensor, fields) -> None:
+        """The fine pass of rays ``sel`` at inference, into ``out["fine"]`` (the coarse result elsewhere) and
+        ``out["samples"]``. ``fields(rows, t)`` is the fine branch's output at samples ``t`` (n, s) of rays
+        ``sel[rows]``. When every ray took the whole fine pass, ``out["fine"]`` keeps its per-sample outputs
+        (weights, transmittance, latent features), as in training.
+
+        Early ray termination (``render.stop_transmittance`` > 0, :func:`samplers.stop_counts`): a ray's samples
+        behind the first coarse sample reached by less light than that are not evaluated and render empty
+        (their tiny share of the light goes to the background); rays are evaluated in groups of equal kept
+        length (a multiple of an eighth of the samples), so no Python loop runs over rays. Ray attention sees
+        only the kept samples, so the fine colour is not bit-identical: ``bench tradeoff --axes stop``
+        measures the samples skipped, the time saved and the quality."""
+        coarse = out["coarse"]
+        if not sel.numel():
+            return
+        far_s = far[sel]
+        sub, _ = self._fine_samples(coarse["weights"][sel], t_c[sel], far_s, False, None)
+        n, S = sub.shape
+        keep = samplers.stop_counts(t_c[sel], coarse["transmittance"][sel], sub, self.cfg.render.stop_transmittance,
+                                    quantum=max(1, S // 8))
+        if keep is None:
+            f = fields(torch.arange(n, device=sub.device), sub)
+            fine = self._render(*self._fields(f), sub, far_s)
+            fine["latent"] = f["latent"]
+            out["samples"] += n * S
+        else:
+            sigma, rgb = sub.new_zeros(n, S), sub.new_zeros(n, S, 3)
+            for s in torch.unique(keep).tolist():
+                rows = torch.nonzero(keep == s).flatten()
+                sg, cl = self._fields(fields(rows, sub[rows, :s]))
+                sigma[rows, :s], rgb[rows, :s] = sg.float(), cl.float()
+            fine = self._render(sigma, rgb, sub, far_s)
+            out["samples"] += int(keep.sum())
+        out["fine"] = fine if keep is None and n == len(far) else merge_rays(coarse, fine, sel)
+
+    def _fields(self, branch_out: dict):
+        """A branch's activated density and colour."""
+        cfg = self.cfg.render
+        return activate_density(branch_out["sigma_raw"], cfg.density_activation, cfg.density_bias), branch_out["rgb"]
+
+    def _render(self, sigma, rgb, t, far) -> dict:
+        ren = volume_render(sigma, rgb, t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
+        ren["t"] = t
+        ren["depth_exp"] = (ren["weights"] * t.float()).sum(-1) / ren["acc"].clamp_min(1e-8)
+        return ren
 
     def _fine_samples(self, weights, t_c, far, train: bool, generator):
         """The fine pass's sample distances and their sort order: importance samples of the coarse weights,
@@ -208,11 +256,8 @@ class GeneralizableNeRF(RayModel):
 
     def _branch_streams(self, branch: StreamBranch, g: dict, t, far, view_mask=None):
         out = branch(**g, view_mask=view_mask)
-        sigma = activate_density(out["sigma_raw"], self.cfg.render.density_activation, self.cfg.render.density_bias)
-        ren = volume_render(sigma, out["rgb"], t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
+        ren = self._render(*self._fields(out), t, far)
         ren["latent"] = out["latent"]
-        ren["t"] = t
-        ren["depth_exp"] = (ren["weights"] * t.float()).sum(-1) / ren["acc"].clamp_min(1e-8)
         return ren
 
     def _render_streams(self, ctx: Context, rays: RayBundle, train: bool, mask_views: bool,
@@ -229,13 +274,15 @@ class GeneralizableNeRF(RayModel):
         o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
         t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
         coarse = self._branch_streams(self.coarse, self._gather_streams(ctx, o_c, d_c, t_c, origins, dirs), t_c, far)
-        out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0}
+        out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0, "samples": R * t_c.shape[1]}
         sel = self._fine_rays(coarse, train)
         if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
-            if sel.numel():
-                sub, _ = self._fine_samples(coarse["weights"][sel], t_c[sel], far[sel], train, generator)
-                g = self._gather_streams(ctx, o_c[:, sel], d_c[:, sel], sub, origins[sel], dirs[sel])
-                out["fine"] = merge_rays(coarse, self._branch_streams(self.fine, g, sub, far[sel]), sel)
+
+            def fields(rows, t):
+                idx = sel[rows]
+                return self.fine(**self._gather_streams(ctx, o_c[:, idx], d_c[:, idx], t, origins[idx], dirs[idx]))
+
+            self._fine_at_inference(out, t_c, far, sel, fields)
         elif sc.n_fine > 0:
             t_all, order = self._fine_samples(coarse["weights"], t_c, far, train, generator)
             g = self._gather_streams(ctx, o_c, d_c, t_all, origins, dirs)
@@ -244,6 +291,7 @@ class GeneralizableNeRF(RayModel):
                 point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), mc, generator, device=t_all.device)
             fine = self._branch_streams(self.fine, g, t_all, far, view_mask)
             out["fine"] = fine
+            out["samples"] += t_all.numel()
             if mask_views:
                 if mc.target == "coarse":  # validated: the fine pass holds the coarse samples
                     pos = coarse_positions(order, sc.n_coarse)  # (R, n_coarse) index of each coarse sample in t_all

@@ -91,3 +91,26 @@ def sample_pdf(edges: torch.Tensor, weights: torch.Tensor, n: int, deterministic
                        torch.zeros_like(denom))
     out = b0 + frac.clamp(0.0, 1.0) * (b1 - b0)
     return torch.sort(out, dim=-1).values
+
+
+def stop_counts(t_coarse: torch.Tensor, trans_coarse: torch.Tensor, t_fine: torch.Tensor, min_trans: float,
+                quantum: int = 1) -> torch.Tensor | None:
+    """Early ray termination: how many of each ray's sorted fine-pass samples to evaluate.
+
+    ``trans_coarse`` (R, Sc) is the coarse pass's transmittance at its samples ``t_coarse`` (R, Sc) (the light
+    that reaches each one). A ray stops at its first coarse sample reached by less than ``min_trans``: what
+    lies there and beyond adds less than ``min_trans`` to its colour by the coarse pass's account. Returns
+    (R,) counts of the fine samples ``t_fine`` (R, S, sorted) in front of that point, rounded up to a multiple
+    of ``quantum`` (so rays fall into few groups of equal length), at least one quantum and at most S; None
+    when every ray keeps all S (nothing to skip) or ``min_trans`` is 0 (off)."""
+    R, S = t_fine.shape
+    if min_trans <= 0 or R == 0 or S == 0:
+        return None
+    stopped = trans_coarse < min_trans
+    first = torch.where(stopped.any(-1), stopped.float().argmax(-1), torch.full((R,), -1, device=t_fine.device))
+    t_stop = torch.where(first >= 0, torch.gather(t_coarse, 1, first.clamp_min(0)[:, None])[:, 0],
+                         torch.full((R,), float("inf"), device=t_fine.device, dtype=t_coarse.dtype))
+    keep = (t_fine < t_stop[:, None]).sum(-1)
+    q = max(1, int(quantum))
+    keep = ((keep + q - 1) // q * q).clamp(min(q, S), S)
+    return None if bool((keep == S).all()) else keep
