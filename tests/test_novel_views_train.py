@@ -195,6 +195,12 @@ def test_write_job_opacity_loss_only_with_masks(train_ready, tmp_path):
     assert doc(tmp_path / "b")["opacity_weight"] == 0.0
     T.write_job(T.TrainJob(**{**job.__dict__, "continued": {"opacity_weight": 0.0, "lr": 5e-4}}), tmp_path / "c")
     assert doc(tmp_path / "c")["opacity_weight"] == 0.0 and doc(tmp_path / "c")["lr"] == 5e-4
+    import dataclasses
+
+    from blender_mrvm.training.config import TrainConfig
+
+    losses = {f.name for f in dataclasses.fields(TrainConfig) if f.name.endswith("_weight")}
+    assert losses <= set(T.CONTINUED_SETTINGS)  # a continued run trains with the losses it started with
 
 
 def test_cli_and_panel_fine_tune_with_one_policy(train_ready, tmp_path):

@@ -388,3 +388,44 @@ def test_lpips_patch_training(tmp_path, data):
         replace(tcfg, patch_scale_min=0.0)
     with pytest.raises(InputError, match="lpips_weight"):
         replace(tcfg, lpips_weight=-1.0)
+
+
+def test_distortion_loss(tmp_path, data):
+    """Mip-NeRF 360's distortion loss: the brute-force double sum, 0 for an empty ray, lower for weight in one
+    short interval than for the same weight in two layers apart, independent of the box's scale; the trainer
+    adds and logs it for density models and refuses it for GPNR, which has no density."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models import registry
+    from blender_mrvm.training.trainer import distortion_loss
+
+    g = torch.Generator().manual_seed(0)
+    t = torch.sort(torch.rand(3, 6, generator=g) * 2, -1).values
+    far = torch.tensor([2.0, 2.5, 3.0])
+    w = torch.rand(3, 6, generator=g) / 6
+    ref = []
+    for r in range(3):
+        e = list((t[r] / far[r]).tolist()) + [1.0]
+        mid = [(e[i] + e[i + 1]) / 2 for i in range(6)]
+        ln = [e[i + 1] - e[i] for i in range(6)]
+        ref.append(sum(w[r, i] * w[r, j] * abs(mid[i] - mid[j]) for i in range(6) for j in range(6))
+                   + sum(w[r, i] ** 2 * ln[i] for i in range(6)) / 3)
+    assert float(distortion_loss(w, t, far)) == pytest.approx(float(sum(ref) / 3), rel=1e-5)
+    assert float(distortion_loss(w, 10 * t, 10 * far)) == pytest.approx(float(distortion_loss(w, t, far)), rel=1e-5)
+    assert float(distortion_loss(torch.zeros(3, 6), t, far)) == 0.0
+    ts = torch.linspace(0, 0.9, 10)[None]
+    one = torch.zeros(1, 10)
+    one[0, 4] = 0.9
+    two = torch.zeros(1, 10)
+    two[0, 1] = two[0, 8] = 0.45
+    assert float(distortion_loss(one, ts, torch.ones(1))) < float(distortion_loss(two, ts, torch.ones(1)))
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "d", root, distortion_weight=0.01, pretrain_frac=0.0)
+    s = run_to_end(train(mcfg, tcfg, scenes=scenes))
+    assert s["last"]["distortion"] > 0 and np.isfinite(s["last"]["loss"])
+    with pytest.raises(InputError, match="distortion_weight"):
+        replace(tcfg, distortion_weight=-1.0)
+    with pytest.raises(InputError, match="density field"):
+        run_to_end(train(registry.build_config("gpnr", "fast"), replace(tcfg, out_dir=str(tmp_path / "g")),
+                         scenes=scenes))
+    assert not (tmp_path / "g").exists()

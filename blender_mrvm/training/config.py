@@ -79,6 +79,11 @@ class TrainConfig:
     """Weight of a binary cross-entropy between each branch's accumulated opacity and the object mask
     (needs masks: our renders have them). Colour over white alone leaves faint white density in empty
     space, a haze in the alpha of image planes; this loss removes it. 0 = off."""
+    distortion_weight: float = 0.0
+    """Weight of the distortion loss of Mip-NeRF 360 on the fine pass's weights along each ray (density models
+    only): sum_ij w_i w_j |s_i - s_j| + 1/3 sum_i w_i^2 len_i over the samples' intervals, with distances as a
+    share of the ray's box length. It pulls each ray's weight into one compact interval: fewer translucent
+    layers and floaters. 0 = off."""
     lpips_weight: float = 0.0
     """Weight of LPIPS-VGG between each object's rendered patch and the photo (0 = off). A per-pixel loss
     on scattered rays is minimised by a blur; with this > 0 each object's rays form one ``patch_size`` x
@@ -245,6 +250,8 @@ def validate(c: TrainConfig) -> None:
         raise InputError(f"opacity_weight must be >= 0, got {c.opacity_weight}")
     if c.rays_per_object < 1 or c.objects_per_step < 1:
         raise InputError("rays_per_object and objects_per_step must be >= 1")
+    if not c.distortion_weight >= 0.0:
+        raise InputError(f"distortion_weight must be >= 0, got {c.distortion_weight}")
     if not c.lpips_weight >= 0.0:
         raise InputError(f"lpips_weight must be >= 0, got {c.lpips_weight}")
     if c.lpips_weight > 0 and c.patch_size < 16:

@@ -217,6 +217,9 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     model_cfg, note = bgrule.for_training(model_cfg, data_bg)  # the data decides what the images sit on
     if note and dd.main:
         print(f"note: {note}", file=sys.stderr)
+    if cfg.distortion_weight > 0 and registry.kind_of(model_cfg) != "nerformer_mrvm":
+        raise InputError(f"distortion_weight needs a density field (a nerformer_mrvm model); this run trains a "
+                         f"{registry.kind_of(model_cfg)} model: set it to 0")
     torch.manual_seed(cfg.seed)
     model = registry.build_model(model_cfg).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
@@ -377,6 +380,11 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
     if opa is not None:
         loss = loss + cfg.opacity_weight * opa
         parts["opacity"] = float(opa.detach())
+    if cfg.distortion_weight > 0:
+        fine = out["fine"]
+        dist = distortion_loss(fine["weights"], fine["t"], rays.far[sel].to(device))
+        loss = loss + cfg.distortion_weight * dist
+        parts["distortion"] = float(dist.detach())
     if lp is not None and b.get("patch"):
         # the whole patch: rays that miss the box show the background (or, in a scene, the photo itself)
         full = gt.clone() if b.get("scene") else torch.full_like(gt, bg)
@@ -390,6 +398,22 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
             loss = loss + phase.loss_weights.get(name, 0.0) * value
             parts[name] = float(value.detach())
     return loss, parts
+
+
+def distortion_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
+    """Mip-NeRF 360's distortion loss, mean over rays: weights (R, S) of samples at distances t (R, S, sorted)
+    along rays of length far (R,); sample i stands for the interval [t_i, t_{i+1}] (the last one ends at
+    far), as the renderer's steps do. Distances are shares of the ray's length, so the loss does not depend
+    on the box's size. sum_ij w_i w_j |m_i - m_j| (m the interval midpoints) + 1/3 sum_i w_i^2 len_i: 0 for
+    an empty ray, smallest when the weight sits in one short interval."""
+    w = weights.float()
+    L = far.float().clamp_min(1e-8)[:, None]
+    s = torch.cat([t.float(), far.float()[:, None]], -1) / L
+    length = (s[:, 1:] - s[:, :-1]).clamp_min(0.0)
+    mid = 0.5 * (s[:, 1:] + s[:, :-1])
+    inter = (w[:, :, None] * w[:, None, :] * (mid[:, :, None] - mid[:, None, :]).abs()).sum((-1, -2))
+    intra = (w * w * length).sum(-1) / 3.0
+    return (inter + intra).mean()
 
 
 def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
