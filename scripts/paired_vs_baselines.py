@@ -1,6 +1,7 @@
 """Paired differences of eval.json reports, per scored view and per object (issue 10's capture tables).
 
     python scripts/paired_vs_baselines.py data/eval/A/eval.json [data/eval/B/eval.json ...]
+    python scripts/paired_vs_baselines.py data/eval/A1/eval.json+data/eval/A2/eval.json  # pooled: one report
 
 For each report: the model minus its nearest-photo baseline and minus the mean of its references
 (``baseline_blend``), and each further report's model minus the first's, for PSNR, SSIM and LPIPS:
@@ -34,8 +35,16 @@ def paired(a: dict, b: dict, key: str) -> dict:
             "objects": len(objs), "better_share": float(better.mean())}
 
 
+def _load(arg: str) -> dict:
+    """One report, or the views of several joined with '+' (other splits or sets scored by one model)."""
+    views = []
+    for p in arg.split("+"):
+        views += json.loads(open(p).read())["views"]
+    return {"views": views}
+
+
 def main(paths: list[str]) -> None:
-    reps = [json.loads(open(p).read()) for p in paths]
+    reps = [_load(p) for p in paths]
     first = _rows(reps[0])
     for p, rep in zip(paths, reps):
         rows = _rows(rep)
