@@ -131,9 +131,9 @@ def test_recovered_capture_is_a_scene_gpnr_synthesizes_from(recovered):
     from blender_mrvm.models.pretrained import shipped_or_none
 
     # The model trained on capture-like rooms also beats the nearest photo here, and is level with the library
-    # model (22.7 against 22.6 dB for session 10's `balanced` file; 22.0 for session 9's `fast` one, 21.6 for
-    # session 7's: this fine Voronoi ground at 80 px with recovered poses is unlike its 64 px rooms, and its
-    # sharp epipolar weights commit to one depth); on held-out rooms it is 6.1 dB ahead.
+    # model (22.8 against 22.6 dB for session 11's file, 22.7 for session 10's; 22.0 for session 9's `fast` one,
+    # 21.6 for session 7's: this fine Voronoi ground at 80 px with recovered poses is unlike its 64 px rooms, and
+    # its sharp epipolar weights commit to one depth); on held-out rooms it is 7 dB ahead.
     if shipped_or_none("gpnr_captures") is not None:
         room, _, _, _ = S.load_checkpoint("shipped:gpnr_captures")
         rc = room.synthesize(refs.images, refs.c2w, refs.intrinsics, refs.bbox, t.c2w_opencv, intr)["color"].numpy()

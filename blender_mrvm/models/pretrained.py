@@ -32,8 +32,8 @@ FIGURES = {
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.304, 5 views 24.4 / 0.136 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
-    "gpnr_captures": "held-out capture-like rooms, 2 neighbouring photos: 33.6 dB / LPIPS 0.131 (the objects-on-white "
-                     "GPNR 27.5 / 0.359, nearest photo 26.6 / 0.162); ~6 s per 128 px view on 2 CPU cores",
+    "gpnr_captures": "15 held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.124 (nearest photo "
+                     "24.2 / 0.160, mean of the two 27.7 / 0.160); ~6 s per 128 px view on 2 CPU cores",
     "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.4 dB / LPIPS 0.269 (default model "
                     "15.9 / 0.336, nearest view 15.2 / 0.259); on the 30-degree turntable 0.7 dB below the default; "
                     "~1.0 s per 128 px view on 2 CPU cores",
