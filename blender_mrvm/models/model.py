@@ -115,10 +115,7 @@ class GeneralizableNeRF(RayModel):
 
     def _branch(self, branch: NeRFormerBranch, gathered, t, far, view_mask=None):
         inputs, valid, rgb = gathered
-        out = branch(inputs, valid, rgb, t, view_mask)
-        ren = self._render(*self._fields(out), t, far)
-        ren["latent"] = out["latent"]
-        return ren
+        return self._rendered(branch(inputs, valid, rgb, t, view_mask), t, far)
 
     def render_rays(self, ctx: Context, rays: RayBundle, train: bool = False, mask_views: bool = False,
                     generator: torch.Generator | None = None) -> dict:
@@ -191,9 +188,7 @@ class GeneralizableNeRF(RayModel):
         keep = samplers.stop_counts(t_c[sel], coarse["transmittance"][sel], sub, self.cfg.render.stop_transmittance,
                                     quantum=max(1, S // 8))
         if keep is None:
-            f = fields(torch.arange(n, device=sub.device), sub)
-            fine = self._render(*self._fields(f), sub, far_s)
-            fine["latent"] = f["latent"]
+            fine = self._rendered(fields(torch.arange(n, device=sub.device), sub), sub, far_s)
             out["samples"] += n * S
         else:
             sigma, rgb = sub.new_zeros(n, S), sub.new_zeros(n, S, 3)
@@ -209,6 +204,12 @@ class GeneralizableNeRF(RayModel):
         """A branch's activated density and colour."""
         cfg = self.cfg.render
         return activate_density(branch_out["sigma_raw"], cfg.density_activation, cfg.density_bias), branch_out["rgb"]
+
+    def _rendered(self, branch_out: dict, t, far) -> dict:
+        """A branch's output at samples ``t`` volume-rendered, with its per-point latent features."""
+        ren = self._render(*self._fields(branch_out), t, far)
+        ren["latent"] = branch_out["latent"]
+        return ren
 
     def _render(self, sigma, rgb, t, far) -> dict:
         ren = volume_render(sigma, rgb, t, self.cfg.render.white_background, last_delta=(far - t[:, -1]).clamp_min(0))
@@ -255,10 +256,7 @@ class GeneralizableNeRF(RayModel):
                 "dirs": dirs}
 
     def _branch_streams(self, branch: StreamBranch, g: dict, t, far, view_mask=None):
-        out = branch(**g, view_mask=view_mask)
-        ren = self._render(*self._fields(out), t, far)
-        ren["latent"] = out["latent"]
-        return ren
+        return self._rendered(branch(**g, view_mask=view_mask), t, far)
 
     def _render_streams(self, ctx: Context, rays: RayBundle, train: bool, mask_views: bool,
                         generator: torch.Generator | None) -> dict:
