@@ -49,6 +49,17 @@ def run_to_end(gen: ProgressGen) -> Any:
             return stop.value
 
 
+def as_step_of(gen: ProgressGen, done: int, total: int, label) -> ProgressGen:
+    """Re-yield a sub-task's events as one step of a larger task: each at ``done`` of ``total`` with the
+    message ``label(event)``; returns the sub-task's result (``yield from``)."""
+    while True:
+        try:
+            p = next(gen)
+        except StopIteration as stop:
+            return stop.value
+        yield Progress(done, total, label(p))
+
+
 PROGRESS_ENV = "MRVM_PROGRESS"
 """Set to ``json`` (as the add-on's worker runner does) to get machine-readable progress on stdout."""
 

@@ -311,6 +311,11 @@ SYNTH = [
     _s("box max", ["--bbox", "1", "1", "1", "0", "0", "0"]),
     _s("six finite numbers", ["--bbox", "0", "0", "nan", "1", "1", "1"]),
     _s("--blend must name a .blend file", ["--blend", "{new}.txt"]),
+    _s("--adapt-steps must be between 0 and 100000", ["--adapt-steps", "-1"]),
+    _s("--adapt-lr must be a number between 0 and 1", ["--adapt-steps", "3", "--adapt-lr", "nan"], cls="silent-garbage"),
+    _s("--adapt-lr must be above 0", ["--adapt-steps", "3", "--adapt-lr", "0"], cls="silent-garbage"),
+    _s("--adapt-rays must be between 1", ["--adapt-steps", "3", "--adapt-rays", "0"]),
+    _s("needs at least 2 references", ["--views", "0", "--adapt-steps", "3"]),
 ]
 
 _EV = ["eval", "--data", "{w}/ds", "--checkpoint", "{w}/ck", "--no-lpips", "--threads", "1", "--input-views", "0"]
@@ -324,6 +329,8 @@ def _e(needle, argv=(), cls="tracebacks", base=None, **kw):
 
 EVAL = [
     _e("has no split 'tset'", ["--split", "tset"], cls="silent-garbage"),
+    _e("needs at least 2 references", ["--adapt-steps", "3"]),
+    _e("--adapt-lpips must be a number between 0 and 100", ["--adapt-steps", "3", "--adapt-lpips", "-1"]),
     _e("--compare-to", ["--compare-to", "{w}/nope.json"]),
     _e("is not valid JSON", ["--compare-to", "{w}/bad/eval_bad.json"]),
     _e("is not an eval.json", ["--compare-to", "{w}/bad/eval_list.json"]),

@@ -394,6 +394,11 @@ def test_the_finish_message_carries_the_runs_viewpoint_note(tmp_path):
     assert S.run_note(tmp_path) == ""  # no synthesis.json
     (tmp_path / "synthesis.json").write_text(json.dumps({"viewpoint_note": "use shipped:mrvm_anyview"}))
     assert S.run_note(tmp_path) == "use shipped:mrvm_anyview"
+    (tmp_path / "synthesis.json").write_text(json.dumps({"viewpoint_note": "use shipped:mrvm_anyview",
+                                                         "adaptation": {"steps": 9, "note": "adapting to 2 references"}}))
+    assert S.run_note(tmp_path) == "use shipped:mrvm_anyview; adapting to 2 references"  # and the adaptation's
+    (tmp_path / "synthesis.json").write_text(json.dumps({"viewpoint_note": "", "adaptation": None}))
+    assert S.run_note(tmp_path) == ""
     (tmp_path / "synthesis.json").write_text("[1, 2")
     assert S.run_note(tmp_path) == ""
 
@@ -511,10 +516,14 @@ def test_operator_writes_the_job_for_the_worker(ready, tmp_path):
     assert depth and [t.name for t in targets] == ["MRVM orbit 000", "MRVM orbit 001", "MRVM orbit 002"]
     assert args == ["--references", str(tmp_path / "job" / "references"), "--views", "0", "1",
                     "--targets", str(tmp_path / "job" / "targets.json"), "--checkpoint", p.checkpoint,
-                    "--device", "auto", "--ref-size", "0", "--quality", "full", "--out", str(tmp_path / "job" / "out")]
+                    "--device", "auto", "--ref-size", "0", "--quality", "full", "--adapt-steps", "0",
+                    "--out", str(tmp_path / "job" / "out")]
     p.quality = "PREVIEW"  # the panel's Quality reaches the worker
-    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-3]
+    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-5]
     p.quality = "FULL"
+    p.adapt_steps = 40  # and its Adapt steps
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_a")[-3] == "40"
+    p.adapt_steps = 0
     # Reference size: auto (0, the model's training size for larger references), as they are (-1), custom.
     for sizing, want in [("NATIVE", "-1"), ("CUSTOM", "96")]:
         p.reference_sizing, p.reference_size = sizing, 96

@@ -41,6 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model, as in synthesize: "
                    "0 (default) shrinks references larger than the model's training images to that size, -1 keeps "
                    "them, N pixels (baselines and ground truth stay at the dataset's size)")
+    from ..training.adapt import add_arguments as add_adapt_arguments
+
+    add_adapt_arguments(p)
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
@@ -58,6 +61,9 @@ def check_args(args) -> None:
     V.check_count("--n-inputs", args.n_inputs, 1, 10)
     if args.ref_size not in (0, -1):
         V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    from ..training.adapt import from_args as adapt_config
+
+    adapt_config(args)
     check_output_folder(args.out, args.force, "eval output folder",
                         ours=("eval.json", "eval.md", "eval_grid.png", "compare.json"))
 
@@ -87,6 +93,7 @@ def run(args) -> int:
     from ..training.evaluate import compare_reports, evaluate, per_category, protocol_target_inputs, protocol_views
 
     from ..threads import render_workers
+    from ..training.adapt import from_args as adapt_from_args
 
     check_args(args)
     workers = render_workers(args.threads)
@@ -140,7 +147,8 @@ def run(args) -> int:
                       "max_objects_per_category": args.max_objects_per_category}}
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
                                     extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
-                                    skip=args.skip_empty, target_inputs=per_target, workers=workers),
+                                    skip=args.skip_empty, target_inputs=per_target, workers=workers,
+                                    adapt=adapt_from_args(args)),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

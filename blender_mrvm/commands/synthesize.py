@@ -50,6 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="empty-space skipping inside the object's box when the references have masks: cull "
                    "(default; rays missing the references' visual hull are background, same images to < 1/255), "
                    "tighten (also shorten rays to the hull; loses PSNR with models trained on box-length rays), off")
+    from ..training.adapt import add_arguments as add_adapt_arguments
+
+    add_adapt_arguments(p)
     p.add_argument("--blend", type=Path, default=None, help="also write a .blend with the cameras and image planes")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds files and replace "
                    "an existing --blend file (never the reference folder)")
@@ -61,6 +64,7 @@ def run(args) -> int:
     from ..datasets.novel_views import parse_views
     from ..progress import run_with_tqdm
     from ..synthesis import SynthesisConfig, json_line, parse_bbox, synthesize_views
+    from ..training.adapt import from_args as adapt_from_args
 
     from dataclasses import replace
 
@@ -74,7 +78,8 @@ def run(args) -> int:
     cfg = SynthesisConfig(references=args.references, targets=args.targets or args.out / "targets.json",
                           out=args.out, views=views, checkpoint=args.checkpoint, device=args.device, depth=args.depth,
                           chunk_rays=args.chunk, ref_size=args.ref_size, bbox=bbox, threads=args.threads,
-                          quality=args.quality, skip_empty=args.skip_empty, force=args.force)
+                          quality=args.quality, skip_empty=args.skip_empty, force=args.force,
+                          adapt=adapt_from_args(args))
     if args.orbit_size:
         V.check_image_side("--orbit-size", args.orbit_size)
     if args.orbit is not None:

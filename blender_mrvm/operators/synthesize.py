@@ -59,6 +59,8 @@ class SynthesisJob:
     """The synthesize command's --ref-size: 0 auto, -1 as they are, N pixels on the longer side."""
     quality: str = "full"
     """The synthesize command's --quality: full or preview."""
+    adapt_steps: int = 0
+    """The synthesize command's --adapt-steps: fine-tune a copy of the model on the references first (0 = off)."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:
@@ -144,7 +146,7 @@ def plan_from_props(context) -> SynthesisJob:
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
-                        p.save_depth, ref_size, p.quality.lower())
+                        p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps))
 
 
 def prepare(context, job: SynthesisJob):
@@ -173,7 +175,7 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
     write_targets(job_dir / "targets.json", list(job.targets), depth=job.depth)
     return ["--references", str(ref_dir), "--views", *map(str, views), "--targets", str(job_dir / "targets.json"),
             "--checkpoint", str(job.checkpoint), "--device", job.device, "--ref-size", str(job.ref_size),
-            "--quality", job.quality, "--out", str(job_dir / "out")]
+            "--quality", job.quality, "--adapt-steps", str(job.adapt_steps), "--out", str(job_dir / "out")]
 
 
 @dataclass
@@ -198,12 +200,15 @@ def run_job(context, job: SynthesisJob, interp) -> "ProgressGen":
 
 
 def run_note(out: Path) -> str:
-    """The hint a finished run left in its ``synthesis.json`` for the user (the default model asked about
-    cameras off its training turntable: ``models.pretrained.viewpoint_note``); '' if none."""
+    """The hints a finished run left in its ``synthesis.json`` for the user (the default model asked about
+    cameras off its training turntable: ``models.pretrained.viewpoint_note``; adaptation to few references:
+    ``training.adapt.few_references_note``), joined; '' if none."""
     try:
-        return str(json.loads((Path(out) / "synthesis.json").read_text()).get("viewpoint_note", "") or "")
+        rep = json.loads((Path(out) / "synthesis.json").read_text())
+        notes = [rep.get("viewpoint_note"), (rep.get("adaptation") or {}).get("note")]
     except (OSError, ValueError, AttributeError):
         return ""
+    return "; ".join(str(n) for n in notes if n)
 
 
 def import_run(context, run: SynthesisRun) -> str:

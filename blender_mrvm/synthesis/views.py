@@ -33,7 +33,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -43,7 +43,7 @@ from ..datasets import format as F
 from ..datasets.novel_views import MAX_REFERENCES, Target, read_targets
 from ..errors import InputError, OutputError
 from ..geometry import cameras as C
-from ..progress import Progress, ProgressGen
+from ..progress import Progress, ProgressGen, as_step_of
 
 ALPHA_DEPTH_THRESHOLD = 0.5
 """Depth is written where the accumulated opacity reaches this (0 = background elsewhere)."""
@@ -87,6 +87,9 @@ class SynthesisConfig:
     faster sampling, but models trained on box-length rays lose PSNR), ``off``."""
     force: bool = False
     """Write into an output folder that already holds files (same-named files are replaced)."""
+    adapt: Any = None
+    """A :class:`training.adapt.AdaptConfig`: before rendering, fine-tune a copy of the model on the references
+    alone (leave one out); None or 0 steps = off."""
 
     config_label = "synthesis"  # not a field: how messages name the fields
 
@@ -114,6 +117,10 @@ def _validate_config(c: SynthesisConfig) -> None:
         raise InputError(f"--quality (synthesis.quality) must be one of {', '.join(QUALITY_LEVELS)}, got {c.quality!r}")
     if c.skip_empty not in MODES:
         raise InputError(f"--skip-empty (synthesis.skip_empty) must be one of {', '.join(MODES)}, got {c.skip_empty!r}")
+    from ..training.adapt import AdaptConfig
+
+    if c.adapt is not None and not isinstance(c.adapt, AdaptConfig):
+        raise InputError(f"synthesis.adapt must be an AdaptConfig or None, got {type(c.adapt).__name__}")
 
 
 @dataclass
@@ -479,6 +486,9 @@ class SynthesisSummary:
     """What the references show and what the model rendered on (``models/background.py``)."""
     viewpoint_note: str = ""
     """The default model asked about cameras off its training turntable (``pretrained.viewpoint_note``)."""
+    adaptation: dict | None = None
+    """The adaptation to the references (``training/adapt.py``), its seconds and a note for the user ('' or
+    :func:`training.adapt.few_references_note`); None without."""
 
 
 def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
@@ -533,6 +543,17 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         print(f"note: {view_note}", file=sys.stderr)
     if len(refs.views) < model.min_ref_views:
         model.check_reference_count(len(refs.views))
+    adapt_seconds, adapt_note = None, ""
+    if cfg.adapt is not None and cfg.adapt.on:
+        from ..training.adapt import few_references_note
+
+        adapt_note = few_references_note(len(refs.views))
+        if adapt_note:
+            print(f"note: {adapt_note}", file=sys.stderr)
+        ta = time.perf_counter()
+        model = yield from adapt_to_references(model, refs, cfg.adapt, sum(t.intrinsics.width * t.intrinsics.height
+                                                                             for t in targets))
+        adapt_seconds = time.perf_counter() - ta
     per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
     chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
     total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
@@ -541,7 +562,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
                                reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height],
                                background={"data": refs.background, "white_background": model.white_background,
-                                           "note": bg_note}, viewpoint_note=view_note)
+                                           "note": bg_note}, viewpoint_note=view_note,
+                               adaptation=None if adapt_seconds is None else {
+                                   **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
     encoded: dict[tuple[int, ...], Any] = {}
 
@@ -595,6 +618,16 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     return summary
 
 
+def adapt_to_references(model, refs: References, acfg, total: int) -> ProgressGen:
+    """Progress generator (at 0 of ``total`` rays, naming the step); returns a copy of ``model`` fine-tuned
+    on ``refs`` (``training/adapt.py``)."""
+    from ..training.adapt import adapt
+
+    return (yield from as_step_of(adapt(model, refs.images, refs.c2w, refs.intrinsics, refs.bbox, acfg, refs.masks,
+                                        refs.background), 0, total,
+                                  lambda p: f"adapting to the references: step {p.done}/{p.total}"))
+
+
 def _kind(mcfg) -> str:
     from ..models.registry import kind_of
 
@@ -606,6 +639,7 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
             "quality": cfg.quality, "skip_empty": cfg.skip_empty,
+            "adaptation": s.adaptation,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
             "background": s.background, "viewpoint_note": s.viewpoint_note,

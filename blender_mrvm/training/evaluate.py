@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -24,7 +25,7 @@ from ..datasets import format as F
 from ..datasets.loaders import ObjectScene
 from ..errors import InputError
 from ..models.metrics import psnr, ssim, ssim_gauss
-from ..progress import Progress
+from ..progress import Progress, as_step_of
 from ..synthesis import reference_shape, resize_mask, resize_view
 
 METRICS = ("psnr", "ssim", "lpips", "ssim_gauss")
@@ -125,8 +126,11 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
              ref_size: int = 0, max_ref_size: int = 0, target_inputs: dict[int, Sequence[int]] | None = None,
-             skip: str = "off", workers: int = 1):
+             skip: str = "off", workers: int = 1, adapt=None):
     """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
+
+    ``adapt``: an :class:`training.adapt.AdaptConfig`; when on, each reference set gets its own copy of the
+    model fine-tuned on those references alone (leave one out) before its targets render.
 
     ``ref_size`` / ``max_ref_size``: the model sees the references resized as synthesis does
     (``synthesize.reference_shape``); baselines and ground truth stay at the dataset's size.
@@ -187,8 +191,15 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         model_refs = [resize_view(s.images[r], s.intrinsics[r], w, h) for r in refs]
         ref_masks = None if s.masks is None else np.stack([resize_mask(s.masks[r], w, h) for r in refs])
         sizes.add((w, h))
+        m = model
+        if adapt is not None and adapt.on:
+            from .adapt import adapt as adapt_to
+
+            m = yield from as_step_of(adapt_to(model, np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
+                                               [k for _, k in model_refs], s.bbox, adapt, ref_masks, s.background,
+                                               lpips), done, total, lambda p, o=f"{s.category}/{s.name}": f"{o}: {p.message}")
         for ti, t in enumerate(targets):
-            out = model.synthesize(np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
+            out = m.synthesize(np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
                                    [k for _, k in model_refs], s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
                                    ref_masks=ref_masks, skip=skip, workers=workers)
             pred = out["color"]
@@ -214,7 +225,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                           "target_views": list(target_views) if target_views is not None else "all others",
                           "max_targets": max_targets, "objects": len(seen_objects), "empty_space_skipping": skip,
                           "reference_sizes": sorted([list(x) for x in sizes]),
-                          "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None}
+                          "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None,
+                          "adaptation": asdict(adapt) if adapt is not None and adapt.on else None}
     report.update(extra or {})
     if out_dir is not None:
         out_dir = Path(out_dir)
