@@ -131,3 +131,17 @@ def test_synthesize_records_the_adaptation(setup, tmp_path, capsys):
 
     a, b = F.read_png(tmp_path / "a" / "rgb" / "000000.png"), F.read_png(tmp_path / "b" / "rgb" / "000000.png")
     assert a.shape == b.shape and not np.array_equal(a, b)
+
+
+def test_a_diverging_adaptation_stops_with_one_error(setup):
+    """A loss that is not finite (here: NaN weights) stops the adaptation at once with an InputError naming the
+    learning rate, before a NaN could reach the images."""
+    import copy
+
+    _, _, scene, model = setup
+    bad = copy.deepcopy(model)
+    with torch.no_grad():
+        next(bad.parameters()).fill_(float("nan"))
+    images, c2w, intr, masks = _refs(scene, [0, 1, 2])
+    with pytest.raises(InputError, match="diverged at step 1.*learning rate"):
+        run_to_end(adapt(bad, images, c2w, intr, scene.bbox, AdaptConfig(steps=5), masks))

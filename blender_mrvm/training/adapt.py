@@ -127,10 +127,10 @@ def adapt(model, images: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence, 
                 g["lr"] = trainer.lr_at(step, cfg)
             phase = m.train_phase(step, cfg)
             opt.zero_grad(set_to_none=True)
-            loss, parts = trainer.object_loss(m, batcher.draw(False), cfg, phase, gen, device,
-                                              lpips if cfg.lpips_weight > 0 else None)
+            loss, _ = trainer.object_loss(m, batcher.draw(False), cfg, phase, gen, device,
+                                          lpips if cfg.lpips_weight > 0 else None)
             if not torch.isfinite(loss.detach()):
-                raise InputError(f"adapting to the references diverged at step {step + 1} (loss {float(loss)}); "
+                raise InputError(f"adapting to the references diverged at step {step + 1} (loss {float(loss.detach())}); "
                                  "lower the adaptation learning rate")
             if loss.requires_grad:
                 loss.backward()
