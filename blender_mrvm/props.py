@@ -180,7 +180,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                 description="Longer side of the references, in pixels")
     adapt_steps: IntProperty(name="Adapt steps", default=0, min=0, max=100000, soft_max=500,
                              description="Before rendering, fine-tune a copy of the model on these references alone "
-                             "(each step holds one reference out); pays with 4 or more references, costs with 2 "
+                             "(each step holds one reference out); pays with 5 or more references, costs with 2 "
                              "(0 = off)")
     plane_distance: FloatProperty(name="Plane distance", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")

@@ -24,18 +24,20 @@ from ..errors import InputError
 from ..progress import Progress
 
 
-PAYS_FROM = 4
-"""Fewest references with which adaptation was measured to pay (README, "Adapting to the references"): with 5
-it gained on held-out objects; with 2 (each step then renders one reference from the other alone) it lost."""
+PAYS_FROM = 5
+"""Fewest references with which adaptation was measured to pay (``docs/adapt.md``: 13 held-out objects, 100
+steps): with 2 it lost 0.6 dB, with 3 and 4 it moved nothing beyond noise, with 5 it gained 0.4 dB and with 10
+1.1 dB (each step renders one reference from the others: the fewer there are, the less that task is like the
+render)."""
 
 
 def few_references_note(n_refs: int) -> str:
     """A note for a user adapting to fewer than :data:`PAYS_FROM` references ('' otherwise)."""
     if n_refs >= PAYS_FROM:
         return ""
-    return (f"adapting to {n_refs} references: each step renders one of them from the other{'s' if n_refs > 2 else ''}, "
-            f"a harder task than the render itself; measured with 2 references it lost 0.6 dB on objects and 1.3 dB "
-            f"in rooms, with 5 it gained (README); consider --adapt-steps 0 below {PAYS_FROM} references")
+    return (f"adapting to {n_refs} references: each step renders one of them from the other{'s' if n_refs > 2 else ''}; "
+            f"measured on held-out objects it lost 0.6 dB with 2 references and changed nothing beyond noise with 3 "
+            f"or 4, while it gained with {PAYS_FROM} or more (docs/adapt.md); consider --adapt-steps 0")
 
 
 @dataclass(frozen=True)
@@ -148,7 +150,7 @@ def add_arguments(p) -> None:
     d = AdaptConfig()
     p.add_argument("--adapt-steps", type=int, default=d.steps,
                    help="fine-tune a copy of the model on the references alone before rendering, this many steps "
-                   "(each holds one reference out as the target; needs 2+ references, pays with 4+; 0 = off, the "
+                   "(each holds one reference out as the target; needs 2+ references, pays with 5+; 0 = off, the "
                    "default; training/adapt.py)")
     p.add_argument("--adapt-lr", type=float, default=d.lr, help=f"learning rate of --adapt-steps (default {d.lr:g})")
     p.add_argument("--adapt-rays", type=int, default=d.rays, help=f"target rays per adaptation step (default {d.rays})")
