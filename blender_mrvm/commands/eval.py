@@ -61,9 +61,9 @@ def check_args(args) -> None:
     V.check_count("--n-inputs", args.n_inputs, 1, 10)
     if args.ref_size not in (0, -1):
         V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
-    from ..training.adapt import from_args as adapt_config
+    from ..training.adapt import from_args as adapt_from_args
 
-    adapt_config(args)
+    adapt_from_args(args)  # checked here, before anything is read
     check_output_folder(args.out, args.force, "eval output folder",
                         ours=("eval.json", "eval.md", "eval_grid.png", "compare.json"))
 

@@ -543,6 +543,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         print(f"note: {view_note}", file=sys.stderr)
     if len(refs.views) < model.min_ref_views:
         model.check_reference_count(len(refs.views))
+    total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
     adapt_seconds, adapt_note = None, ""
     if cfg.adapt is not None and cfg.adapt.on:
         from ..training.adapt import few_references_note
@@ -551,12 +552,10 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         if adapt_note:
             print(f"note: {adapt_note}", file=sys.stderr)
         ta = time.perf_counter()
-        model = yield from adapt_to_references(model, refs, cfg.adapt, sum(t.intrinsics.width * t.intrinsics.height
-                                                                             for t in targets))
+        model = yield from adapt_to_references(model, refs, cfg.adapt, total)
         adapt_seconds = time.perf_counter() - ta
     per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
     chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
-    total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],

@@ -143,6 +143,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     id: input view ids} when each target has its own references (then ``target_views`` defaults to its
     keys and ``input_views`` is not used)."""
     model.eval()
+    if adapt is not None and not adapt.on:
+        adapt = None
     records: list[dict[str, Any]] = []
     grid_rows = []
     jobs = []
@@ -189,19 +191,20 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         mean_col = ref_imgs.reshape(-1, 3).mean(0)
         w, h = reference_shape(s.intrinsics[refs[0]], ref_size, max_ref_size)
         model_refs = [resize_view(s.images[r], s.intrinsics[r], w, h) for r in refs]
+        ref_images, ref_intr = np.stack([im for im, _ in model_refs]), [k for _, k in model_refs]
+        ref_c2w = [s.c2w[r] for r in refs]
         ref_masks = None if s.masks is None else np.stack([resize_mask(s.masks[r], w, h) for r in refs])
         sizes.add((w, h))
         m = model
-        if adapt is not None and adapt.on:
+        if adapt is not None:
             from .adapt import adapt as adapt_to
 
-            m = yield from as_step_of(adapt_to(model, np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
-                                               [k for _, k in model_refs], s.bbox, adapt, ref_masks, s.background,
-                                               lpips), done, total, lambda p, o=f"{s.category}/{s.name}": f"{o}: {p.message}")
+            m = yield from as_step_of(adapt_to(model, ref_images, ref_c2w, ref_intr, s.bbox, adapt, ref_masks,
+                                               s.background, lpips), done, total,
+                                      lambda p, o=f"{s.category}/{s.name}": f"{o}: {p.message}")
         for ti, t in enumerate(targets):
-            out = m.synthesize(np.stack([im for im, _ in model_refs]), [s.c2w[r] for r in refs],
-                                   [k for _, k in model_refs], s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
-                                   ref_masks=ref_masks, skip=skip, workers=workers)
+            out = m.synthesize(ref_images, ref_c2w, ref_intr, s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
+                               ref_masks=ref_masks, skip=skip, workers=workers)
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}
@@ -226,7 +229,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                           "max_targets": max_targets, "objects": len(seen_objects), "empty_space_skipping": skip,
                           "reference_sizes": sorted([list(x) for x in sizes]),
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None,
-                          "adaptation": asdict(adapt) if adapt is not None and adapt.on else None}
+                          "adaptation": asdict(adapt) if adapt is not None else None}
     report.update(extra or {})
     if out_dir is not None:
         out_dir = Path(out_dir)
