@@ -148,7 +148,11 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
     capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", default="//mrvm_capture",
                                 description="Capture folder written by Recover poses")
     reference_views: StringProperty(name="Views", default="0 1",
-                                    description="Indices of the views used as references (1 to 10), e.g. '0 1'")
+                                    description="Indices of the views used as references, e.g. '0 1', or 'all' "
+                                    "(a dense capture: each view is rendered from its nearest references)")
+    nearest: IntProperty(name="Per view", default=0, min=0, max=10,
+                         description="References each view is rendered from: its nearest ones by direction and "
+                         "distance (fewer is faster). 0 = every reference, or the model's most (10) nearest")
     target_source: EnumProperty(name="Targets", items=[
         ("SELECTED", "Selected cameras", "Synthesize the view of every selected camera"),
         ("ORBIT", "Orbit", "Generate cameras on a circle around the 3D cursor"),

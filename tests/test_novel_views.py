@@ -517,12 +517,18 @@ def test_operator_writes_the_job_for_the_worker(ready, tmp_path):
     assert args == ["--references", str(tmp_path / "job" / "references"), "--views", "0", "1",
                     "--targets", str(tmp_path / "job" / "targets.json"), "--checkpoint", p.checkpoint,
                     "--device", "auto", "--ref-size", "0", "--quality", "full", "--adapt-steps", "0",
-                    "--out", str(tmp_path / "job" / "out")]
+                    "--nearest", "0", "--out", str(tmp_path / "job" / "out")]
     p.quality = "PREVIEW"  # the panel's Quality reaches the worker
-    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-5]
+    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-7]
     p.quality = "FULL"
     p.adapt_steps = 40  # and its Adapt steps
-    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_a")[-3] == "40"
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_a")[-5] == "40"
+    p.nearest = 3  # and its references per view
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_n")[-3] == "3"
+    p.nearest = 0
+    p.reference_source, p.reference_views = "DATASET", "all"  # every view of the folder: --views all
+    job = S.plan_from_props(bpy.context)
+    assert job.views == () and S.write_job(bpy.context, job, tmp_path / "job_all")[2:4] == ["--views", "all"]
     p.adapt_steps = 0
     # Reference size: auto (0, the model's training size for larger references), as they are (-1), custom.
     for sizing, want in [("NATIVE", "-1"), ("CUSTOM", "96")]:

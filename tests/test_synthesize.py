@@ -240,8 +240,8 @@ def test_cancel_leaves_nothing_and_existing_output_keeps_other_files(setup, tmp_
     summary = run_to_end(S.synthesize_views(dataclasses.replace(cfg, force=True)))
     assert (out / "keep.txt").read_text() == "mine" and (out / "rgb" / "000002.png").is_file()
     assert len(summary.targets) == 3 and (out / "depth").is_dir()  # depth: as targets.json asks
-    with pytest.raises(InputError, match="at most 10 reference views"):
-        S.load_references(obj, tuple(range(11)))
+    with pytest.raises(InputError, match="at most 500 reference views"):
+        S.load_references(obj, tuple(range(501)))
 
 
 @pytest.mark.slow

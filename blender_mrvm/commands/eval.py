@@ -28,6 +28,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(splits/eval_views.json input_views_N; default 2)")
     p.add_argument("--input-views", default=None, help="comma-separated input view ids overriding the protocol, "
                    "e.g. 64 or 64,104 (then every other view is scored)")
+    p.add_argument("--nearest", type=int, default=0, metavar="K",
+                   help="render each target from its K nearest other views (a dense capture: every other photo "
+                   "at hand; with --input-views, the nearest K of those) instead of the protocol's fixed inputs; the "
+                   "protocol still picks the targets (0 = off, the default)")
     p.add_argument("--max-objects", type=int, default=0, help="evaluate at most this many objects (0 = all)")
     p.add_argument("--max-objects-per-category", type=int, default=0,
                    help="evaluate the first N objects of each category of the split (0 = all)")
@@ -59,6 +63,9 @@ def check_args(args) -> None:
     V.check_count("--max-objects-per-category", args.max_objects_per_category, 0)
     V.check_count("--max-targets", args.max_targets, 0)
     V.check_count("--n-inputs", args.n_inputs, 1, 10)
+    from ..datasets.novel_views import MAX_REFERENCES
+
+    V.check_count("--nearest", args.nearest, 0, MAX_REFERENCES)
     if args.ref_size not in (0, -1):
         V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
     from ..training.adapt import from_args as adapt_from_args
@@ -148,7 +155,8 @@ def run(args) -> int:
     report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
                                     extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
                                     skip=args.skip_empty, target_inputs=per_target, workers=workers,
-                                    adapt=adapt_from_args(args)),
+                                    adapt=adapt_from_args(args), nearest=args.nearest,
+                                    pool=views if args.nearest and source == "--input-views" else None),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

@@ -22,7 +22,11 @@ from ..errors import InputError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--references", type=Path, required=True, help="object folder with rgb/ + pose/ (render or capture)")
-    p.add_argument("--views", nargs="+", default=None, help="reference view indices, e.g. 0,1 or 0 1 (default: all, at most 10)")
+    p.add_argument("--views", nargs="+", default=None, help="reference view indices, e.g. 0,1 or 0 1, or all "
+                   "(default: all, at most 500; with more than a view uses, each view takes its nearest, --nearest)")
+    p.add_argument("--nearest", type=int, default=0, metavar="K",
+                   help="render each view from its K nearest references (by direction and distance; fewer is faster, "
+                   "README 'Many references'); 0 (default) = every reference, or the model's most (10) nearest")
     tg = p.add_mutually_exclusive_group(required=True)
     tg.add_argument("--targets", type=Path, help="targets.json naming the cameras to synthesize")
     tg.add_argument("--target-views", nargs="+", help="synthesize these views of the reference folder, e.g. 0,5,9")
@@ -78,7 +82,7 @@ def run(args) -> int:
     cfg = SynthesisConfig(references=args.references, targets=args.targets or args.out / "targets.json",
                           out=args.out, views=views, checkpoint=args.checkpoint, device=args.device, depth=args.depth,
                           chunk_rays=args.chunk, ref_size=args.ref_size, bbox=bbox, threads=args.threads,
-                          quality=args.quality, skip_empty=args.skip_empty, force=args.force,
+                          quality=args.quality, skip_empty=args.skip_empty, force=args.force, nearest=args.nearest,
                           adapt=adapt_from_args(args))
     if args.orbit_size:
         V.check_image_side("--orbit-size", args.orbit_size)

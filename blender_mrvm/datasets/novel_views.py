@@ -29,6 +29,10 @@ from .format import atomic_write_json
 TARGETS_FORMAT = "blender_mrvm.targets"
 TARGETS_VERSION = 1
 MAX_REFERENCES = 10
+"""The most reference views one target is rendered from (the models' ``max_ref_views`` cap)."""
+MAX_POOL = 500
+"""The most reference views a synthesis may be given: with more than a target uses, each target takes its
+nearest ones (a dense capture)."""
 
 
 @dataclass(frozen=True)
@@ -55,8 +59,11 @@ class Target:
         return f"semantic_color/{index:06d}.png"
 
 
-def parse_views(text: str, max_views: int = MAX_REFERENCES) -> tuple[int, ...]:
-    """Reference view indices from '0 1', '0,1' or '0, 3, 5'; 1..max_views distinct, non-negative."""
+def parse_views(text: str, max_views: int = MAX_POOL) -> tuple[int, ...]:
+    """Reference view indices from '0 1', '0,1' or '0, 3, 5'; 1..max_views distinct, non-negative; 'all'
+    gives () (every view of the folder)."""
+    if text.strip().lower() == "all":
+        return ()
     parts = [p for p in text.replace(",", " ").split() if p]
     try:
         views = tuple(int(p) for p in parts)

@@ -61,6 +61,8 @@ class SynthesisJob:
     """The synthesize command's --quality: full or preview."""
     adapt_steps: int = 0
     """The synthesize command's --adapt-steps: fine-tune a copy of the model on the references first (0 = off)."""
+    nearest: int = 0
+    """The synthesize command's --nearest: references per view, its nearest (0 = all, up to the model's most)."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:
@@ -105,7 +107,7 @@ def _checkpoint(context, p) -> Path:
 
 def plan_from_props(context) -> SynthesisJob:
     """Check the Novel views settings and the scene; no side effects. MRVMError on bad input."""
-    from ..datasets.novel_views import parse_views
+    from ..datasets.novel_views import MAX_POOL, parse_views
     from ..scene import image_planes as IP
     from ..scene import novel_views as NV
 
@@ -126,8 +128,8 @@ def plan_from_props(context) -> SynthesisJob:
         if not cams:
             raise InputError("no scene camera has a reference image (give cameras a background image, "
                              "or use a dataset folder or a recovered capture)")
-        if len(cams) > 10:
-            raise InputError(f"{len(cams)} scene cameras have images; at most 10 references are used")
+        if len(cams) > MAX_POOL:
+            raise InputError(f"{len(cams)} scene cameras have images; at most {MAX_POOL} references can be given")
         for cam in cams:  # the images must exist now, not when the worker starts
             img = next(bg.image for bg in cam.data.background_images if bg.image is not None)
             if img.packed_file is None and not Path(bpy.path.abspath(img.filepath, library=img.library)).is_file():
@@ -146,7 +148,7 @@ def plan_from_props(context) -> SynthesisJob:
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
-                        p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps))
+                        p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps), int(p.nearest))
 
 
 def prepare(context, job: SynthesisJob):
@@ -173,9 +175,11 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
         cams = [bpy.data.objects[n] for n in job.reference_cameras]
         ref_dir, views = NV.export_scene_references(context.scene, cams, job_dir / "references")
     write_targets(job_dir / "targets.json", list(job.targets), depth=job.depth)
-    return ["--references", str(ref_dir), "--views", *map(str, views), "--targets", str(job_dir / "targets.json"),
+    return ["--references", str(ref_dir), "--views", *(map(str, views) if views else ["all"]),
+            "--targets", str(job_dir / "targets.json"),
             "--checkpoint", str(job.checkpoint), "--device", job.device, "--ref-size", str(job.ref_size),
-            "--quality", job.quality, "--adapt-steps", str(job.adapt_steps), "--out", str(job_dir / "out")]
+            "--quality", job.quality, "--adapt-steps", str(job.adapt_steps), "--nearest", str(job.nearest),
+            "--out", str(job_dir / "out")]
 
 
 @dataclass

@@ -137,6 +137,7 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
         col.prop(p, "reference_sizing")
         if p.reference_sizing == "CUSTOM":
             col.prop(p, "reference_size")
+        col.prop(p, "nearest")
         col.prop(p, "adapt_steps")
         col.prop(p, "plane_distance")
         col.prop(p, "output")

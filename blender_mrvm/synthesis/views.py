@@ -40,7 +40,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..datasets import format as F
-from ..datasets.novel_views import MAX_REFERENCES, Target, read_targets
+from ..datasets.novel_views import MAX_POOL, MAX_REFERENCES, Target, read_targets
 from ..errors import InputError, OutputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen, as_step_of
@@ -60,7 +60,7 @@ class SynthesisConfig:
     out: Path
     """Output folder: rgb/, depth/ and synthesis.json."""
     views: tuple[int, ...] = ()
-    """Reference view indices; empty = every view of the folder (at most 10)."""
+    """Reference view indices; empty = every view of the folder (at most ``MAX_POOL``)."""
     checkpoint: Path | None = None
     """Model checkpoint (file, checkpoint folder or run folder); None = the shipped model."""
     device: str = "auto"
@@ -90,6 +90,10 @@ class SynthesisConfig:
     adapt: Any = None
     """A :class:`training.adapt.AdaptConfig`: before rendering, fine-tune a copy of the model on the references
     alone (leave one out); None or 0 steps = off."""
+    nearest: int = 0
+    """References per target: each target is rendered from its ``nearest`` nearest references (by camera
+    direction and distance, :func:`nearest_views`); 0 = every reference, or the model's most
+    (``max_ref_views``) nearest when there are more. A speed/accuracy knob (README, "Many references")."""
 
     config_label = "synthesis"  # not a field: how messages name the fields
 
@@ -108,6 +112,7 @@ def _validate_config(c: SynthesisConfig) -> None:
     if c.ref_size not in (0, -1):
         V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
     V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
+    V.check_count("--nearest (synthesis.nearest)", c.nearest, 0, MAX_REFERENCES)
     V.check_count("--threads (synthesis.threads)", c.threads, 0, 4096)
     from ..models.hull import MODES
 
@@ -282,9 +287,9 @@ def reference_sizes(ref_size: int, checkpoint: Path | None) -> tuple[int, int]:
 def check_reference_folder(folder: Path, views: Sequence[int] = ()) -> tuple[Any, tuple[int, ...]]:
     """(the folder read by ``datasets.format.read_object``, the chosen view indices) after checking an
     object folder (render, recovered capture or exported scene cameras): it exists, every chosen view
-    has an image and a pose, the views are distinct and at most ``MAX_REFERENCES``; no view given =
-    every view of the folder. Reads no image. The one owner of these rules (the add-on's panel checks
-    through it too)."""
+    has an image and a pose, the views are distinct and at most ``MAX_POOL``; no view given = every view
+    of the folder. Reads no image. The one owner of these rules (the add-on's panel checks through it
+    too)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"reference folder {folder} does not exist")
@@ -295,13 +300,13 @@ def check_reference_folder(folder: Path, views: Sequence[int] = ()) -> tuple[Any
             raise InputError(f"the reference images in {folder} have no poses (no pose/*.txt beside rgb/)")
         raise InputError(f"{folder} holds no reference views (rgb/*.png with pose/*.txt)")
     if not views:
-        if len(ov.indices) > MAX_REFERENCES:
-            raise InputError(f"{folder} has {len(ov.indices)} views; choose at most {MAX_REFERENCES} "
+        if len(ov.indices) > MAX_POOL:
+            raise InputError(f"{folder} has {len(ov.indices)} views; choose at most {MAX_POOL} "
                              f"reference views (e.g. --views 0,1)")
         views = tuple(ov.indices)
     views = tuple(int(v) for v in views)
-    if len(views) > MAX_REFERENCES:
-        raise InputError(f"at most {MAX_REFERENCES} reference views, got {len(views)}")
+    if len(views) > MAX_POOL:
+        raise InputError(f"at most {MAX_POOL} reference views, got {len(views)}")
     if len(set(views)) != len(views):
         raise InputError(f"reference views must be distinct, got {list(views)}")
     have = set(ov.indices)
@@ -541,8 +546,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     view_note = viewpoint_note(ck_path, [*refs.c2w, *[t.c2w_opencv for t in targets]], centre)
     if view_note:
         print(f"note: {view_note}", file=sys.stderr)
-    if len(refs.views) < model.min_ref_views:
-        model.check_reference_count(len(refs.views))
+    per_view = references_per_target(model, len(refs.views), cfg.nearest)
     total = sum(t.intrinsics.width * t.intrinsics.height for t in targets)
     adapt_seconds, adapt_note = None, ""
     if cfg.adapt is not None and cfg.adapt.on:
@@ -552,9 +556,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         if adapt_note:
             print(f"note: {adapt_note}", file=sys.stderr)
         ta = time.perf_counter()
-        model = yield from adapt_to_references(model, refs, cfg.adapt, total)
+        model = yield from adapt_to_references(model, refs, cfg.adapt, total, per_view)
         adapt_seconds = time.perf_counter() - ta
-    per_target = len(refs.views) > model.max_ref_views  # more than the model uses: the nearest, per target
+    per_target = len(refs.views) > per_view  # more references than a view uses: its nearest, per target
     chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
@@ -570,7 +574,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     def context_for(target):
         keep = tuple(range(len(refs.views)))
         if per_target:
-            keep = nearest_views(refs.c2w, target.c2w_opencv, centre, model.max_ref_views)
+            keep = nearest_views(refs.c2w, target.c2w_opencv, centre, per_view)
         if keep not in encoded:
             encoded.clear()
             sub = refs.subset(keep)
@@ -617,13 +621,25 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     return summary
 
 
-def adapt_to_references(model, refs: References, acfg, total: int) -> ProgressGen:
+def references_per_target(model, available: int, nearest: int = 0) -> int:
+    """How many references each target is rendered from: ``nearest`` (at most the ``available`` ones), or 0 =
+    every reference up to the model's most; InputError when the model cannot take that many."""
+    k = min(nearest, available) if nearest else min(available, model.max_ref_views)
+    if nearest > model.max_ref_views:
+        raise InputError(f"--nearest {nearest}: this {model.kind} model takes at most {model.max_ref_views} "
+                         "reference views per target")
+    model.check_reference_count(k)
+    return k
+
+
+def adapt_to_references(model, refs: References, acfg, total: int, per_view: int = 0) -> ProgressGen:
     """Progress generator (at 0 of ``total`` rays, naming the step); returns a copy of ``model`` fine-tuned
-    on ``refs`` (``training/adapt.py``)."""
+    on ``refs`` (``training/adapt.py``), each step rendering one reference from ``per_view`` others (0 = as
+    many as the model takes)."""
     from ..training.adapt import adapt
 
     return (yield from as_step_of(adapt(model, refs.images, refs.c2w, refs.intrinsics, refs.bbox, acfg, refs.masks,
-                                        refs.background), 0, total,
+                                        refs.background, max_refs=per_view), 0, total,
                                   lambda p: f"adapting to the references: step {p.done}/{p.total}"))
 
 
@@ -637,7 +653,7 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
-            "quality": cfg.quality, "skip_empty": cfg.skip_empty,
+            "quality": cfg.quality, "skip_empty": cfg.skip_empty, "nearest": cfg.nearest,
             "adaptation": s.adaptation,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,

@@ -85,13 +85,16 @@ def _train_config(acfg: AdaptConfig, inputs: int, has_masks: bool):
 
 
 def adapt(model, images: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence, bbox,
-          acfg: AdaptConfig, masks: np.ndarray | None = None, background: str = "white", lpips=None):
+          acfg: AdaptConfig, masks: np.ndarray | None = None, background: str = "white", lpips=None,
+          max_refs: int = 0):
     """Progress generator; returns a copy of ``model`` fine-tuned on the references (in eval mode).
 
     ``images`` (N, H, W, 3) float in [0, 1], ``c2w`` / ``intr`` per reference, ``bbox`` the scene's box (as
     ``model.synthesize`` takes them), ``masks`` (N, H, W) object masks or None, ``background`` the data's
     ("white" objects or a "scene"); ``lpips``: a :class:`models.metrics.LPIPS` when ``acfg.lpips_weight`` > 0
-    (built here otherwise). ``acfg.steps`` 0 returns the model itself."""
+    (built here otherwise); ``max_refs``: each step renders its held-out reference from at most this many
+    others (0 = as many as the model takes; synthesis passes the count each target is rendered from).
+    ``acfg.steps`` 0 returns the model itself."""
     from ..datasets.loaders import ObjectScene
     from . import trainer
 
@@ -107,7 +110,7 @@ def adapt(model, images: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence, 
                         bbox=(np.asarray(bbox[0], np.float64), np.asarray(bbox[1], np.float64)),
                         view_ids=list(range(n)), masks=None if masks is None else np.asarray(masks, bool),
                         background=background)
-    cfg = _train_config(acfg, min(n - 1, model.max_ref_views), masks is not None)
+    cfg = _train_config(acfg, min(n - 1, max_refs or model.max_ref_views), masks is not None)
     if cfg.lpips_weight > 0 and lpips is None:
         from ..models.metrics import LPIPS
 

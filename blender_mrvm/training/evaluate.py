@@ -95,13 +95,64 @@ def per_category(items: Sequence, category, k: int) -> list:
     return out
 
 
-def _nearest_ref(scene: ObjectScene, refs: Sequence[int], tgt: int) -> int:
-    """The reference nearest the target by the rule synthesis picks references with (angle between the
-    directions from the box centre, plus the log-ratio of the distances: any pose, any distance)."""
+def nearest_of(scene: ObjectScene, pool: Sequence[int], tgt: int, k: int) -> list[int]:
+    """The ``k`` views of ``pool`` (positions in the scene) nearest view ``tgt``, in pool order, by the rule
+    synthesis picks references with (angle between the directions from the box centre, plus the log-ratio
+    of the distances: any pose, any distance)."""
     from ..synthesis import nearest_views
 
     c = 0.5 * (np.asarray(scene.bbox[0], np.float64) + np.asarray(scene.bbox[1], np.float64))
-    return refs[nearest_views([scene.c2w[r] for r in refs], scene.c2w[tgt], c, 1)[0]]
+    return [pool[i] for i in nearest_views([scene.c2w[r] for r in pool], scene.c2w[tgt], c, k)]
+
+
+def _nearest_ref(scene: ObjectScene, refs: Sequence[int], tgt: int) -> int:
+    """The reference nearest the target (:func:`nearest_of`)."""
+    return nearest_of(scene, refs, tgt, 1)[0]
+
+
+def _spread(items: list, k: int) -> list:
+    """At most ``k`` of ``items``, evenly spread (``k`` <= 0 keeps all)."""
+    if k and len(items) > k:
+        return [items[i] for i in np.linspace(0, len(items) - 1, k).round().astype(int)]
+    return items
+
+
+def _jobs(s: ObjectScene, input_views, target_views, target_inputs, max_targets: int, nearest: int,
+          pool) -> list[tuple[ObjectScene, list[int], list[int]]]:
+    """One object's (scene, reference positions, target positions) jobs (see :func:`evaluate`)."""
+    pos = {vid: k for k, vid in enumerate(s.view_ids)}
+    what = f"object {s.category}/{s.name}"
+    if target_inputs is not None:
+        wanted = sorted(target_inputs) if target_views is None else list(target_views)
+        absent = [v for v in wanted if v not in pos or v not in target_inputs
+                  or (not nearest and any(r not in pos for r in target_inputs[v]))]
+        if absent:
+            raise InputError(f"{what} lacks target view(s) {absent[:5]} or their inputs")
+        per = _spread([([pos[r] for r in target_inputs[v]], pos[v]) for v in wanted], max_targets)
+    else:
+        missing = [v for v in [*input_views, *(pool or [])] if v not in pos]
+        if missing:
+            raise InputError(f"{what} has no view(s) {missing} to use as input")
+        refs = [pos[v] for v in input_views]
+        if target_views is None:
+            targets = [k for k in range(len(s)) if k not in refs]
+        else:
+            absent = [v for v in target_views if v not in pos]
+            if absent:
+                raise InputError(f"{what} has no target view(s) {absent[:5]}")
+            targets = [pos[v] for v in target_views if pos[v] not in refs]
+        targets = _spread(targets, max_targets)
+        if not nearest:
+            return [(s, refs, targets)]
+        per = [(refs, t) for t in targets]
+    if nearest:
+        among = list(range(len(s))) if pool is None else [pos[v] for v in pool]
+        short = [s.view_ids[t] for _, t in per if len([k for k in among if k != t]) < nearest]
+        if short:
+            raise InputError(f"{what}: fewer than {nearest} other views to take the nearest from (target "
+                             f"view {short[0]})")
+        per = [(nearest_of(s, [k for k in among if k != t], t, nearest), t) for _, t in per]
+    return [(s, list(refs), [t]) for refs, t in per]
 
 
 def _scores(pred: torch.Tensor, gt: torch.Tensor, lpips) -> dict[str, float]:
@@ -126,8 +177,13 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
              ref_size: int = 0, max_ref_size: int = 0, target_inputs: dict[int, Sequence[int]] | None = None,
-             skip: str = "off", workers: int = 1, adapt=None):
+             skip: str = "off", workers: int = 1, adapt=None, nearest: int = 0,
+             pool: Sequence[int] | None = None):
     """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
+
+    ``nearest``: render each target from its ``nearest`` nearest views (:func:`nearest_of`) among ``pool``
+    (view ids; None = every view of the object), the target itself excluded, instead of the protocol's
+    references: a dense capture, where every other photo is at hand. The protocol still picks the targets.
 
     ``adapt``: an :class:`training.adapt.AdaptConfig`; when on, each reference set gets its own copy of the
     model fine-tuned on those references alone (leave one out) before its targets render.
@@ -149,33 +205,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     grid_rows = []
     jobs = []
     for s in scenes:
-        pos = {vid: k for k, vid in enumerate(s.view_ids)}
-        if target_inputs is not None:
-            wanted = sorted(target_inputs) if target_views is None else list(target_views)
-            absent = [v for v in wanted if v not in pos or v not in target_inputs
-                      or any(r not in pos for r in target_inputs[v])]
-            if absent:
-                raise InputError(f"object {s.category}/{s.name} lacks target view(s) {absent[:5]} or their inputs")
-            per = [(tuple(pos[r] for r in target_inputs[v]), pos[v]) for v in wanted]
-            if max_targets and len(per) > max_targets:
-                per = [per[i] for i in np.linspace(0, len(per) - 1, max_targets).round().astype(int)]
-            for refs_t, t in per:
-                jobs.append((s, list(refs_t), [t]))
-            continue
-        missing = [v for v in input_views if v not in pos]
-        if missing:
-            raise InputError(f"object {s.category}/{s.name} has no view(s) {missing} to use as input")
-        refs = [pos[v] for v in input_views]
-        if target_views is None:
-            targets = [k for k in range(len(s)) if k not in refs]
-        else:
-            absent = [v for v in target_views if v not in pos]
-            if absent:
-                raise InputError(f"object {s.category}/{s.name} has no target view(s) {absent[:5]}")
-            targets = [pos[v] for v in target_views if pos[v] not in refs]
-        if max_targets and len(targets) > max_targets:
-            targets = [targets[i] for i in np.linspace(0, len(targets) - 1, max_targets).round().astype(int)]
-        jobs.append((s, refs, targets))
+        jobs += _jobs(s, input_views, target_views, target_inputs, max_targets, nearest, pool)
     total = sum(len(t) for _, _, t in jobs)
     # grid: the first object of every category, then further objects, up to grid_objects rows
     firsts = {}
@@ -214,7 +244,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             if near.shape == gt.shape:
                 rec["baseline_nearest"] = _scores(near, gt, lpips)
             rec["baseline_mean"] = _scores(torch.from_numpy(np.broadcast_to(mean_col, gt.shape).copy()), gt, lpips)
-            if target_inputs is not None and ref_imgs.shape[1:] == gt.shape:
+            if (target_inputs is not None or nearest) and ref_imgs.shape[1:] == gt.shape:
                 # neighbouring references: their pixel-wise mean is a third trivial answer (a blur that
                 # PSNR rewards; reported beside the others, not counted in the best-baseline margin)
                 rec["baseline_blend"] = _scores(torch.from_numpy(ref_imgs.mean(0).astype(np.float32)), gt, lpips)
@@ -224,7 +254,9 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             done += 1
             yield Progress(done, total, f"{s.category}/{s.name} view {s.view_ids[t]}: {rec['psnr']:.2f} dB")
     report = summarize(records)
-    report["protocol"] = {"input_views": list(input_views) if target_inputs is None else "per target",
+    report["protocol"] = {"input_views": list(input_views) if target_inputs is None and not nearest else "per target",
+                          "nearest": nearest or None,
+                          "pool": None if not nearest else "every other view" if pool is None else list(pool),
                           "target_views": list(target_views) if target_views is not None else "all others",
                           "max_targets": max_targets, "objects": len(seen_objects), "empty_space_skipping": skip,
                           "reference_sizes": sorted([list(x) for x in sizes]),

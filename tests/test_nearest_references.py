@@ -1,0 +1,157 @@
+"""Many references (a dense capture): `synthesize` takes up to MAX_POOL references and renders each target
+from its K nearest (`--nearest`, or the model's most when there are more than it takes); `eval --nearest K`
+scores each protocol target from its K nearest other views. Bad counts are one line, nothing written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from blender_mrvm import synthesis as S
+from blender_mrvm.cli import main
+from blender_mrvm.datasets import format as F
+from blender_mrvm.datasets.loaders import load_ours
+from blender_mrvm.datasets.novel_views import MAX_POOL, parse_views
+from blender_mrvm.errors import InputError
+from blender_mrvm.training.synthetic import make_sphere_dataset
+
+from test_synthesize import tiny_checkpoint
+
+torch.set_num_threads(1)
+N_VIEWS = 14  # more than a model takes (10)
+
+
+@pytest.fixture(scope="module")
+def dense(tmp_path_factory):
+    root = tmp_path_factory.mktemp("dense")
+    data = make_sphere_dataset(root / "data", n_objects=1, n_views=N_VIEWS, resolution=12, seed=3)
+    return root, data / "spheres" / "obj000", tiny_checkpoint(root / "run")
+
+
+def _pool_nearest(obj: Path, rep: dict, pool: list[int], target: dict, k: int) -> list[int]:
+    """The ``k`` views of ``pool`` nearest the target, by the rule synthesis uses, recomputed here."""
+    ov = F.read_object(obj)
+    c2w = [ov.c2w_opencv[ov.indices.index(v)] for v in pool]
+    tgt = ov.c2w_opencv[ov.indices.index(int(target["name"].split()[-1]))]
+    return [pool[i] for i in S.nearest_views(c2w, tgt, np.mean(rep["bbox"], 0), k)]
+
+
+def _synth(obj, ck, out, *extra):
+    return ["synthesize", "--references", str(obj), "--target-views", "2,9", "--checkpoint", str(ck),
+            "--out", str(out), "--device", "cpu", "--threads", "1", *extra]
+
+
+def test_every_view_of_a_dense_folder_is_the_pool_and_each_target_takes_its_nearest(dense, tmp_path):
+    root, obj, ck = dense
+    pool = [v for v in range(N_VIEWS) if v not in (2, 9)]
+    assert main(_synth(obj, ck, tmp_path / "k3", "--views", ",".join(map(str, pool)), "--nearest", "3")) == 0
+    rep = json.loads((tmp_path / "k3" / "synthesis.json").read_text())
+    assert rep["references"]["views"] == pool and rep["nearest"] == 3
+    used = [t["reference_views"] for t in rep["targets"]]
+    assert used[0] != used[1]  # two targets on different sides take different references
+    for t in rep["targets"]:
+        assert t["reference_views"] == sorted(_pool_nearest(obj, rep, pool, t, 3))
+    # No --views: every view is the pool (14 > the 10 a model takes): each target takes its 10 nearest,
+    # its own view first among them.
+    assert main(_synth(obj, ck, tmp_path / "auto")) == 0
+    rep = json.loads((tmp_path / "auto" / "synthesis.json").read_text())
+    assert rep["references"]["views"] == list(range(N_VIEWS)) and rep["nearest"] == 0
+    for t in rep["targets"]:
+        assert len(t["reference_views"]) == 10 and int(t["name"].split()[-1]) in t["reference_views"]
+        assert t["reference_views"] == sorted(_pool_nearest(obj, rep, list(range(N_VIEWS)), t, 10))
+    # --views all is the same pool; the images of the same references are the same
+    assert main(_synth(obj, ck, tmp_path / "all", "--views", "all")) == 0
+    for i in range(2):
+        assert np.array_equal(F.read_png(tmp_path / "auto" / f"rgb/{i:06d}.png"),
+                              F.read_png(tmp_path / "all" / f"rgb/{i:06d}.png"))
+
+
+def test_nearest_as_many_as_there_are_renders_like_plain_references(dense, tmp_path):
+    root, obj, ck = dense
+    assert main(_synth(obj, ck, tmp_path / "plain", "--views", "0,5,11")) == 0
+    assert main(_synth(obj, ck, tmp_path / "k5", "--views", "0,5,11", "--nearest", "5")) == 0
+    for i in range(2):
+        assert np.array_equal(F.read_png(tmp_path / "plain" / f"rgb/{i:06d}.png"),
+                              F.read_png(tmp_path / "k5" / f"rgb/{i:06d}.png"))
+
+
+def _gpnr_checkpoint(path: Path, lo: int, hi: int) -> Path:
+    from blender_mrvm.models import registry
+    from blender_mrvm.training.checkpoint import save_checkpoint
+
+    cfg = registry.build_config("gpnr", "fast", {"patch_dim": 4, "n_samples": 6, "d_model": 8, "n_heads": 2,
+                                                 "n_blocks": 1, "min_ref_views": lo, "max_ref_views": hi})
+    torch.manual_seed(0)
+    return save_checkpoint(path, 1, registry.build_model(cfg), cfg, None)
+
+
+@pytest.mark.parametrize("extra, model, message", [
+    (["--nearest", "11"], None, "--nearest"),
+    (["--nearest", "-1"], None, "--nearest"),
+    (["--views", "0,1,3,4,5", "--nearest", "4"], (2, 3), "takes at most 3 reference views"),
+    (["--views", "0,1,3", "--nearest", "1"], (2, 3), "needs at least 2 reference views"),
+    (["--views", "0"], (2, 3), "needs at least 2 reference views"),
+])
+def test_bad_reference_counts_are_one_line_and_write_nothing(dense, tmp_path, capsys, extra, model, message):
+    root, obj, ck = dense
+    if model is not None:
+        ck = _gpnr_checkpoint(tmp_path / "ck", *model)
+    capsys.readouterr()
+    assert main(_synth(obj, ck, tmp_path / "out", *extra)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and message in err[0], err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_model_taking_fewer_than_the_pool_renders_each_target_from_its_nearest(dense, tmp_path):
+    root, obj, _ = dense
+    ck = _gpnr_checkpoint(tmp_path / "ck", 2, 3)
+    assert main(_synth(obj, ck, tmp_path / "out", "--views", "all")) == 0
+    rep = json.loads((tmp_path / "out" / "synthesis.json").read_text())
+    for t in rep["targets"]:
+        assert t["reference_views"] == sorted(_pool_nearest(obj, rep, list(range(N_VIEWS)), t, 3))
+
+
+def test_parse_views_takes_all_and_up_to_the_pool_size():
+    assert parse_views("all") == () and parse_views(" ALL ") == ()
+    assert len(parse_views(" ".join(map(str, range(MAX_POOL))))) == MAX_POOL
+    with pytest.raises(InputError, match=f"at most {MAX_POOL}"):
+        parse_views(" ".join(map(str, range(MAX_POOL + 1))))
+
+
+def test_eval_nearest_takes_each_targets_nearest_other_views(dense):
+    """`eval --nearest K`: the protocol's targets, each from its K nearest views among the others (or among
+    a given pool), never itself."""
+    from blender_mrvm.training.evaluate import _jobs, nearest_of
+
+    _, obj, _ = dense
+    s = load_ours(obj)
+    jobs = _jobs(s, [0, 7], None, None, 0, 3, None)
+    assert [t for _, _, (t,) in jobs] == [k for k in range(N_VIEWS) if k not in (0, 7)]  # the protocol's targets
+    for _, refs, (t,) in jobs:
+        others = [k for k in range(N_VIEWS) if k != t]
+        assert t not in refs and len(refs) == 3 and refs == sorted(nearest_of(s, others, t, 3))
+    pool = [0, 3, 7, 11]  # --input-views with --nearest: the nearest of those, every other view a target
+    for _, refs, (t,) in _jobs(s, pool, None, None, 0, 2, pool):
+        assert set(refs) <= set(pool) and len(refs) == 2
+    with pytest.raises(InputError, match="fewer than 4 other views"):
+        _jobs(s, [0, 3, 7], None, None, 0, 4, [0, 3, 7])
+    with pytest.raises(InputError, match="no view"):
+        _jobs(s, [0, 99], None, None, 0, 2, [0, 99])
+    # without --nearest: one job with the protocol's references for every target, as before
+    assert [(r, len(t)) for _, r, t in _jobs(s, [0, 7], None, None, 5, 0, None)] == [([0, 7], 5)]
+
+
+def test_eval_cli_records_nearest_in_the_protocol(dense, tmp_path):
+    root, obj, ck = dense
+    out = tmp_path / "ev"
+    assert main(["eval", "--checkpoint", str(ck), "--data", str(root / "data"), "--split", "test",
+                 "--input-views", "0,4,8,12", "--nearest", "2", "--max-targets", "2", "--no-lpips",
+                 "--threads", "1", "--out", str(out)]) == 0
+    rep = json.loads((out / "eval.json").read_text())
+    assert rep["protocol"]["nearest"] == 2 and rep["protocol"]["pool"] == [0, 4, 8, 12]
+    assert rep["protocol"]["scored_views"] == 2 and "baseline_blend" in rep["overall"]
