@@ -53,7 +53,7 @@ def test_sweep_moves_one_knob_at_a_time():
     pts = tr.sweep("nerformer_mrvm", cfg, list(tr.AXES), "cpu")
     base = tr.Point("base", "")
     for p in pts[1:]:
-        moved = [f for f in ("overrides", "refs", "ref_size", "precision", "skip", "chunk")
+        moved = [f for f in ("overrides", "refs", "nearest", "ref_size", "precision", "skip", "chunk")
                  if getattr(p, f) != getattr(base, f)]
         assert len(moved) == 1, (p.label, moved)
     assert not any(p.precision == "fp16" for p in pts)  # fp16 only on a GPU
@@ -70,6 +70,9 @@ def test_sweep_moves_one_knob_at_a_time():
         g = tr.sweep("gpnr", registry.build_config("gpnr", "fast", {"colour_filter": own}), ["filter"], "cpu")
         assert [p.overrides for p in g] == [{"colour_filter": other}]
     assert tr.ref_views(24, 2) == [3, 15] and len(set(tr.ref_views(24, 5))) == 5
+    assert [p.nearest for p in pts if p.axis == "nearest"] == [2, 3, 5, 10]  # up to the model's most
+    small = registry.build_config("gpnr", "fast", {"max_ref_views": 4})
+    assert [p.nearest for p in tr.sweep("gpnr", small, ["nearest"], "cpu")] == [2, 3]
 
 
 def test_peak_memory_sees_an_allocation():

@@ -5,6 +5,8 @@ own setting one knob at a time, at inference (the weights stay; every point is a
 
 - ``samples``: points per ray (NeRFormer: coarse and fine; GPNR: epipolar depths);
 - ``refs``: number of reference views (1, 2, 5), spread evenly around each object;
+- ``nearest``: a dense capture: each target rendered from its K nearest other views (2, 3, 5, 10;
+  ``synthesize --nearest``), timed on view 0 from its K nearest;
 - ``ref_size``: reference resolution (the references resized before encoding);
 - ``precision``: fp32, bf16 autocast (and fp16 on a GPU);
 - ``gate``: NeRFormer's fine pass skipped on rays whose coarse opacity is below ``render.fine_min_acc``
@@ -48,7 +50,7 @@ import numpy as np
 
 from . import PeakMemory, write_csv
 
-AXES = ("base", "samples", "gate", "stop", "filter", "refs", "ref_size", "precision", "skip", "chunk")
+AXES = ("base", "samples", "gate", "stop", "filter", "refs", "nearest", "ref_size", "precision", "skip", "chunk")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -77,6 +79,8 @@ class Point:
     label: str
     overrides: dict[str, Any] = field(default_factory=dict)
     refs: int = 2
+    nearest: int = 0
+    """> 0: each target from its ``nearest`` nearest other views (the targets stay those of ``refs`` spread ones)."""
     ref_size: int = 0
     precision: str = "fp32"
     skip: str = "cull"
@@ -116,6 +120,9 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
         pts.append(Point("filter", f"{other} colour reads", {"colour_filter": other}))
     if "refs" in axes:
         pts += [Point("refs", f"{r} refs", refs=r) for r in (1, 5)]
+    if "nearest" in axes:
+        pts += [Point("nearest", f"{k} nearest", nearest=k) for k in (2, 3, 5, 10)
+                if k <= int(getattr(cfg, "max_ref_views", 10))]
     if "ref_size" in axes:
         pts.append(Point("ref_size", "refs at 32 px", ref_size=32))
     if "precision" in axes:
@@ -132,6 +139,16 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
 def ref_views(n_views: int, k: int) -> list[int]:
     """``k`` reference view ids spread evenly over an object's ``n_views`` (turntable: evenly in azimuth)."""
     return [int(round(i * n_views / k + 3)) % n_views for i in range(k)]
+
+
+def speed_refs(scene, pt: Point) -> list[int]:
+    """The references of the timed view: ``pt.refs`` spread ones, or with ``pt.nearest`` view 0's nearest
+    others (:func:`measure_speed` times the first view that is not a reference)."""
+    if not pt.nearest:
+        return ref_views(len(scene), pt.refs)
+    from ..training.evaluate import nearest_of
+
+    return nearest_of(scene, list(range(1, len(scene))), 0, pt.nearest)
 
 
 def _autocast(precision: str, device: str):
@@ -183,8 +200,9 @@ def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str, 
     from ..progress import run_to_end
     from ..training.evaluate import evaluate
 
-    gen = evaluate(model, scenes, ref_views(len(scenes[0]), pt.refs), lpips, max_targets=targets,
-                   chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip, workers=workers)
+    gen = evaluate(model, scenes, ref_views(len(scenes[0]), pt.refs), lpips,
+                   max_targets=targets, chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip, workers=workers,
+                   nearest=pt.nearest)
     with _autocast(pt.precision, device):
         rep = run_to_end(gen)
     o = rep["overall"]
@@ -244,12 +262,12 @@ def run(args) -> int:
         for pt in sweep(kind, cfg0, axes, args.device):
             model.cfg = merge(cfg0, pt.overrides) if pt.overrides else cfg0
             t0 = time.perf_counter()
-            speed = measure_speed(model, scenes[0], ref_views(len(scenes[0]), pt.refs), pt, args.size, args.repeats,
+            speed = measure_speed(model, scenes[0], speed_refs(scenes[0], pt), pt, args.size, args.repeats,
                                   args.device, args.workers)
             quality = (measure_quality(model, scenes, pt, args.targets, lpips, args.device, args.workers)
                        if pt.quality else {})
             row = {"kind": kind, "checkpoint": spec, "preset": getattr(cfg0, "name", ""), "params": n_params,
-                   "axis": pt.axis, "point": pt.label, "refs": pt.refs, "ref_size": pt.ref_size or "native",
+                   "axis": pt.axis, "point": pt.label, "refs": pt.nearest or pt.refs, "ref_size": pt.ref_size or "native",
                    "precision": pt.precision, "skip_empty": pt.skip, "chunk": pt.chunk or "model",
                    "size": args.size, **speed,
                    "psnr": quality.get("psnr", ""), "ssim": quality.get("ssim", ""), "lpips": quality.get("lpips", ""),
