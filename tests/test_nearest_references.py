@@ -155,3 +155,29 @@ def test_eval_cli_records_nearest_in_the_protocol(dense, tmp_path):
     rep = json.loads((out / "eval.json").read_text())
     assert rep["protocol"]["nearest"] == 2 and rep["protocol"]["pool"] == [0, 4, 8, 12]
     assert rep["protocol"]["scored_views"] == 2 and "baseline_blend" in rep["overall"]
+
+
+def test_every_references_mask_carves_the_hull_a_view_is_rendered_within(dense, tmp_path):
+    """A view rendered from its 2 nearest references of 12 is culled by the hull of all 12 masks: never more
+    rays evaluated than with the hull of its 2 alone, and the world hull of the same views is the encoded
+    references' hull exactly."""
+    from blender_mrvm.training.checkpoint import load_model
+
+    root, obj, ck = dense
+    pool = [v for v in range(N_VIEWS) if v not in (2, 9)]
+    assert main(_synth(obj, ck, tmp_path / "pool", "--views", ",".join(map(str, pool)), "--nearest", "2")) == 0
+    rep = json.loads((tmp_path / "pool" / "synthesis.json").read_text())
+    for i, t in enumerate(rep["targets"]):
+        two = ",".join(map(str, t["reference_views"]))
+        assert main(_synth(obj, ck, tmp_path / f"two{i}", "--views", two)) == 0
+        alone = json.loads((tmp_path / f"two{i}" / "synthesis.json").read_text())["targets"][i]
+        assert t["evaluated_rays"] <= alone["evaluated_rays"] and t["box_rays"] == alone["box_rays"]
+    assert sum(t["evaluated_rays"] for t in rep["targets"]) < sum(
+        json.loads((tmp_path / f"two{i}" / "synthesis.json").read_text())["targets"][i]["evaluated_rays"]
+        for i in range(2))  # the other masks do carve
+    model, _, _ = load_model(ck)
+    refs = S.load_references(obj, (0, 5, 11))
+    ctx, ns = S.encode_references(model, refs)
+    a = model.hull(ctx, refs.masks, ns.box).occupied
+    b = model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox).occupied
+    assert torch.equal(a, b)

@@ -236,6 +236,16 @@ class RayModel(nn.Module):
 
         return build_hull(ref_masks, ctx.cams, box)
 
+    def world_hull(self, masks: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence[cameras.Intrinsics],
+                   bbox: tuple):
+        """The visual hull of any posed views' object ``masks`` (V, H, W) bool, one size, in this model's frame
+        for the box ``bbox`` (world units): views need not be the encoded references, and every mask given only
+        tightens it (a dense capture carves with all its photos while a view is rendered from its nearest)."""
+        from .hull import build_hull
+
+        ns = normalized_scene(bbox[0], bbox[1], self.box_padding)
+        return build_hull(masks, ref_cameras([ns.pose(c) for c in c2w], intr), ns.box)
+
     @torch.no_grad()
     def render_image(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,
                      chunk: int | None = None, hull=None, skip: str = "off", workers: int = 1) -> dict:
@@ -250,14 +260,18 @@ class RayModel(nn.Module):
     @torch.no_grad()
     def synthesize(self, ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
                    bbox: tuple, target_c2w: np.ndarray, target_intr: cameras.Intrinsics, chunk: int | None = None,
-                   ref_masks: np.ndarray | None = None, skip: str = "off", workers: int = 1) -> dict:
+                   ref_masks: np.ndarray | None = None, skip: str = "off", workers: int = 1, hull=None) -> dict:
         """Novel view in world units (see :meth:`encode_world`). Depth is along the ray, world units.
 
         ``ref_masks`` (V, H, W) bool object masks of the references with ``skip`` "cull" or "tighten":
-        empty-space skipping inside the box through their visual hull (``models/hull.py``). ``workers``: chunks
-        rendered at once (:meth:`image_chunks`)."""
+        empty-space skipping inside the box through their visual hull (``models/hull.py``); ``hull`` (from
+        :meth:`world_hull`) is used instead when given. ``workers``: chunks rendered at once
+        (:meth:`image_chunks`)."""
         ctx, ns = self.encode_world(ref_images, ref_c2w, ref_intr, bbox)
-        hull = self.hull(ctx, ref_masks, ns.box) if ref_masks is not None and skip != "off" else None
+        if skip == "off":
+            hull = None
+        elif hull is None and ref_masks is not None:
+            hull = self.hull(ctx, ref_masks, ns.box)
         out = self.render_image(ctx, target_intr, ns.pose(target_c2w), ns.box, chunk, hull, skip, workers)
         out["depth"] = out["depth"] * ns.scale
         return out

@@ -570,6 +570,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                    **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
     encoded: dict[tuple[int, ...], Any] = {}
+    # Each view takes its nearest references, but every reference's mask carves the hull (only tighter).
+    pool_hull = (model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
+                 if per_target and refs.masks is not None and cfg.skip_empty != "off" else None)
 
     def context_for(target):
         keep = tuple(range(len(refs.views)))
@@ -579,7 +582,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
             encoded.clear()
             sub = refs.subset(keep)
             ctx, ns = encode_references(model, sub)
-            encoded[keep] = ctx, ns, reference_hull(model, ctx, ns, sub, cfg.skip_empty)
+            encoded[keep] = ctx, ns, (pool_hull if pool_hull is not None
+                                    else reference_hull(model, ctx, ns, sub, cfg.skip_empty))
         return encoded[keep], keep
 
     base = out.parent if str(out.parent) else Path(".")

@@ -117,6 +117,14 @@ def _spread(items: list, k: int) -> list:
     return items
 
 
+def _pool_positions(s: ObjectScene, pool) -> list[int]:
+    """Positions of the pool's views in the scene (None = every view)."""
+    if pool is None:
+        return list(range(len(s)))
+    pos = {vid: k for k, vid in enumerate(s.view_ids)}
+    return [pos[v] for v in pool]
+
+
 def _jobs(s: ObjectScene, input_views, target_views, target_inputs, max_targets: int, nearest: int,
           pool) -> list[tuple[ObjectScene, list[int], list[int]]]:
     """One object's (scene, reference positions, target positions) jobs (see :func:`evaluate`)."""
@@ -146,7 +154,7 @@ def _jobs(s: ObjectScene, input_views, target_views, target_inputs, max_targets:
             return [(s, refs, targets)]
         per = [(refs, t) for t in targets]
     if nearest:
-        among = list(range(len(s))) if pool is None else [pos[v] for v in pool]
+        among = _pool_positions(s, pool)
         short = [s.view_ids[t] for _, t in per if len([k for k in among if k != t]) < nearest]
         if short:
             raise InputError(f"{what}: fewer than {nearest} other views to take the nearest from (target "
@@ -184,6 +192,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     ``nearest``: render each target from its ``nearest`` nearest views (:func:`nearest_of`) among ``pool``
     (view ids; None = every view of the object), the target itself excluded, instead of the protocol's
     references: a dense capture, where every other photo is at hand. The protocol still picks the targets.
+    As in synthesis, the masks of the whole pool (the target's excluded) carve the visual hull.
 
     ``adapt``: an :class:`training.adapt.AdaptConfig`; when on, each reference set gets its own copy of the
     model fine-tuned on those references alone (leave one out) before its targets render.
@@ -233,8 +242,12 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                                                s.background, lpips), done, total,
                                       lambda p, o=f"{s.category}/{s.name}": f"{o}: {p.message}")
         for ti, t in enumerate(targets):
+            hull = None
+            if nearest and s.masks is not None and skip != "off":  # as synthesis: every other view's mask carves
+                hv = [k for k in _pool_positions(s, pool) if k != t]
+                hull = model.world_hull(s.masks[hv], [s.c2w[k] for k in hv], [s.intrinsics[k] for k in hv], s.bbox)
             out = m.synthesize(ref_images, ref_c2w, ref_intr, s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
-                               ref_masks=ref_masks, skip=skip, workers=workers)
+                               ref_masks=ref_masks, skip=skip, workers=workers, hull=hull)
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}
