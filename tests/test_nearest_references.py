@@ -181,3 +181,30 @@ def test_every_references_mask_carves_the_hull_a_view_is_rendered_within(dense, 
     a = model.hull(ctx, refs.masks, ns.box).occupied
     b = model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox).occupied
     assert torch.equal(a, b)
+
+
+def test_adapting_to_a_dense_set_draws_each_held_out_views_nearest(dense):
+    """Adaptation with fewer inputs than the other references (a dense set whose views each render from
+    their nearest few) draws every step's references as the held-out view's nearest, as capture training
+    does; otherwise they are a random subset, as before."""
+    from blender_mrvm.training import trainer
+    from blender_mrvm.training.adapt import AdaptConfig, _train_config
+    from blender_mrvm.training.evaluate import nearest_of
+
+    _, obj, _ = dense
+    s = load_ours(obj)
+    cfg = _train_config(AdaptConfig(steps=1), 3, True)
+    near = trainer.RayBatcher([s], cfg, 0.1, 0, nearest=True)
+    rand = trainer.RayBatcher([s], cfg, 0.1, 0)
+    nearest_draws = 0
+    for _ in range(8):
+        for batcher in (near, rand):
+            b = batcher.draw(False)
+            t, refs = b["target_view"], b["ref_views"]
+            assert len(refs) == 3 and t not in refs
+            is_nearest = sorted(refs) == sorted(nearest_of(s, [k for k in range(len(s)) if k != t], t, 3))
+            if batcher is near:
+                assert is_nearest
+            else:
+                nearest_draws += is_nearest
+    assert nearest_draws < 8  # random subsets are not always the nearest

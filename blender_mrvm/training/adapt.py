@@ -93,7 +93,8 @@ def adapt(model, images: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence, 
     ``model.synthesize`` takes them), ``masks`` (N, H, W) object masks or None, ``background`` the data's
     ("white" objects or a "scene"); ``lpips``: a :class:`models.metrics.LPIPS` when ``acfg.lpips_weight`` > 0
     (built here otherwise); ``max_refs``: each step renders its held-out reference from at most this many
-    others (0 = as many as the model takes; synthesis passes the count each target is rendered from).
+    others, its nearest when there are more (0 = as many as the model takes; synthesis passes the count each
+    target is rendered from).
     ``acfg.steps`` 0 returns the model itself."""
     from ..datasets.loaders import ObjectScene
     from . import trainer
@@ -110,7 +111,8 @@ def adapt(model, images: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence, 
                         bbox=(np.asarray(bbox[0], np.float64), np.asarray(bbox[1], np.float64)),
                         view_ids=list(range(n)), masks=None if masks is None else np.asarray(masks, bool),
                         background=background)
-    cfg = _train_config(acfg, min(n - 1, max_refs or model.max_ref_views), masks is not None)
+    inputs = min(n - 1, max_refs or model.max_ref_views)
+    cfg = _train_config(acfg, inputs, masks is not None)
     if cfg.lpips_weight > 0 and lpips is None:
         from ..models.metrics import LPIPS
 
@@ -121,7 +123,8 @@ def adapt(model, images: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence, 
     m = copy.deepcopy(model)
     params = [p for p in m.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=0.0)
-    batcher = trainer.RayBatcher([scene], cfg, m.box_padding, acfg.seed * 7919 + 17)
+    # Fewer inputs than the others: each step's held-out reference takes its nearest, as views then render.
+    batcher = trainer.RayBatcher([scene], cfg, m.box_padding, acfg.seed * 7919 + 17, nearest=inputs < n - 1)
     gen = torch.Generator(device=device).manual_seed(acfg.seed * 104729 + 17)
     fork = torch.random.fork_rng(devices=[device.index or 0] if device.type == "cuda" else [])
     with fork:  # the caller's global RNG is left as it was

@@ -117,6 +117,13 @@ def _spread(items: list, k: int) -> list:
     return items
 
 
+def _model_views(s: ObjectScene, views: Sequence[int], w: int, h: int):
+    """(images, c2w, intrinsics, masks or None) of views (positions) at ``w`` x ``h``, as the model sees them."""
+    mv = [resize_view(s.images[r], s.intrinsics[r], w, h) for r in views]
+    masks = None if s.masks is None else np.stack([resize_mask(s.masks[r], w, h) for r in views])
+    return np.stack([im for im, _ in mv]), [s.c2w[r] for r in views], [k for _, k in mv], masks
+
+
 def _pool_positions(s: ObjectScene, pool) -> list[int]:
     """Positions of the pool's views in the scene (None = every view)."""
     if pool is None:
@@ -229,23 +236,24 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         ref_imgs = s.images[refs]
         mean_col = ref_imgs.reshape(-1, 3).mean(0)
         w, h = reference_shape(s.intrinsics[refs[0]], ref_size, max_ref_size)
-        model_refs = [resize_view(s.images[r], s.intrinsics[r], w, h) for r in refs]
-        ref_images, ref_intr = np.stack([im for im, _ in model_refs]), [k for _, k in model_refs]
-        ref_c2w = [s.c2w[r] for r in refs]
-        ref_masks = None if s.masks is None else np.stack([resize_mask(s.masks[r], w, h) for r in refs])
+        ref_images, ref_c2w, ref_intr, ref_masks = _model_views(s, refs, w, h)
         sizes.add((w, h))
+        # nearest: the pool is every other view (the target's excluded); its masks carve the hull and the
+        # model adapts to all of it, as synthesis does with a dense set of references
+        others = [k for k in _pool_positions(s, pool) if k not in targets] if nearest else refs
         m = model
         if adapt is not None:
             from .adapt import adapt as adapt_to
 
-            m = yield from as_step_of(adapt_to(model, ref_images, ref_c2w, ref_intr, s.bbox, adapt, ref_masks,
-                                               s.background, lpips), done, total,
+            a_views = _model_views(s, others, w, h) if nearest else (ref_images, ref_c2w, ref_intr, ref_masks)
+            m = yield from as_step_of(adapt_to(model, *a_views[:3], s.bbox, adapt, a_views[3], s.background, lpips,
+                                               max_refs=len(refs) if nearest else 0), done, total,
                                       lambda p, o=f"{s.category}/{s.name}": f"{o}: {p.message}")
+        hull = None
+        if nearest and s.masks is not None and skip != "off":
+            hull = model.world_hull(s.masks[others], [s.c2w[k] for k in others], [s.intrinsics[k] for k in others],
+                                    s.bbox)
         for ti, t in enumerate(targets):
-            hull = None
-            if nearest and s.masks is not None and skip != "off":  # as synthesis: every other view's mask carves
-                hv = [k for k in _pool_positions(s, pool) if k != t]
-                hull = model.world_hull(s.masks[hv], [s.c2w[k] for k in hv], [s.intrinsics[k] for k in hv], s.bbox)
             out = m.synthesize(ref_images, ref_c2w, ref_intr, s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
                                ref_masks=ref_masks, skip=skip, workers=workers, hull=hull)
             pred = out["color"]

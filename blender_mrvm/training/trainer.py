@@ -105,8 +105,9 @@ class RayBatcher:
     """Draws (reference set, target rays) per object from a list of scenes with one numpy generator."""
 
     def __init__(self, scenes: list[ObjectScene], cfg: TrainConfig, box_padding: float, seed: int,
-                 weights: np.ndarray | None = None):
-        """``weights``: per scene, its probability of being drawn (:func:`object_weights`); None = uniform."""
+                 weights: np.ndarray | None = None, nearest: bool = False):
+        """``weights``: per scene, its probability of being drawn (:func:`object_weights`); None = uniform.
+        ``nearest``: the target's nearest views are its references for objects too (always for captures)."""
         if not scenes:
             raise InputError("no training objects")
         for s in scenes:
@@ -114,6 +115,7 @@ class RayBatcher:
                 raise InputError(f"object {s.category}/{s.name} has {len(s)} view(s); training needs >= 2")
         self.scenes = scenes
         self.weights = weights
+        self.nearest = bool(nearest)
         self.cfg = cfg
         self.padding = float(box_padding)
         self.rng = np.random.default_rng(seed)
@@ -131,9 +133,10 @@ class RayBatcher:
         k = int(rng.integers(c.min_ref_views, min(c.max_ref_views, len(s) - 1) + 1))
         perm = rng.permutation(len(s))
         refs, tgt = perm[:k], int(perm[k])
-        if s.background == "scene":
+        if s.background == "scene" or self.nearest:
             # A capture: the target's nearest views are its references, as eval and synthesis give them
-            # (random views of a walk round a room rarely see what the target sees).
+            # (random views of a walk round a room rarely see what the target sees); adapting to a dense
+            # set of references whose views each take their nearest few, too.
             others = [int(v) for v in perm[k:] if v != tgt] + [int(v) for v in perm[:k]]
             centre = 0.5 * (np.asarray(s.bbox[0], np.float64) + np.asarray(s.bbox[1], np.float64))
             near = nearest_views([s.c2w[v] for v in others], s.c2w[tgt], centre, k)
@@ -158,7 +161,8 @@ class RayBatcher:
             mask = torch.from_numpy(s.masks[tgt][iy, ix].astype(np.float32)) if s.masks is not None else None
         rays = make_rays(intr, ns.pose(s.c2w[tgt]), px, box=ns.box)
         return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k,
-                "scene": s.background == "scene", "patch": patch}
+                "scene": s.background == "scene", "patch": patch,
+                "ref_views": [int(v) for v in refs], "target_view": tgt}
 
     @staticmethod
     def _foreground(s: ObjectScene, view: int) -> np.ndarray:
