@@ -152,7 +152,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                     "(a dense capture: each view is rendered from its nearest references)")
     nearest: IntProperty(name="Per view", default=0, min=0, max=10,
                          description="References each view is rendered from: its nearest ones by direction and "
-                         "distance (fewer is faster). 0 = every reference, or the model's most (10) nearest")
+                         "distance (fewer is faster). 0 = every reference when there are at most 10, else the 5 nearest")
     target_source: EnumProperty(name="Targets", items=[
         ("SELECTED", "Selected cameras", "Synthesize the view of every selected camera"),
         ("ORBIT", "Orbit", "Generate cameras on a circle around the 3D cursor"),

@@ -55,14 +55,18 @@ def test_every_view_of_a_dense_folder_is_the_pool_and_each_target_takes_its_near
     assert used[0] != used[1]  # two targets on different sides take different references
     for t in rep["targets"]:
         assert t["reference_views"] == sorted(_pool_nearest(obj, rep, pool, t, 3))
-    # No --views: every view is the pool (14 > the 10 a model takes): each target takes its 10 nearest,
-    # its own view first among them.
+    # No --views: every view is the pool (14 > the 10 a model takes): each target takes its DENSE_NEAREST (5)
+    # nearest, its own view among them.
     assert main(_synth(obj, ck, tmp_path / "auto")) == 0
     rep = json.loads((tmp_path / "auto" / "synthesis.json").read_text())
     assert rep["references"]["views"] == list(range(N_VIEWS)) and rep["nearest"] == 0
     for t in rep["targets"]:
-        assert len(t["reference_views"]) == 10 and int(t["name"].split()[-1]) in t["reference_views"]
-        assert t["reference_views"] == sorted(_pool_nearest(obj, rep, list(range(N_VIEWS)), t, 10))
+        assert len(t["reference_views"]) == S.DENSE_NEAREST == 5 and int(t["name"].split()[-1]) in t["reference_views"]
+        assert t["reference_views"] == sorted(_pool_nearest(obj, rep, list(range(N_VIEWS)), t, 5))
+    # Ten references, the most a model takes: every one for every view
+    assert main(_synth(obj, ck, tmp_path / "ten", "--views", ",".join(map(str, range(10))))) == 0
+    rep = json.loads((tmp_path / "ten" / "synthesis.json").read_text())
+    assert all(t["reference_views"] == list(range(10)) for t in rep["targets"])
     # --views all is the same pool; the images of the same references are the same
     assert main(_synth(obj, ck, tmp_path / "all", "--views", "all")) == 0
     for i in range(2):

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(default: all, at most 500; with more than a view uses, each view takes its nearest, --nearest)")
     p.add_argument("--nearest", type=int, default=0, metavar="K",
                    help="render each view from its K nearest references (by direction and distance; fewer is faster, "
-                   "README 'Many references'); 0 (default) = every reference, or the model's most (10) nearest")
+                   "README 'Many references'); 0 (default) = every reference when there are at most 10, else the 5 nearest")
     tg = p.add_mutually_exclusive_group(required=True)
     tg.add_argument("--targets", type=Path, help="targets.json naming the cameras to synthesize")
     tg.add_argument("--target-views", nargs="+", help="synthesize these views of the reference folder, e.g. 0,5,9")

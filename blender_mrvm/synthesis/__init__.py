@@ -4,8 +4,9 @@ The core of ``python -m blender_mrvm synthesize``, of the add-on's Synthesize op
 command in the worker process), of ``eval`` (reference sizing) and of ``demo``. See ``views.py``.
 """
 
-from .views import (ALPHA_DEPTH_THRESHOLD, References, SynthesisConfig, SynthesisSummary,  # noqa: F401
+from .views import (ALPHA_DEPTH_THRESHOLD, DENSE_NEAREST, References, SynthesisConfig, SynthesisSummary,  # noqa: F401
                     check_reference_folder, encode_references, json_line, load_checkpoint, load_references, nearest_views,
                     object_box, orbit_targets, parse_bbox, reference_shape, reference_sizes, render_target,
                     resize_mask,
-                    resize_view, resolve_device, rgba_image, synthesize_views, targets_from_views, trained_size)
+                    references_per_target, resize_view, resolve_device, rgba_image, synthesize_views, targets_from_views,
+                    trained_size)
