@@ -147,9 +147,9 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                 description="One object's folder of a rendered dataset (holds rgb/ and pose/)")
     capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", default="//mrvm_capture",
                                 description="Capture folder written by Recover poses")
-    reference_views: StringProperty(name="Views", default="0 1",
-                                    description="Indices of the views used as references, e.g. '0 1', or 'all' "
-                                    "(a dense capture: each view is rendered from its nearest references)")
+    reference_views: StringProperty(name="Views", default="all",
+                                    description="Views of the folder used as references: 'all' (each novel view is "
+                                    "rendered from its nearest ones, see Per view) or indices, e.g. '0 1'")
     nearest: IntProperty(name="Per view", default=0, min=0, max=10,
                          description="References each view is rendered from: its nearest ones by direction and "
                          "distance (fewer is faster). 0 = every reference when there are at most 10, else the 5 nearest")
