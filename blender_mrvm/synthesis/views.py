@@ -628,10 +628,10 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
 
 DENSE_NEAREST = 5
 """References per view when a synthesis is given more than its model takes (a dense capture: ``--views all``)
-and no ``--nearest``. Measured with every other view of 24 at hand (README "Many references"): more nearest
-views raise PSNR with diminishing returns while the cost grows (GPNR's with the square of the count), and
-past 5-6 LPIPS stops improving (turntable objects, capture rooms) or gets worse; 5 is within 0.2-0.5 dB of
-the best count on all three sets at half (NeRFormer) to a quarter (GPNR) of the time of 10."""
+and no ``--nearest``. Measured with every other view of 24 at hand (``docs/nearest.md``): more nearest views
+raise PSNR with diminishing returns while the time grows about linearly, and past 5-6 LPIPS stops improving
+(capture rooms, the sphere rig) or gets worse (turntable objects); 5 is within 0.1-0.5 dB of the best count on
+the three sets, LPIPS within 0.004, at a little over half the time of 10."""
 
 
 def references_per_target(model, available: int, nearest: int = 0) -> int:
