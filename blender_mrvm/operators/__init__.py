@@ -5,23 +5,11 @@ Each module in ``MODULES`` defines a ``classes`` tuple; they are registered in o
 
 import importlib
 
+import bpy
+
 MODULES = ("dataset", "capture", "synthesize", "train", "sem2nerf")
 
+CLASSES = tuple(c for name in MODULES for c in importlib.import_module(f".{name}", __package__).classes)
+"""Every class of the modules in ``MODULES``, in registration order."""
 
-def _classes():
-    for name in MODULES:
-        yield from importlib.import_module(f".{name}", __package__).classes
-
-
-def register() -> None:
-    import bpy
-
-    for cls in _classes():
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    import bpy
-
-    for cls in reversed(list(_classes())):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)
