@@ -339,6 +339,8 @@ EVAL = [
     _e("--ref-size must be between 1 and 4096", ["--ref-size", "-7"], cls="silent-garbage"),
     _e("--ref-size must be between 1 and 4096", ["--ref-size", "100000"]),
     _e("--threads must be between 0", ["--threads", "-4"]),
+    _e("unknown device 'cuda:x'", ["--device", "cuda:x"]),
+    _e("no CUDA GPU", ["--device", "cuda"], skip="a GPU is here" if CUDA else ""),
     _e("--max-objects must be at least 0", ["--max-objects", "-1"]),
     _e("--nearest must be between 0 and 10", ["--nearest", "11"]),
     _e("--max-targets must be at least 0", ["--max-targets", "-1"]),

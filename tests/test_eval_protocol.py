@@ -88,6 +88,7 @@ def test_eval_command_uses_dataset_protocol(two_category_set, checkpoint, tmp_pa
     assert p["input_views"] == [4, 1] and p["target_views"] == [0, 3, 5]
     assert p["objects"] == 3 and p["scored_views"] == 9
     assert rep["data"]["protocol_source"].endswith("eval_views.json") and rep["checkpoint"]["step"] == 3
+    assert rep["device"] == ("cuda" if torch.cuda.is_available() else "cpu")  # --device auto
     assert {(v["category"], v["object"]) for v in rep["views"]} == {("red", "obj001"), ("red", "obj002"),
                                                                     ("blue", "obj001")}
     assert {v["view"] for v in rep["views"]} == {0, 3, 5}

@@ -38,6 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-targets", type=int, default=0, help="score at most this many views per object (0 = all)")
     p.add_argument("--out", type=Path, default=Path("eval_out"), help="output folder")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda[:N]: where the model "
+                   "renders (default auto); references, rays and the hull are moved to it, scores are computed on the CPU")
     p.add_argument("--threads", type=int, default=0, help="CPU threads (0 = every core): views render that many ray chunks side by side, one core each")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
                    help="empty-space skipping through the references' visual hull where the dataset has masks "
@@ -58,6 +60,7 @@ def check_args(args) -> None:
     from .. import validation as V
     from ..guards import check_output_folder
 
+    V.check_device_name("--device", args.device)
     V.check_count("--threads", args.threads, 0, 4096)
     V.check_count("--max-objects", args.max_objects, 0)
     V.check_count("--max-objects-per-category", args.max_objects_per_category, 0)
@@ -126,7 +129,10 @@ def run(args) -> int:
     from ..models.pretrained import resolve_checkpoint
 
     args.checkpoint = resolve_checkpoint(args.checkpoint)
-    model, _, meta = load_model(args.checkpoint)
+    from ..synthesis import resolve_device
+
+    device = resolve_device(args.device)
+    model, _, meta = load_model(args.checkpoint, str(device))
     from ..synthesis import reference_sizes
 
     ref_size, max_ref_size = reference_sizes(args.ref_size, args.checkpoint)
@@ -149,6 +155,7 @@ def run(args) -> int:
     if bg_note:
         print(f"note: {bg_note}", file=sys.stderr)
     extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None},
+             "device": str(device),
              "background": {"data": data_bg, "white_background": model.white_background, "note": bg_note},
              "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
                       "max_objects_per_category": args.max_objects_per_category}}
