@@ -162,3 +162,31 @@ def test_auto_thread_count_leaves_a_core():
     n = threads.set_torch_threads(0)
     assert torch.get_num_threads() == n == threads.auto_threads()
     assert threads.set_torch_threads(1) == 1 and torch.get_num_threads() == 1
+
+
+def test_bench_train_times_the_real_trainer(tmp_path, capsys):
+    """`bench train`: one row per preset x batch x precision through the trainer's own loop, rays/s = steps/s x
+    the batch's rays; a bad batch is one error before anything is written."""
+    import csv
+
+    from blender_mrvm.bench import train as bt
+    from blender_mrvm.cli import main
+
+    assert bt.parse_batches("2x256, 8X1024") == [(2, 256), (8, 1024)]
+    for bad in ("2x", "x8", "2*256", "0x16", ""):
+        with pytest.raises(Exception, match="--batches"):
+            bt.parse_batches(bad)
+    with pytest.raises(Exception, match="--precisions"):
+        bt.parse_precisions("fp32,fp16", "cpu")  # fp16 autocast is a GPU setting
+    out = tmp_path / "b"
+    assert main(["bench", "train", "--presets", "fast", "--batches", "1x32,2x16", "--steps", "2", "--warmup", "1",
+                 "--resolution", "16", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "bench_train.csv")))
+    assert [(r["objects_per_step"], r["rays_per_object"]) for r in rows] == [("1", "32"), ("2", "16")]
+    for r in rows:
+        sps, rps = float(r["steps_per_s"]), float(r["rays_per_s"])
+        assert sps > 0 and rps == pytest.approx(sps * 32, rel=1e-3)
+        assert float(r["cpu_seconds_per_step"]) > 0 and r["gpu_util_pct"] == "" and int(r["params"]) > 0
+    assert "steps/s" in capsys.readouterr().out
+    assert main(["bench", "train", "--presets", "fast", "--batches", "1x0", "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "c").exists()

@@ -1,0 +1,224 @@
+"""Training throughput: optimizer steps and rays per second for each model preset, batch shape and precision.
+
+Each configuration runs the real trainer (``training.trainer.train``: the ray batcher, the model's losses
+with MRVM's masking where the preset has it, the backward pass, clipping and the AdamW step) for
+``--warmup`` + ``--steps`` + 1 steps and times the ``--steps`` after the warm-up (the last step, which
+writes the checkpoint, is not timed). A batch is ``OBJECTSxRAYS``: ``train.objects_per_step`` objects, each
+with its own 1-3 references, and ``train.rays_per_object`` target rays each. Data: ``--data`` (a dataset
+root, its train split), else a small analytic set made in a temporary folder (``training.synthetic``: 8
+objects x 12 views at ``--resolution``).
+
+Each row: steps and rays per second (wall), process CPU seconds per step, the peak extra memory of the
+timed steps (``bench.PeakMemory``: on CUDA the allocator's peak), and on a GPU its mean utilisation over
+the timed steps (``torch.cuda.utilization``, else ``nvidia-smi``, sampled every 0.2 s). Written to
+``<out>/bench_train.csv``. Issue 11 asks a GPU session for exactly these (steps per second, GPU
+utilisation, bf16 against fp32)::
+
+    python -m blender_mrvm bench train --device cuda --presets fast,balanced,accurate,paper,gpnr:fast \
+        --batches 2x256,8x1024,16x4096 --precisions fp32,bf16 --data data/shapenet13_all --out docs/bench_train_gpu
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from . import PeakMemory, write_csv
+
+PRECISIONS = {"fp32": "none", "bf16": "bf16", "fp16": "fp16"}
+"""Bench precision name -> ``train.amp``."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="bench_out", help="folder for bench_train.csv")
+    p.add_argument("--presets", default="fast,balanced",
+                   help="comma-separated model presets; KIND:PRESET for another model kind (e.g. gpnr:fast)")
+    p.add_argument("--batches", default="2x256,2x1024,8x256",
+                   help="comma-separated OBJECTSxRAYS: objects per step x target rays per object")
+    p.add_argument("--precisions", default="fp32", help="comma-separated fp32, bf16, fp16 (fp16 on a GPU only)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:N]")
+    p.add_argument("--steps", type=int, default=20, help="timed steps per configuration")
+    p.add_argument("--warmup", type=int, default=3, help="untimed steps first (allocator, autotuning)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (train.threads)")
+    p.add_argument("--data", default=None, help="dataset root to train on (default: a small analytic set)")
+    p.add_argument("--resolution", type=int, default=64, help="image side of the analytic set")
+
+
+def parse_batches(text: str) -> list[tuple[int, int]]:
+    """``"2x256,8x1024"`` -> [(2, 256), (8, 1024)]; InputError for anything else."""
+    from ..errors import InputError
+
+    out = []
+    for part in [s.strip() for s in str(text).split(",") if s.strip()]:
+        a, sep, b = part.lower().partition("x")
+        if not sep or not a.isdigit() or not b.isdigit() or int(a) < 1 or int(b) < 1:
+            raise InputError(f"--batches: {part!r} is not OBJECTSxRAYS (e.g. 2x256)")
+        out.append((int(a), int(b)))
+    if not out:
+        raise InputError("--batches is empty")
+    return out
+
+
+def parse_precisions(text: str, device: str) -> list[str]:
+    from ..errors import InputError
+
+    precs = [s.strip() for s in str(text).split(",") if s.strip()]
+    bad = [s for s in precs if s not in PRECISIONS or (s == "fp16" and not device.startswith("cuda"))]
+    if bad or not precs:
+        raise InputError(f"--precisions: {bad or precs} not among fp32, bf16 (and fp16 on a GPU)")
+    return precs
+
+
+class GpuUtilisation:
+    """Mean GPU utilisation (percent) over a block, sampled on a thread every ``period`` seconds from
+    ``torch.cuda.utilization`` (needs pynvml) or ``nvidia-smi``; ``pct`` stays None where neither answers."""
+
+    def __init__(self, device: str, period: float = 0.2):
+        self.device, self.period = str(device), float(period)
+        self.samples: list[float] = []
+        self.pct: float | None = None
+        self._stop = threading.Event()
+        self._read = self._reader() if self.device.startswith("cuda") else None
+
+    def _reader(self):
+        import torch
+
+        idx = torch.device(self.device).index or 0
+        try:
+            torch.cuda.utilization(idx)
+            return lambda: float(torch.cuda.utilization(idx))
+        except Exception:  # no pynvml: ask the driver's tool
+            pass
+        smi = shutil.which("nvidia-smi")
+        if smi is None:
+            return None
+        cmd = [smi, f"--id={idx}", "--query-gpu=utilization.gpu", "--format=csv,noheader,nounits"]
+
+        def read() -> float:
+            return float(subprocess.run(cmd, capture_output=True, text=True, timeout=5).stdout.split()[0])
+
+        try:
+            read()
+        except Exception:
+            return None
+        return read
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                self.samples.append(self._read())
+            except Exception:
+                pass
+
+    def __enter__(self) -> "GpuUtilisation":
+        if self._read is not None:
+            self._thread = threading.Thread(target=self._loop, daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._read is not None:
+            self._stop.set()
+            self._thread.join()
+            self.pct = sum(self.samples) / len(self.samples) if self.samples else None
+
+
+def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
+            threads: int, run_dir: Path) -> dict:
+    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + 1`` steps in ``run_dir``; the timing of the
+    ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation."""
+    import torch
+
+    from ..progress import Progress
+    from ..training.config import TrainConfig
+    from ..training.trainer import train
+
+    total = warmup + steps + 1
+    tcfg = TrainConfig(out_dir=str(run_dir), iterations=total, objects_per_step=objects,
+                       rays_per_object=rays, amp=PRECISIONS[precision], device=device, threads=threads,
+                       log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0)
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    mem, util = PeakMemory(device), GpuUtilisation(device)
+    t0 = c0 = None
+    wall = cpu = 0.0
+    gen = train(model_cfg, tcfg, resume=False, scenes=scenes, force=True)
+    for ev in gen:
+        if not isinstance(ev, Progress):
+            continue
+        if ev.done == warmup:
+            sync()
+            mem.__enter__()
+            util.__enter__()
+            t0, c0 = time.perf_counter(), time.process_time()
+        elif ev.done == warmup + steps:
+            sync()
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            util.__exit__(None, None, None)
+            mem.__exit__(None, None, None)
+    gen.close()
+    return {"seconds": wall, "cpu_seconds": cpu, "peak_extra_mib": mem.mib, "gpu_util_pct": util.pct}
+
+
+def run(args) -> int:
+    import torch
+
+    from ..datasets.loaders import load_dataset
+    from ..errors import InputError
+    from ..models import registry
+    from ..training.run_folder import check_device
+    from ..training.synthetic import make_sphere_dataset
+
+    device = str(args.device).strip().lower()
+    check_device(device)
+    if args.steps < 1 or args.warmup < 0 or args.threads < 1:
+        raise InputError("--steps and --threads must be at least 1, --warmup at least 0")
+    batches = parse_batches(args.batches)
+    precisions = parse_precisions(args.precisions, device)
+    presets = []
+    for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
+        kind, _, name = preset.rpartition(":")
+        presets.append((name, registry.build_config(kind or None, name)))  # unknown names fail before any work
+    if not presets:
+        raise InputError("--presets is empty")
+    out = Path(args.out)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="mrvm_bench_train_") as tmp:
+        tmp = Path(tmp)
+        if args.data:
+            data, source = Path(args.data), str(args.data)
+        else:
+            data = make_sphere_dataset(tmp / "data", n_objects=8, n_views=12, resolution=args.resolution)
+            source = f"analytic spheres, 8 objects x 12 views, {args.resolution} px"
+        if not data.exists():
+            raise InputError(f"--data {data} does not exist")
+        scenes = load_dataset(data, "train")
+        gpu = torch.cuda.get_device_name(torch.device(device)) if device.startswith("cuda") else ""
+        for name, cfg in presets:
+            params = sum(p.numel() for p in registry.build_model(cfg).parameters())
+            for objects, rays in batches:
+                for prec in precisions:
+                    r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
+                                tmp / f"run_{len(rows)}")
+                    sps = args.steps / r["seconds"]
+                    rows.append({
+                        "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
+                        "precision": prec, "objects_per_step": objects, "rays_per_object": rays,
+                        "rays_per_step": objects * rays, "steps": args.steps, "seconds": round(r["seconds"], 3),
+                        "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
+                        "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),
+                        "peak_extra_mib": round(r["peak_extra_mib"], 1),
+                        "gpu_util_pct": "" if r["gpu_util_pct"] is None else round(r["gpu_util_pct"], 1),
+                        "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
+                        "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__})
+                    util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
+                    print(f"{name:9s} {objects}x{rays} {prec} {device}: {sps:.2f} steps/s, "
+                          f"{rows[-1]['rays_per_s']:.0f} rays/s, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
+    write_csv(out / "bench_train.csv", rows)
+    return 0
