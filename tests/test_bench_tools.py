@@ -187,6 +187,10 @@ def test_bench_train_times_the_real_trainer(tmp_path, capsys):
         sps, rps = float(r["steps_per_s"]), float(r["rays_per_s"])
         assert sps > 0 and rps == pytest.approx(sps * 32, rel=1e-3)
         assert float(r["cpu_seconds_per_step"]) > 0 and r["gpu_util_pct"] == "" and int(r["params"]) > 0
+        assert 0 < float(r["draw_share"]) < 1
+    from blender_mrvm.training.trainer import RayBatcher
+
+    assert RayBatcher.draw.__name__ == "draw"  # the timing wrapper is gone afterwards
     assert "steps/s" in capsys.readouterr().out
     assert main(["bench", "train", "--presets", "fast", "--batches", "1x0", "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "c").exists()

@@ -8,8 +8,9 @@ with its own 1-3 references, and ``train.rays_per_object`` target rays each. Dat
 root, its train split), else a small analytic set made in a temporary folder (``training.synthetic``: 8
 objects x 12 views at ``--resolution``).
 
-Each row: steps and rays per second (wall), process CPU seconds per step, the peak extra memory of the
-timed steps (``bench.PeakMemory``: on CUDA the allocator's peak), and on a GPU its mean utilisation over
+Each row: steps and rays per second (wall), process CPU seconds per step, the share of the step spent drawing
+the batch on the CPU (``RayBatcher.draw``: picking views, making rays; the rest is the model, the loss, the
+backward pass and the update), the peak extra memory of the timed steps (``bench.PeakMemory``: on CUDA the allocator's peak), and on a GPU its mean utilisation over
 the timed steps (``torch.cuda.utilization``, else ``nvidia-smi``, sampled every 0.2 s). Written to
 ``<out>/bench_train.csv``. Issue 11 asks a GPU session for exactly these (steps per second, GPU
 utilisation, bf16 against fp32)::
@@ -138,7 +139,7 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
 
     from ..progress import Progress
     from ..training.config import TrainConfig
-    from ..training.trainer import train
+    from ..training.trainer import RayBatcher, train
 
     total = warmup + steps + 1
     tcfg = TrainConfig(out_dir=str(run_dir), iterations=total, objects_per_step=objects,
@@ -148,22 +149,40 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
     mem, util = PeakMemory(device), GpuUtilisation(device)
     t0 = c0 = None
     wall = cpu = 0.0
-    gen = train(model_cfg, tcfg, resume=False, scenes=scenes, force=True)
-    for ev in gen:
-        if not isinstance(ev, Progress):
-            continue
-        if ev.done == warmup:
-            sync()
-            mem.__enter__()
-            util.__enter__()
-            t0, c0 = time.perf_counter(), time.process_time()
-        elif ev.done == warmup + steps:
-            sync()
-            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-            util.__exit__(None, None, None)
-            mem.__exit__(None, None, None)
-    gen.close()
-    return {"seconds": wall, "cpu_seconds": cpu, "peak_extra_mib": mem.mib, "gpu_util_pct": util.pct}
+    drawing = [False, 0.0]  # timing on, seconds in RayBatcher.draw while on
+    draw = RayBatcher.draw
+
+    def timed_draw(self, *a, **kw):
+        t = time.perf_counter()
+        try:
+            return draw(self, *a, **kw)
+        finally:
+            if drawing[0]:
+                drawing[1] += time.perf_counter() - t
+
+    RayBatcher.draw = timed_draw
+    try:
+        gen = train(model_cfg, tcfg, resume=False, scenes=scenes, force=True)
+        for ev in gen:
+            if not isinstance(ev, Progress):
+                continue
+            if ev.done == warmup:
+                sync()
+                mem.__enter__()
+                util.__enter__()
+                t0, c0 = time.perf_counter(), time.process_time()
+                drawing[0] = True
+            elif ev.done == warmup + steps:
+                sync()
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+                drawing[0] = False
+                util.__exit__(None, None, None)
+                mem.__exit__(None, None, None)
+        gen.close()
+    finally:
+        RayBatcher.draw = draw
+    return {"seconds": wall, "cpu_seconds": cpu, "draw_share": drawing[1] / wall if wall else float("nan"),
+            "peak_extra_mib": mem.mib, "gpu_util_pct": util.pct}
 
 
 def run(args) -> int:
@@ -213,12 +232,13 @@ def run(args) -> int:
                         "rays_per_step": objects * rays, "steps": args.steps, "seconds": round(r["seconds"], 3),
                         "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
                         "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),
+                        "draw_share": round(r["draw_share"], 3),
                         "peak_extra_mib": round(r["peak_extra_mib"], 1),
                         "gpu_util_pct": "" if r["gpu_util_pct"] is None else round(r["gpu_util_pct"], 1),
                         "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
                         "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__})
                     util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
                     print(f"{name:9s} {objects}x{rays} {prec} {device}: {sps:.2f} steps/s, "
-                          f"{rows[-1]['rays_per_s']:.0f} rays/s, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
+                          f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
     write_csv(out / "bench_train.csv", rows)
     return 0
