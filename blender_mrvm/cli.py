@@ -34,7 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "make-captures": ("make_captures", "render capture-like scenes: library objects in textured rooms along hand-held camera paths"),
     "demo": ("demo", "the main job on the shipped defaults (what `make demo` runs)"),
     "fetch-weights": ("fetch_weights", "set-up: convert the offline LPIPS/VGG16 weights into the local cache"),
-    "train": ("train", "train the generalizable NeRF with MRVM (torchrun for several processes)"),
+    "train": ("train", "train or fine-tune a novel-view model of any kind: NeRFormer+MRVM, GPNR (torchrun for several processes)"),
     "eval": ("eval", "evaluate a checkpoint (SRN protocol): PSNR, SSIM, LPIPS per category -> JSON + PNG grid"),
     "sem2nerf": ("sem2nerf", "Sem2NeRF: part mask + camera -> radiance field with semantic maps (train, render, eval, bench)"),
     "synthesize": ("synthesize", "synthesize novel views of posed references with a checkpoint (PNG/EXR, optional .blend)"),
