@@ -102,6 +102,14 @@ def world(tmp_path_factory):
         shutil.copytree(ds, dd)
         shutil.rmtree(dd / "spheres" / "obj000")
         shutil.copytree(bad / name, dd / "spheres" / "obj000")
+    nodepth = bad / "ds_nodepth"  # one object without its depth maps (the depth loss needs them)
+    shutil.copytree(ds, nodepth)
+    shutil.rmtree(nodepth / "spheres" / "obj000" / "depth")
+    nandepth = bad / "ds_nandepth"  # a depth map with NaN in it
+    shutil.copytree(ds, nandepth)
+    z = F.read_depth(nandepth / "spheres" / "obj000" / "depth" / "000001.exr").copy()
+    z[3, 3] = np.nan
+    F.write_depth(nandepth / "spheres" / "obj000" / "depth" / "000001.exr", z)
     half = bad / "ds_half"  # half-rendered: one object of the split unfinished, one missing
     shutil.copytree(ds, half)
     meta = json.loads((half / "spheres" / "obj001" / "meta.json").read_text())
@@ -196,6 +204,12 @@ TRAIN = [
     _t("pretrain_frac and bbox_sampling_frac must be in [0, 1]", train={"pretrain_frac": 2.0}),
     _t("pretrain_frac and bbox_sampling_frac must be in [0, 1]", train={"bbox_sampling_frac": -0.1}),
     _t("opacity_weight must be >= 0", train={"opacity_weight": -1.0}),
+    _t("depth_weight must be >= 0", ["--depth-weight", "-1"]),
+    _t("depth_weight needs a density field", ["--depth-weight", "0.1"], model={"kind": "gpnr", "preset": "fast"}),
+    _t("depth_weight needs depth maps, and 1 training object(s) have none", ["--depth-weight", "0.1", "--data",
+                                                                             "{w}/bad/ds_nodepth"]),
+    _t("a depth map holds negative or non-finite values", ["--depth-weight", "0.1", "--data", "{w}/bad/ds_nandepth"],
+       garbage=True),
     _t("rays_per_object and objects_per_step must be >= 1", train={"rays_per_object": 0}),
     _t("rays_per_object and objects_per_step must be >= 1", train={"objects_per_step": 0}),
     _t("need 1 <= min_ref_views <= max_ref_views", train={"min_ref_views": 0}),

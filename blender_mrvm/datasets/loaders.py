@@ -60,6 +60,10 @@ class ObjectScene:
     """What the views show behind the object: "white" (object sets: composited on white, ``bbox`` is the
     object's box) or "scene" (capture-like renders, meta.json ``background``: a whole room, ``bbox`` is the
     room's box, masks cover every surface, sky excepted)."""
+    depths: np.ndarray | None = None
+    """(N, H, W) float32 planar z-depth in world units (0 where the pixel sees nothing) when asked for
+    (``load_dataset(..., depth=True)``) and the source has it for every view (our renders' depth/ EXRs),
+    else None. Training reads it for ``train.depth_weight``; nothing else needs it."""
 
     def __len__(self) -> int:
         return self.images.shape[0]
@@ -107,7 +111,8 @@ def _stack(images: Sequence[np.ndarray], where: Path) -> np.ndarray:
 
 # --------------------------------------------------------------------------------------------- ours
 
-def load_ours(obj_dir: Path) -> ObjectScene:
+def load_ours(obj_dir: Path, depth: bool = False) -> ObjectScene:
+    """An object folder of our format; ``depth``: read the depth/ EXRs too (:attr:`ObjectScene.depths`)."""
     ov = F.read_object(Path(obj_dir))
     if not ov.indices:
         raise InputError(f"{obj_dir}: no finished views")
@@ -131,10 +136,17 @@ def load_ours(obj_dir: Path) -> ObjectScene:
         masks = np.stack([np.asarray(ov.mask(i)) > 0 for i in range(len(ov.indices))])
         if masks.shape != images.shape[:3]:
             raise InputError(f"{obj_dir}: masks are {masks.shape[2]}x{masks.shape[1]}, images {w}x{h}")
+    depths = None
+    if depth and all(F.view_paths(obj_dir, v)["depth"].is_file() for v in ov.indices):
+        depths = np.stack([np.asarray(ov.depth(i), np.float32) for i in range(len(ov.indices))])
+        if depths.shape != images.shape[:3]:
+            raise InputError(f"{obj_dir}: depth maps are {depths.shape[2]}x{depths.shape[1]}, images {w}x{h}")
+        if not np.isfinite(depths).all() or (depths < 0).any():
+            raise InputError(f"{obj_dir}: a depth map holds negative or non-finite values (0 marks no surface)")
     return ObjectScene(str(meta.get("object_id", Path(obj_dir).name)), str(meta.get("category", Path(obj_dir).parent.name)),
                        images, np.stack(ov.c2w_opencv), intrs,
                        (np.asarray(lo, np.float64), np.asarray(hi, np.float64)), list(ov.indices), masks,
-                       "scene" if meta.get("background") == "scene" else "white")
+                       "scene" if meta.get("background") == "scene" else "white", depths)
 
 
 def list_ours(root: Path, split: str | None = None) -> list[Path]:
@@ -292,9 +304,10 @@ def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> li
     raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
 
 
-def load_object(fmt: str, path: Path, split: str = "train") -> ObjectScene:
+def load_object(fmt: str, path: Path, split: str = "train", depth: bool = False) -> ObjectScene:
+    """One object; ``depth``: with its depth maps where the format has them (ours only)."""
     if fmt == "ours":
-        return load_ours(path)
+        return load_ours(path, depth)
     if fmt == "srn":
         return load_srn(path)
     if fmt == "nmr":
@@ -337,12 +350,13 @@ def unfinished_objects(root: Path, split: str) -> tuple[list[str], int]:
     return bad, len(names)
 
 
-def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit: int | None = None) -> list[ObjectScene]:
+def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit: int | None = None,
+                 depth: bool = False) -> list[ObjectScene]:
     """The objects of ``split`` for training; InputError when the dataset is half-rendered (some objects of
-    the split missing or unfinished: training would quietly use the others)."""
+    the split missing or unfinished: training would quietly use the others). ``depth``: read depth maps too."""
     objs = list_objects(root, fmt, split)
     check_finished(root, split, objs)
-    return [load_object(f, p, split) for f, p in objs[:limit]]
+    return [load_object(f, p, split, depth) for f, p in objs[:limit]]
 
 
 def check_finished(root: Path, split: str, objs: list) -> None:

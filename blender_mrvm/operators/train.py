@@ -38,7 +38,7 @@ OPACITY_WEIGHT = 0.1
 shipped model was fine-tuned with it, which keeps the image planes' alpha free of haze)."""
 CONTINUED_SETTINGS = ("init_checkpoint", "pretrain_frac", "lr", "lr_warmup", "lr_final_frac", "weight_decay", "seed",
                       "min_ref_views", "max_ref_views", "objects_per_step", "bbox_sampling_frac", "grad_clip",
-                      "coarse_weight", "opacity_weight", "distortion_weight", "lpips_weight", "patch_size",
+                      "coarse_weight", "opacity_weight", "distortion_weight", "depth_weight", "lpips_weight", "patch_size",
                       "patch_scale_min", "patch_fg_prob", "amp", "keep_checkpoints")
 """Train settings a continued run keeps from its config.json (the panel does not set them): its losses too."""
 

@@ -84,6 +84,13 @@ class TrainConfig:
     only): sum_ij w_i w_j |s_i - s_j| + 1/3 sum_i w_i^2 len_i over the samples' intervals, with distances as a
     share of the ray's box length. It pulls each ray's weight into one compact interval: fewer translucent
     layers and floaters. 0 = off."""
+    depth_weight: float = 0.0
+    """Weight of a depth loss on each branch's weights along the rays that see a surface (density models
+    only; needs depth maps in the data: our renders write them): the expected distance between where the
+    light stops along the ray (the weights, plus the light that leaves the box at the far end) and the
+    rendered surface, as a share of the ray's length in the box. It pulls each ray's weight onto the surface
+    the training view saw: the geometry that colour alone learns slowly and blurs into ghosts from two views.
+    Training only; the model never sees depth at test time. 0 = off."""
     lpips_weight: float = 0.0
     """Weight of LPIPS-VGG between each object's rendered patch and the photo (0 = off). A per-pixel loss
     on scattered rays is minimised by a blur; with this > 0 each object's rays form one ``patch_size`` x
@@ -252,6 +259,8 @@ def validate(c: TrainConfig) -> None:
         raise InputError("rays_per_object and objects_per_step must be >= 1")
     if not c.distortion_weight >= 0.0:
         raise InputError(f"distortion_weight must be >= 0, got {c.distortion_weight}")
+    if not c.depth_weight >= 0.0:
+        raise InputError(f"depth_weight must be >= 0, got {c.depth_weight}")
     if not c.lpips_weight >= 0.0:
         raise InputError(f"lpips_weight must be >= 0, got {c.lpips_weight}")
     if c.lpips_weight > 0 and c.patch_size < 16:

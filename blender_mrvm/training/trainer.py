@@ -125,6 +125,12 @@ class RayBatcher:
             if bare:
                 raise InputError(f"opacity_weight needs object masks, and {len(bare)} training object(s) have none "
                                  f"(e.g. {bare[0]}); our rendered datasets have them, or set opacity_weight to 0")
+        if cfg.depth_weight > 0:
+            bare = [f"{s.category}/{s.name}" for s in scenes if s.depths is None]
+            if bare:
+                raise InputError(f"depth_weight needs depth maps, and {len(bare)} training object(s) have none "
+                                 f"(e.g. {bare[0]}); our rendered datasets have them (depth/*.exr), or set "
+                                 "depth_weight to 0")
 
     def draw(self, bbox_phase: bool) -> dict[str, Any]:
         c, rng = self.cfg, self.rng
@@ -152,6 +158,10 @@ class RayBatcher:
                               c.patch_fg_prob)
             gt = bilinear(s.images[tgt], px)
             mask = bilinear(s.masks[tgt], px)[:, 0] if s.masks is not None else None
+            z = None
+            if c.depth_weight > 0:  # interpolated only where all four pixels around see a surface
+                z = bilinear(s.depths[tgt], px)[:, 0].numpy().astype(np.float64)
+                z[bilinear(s.depths[tgt] > 0, px)[:, 0].numpy() < 0.999] = 0.0
         else:
             x0, y0, x1, y1 = self._boxes[j][tgt] if bbox_phase else (0, 0, intr.width, intr.height)
             ix = rng.integers(x0, x1, c.rays_per_object)
@@ -159,9 +169,12 @@ class RayBatcher:
             px = np.stack([ix + 0.5, iy + 0.5], -1)
             gt = torch.from_numpy(s.images[tgt][iy, ix].astype(np.float32))
             mask = torch.from_numpy(s.masks[tgt][iy, ix].astype(np.float32)) if s.masks is not None else None
-        rays = make_rays(intr, ns.pose(s.c2w[tgt]), px, box=ns.box)
+            z = s.depths[tgt][iy, ix].astype(np.float64) if c.depth_weight > 0 else None
+        pose = ns.pose(s.c2w[tgt])
+        rays = make_rays(intr, pose, px, box=ns.box)
         return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k,
                 "scene": s.background == "scene", "patch": patch,
+                "surface": None if z is None else surface_distance(rays, pose, z / ns.scale),
                 "ref_views": [int(v) for v in refs], "target_view": tgt}
 
     @staticmethod
@@ -173,6 +186,21 @@ class RayBatcher:
         if s.background == "scene":
             return np.zeros(s.images.shape[1:3], bool)
         return (s.images[view] < 0.99).any(-1)
+
+
+def surface_distance(rays, c2w_norm: np.ndarray, z: np.ndarray) -> torch.Tensor:
+    """(R,) float32 distance along each ray from its box entry (the ``t`` of the model's samples) to the surface
+    a depth map saw there: ``z`` (R,) planar z-depth in the normalised frame's units (0 = no surface), turned
+    into a distance along the unit ray (z over the cosine to the camera's optical axis, ``c2w_norm``'s third
+    column). NaN where there is no surface, the ray misses the box, or the surface lies outside the box's
+    stretch of the ray (a depth map of another object): those rays carry no depth loss."""
+    d = rays.dirs.numpy()
+    cos = d @ np.asarray(c2w_norm, np.float64)[:3, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where((z > 0) & (cos > 1e-6), z / cos, np.nan) - rays.depth_offset.numpy()
+    far = rays.far.numpy()
+    ok = rays.hit.numpy() & (t >= -1e-6 * np.maximum(far, 1.0)) & (t <= far * (1 + 1e-6))
+    return torch.from_numpy(np.where(ok, np.clip(t, 0.0, far), np.nan).astype(np.float32))
 
 
 # ------------------------------------------------------------------------------------------- training
@@ -221,9 +249,10 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     model_cfg, note = bgrule.for_training(model_cfg, data_bg)  # the data decides what the images sit on
     if note and dd.main:
         print(f"note: {note}", file=sys.stderr)
-    if cfg.distortion_weight > 0 and registry.kind_of(model_cfg) != "nerformer_mrvm":
-        raise InputError(f"distortion_weight needs a density field (a nerformer_mrvm model); this run trains a "
-                         f"{registry.kind_of(model_cfg)} model: set it to 0")
+    for name in ("distortion_weight", "depth_weight"):
+        if getattr(cfg, name) > 0 and registry.kind_of(model_cfg) != "nerformer_mrvm":
+            raise InputError(f"{name} needs a density field (a nerformer_mrvm model); this run trains a "
+                             f"{registry.kind_of(model_cfg)} model: set it to 0")
     torch.manual_seed(cfg.seed)
     model = registry.build_model(model_cfg).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
@@ -321,11 +350,12 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
 def load_training_sets(cfg: TrainConfig) -> list[list[ObjectScene]]:
     """The training objects of each dataset ``train.data`` names, in the order given (each read with
     ``data_format`` and ``split``, at most ``max_objects`` from each); every root is loaded, and so
-    checked, before the run folder is touched."""
+    checked, before the run folder is touched; with their depth maps for ``depth_weight``)."""
     roots = data_roots(cfg)
     if not roots:
         raise InputError("no dataset: give --data or train.data in the config")
-    return [load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None) for root in roots]
+    return [load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None, cfg.depth_weight > 0)
+            for root in roots]
 
 
 def load_training_scenes(cfg: TrainConfig) -> list[ObjectScene]:
@@ -389,6 +419,16 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
         dist = distortion_loss(fine["weights"], fine["t"], rays.far[sel].to(device))
         loss = loss + cfg.distortion_weight * dist
         parts["distortion"] = float(dist.detach())
+    if cfg.depth_weight > 0 and b.get("surface") is not None:
+        t_star = b["surface"].to(device)[sel]
+        ok = torch.isfinite(t_star)
+        if bool(ok.any()):
+            far = rays.far[sel].to(device)
+            heads = [out["fine"], *out.get("aux_heads", {}).values()]
+            dl = sum((1.0 if h is out["fine"] else cfg.coarse_weight)
+                     * surface_loss(h["weights"][ok], h["t"][ok], far[ok], t_star[ok]) for h in heads)
+            loss = loss + cfg.depth_weight * dl * (int(ok.sum()) / n)
+            parts["depth"] = float(dl.detach())
     if lp is not None and b.get("patch"):
         # the whole patch: rays that miss the box show the background (or, in a scene, the photo itself)
         full = gt.clone() if b.get("scene") else torch.full_like(gt, bg)
@@ -418,6 +458,22 @@ def distortion_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor) -
     inter = (w[:, :, None] * w[:, None, :] * (mid[:, :, None] - mid[:, None, :]).abs()).sum((-1, -2))
     intra = (w * w * length).sum(-1) / 3.0
     return (inter + intra).mean()
+
+
+def surface_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor, t_star: torch.Tensor) -> torch.Tensor:
+    """Mean over rays of the expected distance between where the light stops and the surface at ``t_star`` (R,),
+    as a share of the ray's box length ``far`` (R,): sample i (weight ``weights`` (R, S) at distance ``t`` (R, S),
+    sorted) stops its light in [t_i, t_{i+1}] (the last one ends at far), counted at the interval's midpoint;
+    the light no sample stops (1 - sum of the weights) leaves at the far end. 0 only when all the light stops
+    at the surface; a translucent ghost spread along the ray, or a surface too far in front or behind, costs
+    its distance. Unlike a loss on the expected depth, two layers whose mean sits on the surface still cost."""
+    w = weights.float()
+    L = far.float().clamp_min(1e-8)
+    s = torch.cat([t.float(), far.float()[:, None]], -1) / L[:, None]
+    mid = 0.5 * (s[:, 1:] + s[:, :-1])
+    ss = (t_star.float() / L)[:, None]
+    leave = (1.0 - w.sum(-1)).clamp_min(0.0) * (1.0 - ss[:, 0]).abs()
+    return ((w * (mid - ss).abs()).sum(-1) + leave).mean()
 
 
 def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
