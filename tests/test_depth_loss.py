@@ -136,3 +136,19 @@ def test_depth_loss_refuses_what_it_cannot_use(tmp_path, spheres):
     with pytest.raises(InputError, match="depth_weight needs depth maps"):
         run_to_end(train(mcfg, replace(tcfg, data=str(bare), out_dir=str(tmp_path / "b"))))
     assert not (tmp_path / "b").exists()
+
+
+def test_eval_scores_depth_where_the_data_has_it():
+    """``depth_abs_rel``: 0 for the true distances along the rays (from planar depth), the relative error of a
+    scaled answer, 1 where nothing is rendered; None for a view without a surface."""
+    from blender_mrvm.training.evaluate import depth_abs_rel
+
+    s = _one_sphere(np.zeros(3), 0.6, res=20, views=1)
+    intr, c2w = s.intrinsics[0], s.c2w[0]
+    o, d = cameras.rays_opencv(intr, c2w)
+    z = s.depths[0].astype(np.float64)
+    along = np.where(z > 0, z / (d.reshape(20, 20, 3) @ c2w[:3, 2]), 0.0)  # camera to surface, along the ray
+    assert depth_abs_rel(along, z, intr) == pytest.approx(0.0, abs=1e-9)
+    assert depth_abs_rel(1.1 * along, z, intr) == pytest.approx(0.1, rel=1e-9)
+    assert depth_abs_rel(np.zeros_like(z), z, intr) == pytest.approx(1.0)
+    assert depth_abs_rel(along, np.zeros_like(z), intr) is None

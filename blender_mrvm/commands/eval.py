@@ -147,7 +147,7 @@ def run(args) -> int:
     objs = objs[:args.max_objects or None]
     if not objs:
         raise InputError(f"{args.data}: no objects for split {args.split!r}")
-    scenes = [load_object(f, p, args.split) for f, p in objs]
+    scenes = [load_object(f, p, args.split, depth=True) for f, p in objs]  # depth maps, where they exist, are scored
     from ..models import background as bgrule
 
     data_bg = bgrule.of_scenes(scenes)

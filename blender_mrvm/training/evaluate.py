@@ -29,6 +29,8 @@ from ..progress import Progress, as_step_of
 from ..synthesis import reference_shape, resize_mask, resize_view
 
 METRICS = ("psnr", "ssim", "lpips", "ssim_gauss")
+LOWER_IS_BETTER = ("lpips", "depth_abs_rel")
+"""Per-view scores where less is better (the rest: more)."""
 """Reported metrics: ``ssim`` is pixelNeRF's convention (scikit-image's defaults), ``ssim_gauss`` the
 Gaussian-window SSIM (what reports before session 3 called ``ssim``)."""
 PROTOCOL_FILE = "eval_views.json"
@@ -188,6 +190,21 @@ def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float]:
             "iou": float(np.logical_and(pred, mask).sum() / union) if union else 1.0}
 
 
+def depth_abs_rel(depth: np.ndarray, z: np.ndarray, intr) -> float | None:
+    """Mean |rendered - true| / true distance along the ray over the pixels where the depth map ``z`` (planar,
+    0 = nothing) sees a surface; ``depth`` (H, W) is the model's, along the ray (0 where it rendered nothing,
+    which counts as an error of 1). None when the view shows no surface."""
+    from ..geometry import cameras
+
+    z = np.asarray(z, np.float64)
+    fg = z > 0
+    if not fg.any():
+        return None
+    _, d = cameras.rays_opencv(intr, np.eye(4))  # unit directions in the camera: z / d_z is the ray's length
+    true = z[fg] / d.reshape(z.shape + (3,))[..., 2][fg]
+    return float(np.mean(np.abs(np.asarray(depth, np.float64)[fg] - true) / true))
+
+
 def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips=None, max_targets: int = 0,
              out_dir: Path | None = None, grid_objects: int = 13, chunk: int | None = None,
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
@@ -261,6 +278,10 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}
             if s.masks is not None:
                 rec["alpha"] = alpha_scores(out["acc"].numpy(), s.masks[t])
+            if s.depths is not None:
+                err = depth_abs_rel(out["depth"].numpy(), s.depths[t], s.intrinsics[t])
+                if err is not None:
+                    rec["depth_abs_rel"] = err
             near = torch.from_numpy(s.images[_nearest_ref(s, refs, t)])
             if near.shape == gt.shape:
                 rec["baseline_nearest"] = _scores(near, gt, lpips)
@@ -315,6 +336,8 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         alphas = [r["alpha"] for r in recs if "alpha" in r]
         if alphas:
             b["alpha"] = {k: float(np.mean([a[k] for a in alphas])) for k in ("background", "object", "iou")}
+        if any("depth_abs_rel" in r for r in recs):
+            b["depth_abs_rel"] = _mean(recs, "depth_abs_rel")
         base = {k: b[k]["psnr"] for k in ("baseline_nearest", "baseline_mean") if b[k]["psnr"] is not None}
         if base and b["psnr"] is not None:
             best = max(base, key=base.get)
@@ -377,6 +400,10 @@ def markdown_table(report: dict) -> str:
         text += (f"\nOpacity (the image planes' alpha) against the object masks: mean {a['background']:.3f} on "
                  f"background pixels, {a['object']:.3f} on object pixels; IoU of opacity > 0.5 with the mask "
                  f"{a['iou']:.3f}.\n")
+    dr = report["overall"].get("depth_abs_rel")
+    if dr is not None:
+        text += (f"\nDepth against the depth maps, where they see a surface: mean absolute relative error of the "
+                 f"distance along the ray {dr:.4f} (nothing rendered counts as 1).\n")
     return text
 
 
@@ -394,7 +421,7 @@ def compare_reports(a: dict, b: dict) -> dict:
 
     def stats(keys):
         out = {"views": len(keys)}
-        for m in METRICS:
+        for m in (*METRICS, "depth_abs_rel"):
             per_obj = defaultdict(list)
             for k in keys:
                 x, y = va[k].get(m), vb[k].get(m)
@@ -404,7 +431,7 @@ def compare_reports(a: dict, b: dict) -> dict:
                 continue
             d = np.array([np.mean(v) for v in per_obj.values()])
             se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else None
-            better = d < 0 if m == "lpips" else d > 0
+            better = d < 0 if m in LOWER_IS_BETTER else d > 0
             out[m] = {"diff": float(d.mean()), "se_objects": se, "objects": len(d), "wins": float(better.mean())}
         return out
 
