@@ -182,13 +182,14 @@ def test_write_job_opacity_loss_only_with_masks(train_ready, tmp_path):
     import bpy
 
     from blender_mrvm.operators import train as T
+    from blender_mrvm.training.config import OPACITY_WEIGHT
 
     job = T.plan_from_props(bpy.context)
     doc = lambda d: json.loads((d / "train.json").read_text())["train"]  # noqa: E731
     for d in "abc":
         (tmp_path / d).mkdir()
     T.write_job(job, tmp_path / "a")
-    assert doc(tmp_path / "a")["opacity_weight"] == T.OPACITY_WEIGHT
+    assert doc(tmp_path / "a")["opacity_weight"] == OPACITY_WEIGHT
     srn = tmp_path / "srn"
     srn.mkdir()
     T.write_job(T.TrainJob(**{**job.__dict__, "data": srn}), tmp_path / "b")

@@ -429,3 +429,25 @@ def test_distortion_loss(tmp_path, data):
         run_to_end(train(registry.build_config("gpnr", "fast"), replace(tcfg, out_dir=str(tmp_path / "g")),
                          scenes=scenes))
     assert not (tmp_path / "g").exists()
+
+
+def test_opacity_loss_by_default_on_our_renders(tmp_path, data):
+    """A run config that names no opacity_weight gets the opacity loss on our renders (they have masks), none on
+    another format; a run folder that holds a run keeps what its config.json recorded; a named value wins."""
+    from blender_mrvm.training.config import OPACITY_WEIGHT
+
+    root, _ = data
+    cfg = tmp_path / "run.json"
+    cfg.write_text(json.dumps({"train": {"iterations": 2}}))
+    _, t = load_run_config(cfg, {"data": str(root), "out_dir": str(tmp_path / "new")})
+    assert t.opacity_weight == OPACITY_WEIGHT == 0.1
+    _, t = load_run_config(cfg, {"data": str(tmp_path / "srn_like"), "out_dir": str(tmp_path / "new")})
+    assert t.opacity_weight == 0.0  # not our format: no masks to learn from
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "config.json").write_text(json.dumps({"train": {"opacity_weight": 0.0}}))
+    _, t = load_run_config(cfg, {"data": str(root), "out_dir": str(old)})
+    assert t.opacity_weight == 0.0  # resumes as it began
+    cfg.write_text(json.dumps({"train": {"iterations": 2, "opacity_weight": 0.5}}))
+    _, t = load_run_config(cfg, {"data": str(root), "out_dir": str(tmp_path / "new")})
+    assert t.opacity_weight == 0.5

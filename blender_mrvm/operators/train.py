@@ -9,7 +9,7 @@ A new run starts from the shipped model (the default), from another checkpoint, 
 start ("Start from"). Starting from a checkpoint fine-tunes it: its model config and weights, with
 the trainer's fine-tuning policy (``training.config.FINETUNE``: no MRVM masking phase, a lower peak
 learning rate), the same as ``train --init`` on the command line. New runs on our rendered datasets (which carry object masks)
-add the opacity loss (:data:`OPACITY_WEIGHT`). With "Continue run" on and a run already in the run folder,
+add the opacity loss (``training.config.OPACITY_WEIGHT``). With "Continue run" on and a run already in the run folder,
 the trainer resumes it instead (weights, optimizer, schedule and random state) and trains up to the
 iteration count, on whatever dataset is chosen now. When it finishes, the run folder is picked as
 the Synthesize novel views checkpoint (the synthesis loads its latest checkpoint).
@@ -33,9 +33,6 @@ if TYPE_CHECKING:
     from ..progress import ProgressGen
 
 TRAIN_COMMAND = "train"
-OPACITY_WEIGHT = 0.1
-"""Opacity (mask) loss weight for new runs on our rendered datasets (they have object masks; the
-shipped model was fine-tuned with it, which keeps the image planes' alpha free of haze)."""
 CONTINUED_SETTINGS = ("init_checkpoint", "pretrain_frac", "lr", "lr_warmup", "lr_final_frac", "weight_decay", "seed",
                       "min_ref_views", "max_ref_views", "objects_per_step", "bbox_sampling_frac", "grad_clip",
                       "coarse_weight", "opacity_weight", "distortion_weight", "depth_weight", "lpips_weight", "patch_size",
@@ -184,9 +181,9 @@ def write_job(job: TrainJob, job_dir: Path) -> list[str]:
     if job.device != "auto":
         train["device"] = job.device
     if not job.continued:
-        from ..datasets.format import ROOT_MANIFEST
+        from ..training.config import default_opacity_weight
 
-        train["opacity_weight"] = OPACITY_WEIGHT if (job.data / ROOT_MANIFEST).is_file() else 0.0
+        train["opacity_weight"] = default_opacity_weight([job.data])
     if job.init_checkpoint is not None:  # used only when the run folder has no checkpoint to resume
         train["init_checkpoint"] = str(job.init_checkpoint)  # the trainer's fine-tuning policy applies
     doc = {"train": train}
