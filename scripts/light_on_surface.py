@@ -25,21 +25,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from blender_mrvm.datasets.loaders import load_dataset  # noqa: E402
 from blender_mrvm.training.checkpoint import load_model  # noqa: E402
 from blender_mrvm.training.config import TrainConfig  # noqa: E402
-from blender_mrvm.training.trainer import RayBatcher  # noqa: E402
+from blender_mrvm.training.trainer import RayBatcher, interval_shares, surface_loss  # noqa: E402
 
 
 def branch_stats(h: dict, far: torch.Tensor, t_star: torch.Tensor) -> list[float]:
     """[light stopped, stopped light's distance, leaving light's distance, |expected stop - surface|, spacing]."""
-    w, L = h["weights"].float(), far.float().clamp_min(1e-8)
-    e = torch.cat([h["t"].float(), far.float()[:, None]], -1) / L[:, None]
-    mid = 0.5 * (e[:, 1:] + e[:, :-1])
-    ss = (t_star.float() / L)[:, None]
+    w = h["weights"].float()
+    length, mid = interval_shares(h["t"], far)
+    ss = (t_star.float() / far.float().clamp_min(1e-8))[:, None]
     acc = w.sum(-1)
-    inside = (w * (mid - ss).abs()).sum(-1)
     leave = (1 - acc).clamp_min(0) * (1 - ss[:, 0]).abs()
     stop = (w * mid).sum(-1) / acc.clamp_min(1e-6)
-    return [float(acc.mean()), float(inside.mean()), float(leave.mean()), float((stop - ss[:, 0]).abs().mean()),
-            float((e[:, 1:] - e[:, :-1]).mean())]
+    return [float(acc.mean()), float(surface_loss(w, h["t"], far, t_star) - leave.mean()), float(leave.mean()),
+            float((stop - ss[:, 0]).abs().mean()), float(length.mean())]
 
 
 def main() -> int:
@@ -51,6 +49,7 @@ def main() -> int:
     ap.add_argument("--rays", type=int, default=512)
     a = ap.parse_args()
     torch.set_num_threads(1)
+    torch.manual_seed(0)  # the training-mode samples are perturbed
     model, _, _ = load_model(a.checkpoint, "cpu")
     model.eval()
     scenes = load_dataset(Path(a.data), "train", limit=a.objects, depth=True)

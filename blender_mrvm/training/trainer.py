@@ -444,6 +444,14 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
     return loss, parts
 
 
+def interval_shares(t: torch.Tensor, far: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(lengths, midpoints) (R, S) of the intervals the samples at distances ``t`` (R, S, sorted) stand for along
+    rays of box length ``far`` (R,), as shares of that length: sample i's interval is [t_i, t_{i+1}], the last one
+    ends at far (the renderer's steps)."""
+    s = torch.cat([t.float(), far.float()[:, None]], -1) / far.float().clamp_min(1e-8)[:, None]
+    return (s[:, 1:] - s[:, :-1]).clamp_min(0.0), 0.5 * (s[:, 1:] + s[:, :-1])
+
+
 def distortion_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
     """Mip-NeRF 360's distortion loss, mean over rays: weights (R, S) of samples at distances t (R, S, sorted)
     along rays of length far (R,); sample i stands for the interval [t_i, t_{i+1}] (the last one ends at
@@ -451,10 +459,7 @@ def distortion_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor) -
     on the box's size. sum_ij w_i w_j |m_i - m_j| (m the interval midpoints) + 1/3 sum_i w_i^2 len_i: 0 for
     an empty ray, smallest when the weight sits in one short interval."""
     w = weights.float()
-    L = far.float().clamp_min(1e-8)[:, None]
-    s = torch.cat([t.float(), far.float()[:, None]], -1) / L
-    length = (s[:, 1:] - s[:, :-1]).clamp_min(0.0)
-    mid = 0.5 * (s[:, 1:] + s[:, :-1])
+    length, mid = interval_shares(t, far)
     inter = (w[:, :, None] * w[:, None, :] * (mid[:, :, None] - mid[:, None, :]).abs()).sum((-1, -2))
     intra = (w * w * length).sum(-1) / 3.0
     return (inter + intra).mean()
@@ -468,10 +473,8 @@ def surface_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor, t_st
     at the surface; a translucent ghost spread along the ray, or a surface too far in front or behind, costs
     its distance. Unlike a loss on the expected depth, two layers whose mean sits on the surface still cost."""
     w = weights.float()
-    L = far.float().clamp_min(1e-8)
-    s = torch.cat([t.float(), far.float()[:, None]], -1) / L[:, None]
-    mid = 0.5 * (s[:, 1:] + s[:, :-1])
-    ss = (t_star.float() / L)[:, None]
+    _, mid = interval_shares(t, far)
+    ss = (t_star.float() / far.float().clamp_min(1e-8))[:, None]
     leave = (1.0 - w.sum(-1)).clamp_min(0.0) * (1.0 - ss[:, 0]).abs()
     return ((w * (mid - ss).abs()).sum(-1) + leave).mean()
 
