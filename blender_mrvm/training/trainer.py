@@ -120,17 +120,12 @@ class RayBatcher:
         self.padding = float(box_padding)
         self.rng = np.random.default_rng(seed)
         self._boxes = [s.foreground_boxes() for s in scenes]
-        if cfg.opacity_weight > 0:
-            bare = [f"{s.category}/{s.name}" for s in scenes if s.masks is None]
-            if bare:
-                raise InputError(f"opacity_weight needs object masks, and {len(bare)} training object(s) have none "
-                                 f"(e.g. {bare[0]}); our rendered datasets have them, or set opacity_weight to 0")
-        if cfg.depth_weight > 0:
-            bare = [f"{s.category}/{s.name}" for s in scenes if s.depths is None]
-            if bare:
-                raise InputError(f"depth_weight needs depth maps, and {len(bare)} training object(s) have none "
-                                 f"(e.g. {bare[0]}); our rendered datasets have them (depth/*.exr), or set "
-                                 "depth_weight to 0")
+        for weight, field, what, files in (("opacity_weight", "masks", "object masks", ""),
+                                           ("depth_weight", "depths", "depth maps", " (depth/*.exr)")):
+            bare = [f"{s.category}/{s.name}" for s in scenes if getattr(s, field) is None]
+            if getattr(cfg, weight) > 0 and bare:
+                raise InputError(f"{weight} needs {what}, and {len(bare)} training object(s) have none (e.g. "
+                                 f"{bare[0]}); our rendered datasets have them{files}, or set {weight} to 0")
 
     def draw(self, bbox_phase: bool) -> dict[str, Any]:
         c, rng = self.cfg, self.rng
