@@ -373,6 +373,14 @@ def rays_opencv(intr: Intrinsics, c2w_opencv: np.ndarray, pixels: np.ndarray | N
     return o, d
 
 
+def axis_cosines(intr: Intrinsics, pixels: np.ndarray | None = None) -> np.ndarray:
+    """The cosine between the ray through each of ``pixels`` (default: every pixel centre, (H, W)) and the
+    optical axis: planar z-depth = distance along the ray x this (the conversion between depth maps and the
+    models' distances along their rays)."""
+    _, d = rays_opencv(intr, np.eye(4), pixels)
+    return d[..., 2]
+
+
 def unproject_depth(intr: Intrinsics, c2w_opencv: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """World points (H, W, 3) from a planar z-depth map (H, W)."""
     o, d = rays_opencv(intr, c2w_opencv, normalize=False)

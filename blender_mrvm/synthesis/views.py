@@ -442,8 +442,7 @@ def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: in
 
     res = yield from model.image_chunks(ctx, intr, ns.pose(c2w), ns.box, chunk, hull, skip, workers)
     # Distance along the ray (normalised units) -> planar z in world units: z = dist * scale * d_cam.z.
-    _, d = C.rays_opencv(intr, np.eye(4))
-    zdir = torch.from_numpy(d[..., 2].astype(np.float32))
+    zdir = torch.from_numpy(C.axis_cosines(intr).astype(np.float32))
     acc = res["acc"]
     depth_z = torch.where(acc >= ALPHA_DEPTH_THRESHOLD, res["depth"] * float(ns.scale) * zdir, torch.zeros_like(acc))
     return {"color": res["color"].numpy(), "acc": acc.numpy(), "depth_z": depth_z.numpy(),

@@ -29,10 +29,10 @@ from ..progress import Progress, as_step_of
 from ..synthesis import reference_shape, resize_mask, resize_view
 
 METRICS = ("psnr", "ssim", "lpips", "ssim_gauss")
-LOWER_IS_BETTER = ("lpips", "depth_abs_rel")
-"""Per-view scores where less is better (the rest: more)."""
 """Reported metrics: ``ssim`` is pixelNeRF's convention (scikit-image's defaults), ``ssim_gauss`` the
 Gaussian-window SSIM (what reports before session 3 called ``ssim``)."""
+LOWER_IS_BETTER = ("lpips", "depth_abs_rel")
+"""Per-view scores where less is better (the rest: more)."""
 PROTOCOL_FILE = "eval_views.json"
 """Protocol file under ``<root>/splits/`` (written by ``make-shapenet``)."""
 SRN_INPUT_VIEWS = {1: [64], 2: [64, 104]}
@@ -200,8 +200,7 @@ def depth_abs_rel(depth: np.ndarray, z: np.ndarray, intr) -> float | None:
     fg = z > 0
     if not fg.any():
         return None
-    _, d = cameras.rays_opencv(intr, np.eye(4))  # unit directions in the camera: z / d_z is the ray's length
-    true = z[fg] / d.reshape(z.shape + (3,))[..., 2][fg]
+    true = z[fg] / cameras.axis_cosines(intr)[fg]
     return float(np.mean(np.abs(np.asarray(depth, np.float64)[fg] - true) / true))
 
 

@@ -34,6 +34,7 @@ import torch
 
 from ..datasets.loaders import ObjectScene, load_dataset
 from ..errors import InputError
+from ..geometry.cameras import axis_cosines
 from ..models import registry
 from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
 from ..models.rays import make_rays
@@ -165,11 +166,10 @@ class RayBatcher:
             gt = torch.from_numpy(s.images[tgt][iy, ix].astype(np.float32))
             mask = torch.from_numpy(s.masks[tgt][iy, ix].astype(np.float32)) if s.masks is not None else None
             z = s.depths[tgt][iy, ix].astype(np.float64) if c.depth_weight > 0 else None
-        pose = ns.pose(s.c2w[tgt])
-        rays = make_rays(intr, pose, px, box=ns.box)
+        rays = make_rays(intr, ns.pose(s.c2w[tgt]), px, box=ns.box)
         return {"images": images, "cams": cams, "rays": rays, "gt": gt, "mask": mask, "n_refs": k,
                 "scene": s.background == "scene", "patch": patch,
-                "surface": None if z is None else surface_distance(rays, pose, z / ns.scale),
+                "surface": None if z is None else surface_distance(rays, axis_cosines(intr, px), z / ns.scale),
                 "ref_views": [int(v) for v in refs], "target_view": tgt}
 
     @staticmethod
@@ -183,14 +183,12 @@ class RayBatcher:
         return (s.images[view] < 0.99).any(-1)
 
 
-def surface_distance(rays, c2w_norm: np.ndarray, z: np.ndarray) -> torch.Tensor:
+def surface_distance(rays, cos: np.ndarray, z: np.ndarray) -> torch.Tensor:
     """(R,) float32 distance along each ray from its box entry (the ``t`` of the model's samples) to the surface
     a depth map saw there: ``z`` (R,) planar z-depth in the normalised frame's units (0 = no surface), turned
-    into a distance along the unit ray (z over the cosine to the camera's optical axis, ``c2w_norm``'s third
-    column). NaN where there is no surface, the ray misses the box, or the surface lies outside the box's
-    stretch of the ray (a depth map of another object): those rays carry no depth loss."""
-    d = rays.dirs.numpy()
-    cos = d @ np.asarray(c2w_norm, np.float64)[:3, 2]
+    into a distance along the ray by ``cos``, the rays' cosines to the optical axis (``cameras.axis_cosines``).
+    NaN where there is no surface, the ray misses the box, or the surface lies outside the box's stretch of the
+    ray (a depth map of another object): those rays carry no depth loss."""
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where((z > 0) & (cos > 1e-6), z / cos, np.nan) - rays.depth_offset.numpy()
     far = rays.far.numpy()
