@@ -380,3 +380,27 @@ def test_a_sem2nerf_checkpoint_is_named_not_misread():
     with pytest.raises(InputError, match="sem2nerf render"):
         registry.kind_from_meta({"model_kind": "sem2nerf"})
     assert registry.kind_from_meta({}) == "nerformer_mrvm" and registry.kind_from_meta({"model_kind": "gpnr"}) == "gpnr"
+
+
+def test_a_deeper_gpnr_grows_from_a_shallower_one(tmp_path):
+    """More transformer blocks of the same width grow from a GPNR model file: the added blocks start as the
+    identity, so the deeper model renders exactly what the file's did."""
+    from safetensors.torch import save_model
+
+    from blender_mrvm.training import checkpoint as ckpt
+
+    shallow, deep = tiny(), tiny(n_blocks=3)
+    save_model(shallow, str(tmp_path / "m.safetensors"))
+    added = ckpt.load_weights_deepened(deep, tmp_path / "m.safetensors")
+    assert added and all(n.endswith((".1", ".2")) for n in added)
+    ns = normalized_scene(*BOX, shallow.box_padding)
+    poses = [ns.pose(p) for p in ring(3)]
+    cams = ref_cameras(poses[:2], [INTR] * 2)
+    pix = np.stack(np.meshgrid(np.arange(16) + 0.5, np.arange(16) + 0.5), -1).reshape(-1, 2)
+    rays = make_rays(INTR, poses[2], pix, box=ns.box)
+    rays = rays.select(torch.nonzero(rays.hit).flatten())
+    imgs = torch.from_numpy(images(2)).permute(0, 3, 1, 2)
+    with torch.no_grad():
+        a = shallow.render_rays(shallow.encode(imgs, cams), rays)["color"]
+        b = deep.render_rays(deep.encode(imgs, cams), rays)["color"]
+    assert len(a) > 50 and torch.equal(a, b)

@@ -166,6 +166,47 @@ def test_init_checkpoint_finetunes_from_given_weights(tmp_path, data):
     assert resolve_init_checkpoint("shipped") == default_checkpoint()
 
 
+@pytest.mark.parametrize("arch", ["legacy", "nerformer"])
+def test_init_checkpoint_grows_a_deeper_copy(tmp_path, data, arch):
+    """A run config naming more transformer blocks than its init checkpoint's model (same widths) grows it: the
+    file's blocks fill the first places, the added ones start as the identity (the deeper model renders exactly
+    what the file's did) and then learn; a shallower model, or another width, is refused."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models import registry
+
+    root, scenes = data
+    legacy = {"mrvm": {"target": "rerun", "view_masking": "prob"}} if arch == "legacy" else {}
+
+    def cfg(d_model, n_layers):
+        return model_config("fast", {**TINY, **legacy, "nerformer": {"arch": arch, "d_model": d_model, "n_heads": 2,
+                                                                     "n_layers": n_layers}})
+
+    shallow, deep = cfg(16, 1), cfg(16, 3)
+    _, ta = _cfgs(tmp_path / "a", root, iterations=1, ckpt_every=1)
+    run_to_end(train(shallow, ta, scenes=scenes))
+    model_file = ckpt.find_checkpoint(tmp_path / "a") / ckpt.MODEL_FILE
+    a, _, _ = ckpt.load_model(tmp_path / "a")
+    grown = registry.build_model(deep, load_pretrained=False)
+    added = ckpt.load_weights_deepened(grown, model_file)
+    assert sorted(added) == sorted(f"{b}.{s}.{i}" for b in ("coarse", "fine") for s in ("view_blocks", "ray_blocks")
+                                   for i in (1, 2))
+    assert _fixed_batch_mse(grown, scenes, deep, ta) == _fixed_batch_mse(a, scenes, shallow, ta)
+    # through the trainer: the grown blocks learn (their zeroed output layers move)
+    _, tb = _cfgs(tmp_path / "b", root, iterations=1, ckpt_every=1, pretrain_frac=0.0, init_checkpoint=str(model_file))
+    s = run_to_end(train(deep, tb, scenes=scenes))
+    assert s["initialized_from"] == str(model_file)
+    b, bcfg, _ = ckpt.load_model(tmp_path / "b")
+    assert bcfg.nerformer.n_layers == 3 and float(b.coarse.view_blocks[2].attn.out.weight.detach().abs().sum()) > 0
+    # the other way round (fewer blocks than the file) and another width: refused, nothing written
+    with pytest.raises(ckpt.WeightsMismatch, match="not in the model"):
+        ckpt.load_weights_deepened(registry.build_model(shallow, load_pretrained=False),
+                                   ckpt.find_checkpoint(tmp_path / "b") / ckpt.MODEL_FILE)
+    wide = cfg(24, 3)
+    with pytest.raises(InputError, match="only more transformer blocks"):
+        run_to_end(train(wide, replace(tb, out_dir=str(tmp_path / "c")), scenes=scenes))
+    assert not (tmp_path / "c").exists()
+
+
 def test_lr_schedule_and_config_file(tmp_path):
     c = TrainConfig(lr=1e-3, lr_warmup=10, iterations=110, lr_final_frac=0.1)
     assert lr_at(0, c) == pytest.approx(1e-4) and lr_at(9, c) == pytest.approx(1e-3)

@@ -69,6 +69,15 @@ class Block(nn.Module):
         x = x + self.attn(self.n1(x), key_valid)
         return x + self.ffn(self.n2(x))
 
+    def make_identity(self) -> None:
+        """Zero the output layers of both residual branches: the block then passes its input through unchanged
+        (a block added to a trained model starts as the identity; it still learns, since those output layers
+        receive gradients)."""
+        with torch.no_grad():
+            for lin in (self.attn.out, self.ffn[-1]):
+                lin.weight.zero_()
+                lin.bias.zero_()
+
 
 class NeRFormerBranch(nn.Module):
     """One branch (coarse or fine) of the implicit function."""

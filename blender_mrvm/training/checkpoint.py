@@ -108,10 +108,46 @@ def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") 
     except Exception as e:  # safetensors' own errors: a damaged file
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise InputError(f"checkpoint {model_file} does not load: {first[:300]}") from None
+    _check_finite(model, model_file)
+
+
+def _check_finite(model: torch.nn.Module, model_file: Path) -> None:
     bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
     if bad:
         raise InputError(f"checkpoint {model_file} holds NaN or infinite weights ({bad[0]}"
                          f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''})")
+
+
+def load_weights_deepened(model: torch.nn.Module, model_file: Path, device: str = "cpu") -> list[str]:
+    """Load a model file into a deeper copy of its model: the same widths, more transformer blocks in some
+    stacks. The file's blocks fill the first places of each stack and the added blocks start as the identity
+    (``make_identity``), so the deeper model computes exactly what the file's did and training goes on from
+    there (capacity grown from a trained model instead of a random start). Returns the added blocks' names;
+    :class:`WeightsMismatch` unless the two models differ by exactly such whole blocks."""
+    from safetensors.torch import load_file
+
+    try:
+        theirs = load_file(str(model_file), device=device)
+    except Exception as e:  # safetensors' own errors: a damaged file
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"checkpoint {model_file} does not load: {first[:300]}") from None
+    own = model.state_dict()
+    shape = [k for k in theirs if k in own and tuple(theirs[k].shape) != tuple(own[k].shape)]
+    extra = sorted(set(theirs) - set(own))
+    missing = set(own) - set(theirs)
+    added = [n for n, m in model.named_modules() if hasattr(m, "make_identity")
+             and {f"{n}.{k}" for k in m.state_dict()} <= missing]
+    covered = {f"{n}.{k}" for n in added for k in model.get_submodule(n).state_dict()}
+    if shape or extra or missing - covered or not added:
+        what = (f"{shape[0]} has another shape" if shape else f"{extra[0]} is not in the model" if extra
+                else f"{sorted(missing - covered)[0]} is not in the file" if missing - covered
+                else "the file's model is not shallower")
+        raise WeightsMismatch(f"checkpoint {model_file} is not a shallower copy of this model: {what}")
+    model.load_state_dict(theirs, strict=False)
+    for n in added:
+        model.get_submodule(n).make_identity()
+    _check_finite(model, model_file)
+    return added
 
 
 def load_model(path: Path, device: str = "cpu"):

@@ -118,7 +118,8 @@ class TrainConfig:
     init_checkpoint: str = ""
     """Fine-tune: start from these weights (a model file, checkpoint or run folder, or 'shipped' for the
     add-on's default model) instead of a random initialisation. The optimizer, schedule and step start
-    afresh; the model config is the checkpoint's unless the run config names one (it must match).
+    afresh; the model config is the checkpoint's unless the run config names one (it must match, or be a
+    deeper copy: more transformer blocks of the same width, the added ones starting as the identity).
     Ignored when the run folder already has a checkpoint to resume from."""
 
     def __post_init__(self) -> None:
@@ -175,7 +176,7 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
         mcfg = registry.config_from_dict(k, m["config"])
     elif set(m) <= {"overrides"} and tcfg.init_checkpoint and not kind:  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
-        if m.get("overrides"):  # e.g. {"depth_spacing": "auto"}: settings that keep the weights' shapes
+        if m.get("overrides"):  # settings that keep the weights' shapes, or more transformer blocks (grown from it)
             from ..models import registry as _reg
 
             mcfg = merge(mcfg, m["overrides"])

@@ -498,9 +498,15 @@ def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str)
     try:
         ckpt.load_weights(model, model_file, device)
     except ckpt.WeightsMismatch:
-        raise InputError(f"init_checkpoint {model_file} holds a {theirs.name!r} model whose weights do not fit "
-                         f"the run config's {model_cfg.name!r} model; leave the run config's model section out "
-                         "to use the checkpoint's own") from None
+        try:  # the run config names a deeper copy of the checkpoint's model: grow it
+            added = ckpt.load_weights_deepened(model, model_file, device)
+        except ckpt.WeightsMismatch:
+            raise InputError(f"init_checkpoint {model_file} holds a {theirs.name!r} model whose weights do not fit "
+                             f"the run config's {model_cfg.name!r} model (only more transformer blocks of the same "
+                             "width can be grown from it); leave the run config's model section out to use the "
+                             "checkpoint's own") from None
+        print(f"init: {len(added)} transformer blocks added to {model_file.name}'s model, starting as the identity "
+              f"({', '.join(added)})", file=sys.stderr, flush=True)
     return model_file
 
 
