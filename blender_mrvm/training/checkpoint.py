@@ -103,12 +103,14 @@ def load_weights(model: torch.nn.Module, model_file: Path, device: str = "cpu") 
     try:
         st_load(model, str(model_file), strict=True, device=device)
     except RuntimeError as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise WeightsMismatch(f"checkpoint {model_file} does not match its model config: {first[:300]}") from None
+        raise WeightsMismatch(f"checkpoint {model_file} does not match its model config: {_first_line(e)}") from None
     except Exception as e:  # safetensors' own errors: a damaged file
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise InputError(f"checkpoint {model_file} does not load: {first[:300]}") from None
+        raise InputError(f"checkpoint {model_file} does not load: {_first_line(e)}") from None
     _check_finite(model, model_file)
+
+
+def _first_line(e: Exception) -> str:
+    return (str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__)[:300]
 
 
 def _check_finite(model: torch.nn.Module, model_file: Path) -> None:
@@ -129,8 +131,7 @@ def load_weights_deepened(model: torch.nn.Module, model_file: Path, device: str 
     try:
         theirs = load_file(str(model_file), device=device)
     except Exception as e:  # safetensors' own errors: a damaged file
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise InputError(f"checkpoint {model_file} does not load: {first[:300]}") from None
+        raise InputError(f"checkpoint {model_file} does not load: {_first_line(e)}") from None
     own = model.state_dict()
     shape = [k for k in theirs if k in own and tuple(theirs[k].shape) != tuple(own[k].shape)]
     extra = sorted(set(theirs) - set(own))
