@@ -251,6 +251,8 @@ TRAIN = [
     _t("does not load", ["--init", "{w}/bad/ck_text.safetensors"]),
     _t("holds NaN or infinite weights", ["--init", "{w}/bad/ck_nan"], garbage=True),
     _t("init_checkpoint", ["--init", "{w}/nope"]),
+    _t("only more transformer blocks of the same width", ["--init", "shipped"],
+       model={"overrides": {"nerformer": {"d_model": 48}}}),  # growing deeper, not wider
     _t("train.iterations must be at least 1", ["--iterations", "0"]),
     Case("tracebacks", ["train", "--config", "{w}/cfg/invalid.json", "--out", "{new}"], "not valid JSON"),
     Case("tracebacks", ["train", "--config", "{w}/cfg/list.json", "--out", "{new}"], "a run config is a JSON object"),
