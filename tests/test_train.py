@@ -167,7 +167,7 @@ def test_init_checkpoint_finetunes_from_given_weights(tmp_path, data):
 
 
 @pytest.mark.parametrize("arch", ["legacy", "nerformer"])
-def test_init_checkpoint_grows_a_deeper_copy(tmp_path, data, arch):
+def test_init_checkpoint_grows_a_deeper_copy(tmp_path, data, arch, capsys):
     """A run config naming more transformer blocks than its init checkpoint's model (same widths) grows it: the
     file's blocks fill the first places, the added ones start as the identity (the deeper model renders exactly
     what the file's did) and then learn; a shallower model, or another width, is refused."""
@@ -195,6 +195,7 @@ def test_init_checkpoint_grows_a_deeper_copy(tmp_path, data, arch):
     _, tb = _cfgs(tmp_path / "b", root, iterations=1, ckpt_every=1, pretrain_frac=0.0, init_checkpoint=str(model_file))
     s = run_to_end(train(deep, tb, scenes=scenes))
     assert s["initialized_from"] == str(model_file)
+    assert "init: 8 transformer blocks added" in capsys.readouterr().err  # the log says what grew
     b, bcfg, _ = ckpt.load_model(tmp_path / "b")
     assert bcfg.nerformer.n_layers == 3 and float(b.coarse.view_blocks[2].attn.out.weight.detach().abs().sum()) > 0
     # the other way round (fewer blocks than the file) and another width: refused, nothing written

@@ -274,7 +274,10 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
         start = int(state["step"])
     else:
         if cfg.init_checkpoint:
-            init_from = init_weights(model, model_cfg, cfg.init_checkpoint, device)
+            init_from, added = init_weights(model, model_cfg, cfg.init_checkpoint, device)
+            if added and dd.main:
+                print(f"init: {len(added)} transformer blocks added to {init_from.name}'s model, starting as the "
+                      f"identity ({', '.join(added)})", file=sys.stderr, flush=True)
         if dd.world > 1:
             _broadcast_params(model)
     if dd.main:
@@ -484,9 +487,11 @@ def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> to
     return (bce + missed_fg) / mask.numel()
 
 
-def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str) -> Path:
-    """Load the weights ``init_checkpoint`` names into a fresh model (fine-tuning); its model file.
-    InputError, naming both models, when the checkpoint holds another architecture."""
+def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str) -> tuple[Path, list[str]]:
+    """Load the weights ``init_checkpoint`` names into a fresh model (fine-tuning); its model file and the
+    transformer blocks added when the run config names a deeper copy of its model
+    (:func:`checkpoint.load_weights_deepened`). InputError, naming both models, when the checkpoint holds
+    another architecture."""
     from .config import resolve_init_checkpoint
 
     model_file = resolve_init_checkpoint(name)
@@ -499,15 +504,13 @@ def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str)
         ckpt.load_weights(model, model_file, device)
     except ckpt.WeightsMismatch:
         try:  # the run config names a deeper copy of the checkpoint's model: grow it
-            added = ckpt.load_weights_deepened(model, model_file, device)
+            return model_file, ckpt.load_weights_deepened(model, model_file, device)
         except ckpt.WeightsMismatch:
             raise InputError(f"init_checkpoint {model_file} holds a {theirs.name!r} model whose weights do not fit "
                              f"the run config's {model_cfg.name!r} model (only more transformer blocks of the same "
                              "width can be grown from it); leave the run config's model section out to use the "
                              "checkpoint's own") from None
-        print(f"init: {len(added)} transformer blocks added to {model_file.name}'s model, starting as the identity "
-              f"({', '.join(added)})", file=sys.stderr, flush=True)
-    return model_file
+    return model_file, []
 
 
 def train_image_size(scenes: list[ObjectScene]) -> int:
