@@ -50,6 +50,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..training.adapt import add_arguments as add_adapt_arguments
 
     add_adapt_arguments(p)
+    p.add_argument("--reproject", choices=("off", "model", "gt"), default="off",
+                   help="lay the references' own colours over each view where they see its surface: through the "
+                   "model's depth ('model'; its renders of the view and of each reference) or the data's depth maps "
+                   "('gt': the ceiling with exact geometry); each view also keeps the model's own scores and the "
+                   "report the paired difference (default off; models/reproject.py)")
+    p.add_argument("--reproject-tau", type=float, default=0.03,
+                   help="with --reproject: a reference sees a point at most (1 + tau) x its own depth there away "
+                   "(default 0.03)")
+    p.add_argument("--reproject-angle", type=float, default=0.0,
+                   help="with --reproject: weight references by exp((cos angle - 1) / this) between their ray and "
+                   "the view's (0 = alike, the default)")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
@@ -74,8 +85,18 @@ def check_args(args) -> None:
     from ..training.adapt import from_args as adapt_from_args
 
     adapt_from_args(args)  # checked here, before anything is read
+    reproject_from_args(args)
     check_output_folder(args.out, args.force, "eval output folder",
                         ours=("eval.json", "eval.md", "eval_grid.png", "compare.json"))
+
+
+def reproject_from_args(args):
+    """The checked :class:`models.reproject.ReprojectConfig` of ``--reproject-*`` (an InputError when bad)."""
+    from ..models.reproject import ReprojectConfig
+
+    cfg = ReprojectConfig(tau=args.reproject_tau, angle_scale=args.reproject_angle)
+    cfg.check()
+    return cfg
 
 
 def read_compare_to(path: Path) -> dict:
@@ -163,7 +184,8 @@ def run(args) -> int:
                                     extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
                                     skip=args.skip_empty, target_inputs=per_target, workers=workers,
                                     adapt=adapt_from_args(args), nearest=args.nearest,
-                                    pool=views if args.nearest and source == "--input-views" else None),
+                                    pool=views if args.nearest and source == "--input-views" else None,
+                                    reproject=args.reproject, reproject_cfg=reproject_from_args(args)),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

@@ -381,6 +381,12 @@ def axis_cosines(intr: Intrinsics, pixels: np.ndarray | None = None) -> np.ndarr
     return d[..., 2]
 
 
+def ray_distances(z: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """A planar z-depth map (H, W) as distances along each pixel's ray; 0 where it sees no surface (z <= 0)."""
+    z = np.asarray(z, np.float64)
+    return np.where(z > 0, z / axis_cosines(intr), 0.0)
+
+
 def unproject_depth(intr: Intrinsics, c2w_opencv: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """World points (H, W, 3) from a planar z-depth map (H, W)."""
     o, d = rays_opencv(intr, c2w_opencv, normalize=False)

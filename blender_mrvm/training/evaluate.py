@@ -16,6 +16,7 @@ import json
 from collections import defaultdict
 from dataclasses import asdict
 from pathlib import Path
+from functools import partial
 from typing import Any, Sequence
 
 import numpy as np
@@ -196,11 +197,11 @@ def depth_abs_rel(depth: np.ndarray, z: np.ndarray, intr) -> float | None:
     which counts as an error of 1). None when the view shows no surface."""
     from ..geometry import cameras
 
-    z = np.asarray(z, np.float64)
-    fg = z > 0
+    true = cameras.ray_distances(z, intr)
+    fg = true > 0
     if not fg.any():
         return None
-    true = z[fg] / cameras.axis_cosines(intr)[fg]
+    true = true[fg]
     return float(np.mean(np.abs(np.asarray(depth, np.float64)[fg] - true) / true))
 
 
@@ -209,8 +210,15 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
              target_views: Sequence[int] | None = None, extra: dict[str, Any] | None = None,
              ref_size: int = 0, max_ref_size: int = 0, target_inputs: dict[int, Sequence[int]] | None = None,
              skip: str = "off", workers: int = 1, adapt=None, nearest: int = 0,
-             pool: Sequence[int] | None = None):
+             pool: Sequence[int] | None = None, reproject: str = "off", reproject_cfg=None):
     """Progress generator; returns the report dict (also written to ``out_dir/eval.json``).
+
+    ``reproject``: "model" lays the references' own colours over each view where they see its surface
+    (``models/reproject.py``), through the model's depth (its renders of the view and of each reference);
+    "gt" through the data's depth maps and masks instead (the ceiling with exact geometry; the data must have
+    them, at the references' size). Each view then also records the model's own scores (``model_only``) and
+    the report the paired difference (``reprojection_minus_model``). ``reproject_cfg``: a
+    :class:`models.reproject.ReprojectConfig`.
 
     ``nearest``: render each target from its ``nearest`` nearest views (:func:`nearest_of`) among ``pool``
     (view ids; None = every view of the object), the target itself excluded, instead of the protocol's
@@ -231,6 +239,10 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     id: input view ids} when each target has its own references (then ``target_views`` defaults to its
     keys and ``input_views`` is not used)."""
     model.eval()
+    no_depth = [f"{s.category}/{s.name}" for s in scenes if s.depths is None] if reproject == "gt" else []
+    if no_depth:
+        raise InputError(f"--reproject gt needs the data's depth maps; {len(no_depth)} object(s) have none "
+                         f"(first: {no_depth[0]})")
     if adapt is not None and not adapt.on:
         adapt = None
     records: list[dict[str, Any]] = []
@@ -269,12 +281,21 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         if nearest and s.masks is not None and skip != "off":
             hull = model.world_hull(s.masks[others], [s.c2w[k] for k in others], [s.intrinsics[k] for k in others],
                                     s.bbox)
+        render = partial(m.synthesize, ref_images, ref_c2w, ref_intr, s.bbox, chunk=chunk, ref_masks=ref_masks,
+                         skip=skip, workers=workers, hull=hull)
+        if reproject != "off":
+            ref_geo = _reference_geometry(s, refs, reproject, ref_images, ref_intr, ref_masks, render)
         for ti, t in enumerate(targets):
-            out = m.synthesize(ref_images, ref_c2w, ref_intr, s.bbox, s.c2w[t], s.intrinsics[t], chunk=chunk,
-                               ref_masks=ref_masks, skip=skip, workers=workers, hull=hull)
+            out = render(s.c2w[t], s.intrinsics[t])
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
-            rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips)}
+            extra_scores = {}
+            if reproject != "off":
+                own = _scores(pred, gt, lpips)
+                pred, share = _reprojected(s, t, out, reproject, reproject_cfg, ref_images, ref_c2w, ref_intr, ref_geo)
+                extra_scores = {"model_only": own, "reference_share": share}
+            rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips),
+                   **extra_scores}
             if s.masks is not None:
                 rec["alpha"] = alpha_scores(out["acc"].numpy(), s.masks[t])
             if s.depths is not None:
@@ -302,7 +323,14 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                           "max_targets": max_targets, "objects": len(seen_objects), "empty_space_skipping": skip,
                           "reference_sizes": sorted([list(x) for x in sizes]),
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None,
-                          "adaptation": asdict(adapt) if adapt is not None else None}
+                          "adaptation": asdict(adapt) if adapt is not None else None,
+                          "reproject": None if reproject == "off" else
+                          {"depth": reproject, **asdict(reproject_cfg or _default_reproject())}}
+    if reproject != "off" and records:
+        own = [{**r, **r["model_only"]} for r in records]
+        paired = compare_reports({"views": records}, {"views": own})["overall"]
+        paired.pop("depth_abs_rel", None)  # the model's depth is scored either way
+        report["reprojection_minus_model"] = paired
     report.update(extra or {})
     if out_dir is not None:
         out_dir = Path(out_dir)
@@ -312,6 +340,47 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             F.write_png(out_dir / "eval_grid.png", make_grid(grid_rows))
             report["grid"] = str(out_dir / "eval_grid.png")
     return report
+
+
+def _default_reproject():
+    from ..models.reproject import ReprojectConfig
+
+    return ReprojectConfig()
+
+
+def _reference_geometry(s: ObjectScene, refs: Sequence[int], source: str, ref_images, ref_intr, ref_masks, render):
+    """(distances along the rays (V, h, w), object masks (V, h, w)) of the references, for ``eval --reproject``:
+    the model's renders of each reference view ("model"; the masks where the data has them, else opacity > 0.5)
+    or the data's depth maps ("gt")."""
+    from ..geometry import cameras
+
+    if source == "gt":
+        if s.depths[refs[0]].shape != ref_images.shape[1:3]:
+            raise InputError(f"--reproject gt needs references at the dataset's size ({s.depths[refs[0]].shape[1]} px "
+                             f"wide), the model sees them at {ref_images.shape[2]} px: pass --ref-size -1")
+        dist = np.stack([cameras.ray_distances(s.depths[r], s.intrinsics[r]) for r in refs])
+        return dist, dist > 0
+    outs = [render(s.c2w[r], k) for r, k in zip(refs, ref_intr)]
+    dist = np.stack([o["depth"].numpy() for o in outs])
+    seen = ref_masks if ref_masks is not None else np.stack([o["acc"].numpy() > 0.5 for o in outs])
+    return dist, seen
+
+
+def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, ref_images, ref_c2w, ref_intr, ref_geo):
+    """(the view with the references' colours laid over (H, W, 3) tensor, share of its pixels taken at least half
+    from them) for ``eval --reproject``."""
+    from ..geometry import cameras
+    from ..models import reproject as rp
+
+    cfg = cfg or rp.ReprojectConfig()
+    if source == "gt":
+        depth = cameras.ray_distances(s.depths[t], s.intrinsics[t])
+        acc = (depth > 0).astype(np.float32)
+    else:
+        depth, acc = out["depth"].numpy(), out["acc"].numpy()
+    col, wgt = rp.reference_colours(depth, s.c2w[t], s.intrinsics[t], ref_images, ref_c2w, ref_intr, *ref_geo, cfg)
+    pred, gate = rp.blend(out["color"].numpy(), acc, col, wgt, cfg)
+    return torch.from_numpy(pred), float(np.mean(gate >= 0.5))
 
 
 def _mean(recs, key, sub=None):
@@ -337,6 +406,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
             b["alpha"] = {k: float(np.mean([a[k] for a in alphas])) for k in ("background", "object", "iou")}
         if any("depth_abs_rel" in r for r in recs):
             b["depth_abs_rel"] = _mean(recs, "depth_abs_rel")
+        if any("model_only" in r for r in recs):
+            b["model_only"] = {m: _mean(recs, m, "model_only") for m in METRICS}
+            b["reference_share"] = _mean(recs, "reference_share")
         base = {k: b[k]["psnr"] for k in ("baseline_nearest", "baseline_mean") if b[k]["psnr"] is not None}
         if base and b["psnr"] is not None:
             best = max(base, key=base.get)
@@ -403,6 +475,12 @@ def markdown_table(report: dict) -> str:
     if dr is not None:
         text += (f"\nDepth against the depth maps, where they see a surface: mean absolute relative error of the "
                  f"distance along the ray {dr:.4f} (nothing rendered counts as 1).\n")
+    mo = report["overall"].get("model_only")
+    if mo:
+        rp = (report.get("protocol") or {}).get("reproject") or {}
+        text += (f"\nThe references' colours laid over each view through the {rp.get('depth', '?')} depth (eval "
+                 f"--reproject): {report['overall']['reference_share']:.1%} of the pixels taken at least half from them; "
+                 f"the model alone: PSNR {f(mo['psnr'], 2)}, SSIM {f(mo['ssim'], 3)}, LPIPS {f(mo['lpips'], 3)}.\n")
     return text
 
 
