@@ -140,8 +140,12 @@ def test_depth_loss_refuses_what_it_cannot_use(tmp_path, spheres):
 
 def test_eval_scores_depth_where_the_data_has_it():
     """``depth_abs_rel``: 0 for the true distances along the rays (from planar depth), the relative error of a
-    scaled answer, 1 where nothing is rendered; None for a view without a surface."""
-    from blender_mrvm.training.evaluate import depth_abs_rel
+    scaled answer, 1 where nothing is rendered; ``depth_missing`` and ``depth_rel_median`` split the two; nothing
+    for a view without a surface."""
+    from blender_mrvm.training.evaluate import depth_scores
+
+    def depth_abs_rel(*a):
+        return depth_scores(*a).get("depth_abs_rel")
 
     s = _one_sphere(np.zeros(3), 0.6, res=20, views=1)
     intr, c2w = s.intrinsics[0], s.c2w[0]
@@ -152,3 +156,12 @@ def test_eval_scores_depth_where_the_data_has_it():
     assert depth_abs_rel(1.1 * along, z, intr) == pytest.approx(0.1, rel=1e-9)
     assert depth_abs_rel(np.zeros_like(z), z, intr) == pytest.approx(1.0)
     assert depth_abs_rel(along, np.zeros_like(z), intr) is None
+    half = along.copy()
+    fg = np.argwhere(z > 0)
+    half[tuple(fg[: len(fg) // 2].T)] = 0  # nothing rendered on half the surface, the rest 20 % too far
+    half *= 1.2
+    sc = depth_scores(half, z, intr)
+    assert sc["depth_missing"] == pytest.approx(1 - (len(fg) - len(fg) // 2) / len(fg))
+    assert sc["depth_rel_median"] == pytest.approx(0.2, rel=1e-9)
+    assert sc["depth_abs_rel"] == pytest.approx(sc["depth_missing"] + 0.2 * (1 - sc["depth_missing"]), rel=1e-9)
+    assert "depth_rel_median" not in depth_scores(np.zeros_like(z), z, intr)

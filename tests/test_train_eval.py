@@ -66,6 +66,7 @@ def test_train_then_eval_commands(tmp_path, capsys):
     assert 0 <= a["background"] <= 1 and 0 <= a["object"] <= 1 and 0 <= a["iou"] <= 1
     assert "Opacity (the image planes' alpha)" in (tmp_path / "ev" / "eval.md").read_text()
     assert 0 <= o["depth_abs_rel"] and all(0 <= v["depth_abs_rel"] for v in rep["views"])  # the set has depth maps
+    assert 0 <= o["depth_missing"] <= 1 and o["depth_abs_rel"] >= o["depth_missing"]
     assert "mean absolute relative error" in (tmp_path / "ev" / "eval.md").read_text()
     # References as synthesis gives them: trained at 16 px, so 16 px references stay; --ref-size 8 halves them
     # for the model only (baselines stay at the dataset's size).

@@ -32,7 +32,7 @@ from ..synthesis import reference_shape, resize_mask, resize_view
 METRICS = ("psnr", "ssim", "lpips", "ssim_gauss")
 """Reported metrics: ``ssim`` is pixelNeRF's convention (scikit-image's defaults), ``ssim_gauss`` the
 Gaussian-window SSIM (what reports before session 3 called ``ssim``)."""
-LOWER_IS_BETTER = ("lpips", "depth_abs_rel")
+LOWER_IS_BETTER = ("lpips", "depth_abs_rel", "depth_missing", "depth_rel_median")
 """Per-view scores where less is better (the rest: more)."""
 PROTOCOL_FILE = "eval_views.json"
 """Protocol file under ``<root>/splits/`` (written by ``make-shapenet``)."""
@@ -191,18 +191,30 @@ def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float]:
             "iou": float(np.logical_and(pred, mask).sum() / union) if union else 1.0}
 
 
-def depth_abs_rel(depth: np.ndarray, z: np.ndarray, intr) -> float | None:
-    """Mean |rendered - true| / true distance along the ray over the pixels where the depth map ``z`` (planar,
-    0 = nothing) sees a surface; ``depth`` (H, W) is the model's, along the ray (0 where it rendered nothing,
-    which counts as an error of 1). None when the view shows no surface."""
+DEPTH_SCORES = ("depth_abs_rel", "depth_missing", "depth_rel_median")
+"""Per view, over the pixels where the data's depth map sees a surface: the mean |rendered - true| / true distance
+along the ray with nothing rendered counting as 1 (``depth_abs_rel``), the share of them the model rendered
+nothing on (``depth_missing``), and the median relative error over the rest (``depth_rel_median``: how far off
+the surface is where the model drew one, the figure ``eval --reproject`` depends on)."""
+
+
+def depth_scores(depth: np.ndarray, z: np.ndarray, intr) -> dict[str, float]:
+    """:data:`DEPTH_SCORES` of the model's ``depth`` (H, W), along the ray, 0 where it rendered nothing, against
+    the planar depth map ``z`` (0 = nothing); {} for a view without a surface, no ``depth_rel_median`` where
+    the model rendered none of it."""
     from ..geometry import cameras
 
     true = cameras.ray_distances(z, intr)
     fg = true > 0
     if not fg.any():
-        return None
-    true = true[fg]
-    return float(np.mean(np.abs(np.asarray(depth, np.float64)[fg] - true) / true))
+        return {}
+    true, got = true[fg], np.asarray(depth, np.float64)[fg]
+    rel = np.abs(got - true) / true
+    drawn = got > 0
+    out = {"depth_abs_rel": float(np.mean(np.where(drawn, rel, 1.0))), "depth_missing": float(1 - drawn.mean())}
+    if drawn.any():
+        out["depth_rel_median"] = float(np.median(rel[drawn]))
+    return out
 
 
 def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips=None, max_targets: int = 0,
@@ -299,9 +311,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             if s.masks is not None:
                 rec["alpha"] = alpha_scores(out["acc"].numpy(), s.masks[t])
             if s.depths is not None:
-                err = depth_abs_rel(out["depth"].numpy(), s.depths[t], s.intrinsics[t])
-                if err is not None:
-                    rec["depth_abs_rel"] = err
+                rec.update(depth_scores(out["depth"].numpy(), s.depths[t], s.intrinsics[t]))
             near = torch.from_numpy(s.images[_nearest_ref(s, refs, t)])
             if near.shape == gt.shape:
                 rec["baseline_nearest"] = _scores(near, gt, lpips)
@@ -329,7 +339,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     if reproject != "off" and records:
         own = [{**r, **r["model_only"]} for r in records]
         paired = compare_reports({"views": records}, {"views": own})["overall"]
-        paired.pop("depth_abs_rel", None)  # the model's depth is scored either way
+        for k in DEPTH_SCORES:  # the model's depth is scored either way
+            paired.pop(k, None)
         report["reprojection_minus_model"] = paired
     report.update(extra or {})
     if out_dir is not None:
@@ -404,8 +415,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         alphas = [r["alpha"] for r in recs if "alpha" in r]
         if alphas:
             b["alpha"] = {k: float(np.mean([a[k] for a in alphas])) for k in ("background", "object", "iou")}
-        if any("depth_abs_rel" in r for r in recs):
-            b["depth_abs_rel"] = _mean(recs, "depth_abs_rel")
+        for k in DEPTH_SCORES:
+            if any(k in r for r in recs):
+                b[k] = _mean(recs, k)
         if any("model_only" in r for r in recs):
             b["model_only"] = {m: _mean(recs, m, "model_only") for m in METRICS}
             b["reference_share"] = _mean(recs, "reference_share")
@@ -473,8 +485,11 @@ def markdown_table(report: dict) -> str:
                  f"{a['iou']:.3f}.\n")
     dr = report["overall"].get("depth_abs_rel")
     if dr is not None:
+        o = report["overall"]
         text += (f"\nDepth against the depth maps, where they see a surface: mean absolute relative error of the "
-                 f"distance along the ray {dr:.4f} (nothing rendered counts as 1).\n")
+                 f"distance along the ray {dr:.4f} (nothing rendered counts as 1); nothing rendered on "
+                 f"{f(o.get('depth_missing'), 4)} of those pixels; median relative error where something was "
+                 f"{f(o.get('depth_rel_median'), 4)}.\n")
     mo = report["overall"].get("model_only")
     if mo:
         rp = (report.get("protocol") or {}).get("reproject") or {}
@@ -498,7 +513,7 @@ def compare_reports(a: dict, b: dict) -> dict:
 
     def stats(keys):
         out = {"views": len(keys)}
-        for m in (*METRICS, "depth_abs_rel"):
+        for m in (*METRICS, *DEPTH_SCORES):
             per_obj = defaultdict(list)
             for k in keys:
                 x, y = va[k].get(m), vb[k].get(m)
