@@ -153,6 +153,12 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
     nearest: IntProperty(name="Per view", default=0, min=0, max=10,
                          description="References each view is rendered from: its nearest ones by direction and "
                          "distance (fewer is faster). 0 = every reference when there are at most 10, else the 5 nearest")
+    photo_colours: EnumProperty(name="Photo colours", items=[
+        ("AUTO", "Auto", "Lay the references' own colours over each view where they see its surface when each view is "
+         "rendered from its nearest of many references (sharper; each reference is rendered once more for its depth)"),
+        ("ON", "On", "Always lay the references' own colours over the views where they see the surface"),
+        ("OFF", "Off", "The model's own colours only"),
+    ], default="AUTO")
     target_source: EnumProperty(name="Targets", items=[
         ("SELECTED", "Selected cameras", "Synthesize the view of every selected camera"),
         ("ORBIT", "Orbit", "Generate cameras on a circle around the 3D cursor"),

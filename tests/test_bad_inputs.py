@@ -333,6 +333,7 @@ SYNTH = [
     _s("--adapt-lr must be above 0", ["--adapt-steps", "3", "--adapt-lr", "0"], cls="silent-garbage"),
     _s("--adapt-rays must be between 1", ["--adapt-steps", "3", "--adapt-rays", "0"]),
     _s("needs at least 2 references", ["--views", "0", "--adapt-steps", "3"]),
+    _s("invalid choice: 'yes'", ["--reproject", "yes"]),
 ]
 
 _EV = ["eval", "--data", "{w}/ds", "--checkpoint", "{w}/ck", "--no-lpips", "--threads", "1", "--input-views", "0"]

@@ -118,6 +118,7 @@ def test_a_model_taking_fewer_than_the_pool_renders_each_target_from_its_nearest
     rep = json.loads((tmp_path / "out" / "synthesis.json").read_text())
     for t in rep["targets"]:
         assert t["reference_views"] == sorted(_pool_nearest(obj, rep, list(range(N_VIEWS)), t, 3))
+    assert rep["reference_colours"] is None  # GPNR's colours already are the references': auto leaves them
 
 
 def test_parse_views_takes_all_and_up_to_the_pool_size():
@@ -212,3 +213,36 @@ def test_adapting_to_a_dense_set_draws_each_held_out_views_nearest(dense):
             else:
                 nearest_draws += is_nearest
     assert nearest_draws < 8  # random subsets are not always the nearest
+
+
+def test_reference_colours_on_in_a_dense_capture_and_exact_from_a_views_own_photo(dense, tmp_path):
+    """`--reproject` (auto: on when each view takes its nearest of more references): the references used are
+    rendered once for their depth; a view rendered at a reference's own camera from that reference alone, by a
+    model that is opaque at the box, takes the photo's own colours wherever the photo shows the object."""
+    root, obj, ck = dense
+    assert main(_synth(obj, ck, tmp_path / "auto")) == 0  # 14 views > 10: each view its 5 nearest, colours on
+    rep = json.loads((tmp_path / "auto" / "synthesis.json").read_text())
+    rc = rep["reference_colours"]
+    assert rc["mode"] == "auto" and rc["reference_renders"] == len({v for t in rep["targets"] for v in t["reference_views"]})
+    assert all(0 <= t["reference_share"] <= 1 for t in rep["targets"])
+    assert main(_synth(obj, ck, tmp_path / "few", "--views", "0,5,11")) == 0  # every reference for every view: off
+    rep = json.loads((tmp_path / "few" / "synthesis.json").read_text())
+    assert rep["reference_colours"] is None and "reference_share" not in rep["targets"][0]
+
+    from test_synthesize import tiny_checkpoint
+
+    opaque = tiny_checkpoint(root / "opaque", {"render": {"density_bias": 30.0}})
+    args = ["synthesize", "--references", str(obj), "--views", "4", "--target-views", "4", "--checkpoint", str(opaque),
+            "--out", None, "--device", "cpu", "--threads", "1", "--ref-size", "-1", "--reproject", None]
+    for mode in ("on", "off"):
+        args[10], args[-1] = str(tmp_path / mode), mode
+        assert main(args) == 0
+    on, off = (F.read_png(tmp_path / m / "rgb" / "000000.png").astype(int) for m in ("on", "off"))
+    photo = F.read_png(obj / "rgb" / "000004.png")[..., :3].astype(int)
+    mask = F.read_png(obj / "mask" / "000004.png") > 0
+    mask = mask if mask.ndim == 2 else mask[..., 0]
+    assert mask.sum() > 10 and np.abs(on[mask][:, :3] - photo[mask]).max() <= 1
+    assert np.array_equal(on[~mask], off[~mask])  # elsewhere the model's own colours
+    assert np.abs(off[mask][:, :3] - photo[mask]).max() > 10  # which are not the photo's
+    rep = json.loads((tmp_path / "on" / "synthesis.json").read_text())
+    assert rep["reference_colours"]["reference_renders"] == 1 and rep["targets"][0]["reference_share"] > 0

@@ -64,7 +64,8 @@ def test_exact_depth_carries_the_reference_colour():
     ref, tgt = look_at([0.3, -2.0, 1.5]), look_at([-0.8, -1.8, 1.2])
     ref_img, ref_d, ref_hit = plane_view(ref, intr)
     true, depth, hit = plane_view(tgt, intr)
-    col, w = rp.reference_colours(depth, tgt, intr, ref_img[None], [ref], [intr], ref_d[None], ref_hit[None])
+    alike = rp.ReprojectConfig(angle_scale=0.0)
+    col, w = rp.reference_colours(depth, tgt, intr, ref_img[None], [ref], [intr], ref_d[None], ref_hit[None], alike)
     # where the target's surface point lies well inside the reference's frame, the colour is the surface's own
     o, d = cameras.rays_opencv(intr, tgt)
     x = o + d * depth[..., None]
@@ -114,7 +115,7 @@ def test_blend_follows_the_opacity_ramp_and_angle_weights():
     blue[..., 2] = 1
     args = (depth, tgt, intr, np.stack([red, blue]), [near, far], [intr] * 2, np.stack([v[1] for v in views]),
             np.stack([v[2] for v in views]))
-    col_eq, w_eq = rp.reference_colours(*args)
+    col_eq, w_eq = rp.reference_colours(*args, rp.ReprojectConfig(angle_scale=0.0))
     col_ang, _ = rp.reference_colours(*args, rp.ReprojectConfig(angle_scale=0.05))
     both = (w_eq == 1) & (col_eq[..., 0] > 0.4) & (col_eq[..., 2] > 0.4)
     assert both.sum() > 100
@@ -148,7 +149,7 @@ def checkpoint(tmp_path_factory):
 def test_eval_reproject_reports_the_paired_gain(sphere_set, checkpoint, tmp_path, capsys):
     base = ["eval", "--checkpoint", str(checkpoint), "--data", str(sphere_set), "--split", "train",
             "--input-views", "0,3", "--no-lpips", "--threads", "1"]
-    assert main(base + ["--out", str(tmp_path / "gt"), "--reproject", "gt"]) == 0
+    assert main(base + ["--out", str(tmp_path / "gt"), "--reproject", "gt", "--reproject-angle", "0"]) == 0
     rep = json.loads((tmp_path / "gt" / "eval.json").read_text())
     assert rep["protocol"]["reproject"]["depth"] == "gt"
     v = rep["views"][0]
@@ -181,3 +182,11 @@ def test_ray_distances_match_the_unprojected_points():
     pts = cameras.unproject_depth(intr, pose, z)
     want = np.linalg.norm(pts - pose[:3, 3], axis=-1)
     assert np.all(dist[:8] == 0) and dist[8:] == pytest.approx(want[8:], rel=1e-12)
+
+
+def test_synthesis_config_refuses_an_unknown_reproject_mode(tmp_path):
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.synthesis import SynthesisConfig
+
+    with pytest.raises(InputError, match="synthesis.reproject"):
+        SynthesisConfig(tmp_path, tmp_path / "targets.json", tmp_path / "out", reproject="always")

@@ -55,12 +55,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "model's depth ('model'; its renders of the view and of each reference) or the data's depth maps "
                    "('gt': the ceiling with exact geometry); each view also keeps the model's own scores and the "
                    "report the paired difference (default off; models/reproject.py)")
-    p.add_argument("--reproject-tau", type=float, default=0.03,
-                   help="with --reproject: a reference sees a point at most (1 + tau) x its own depth there away "
-                   "(default 0.03)")
-    p.add_argument("--reproject-angle", type=float, default=0.0,
-                   help="with --reproject: weight references by exp((cos angle - 1) / this) between their ray and "
-                   "the view's (0 = alike, the default)")
+    from ..models.reproject import ReprojectConfig
+
+    rp = ReprojectConfig()
+    p.add_argument("--reproject-tau", type=float, default=rp.tau,
+                   help=f"with --reproject: a reference sees a point at most (1 + tau) x its own depth there away "
+                   f"(default {rp.tau}, as synthesis)")
+    p.add_argument("--reproject-angle", type=float, default=rp.angle_scale,
+                   help=f"with --reproject: weight references by exp((cos angle - 1) / this) between their ray and "
+                   f"the view's (0 = alike; default {rp.angle_scale}, as synthesis)")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")

@@ -27,6 +27,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nearest", type=int, default=0, metavar="K",
                    help="render each view from its K nearest references (by direction and distance; fewer is faster, "
                    "README 'Many references'); 0 (default) = every reference when there are at most 10, else the 5 nearest")
+    p.add_argument("--reproject", choices=("auto", "on", "off"), default="auto",
+                   help="lay the references' own colours over each view where they see its surface, through the model's "
+                   "depth (each reference used is rendered once more): auto (default) = on when each view is rendered "
+                   "from its nearest of more references (a dense capture) by a model that predicts its colours, off "
+                   "otherwise and for GPNR (its colours already are the references')")
     tg = p.add_mutually_exclusive_group(required=True)
     tg.add_argument("--targets", type=Path, help="targets.json naming the cameras to synthesize")
     tg.add_argument("--target-views", nargs="+", help="synthesize these views of the reference folder, e.g. 0,5,9")
@@ -83,7 +88,7 @@ def run(args) -> int:
                           out=args.out, views=views, checkpoint=args.checkpoint, device=args.device, depth=args.depth,
                           chunk_rays=args.chunk, ref_size=args.ref_size, bbox=bbox, threads=args.threads,
                           quality=args.quality, skip_empty=args.skip_empty, force=args.force, nearest=args.nearest,
-                          adapt=adapt_from_args(args))
+                          adapt=adapt_from_args(args), reproject=args.reproject)
     if args.orbit_size:
         V.check_image_side("--orbit-size", args.orbit_size)
     if args.orbit is not None:

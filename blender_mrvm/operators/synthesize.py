@@ -63,6 +63,8 @@ class SynthesisJob:
     """The synthesize command's --adapt-steps: fine-tune a copy of the model on the references first (0 = off)."""
     nearest: int = 0
     """The synthesize command's --nearest: references per view, its nearest (0 = all, up to the model's most)."""
+    reproject: str = "auto"
+    """The synthesize command's --reproject: the references' own colours over the views (auto, on, off)."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:
@@ -148,7 +150,8 @@ def plan_from_props(context) -> SynthesisJob:
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
-                        p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps), int(p.nearest))
+                        p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps), int(p.nearest),
+                        p.photo_colours.lower())
 
 
 def prepare(context, job: SynthesisJob):
@@ -179,7 +182,7 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
             "--targets", str(job_dir / "targets.json"),
             "--checkpoint", str(job.checkpoint), "--device", job.device, "--ref-size", str(job.ref_size),
             "--quality", job.quality, "--adapt-steps", str(job.adapt_steps), "--nearest", str(job.nearest),
-            "--out", str(job_dir / "out")]
+            "--reproject", job.reproject, "--out", str(job_dir / "out")]
 
 
 @dataclass

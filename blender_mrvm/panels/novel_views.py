@@ -138,6 +138,7 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
         if p.reference_sizing == "CUSTOM":
             col.prop(p, "reference_size")
         col.prop(p, "nearest")
+        col.prop(p, "photo_colours")
         col.prop(p, "adapt_steps")
         col.prop(p, "plane_distance")
         col.prop(p, "output")

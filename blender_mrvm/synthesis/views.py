@@ -47,6 +47,7 @@ from ..progress import Progress, ProgressGen, as_step_of
 
 ALPHA_DEPTH_THRESHOLD = 0.5
 """Depth is written where the accumulated opacity reaches this (0 = background elsewhere)."""
+REPROJECT_MODES = ("auto", "on", "off")
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,12 @@ class SynthesisConfig:
     direction and distance, :func:`nearest_views`); 0 = every reference when the model takes that many
     (``max_ref_views``, 10), else each view's :data:`DENSE_NEAREST` (5) nearest. A speed/accuracy knob
     (README, "Many references")."""
+    reproject: str = "auto"
+    """Lay the references' own colours over each view where they see its surface, through the model's depth
+    (``models/reproject.py``; each reference used is rendered once more for its depth): ``on``, ``off``, or
+    ``auto`` (the default): on when each view is rendered from its nearest of more references (a dense capture,
+    where a reference sits close to every view) by a model that predicts its colours, off otherwise and for GPNR,
+    whose colour already is a blend of the references' (README, "Many references")."""
 
     config_label = "synthesis"  # not a field: how messages name the fields
 
@@ -121,6 +128,9 @@ def _validate_config(c: SynthesisConfig) -> None:
 
     if c.quality not in QUALITY_LEVELS:
         raise InputError(f"--quality (synthesis.quality) must be one of {', '.join(QUALITY_LEVELS)}, got {c.quality!r}")
+    if c.reproject not in REPROJECT_MODES:
+        raise InputError(f"--reproject (synthesis.reproject) must be one of {', '.join(REPROJECT_MODES)}, "
+                         f"got {c.reproject!r}")
     if c.skip_empty not in MODES:
         raise InputError(f"--skip-empty (synthesis.skip_empty) must be one of {', '.join(MODES)}, got {c.skip_empty!r}")
     from ..training.adapt import AdaptConfig
@@ -491,6 +501,9 @@ class SynthesisSummary:
     """What the references show and what the model rendered on (``models/background.py``)."""
     viewpoint_note: str = ""
     """The default model asked about cameras off its training turntable (``pretrained.viewpoint_note``)."""
+    reference_colours: dict | None = None
+    """The references' colours laid over the views (``models/reproject.py``): the mode, settings and how many
+    references were rendered for their depth; None when off."""
     adaptation: dict | None = None
     """The adaptation to the references (``training/adapt.py``), its seconds and a note for the user ('' or
     :func:`training.adapt.few_references_note`); None without."""
@@ -568,23 +581,58 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                            "note": bg_note}, viewpoint_note=view_note,
                                adaptation=None if adapt_seconds is None else {
                                    **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
+    rp_cfg = None
+    from ..models.background import blends_references
+
+    if cfg.reproject == "on" or (cfg.reproject == "auto" and per_target and not blends_references(model)):
+        from ..models.reproject import ReprojectConfig
+
+        rp_cfg = ReprojectConfig()
+        needed = sorted(set().union(*(nearest_views(refs.c2w, t.c2w_opencv, centre, per_view) if per_target
+                                      else range(len(refs.views)) for t in targets)))
+        total += sum(refs.intrinsics[k].width * refs.intrinsics[k].height for k in needed)
+        summary.reference_colours = {"mode": cfg.reproject, **asdict(rp_cfg), "reference_renders": len(needed)}
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
     encoded: dict[tuple[int, ...], Any] = {}
     # Each view takes its nearest references, but every reference's mask carves the hull (only tighter).
     pool_hull = (model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
                  if per_target and refs.masks is not None and cfg.skip_empty != "off" else None)
 
-    def context_for(target):
-        keep = tuple(range(len(refs.views)))
-        if per_target:
-            keep = nearest_views(refs.c2w, target.c2w_opencv, centre, per_view)
+    def refs_for(c2w) -> tuple[int, ...]:
+        return nearest_views(refs.c2w, c2w, centre, per_view) if per_target else tuple(range(len(refs.views)))
+
+    def context_for(keep):
         if keep not in encoded:
             encoded.clear()
             sub = refs.subset(keep)
             ctx, ns = encode_references(model, sub)
             encoded[keep] = ctx, ns, (pool_hull if pool_hull is not None
                                     else reference_hull(model, ctx, ns, sub, cfg.skip_empty))
-        return encoded[keep], keep
+        return encoded[keep]
+
+    def render(intr, c2w, msg):
+        """Progress generator over one view from its references: returns (render_target's dict, the references
+        used, the hull)."""
+        nonlocal done
+        keep = refs_for(c2w)
+        ctx, ns, hull = context_for(keep)
+        gen = render_target(model, ctx, ns, intr, c2w, chunk, device, hull, cfg.skip_empty, workers)
+        while True:
+            try:
+                done += next(gen)
+            except StopIteration as stop:
+                return stop.value, keep, hull
+            yield Progress(done, total, msg)
+
+    geometry: dict[int, tuple] = {}  # reference -> (distances along its rays, where it shows the object)
+
+    def reference_geometry(k):
+        """Progress generator: the model's depth of reference ``k`` (rendered once, from its own nearest)."""
+        if k not in geometry:
+            res, _, _ = yield from render(refs.intrinsics[k], refs.c2w[k], f"reference {refs.views[k]}: depth")
+            seen = refs.masks[k] if refs.masks is not None else res["acc"] >= ALPHA_DEPTH_THRESHOLD
+            geometry[k] = C.ray_distances(res["depth_z"], refs.intrinsics[k]).astype(np.float32), seen
+        return geometry[k]
 
     base = out.parent if str(out.parent) else Path(".")
     base.mkdir(parents=True, exist_ok=True)
@@ -593,16 +641,21 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     try:
         for i, t in enumerate(targets):
             ts = time.perf_counter()
-            (ctx, ns, hull), used = context_for(t)
-            gen = render_target(model, ctx, ns, t.intrinsics, t.c2w_opencv, chunk, device, hull, cfg.skip_empty, workers)
-            msg = f"view {i + 1}/{len(targets)} ({t.name})"
-            while True:
-                try:
-                    done += next(gen)
-                except StopIteration as stop:
-                    res = stop.value
-                    break
-                yield Progress(done, total, msg)
+            geo = []
+            if rp_cfg is not None:
+                for k in refs_for(t.c2w_opencv):
+                    geo.append((yield from reference_geometry(k)))
+            res, used, hull = yield from render(t.intrinsics, t.c2w_opencv, f"view {i + 1}/{len(targets)} ({t.name})")
+            extra = {}
+            if rp_cfg is not None:
+                from ..models import reproject as rp
+
+                col, wgt = rp.reference_colours(C.ray_distances(res["depth_z"], t.intrinsics), t.c2w_opencv,
+                                                t.intrinsics, refs.images[list(used)], [refs.c2w[k] for k in used],
+                                                [refs.intrinsics[k] for k in used], np.stack([g[0] for g in geo]),
+                                                np.stack([g[1] for g in geo]), rp_cfg)
+                res["color"], share = rp.blend(res["color"], res["acc"], col, wgt, rp_cfg)
+                extra["reference_share"] = round(float(np.mean(share >= 0.5)), 4)
             F.write_png(tmp / t.rgb_path(i), rgba_image(res["color"], res["acc"], refs.background == SCENE))
             files = {"rgb": t.rgb_path(i)}
             if depth:
@@ -612,7 +665,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                     "height": t.intrinsics.height, "rays": res["rays"],
                                     "box_rays": res["box_rays"], "evaluated_rays": res["evaluated"],
                                     "empty_space_skipping": cfg.skip_empty if hull is not None else "off", "seconds": time.perf_counter() - ts,
-                                    "reference_views": [int(refs.views[k]) for k in used]})
+                                    "reference_views": [int(refs.views[k]) for k in used], **extra})
         summary.seconds = time.perf_counter() - t0
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg, cfg))
         if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
@@ -670,6 +723,7 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
             "quality": cfg.quality, "skip_empty": cfg.skip_empty, "nearest": cfg.nearest,
+            "reference_colours": s.reference_colours,
             "adaptation": s.adaptation,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
