@@ -160,6 +160,12 @@ def test_eval_cli_records_nearest_in_the_protocol(dense, tmp_path):
     rep = json.loads((out / "eval.json").read_text())
     assert rep["protocol"]["nearest"] == 2 and rep["protocol"]["pool"] == [0, 4, 8, 12]
     assert rep["protocol"]["scored_views"] == 2 and "baseline_blend" in rep["overall"]
+    # as synthesis, each view from its nearest also takes the photos' colours (auto), the model alone beside it
+    assert rep["protocol"]["reproject"]["depth"] == "model" and "model_only" in rep["views"][0]
+    assert main(["eval", "--checkpoint", str(ck), "--data", str(root / "data"), "--split", "test",
+                 "--input-views", "0,4", "--max-targets", "2", "--no-lpips", "--threads", "1",
+                 "--out", str(tmp_path / "plain")]) == 0
+    assert json.loads((tmp_path / "plain" / "eval.json").read_text())["protocol"]["reproject"] is None
 
 
 def test_every_references_mask_carves_the_hull_a_view_is_rendered_within(dense, tmp_path):
@@ -223,8 +229,13 @@ def test_reference_colours_on_in_a_dense_capture_and_exact_from_a_views_own_phot
     assert main(_synth(obj, ck, tmp_path / "auto")) == 0  # 14 views > 10: each view its 5 nearest, colours on
     rep = json.loads((tmp_path / "auto" / "synthesis.json").read_text())
     rc = rep["reference_colours"]
-    assert rc["mode"] == "auto" and rc["reference_renders"] == len({v for t in rep["targets"] for v in t["reference_views"]})
-    assert all(0 <= t["reference_share"] <= 1 for t in rep["targets"])
+    assert rc["mode"] == "auto" and rc["reference_renders"] == len({v for t in rep["targets"] for v in t["colour_views"]})
+    for t in rep["targets"]:  # the colours come from the view's nearest max_refs of the references it uses
+        assert 0 <= t["reference_share"] <= 1 and len(t["colour_views"]) == rc["max_refs"] == 2
+        assert set(t["colour_views"]) <= set(t["reference_views"])
+        assert t["colour_views"] == sorted(_pool_nearest(obj, rep, t["reference_views"], t, 2))
+    assert main(_synth(obj, ck, tmp_path / "fast", "--quality", "preview")) == 0  # preview: speed first, off
+    assert json.loads((tmp_path / "fast" / "synthesis.json").read_text())["reference_colours"] is None
     assert main(_synth(obj, ck, tmp_path / "few", "--views", "0,5,11")) == 0  # every reference for every view: off
     rep = json.loads((tmp_path / "few" / "synthesis.json").read_text())
     assert rep["reference_colours"] is None and "reference_share" not in rep["targets"][0]

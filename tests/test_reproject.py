@@ -14,14 +14,11 @@ import torch
 from blender_mrvm.cli import main
 from blender_mrvm.geometry import cameras
 from blender_mrvm.models import reproject as rp
-from blender_mrvm.models.config import model_config
-from blender_mrvm.models.model import GeneralizableNeRF
-from blender_mrvm.training.checkpoint import save_checkpoint
 from blender_mrvm.training.synthetic import make_sphere_dataset
 
+from test_synthesize import tiny_checkpoint
+
 torch.set_num_threads(1)
-TINY = {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
-        "sampler": {"n_coarse": 4, "n_fine": 2}}
 
 
 def look_at(eye, target=(0.0, 0.0, 0.0)):
@@ -141,9 +138,7 @@ def sphere_set(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
-    torch.manual_seed(0)
-    cfg = model_config("fast", TINY)
-    return save_checkpoint(tmp_path_factory.mktemp("rprun"), 2, GeneralizableNeRF(cfg), cfg, None)
+    return tiny_checkpoint(tmp_path_factory.mktemp("rprun"))
 
 
 def test_eval_reproject_reports_the_paired_gain(sphere_set, checkpoint, tmp_path, capsys):

@@ -50,11 +50,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..training.adapt import add_arguments as add_adapt_arguments
 
     add_adapt_arguments(p)
-    p.add_argument("--reproject", choices=("off", "model", "gt"), default="off",
+    p.add_argument("--reproject", choices=("auto", "off", "model", "gt"), default="auto",
                    help="lay the references' own colours over each view where they see its surface: through the "
                    "model's depth ('model'; its renders of the view and of each reference) or the data's depth maps "
                    "('gt': the ceiling with exact geometry); each view also keeps the model's own scores and the "
-                   "report the paired difference (default off; models/reproject.py)")
+                   "report the paired difference. auto (default): 'model' where synthesis does it (--nearest, a "
+                   "model that predicts its colours), else off (models/reproject.py)")
     from ..models.reproject import ReprojectConfig
 
     rp = ReprojectConfig()
@@ -64,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reproject-angle", type=float, default=rp.angle_scale,
                    help=f"with --reproject: weight references by exp((cos angle - 1) / this) between their ray and "
                    f"the view's (0 = alike; default {rp.angle_scale}, as synthesis)")
+    p.add_argument("--reproject-refs", type=int, default=rp.max_refs,
+                   help=f"with --reproject: the view's nearest this many references lend their colours (default "
+                   f"{rp.max_refs}, as synthesis)")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
@@ -97,7 +101,7 @@ def reproject_from_args(args):
     """The checked :class:`models.reproject.ReprojectConfig` of ``--reproject-*`` (an InputError when bad)."""
     from ..models.reproject import ReprojectConfig
 
-    cfg = ReprojectConfig(tau=args.reproject_tau, angle_scale=args.reproject_angle)
+    cfg = ReprojectConfig(tau=args.reproject_tau, angle_scale=args.reproject_angle, max_refs=args.reproject_refs)
     cfg.check()
     return cfg
 
@@ -174,6 +178,9 @@ def run(args) -> int:
     scenes = [load_object(f, p, args.split, depth=True) for f, p in objs]  # depth maps, where they exist, are scored
     from ..models import background as bgrule
 
+    reproject = args.reproject
+    if reproject == "auto":  # as synthesis: each view from its nearest of more, and not GPNR
+        reproject = "model" if args.nearest and not bgrule.blends_references(model) else "off"
     data_bg = bgrule.of_scenes(scenes)
     bg_note = bgrule.for_rendering(model, data_bg)  # the data decides; a mismatch is said, never silent
     if bg_note:
@@ -188,7 +195,7 @@ def run(args) -> int:
                                     skip=args.skip_empty, target_inputs=per_target, workers=workers,
                                     adapt=adapt_from_args(args), nearest=args.nearest,
                                     pool=views if args.nearest and source == "--input-views" else None,
-                                    reproject=args.reproject, reproject_cfg=reproject_from_args(args)),
+                                    reproject=reproject, reproject_cfg=reproject_from_args(args)),
                            desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:

@@ -30,8 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reproject", choices=("auto", "on", "off"), default="auto",
                    help="lay the references' own colours over each view where they see its surface, through the model's "
                    "depth (each reference used is rendered once more): auto (default) = on when each view is rendered "
-                   "from its nearest of more references (a dense capture) by a model that predicts its colours, off "
-                   "otherwise and for GPNR (its colours already are the references')")
+                   "from its nearest of more references (a dense capture) by a model that predicts its colours at "
+                   "--quality full; off otherwise, for GPNR (its colours already are the references') and at preview")
     tg = p.add_mutually_exclusive_group(required=True)
     tg.add_argument("--targets", type=Path, help="targets.json naming the cameras to synthesize")
     tg.add_argument("--target-views", nargs="+", help="synthesize these views of the reference folder, e.g. 0,5,9")

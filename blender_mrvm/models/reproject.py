@@ -35,6 +35,9 @@ class ReprojectConfig:
     """Weight of a reference exp((cos(angle between the rays) - 1) / angle_scale): 1 at the view's own angle, 0.5
     at 15 degrees, 0.07 at 30 (with 0.05); 0 = every seeing reference alike. The defaults were chosen on training
     objects with each view's 5 nearest references (RECIPE.md "The references' own colours through depth")."""
+    max_refs: int = 2
+    """Only the view's nearest ``max_refs`` references (by direction and distance, ``synthesis.nearest_views``) lend
+    their colours, so only those are rendered for their depth (time); the farther ones weigh little anyway."""
     acc_lo: float = 0.5
     acc_hi: float = 0.8
     """The reference colour is trusted not at all below opacity ``acc_lo`` and fully from ``acc_hi``."""
@@ -46,6 +49,8 @@ class ReprojectConfig:
             raise InputError(f"reprojection tolerance (--reproject-tau) must be a number >= 0, got {self.tau}")
         if not (np.isfinite(self.angle_scale) and self.angle_scale >= 0):
             raise InputError(f"reprojection angle scale (--reproject-angle) must be a number >= 0, got {self.angle_scale}")
+        if not (isinstance(self.max_refs, int) and self.max_refs >= 1):
+            raise InputError(f"reprojection needs max_refs >= 1 (--reproject-refs), got {self.max_refs}")
         if not (0 <= self.acc_lo < self.acc_hi <= 1):
             raise InputError(f"reprojection opacity ramp needs 0 <= low < high <= 1, got {self.acc_lo}, {self.acc_hi}")
 

@@ -100,8 +100,9 @@ class SynthesisConfig:
     """Lay the references' own colours over each view where they see its surface, through the model's depth
     (``models/reproject.py``; each reference used is rendered once more for its depth): ``on``, ``off``, or
     ``auto`` (the default): on when each view is rendered from its nearest of more references (a dense capture,
-    where a reference sits close to every view) by a model that predicts its colours, off otherwise and for GPNR,
-    whose colour already is a blend of the references' (README, "Many references")."""
+    where a reference sits close to every view) by a model that predicts its colours at ``quality`` full, off
+    otherwise, for GPNR, whose colour already is a blend of the references', and at ``preview`` (it about doubles
+    the time of a view: README, "Many references")."""
 
     config_label = "synthesis"  # not a field: how messages name the fields
 
@@ -581,15 +582,25 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                            "note": bg_note}, viewpoint_note=view_note,
                                adaptation=None if adapt_seconds is None else {
                                    **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
-    rp_cfg = None
+    def refs_for(c2w) -> tuple[int, ...]:
+        return nearest_views(refs.c2w, c2w, centre, per_view) if per_target else tuple(range(len(refs.views)))
+
+    def lenders(c2w) -> list[int]:
+        """The references whose colours a view at ``c2w`` takes: the nearest ``max_refs`` of those it uses."""
+        used = refs_for(c2w)
+        return [used[i] for i in nearest_views([refs.c2w[k] for k in used], c2w, centre,
+                                               min(rp_cfg.max_refs, len(used)))]
+
     from ..models.background import blends_references
 
-    if cfg.reproject == "on" or (cfg.reproject == "auto" and per_target and not blends_references(model)):
+    rp_cfg = None
+
+    if cfg.reproject == "on" or (cfg.reproject == "auto" and per_target and not blends_references(model)
+                                 and cfg.quality == "full"):
         from ..models.reproject import ReprojectConfig
 
         rp_cfg = ReprojectConfig()
-        needed = sorted(set().union(*(nearest_views(refs.c2w, t.c2w_opencv, centre, per_view) if per_target
-                                      else range(len(refs.views)) for t in targets)))
+        needed = sorted(set().union(*(lenders(t.c2w_opencv) for t in targets)))
         total += sum(refs.intrinsics[k].width * refs.intrinsics[k].height for k in needed)
         summary.reference_colours = {"mode": cfg.reproject, **asdict(rp_cfg), "reference_renders": len(needed)}
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
@@ -598,8 +609,6 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     pool_hull = (model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
                  if per_target and refs.masks is not None and cfg.skip_empty != "off" else None)
 
-    def refs_for(c2w) -> tuple[int, ...]:
-        return nearest_views(refs.c2w, c2w, centre, per_view) if per_target else tuple(range(len(refs.views)))
 
     def context_for(keep):
         if keep not in encoded:
@@ -641,9 +650,10 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     try:
         for i, t in enumerate(targets):
             ts = time.perf_counter()
-            geo = []
+            geo, lend = [], []
             if rp_cfg is not None:
-                for k in refs_for(t.c2w_opencv):
+                lend = lenders(t.c2w_opencv)
+                for k in lend:
                     geo.append((yield from reference_geometry(k)))
             res, used, hull = yield from render(t.intrinsics, t.c2w_opencv, f"view {i + 1}/{len(targets)} ({t.name})")
             extra = {}
@@ -651,11 +661,12 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                 from ..models import reproject as rp
 
                 col, wgt = rp.reference_colours(C.ray_distances(res["depth_z"], t.intrinsics), t.c2w_opencv,
-                                                t.intrinsics, refs.images[list(used)], [refs.c2w[k] for k in used],
-                                                [refs.intrinsics[k] for k in used], np.stack([g[0] for g in geo]),
+                                                t.intrinsics, refs.images[lend], [refs.c2w[k] for k in lend],
+                                                [refs.intrinsics[k] for k in lend], np.stack([g[0] for g in geo]),
                                                 np.stack([g[1] for g in geo]), rp_cfg)
                 res["color"], share = rp.blend(res["color"], res["acc"], col, wgt, rp_cfg)
                 extra["reference_share"] = round(float(np.mean(share >= 0.5)), 4)
+                extra["colour_views"] = [int(refs.views[k]) for k in lend]
             F.write_png(tmp / t.rgb_path(i), rgba_image(res["color"], res["acc"], refs.background == SCENE))
             files = {"rgb": t.rgb_path(i)}
             if depth:

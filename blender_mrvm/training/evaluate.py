@@ -295,8 +295,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                                     s.bbox)
         render = partial(m.synthesize, ref_images, ref_c2w, ref_intr, s.bbox, chunk=chunk, ref_masks=ref_masks,
                          skip=skip, workers=workers, hull=hull)
-        if reproject != "off":
-            ref_geo = _reference_geometry(s, refs, reproject, ref_images, ref_intr, ref_masks, render)
+        geometry: dict[int, tuple] = {}  # reference position -> its geometry, rendered when first read
         for ti, t in enumerate(targets):
             out = render(s.c2w[t], s.intrinsics[t])
             pred = out["color"]
@@ -304,7 +303,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             extra_scores = {}
             if reproject != "off":
                 own = _scores(pred, gt, lpips)
-                pred, share = _reprojected(s, t, out, reproject, reproject_cfg, ref_images, ref_c2w, ref_intr, ref_geo)
+                pred, share = _reprojected(s, t, out, reproject, reproject_cfg or _default_reproject(), refs,
+                                           ref_images, ref_c2w, ref_intr, ref_masks, render, geometry)
                 extra_scores = {"model_only": own, "reference_share": share}
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips),
                    **extra_scores}
@@ -359,37 +359,44 @@ def _default_reproject():
     return ReprojectConfig()
 
 
-def _reference_geometry(s: ObjectScene, refs: Sequence[int], source: str, ref_images, ref_intr, ref_masks, render):
-    """(distances along the rays (V, h, w), object masks (V, h, w)) of the references, for ``eval --reproject``:
-    the model's renders of each reference view ("model"; the masks where the data has them, else opacity > 0.5)
-    or the data's depth maps ("gt")."""
+def _reference_geometry(s: ObjectScene, r: int, source: str, image, intr, mask, render):
+    """(distances along the rays (h, w), object mask (h, w)) of reference ``r`` (a position in the scene) for
+    ``eval --reproject``: the model's render of that view ("model"; the data's mask where it has one, else
+    opacity > 0.5) or the data's depth map ("gt")."""
     from ..geometry import cameras
 
     if source == "gt":
-        if s.depths[refs[0]].shape != ref_images.shape[1:3]:
-            raise InputError(f"--reproject gt needs references at the dataset's size ({s.depths[refs[0]].shape[1]} px "
-                             f"wide), the model sees them at {ref_images.shape[2]} px: pass --ref-size -1")
-        dist = np.stack([cameras.ray_distances(s.depths[r], s.intrinsics[r]) for r in refs])
+        if s.depths[r].shape != image.shape[:2]:
+            raise InputError(f"--reproject gt needs references at the dataset's size ({s.depths[r].shape[1]} px "
+                             f"wide), the model sees them at {image.shape[1]} px: pass --ref-size -1")
+        dist = cameras.ray_distances(s.depths[r], s.intrinsics[r])
         return dist, dist > 0
-    outs = [render(s.c2w[r], k) for r, k in zip(refs, ref_intr)]
-    dist = np.stack([o["depth"].numpy() for o in outs])
-    seen = ref_masks if ref_masks is not None else np.stack([o["acc"].numpy() > 0.5 for o in outs])
-    return dist, seen
+    o = render(s.c2w[r], intr)
+    return o["depth"].numpy(), mask if mask is not None else o["acc"].numpy() > 0.5
 
 
-def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, ref_images, ref_c2w, ref_intr, ref_geo):
-    """(the view with the references' colours laid over (H, W, 3) tensor, share of its pixels taken at least half
-    from them) for ``eval --reproject``."""
+def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, refs, ref_images, ref_c2w, ref_intr, ref_masks,
+                 render, geometry: dict):
+    """(the view with the colours of its ``cfg.max_refs`` nearest references laid over, (H, W, 3) tensor; share of
+    its pixels taken at least half from them) for ``eval --reproject``; ``geometry`` caches each reference's."""
     from ..geometry import cameras
     from ..models import reproject as rp
+    from ..synthesis import nearest_views
 
-    cfg = cfg or rp.ReprojectConfig()
+    centre = 0.5 * (np.asarray(s.bbox[0], np.float64) + np.asarray(s.bbox[1], np.float64))
+    pick = list(nearest_views(ref_c2w, s.c2w[t], centre, min(cfg.max_refs, len(refs))))
+    for j in pick:
+        if j not in geometry:
+            geometry[j] = _reference_geometry(s, refs[j], source, ref_images[j], ref_intr[j],
+                                              None if ref_masks is None else ref_masks[j], render)
     if source == "gt":
         depth = cameras.ray_distances(s.depths[t], s.intrinsics[t])
         acc = (depth > 0).astype(np.float32)
     else:
         depth, acc = out["depth"].numpy(), out["acc"].numpy()
-    col, wgt = rp.reference_colours(depth, s.c2w[t], s.intrinsics[t], ref_images, ref_c2w, ref_intr, *ref_geo, cfg)
+    col, wgt = rp.reference_colours(depth, s.c2w[t], s.intrinsics[t], ref_images[pick], [ref_c2w[j] for j in pick],
+                                    [ref_intr[j] for j in pick], np.stack([geometry[j][0] for j in pick]),
+                                    np.stack([geometry[j][1] for j in pick]), cfg)
     pred, gate = rp.blend(out["color"].numpy(), acc, col, wgt, cfg)
     return torch.from_numpy(pred), float(np.mean(gate >= 0.5))
 
