@@ -121,3 +121,15 @@ def blend(color: np.ndarray, acc: np.ndarray, ref_colour: np.ndarray, ref_weight
     g = ramp * np.asarray(ref_weight, np.float64)
     out = np.asarray(color, np.float64) * (1 - g[..., None]) + np.asarray(ref_colour, np.float64) * g[..., None]
     return out.astype(np.float32), g.astype(np.float32)
+
+
+def lay_over(color: np.ndarray, acc: np.ndarray, depth: np.ndarray, c2w: np.ndarray, intr: cameras.Intrinsics,
+             ref_images: np.ndarray, ref_c2w: Sequence[np.ndarray], ref_intr: Sequence[cameras.Intrinsics],
+             geometry: Sequence[tuple], cfg: ReprojectConfig = ReprojectConfig()) -> tuple[np.ndarray, float]:
+    """(the view ``color`` with the references' colours laid over, share of its pixels taken at least half from
+    them): :func:`reference_colours` then :func:`blend`; ``geometry`` holds each reference's (distances along its
+    rays, where it shows the object)."""
+    col, wgt = reference_colours(depth, c2w, intr, ref_images, ref_c2w, ref_intr, np.stack([g[0] for g in geometry]),
+                                 np.stack([g[1] for g in geometry]), cfg)
+    out, share = blend(color, acc, col, wgt, cfg)
+    return out, float(np.mean(share >= 0.5))

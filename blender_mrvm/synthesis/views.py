@@ -190,6 +190,12 @@ def nearest_views(ref_c2w: Sequence[np.ndarray], target_c2w: np.ndarray, centre,
 # Inputs
 # ---------------------------------------------------------------------------------------------
 
+def colour_lenders(ref_c2w: Sequence[np.ndarray], target_c2w: np.ndarray, centre, cfg) -> tuple[int, ...]:
+    """Positions of the references whose colours a view takes (``models/reproject.py``): its ``cfg.max_refs``
+    nearest (:func:`nearest_views`)."""
+    return nearest_views(ref_c2w, target_c2w, centre, min(cfg.max_refs, len(ref_c2w)))
+
+
 def resolve_device(name: str):
     """A torch device from auto / cpu / cuda[:N]; InputError when CUDA is asked for but absent."""
     import torch
@@ -582,19 +588,18 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                            "note": bg_note}, viewpoint_note=view_note,
                                adaptation=None if adapt_seconds is None else {
                                    **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
+
     def refs_for(c2w) -> tuple[int, ...]:
         return nearest_views(refs.c2w, c2w, centre, per_view) if per_target else tuple(range(len(refs.views)))
 
     def lenders(c2w) -> list[int]:
-        """The references whose colours a view at ``c2w`` takes: the nearest ``max_refs`` of those it uses."""
+        """The references whose colours a view at ``c2w`` takes (:func:`colour_lenders` of those it uses)."""
         used = refs_for(c2w)
-        return [used[i] for i in nearest_views([refs.c2w[k] for k in used], c2w, centre,
-                                               min(rp_cfg.max_refs, len(used)))]
+        return [used[i] for i in colour_lenders([refs.c2w[k] for k in used], c2w, centre, rp_cfg)]
 
     from ..models.background import blends_references
 
     rp_cfg = None
-
     if cfg.reproject == "on" or (cfg.reproject == "auto" and per_target and not blends_references(model)
                                  and cfg.quality == "full"):
         from ..models.reproject import ReprojectConfig
@@ -608,7 +613,6 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     # Each view takes its nearest references, but every reference's mask carves the hull (only tighter).
     pool_hull = (model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
                  if per_target and refs.masks is not None and cfg.skip_empty != "off" else None)
-
 
     def context_for(keep):
         if keep not in encoded:
@@ -660,12 +664,11 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
             if rp_cfg is not None:
                 from ..models import reproject as rp
 
-                col, wgt = rp.reference_colours(C.ray_distances(res["depth_z"], t.intrinsics), t.c2w_opencv,
-                                                t.intrinsics, refs.images[lend], [refs.c2w[k] for k in lend],
-                                                [refs.intrinsics[k] for k in lend], np.stack([g[0] for g in geo]),
-                                                np.stack([g[1] for g in geo]), rp_cfg)
-                res["color"], share = rp.blend(res["color"], res["acc"], col, wgt, rp_cfg)
-                extra["reference_share"] = round(float(np.mean(share >= 0.5)), 4)
+                res["color"], share = rp.lay_over(res["color"], res["acc"], C.ray_distances(res["depth_z"], t.intrinsics),
+                                                  t.c2w_opencv, t.intrinsics, refs.images[lend],
+                                                  [refs.c2w[k] for k in lend], [refs.intrinsics[k] for k in lend], geo,
+                                                  rp_cfg)
+                extra["reference_share"] = round(share, 4)
                 extra["colour_views"] = [int(refs.views[k]) for k in lend]
             F.write_png(tmp / t.rgb_path(i), rgba_image(res["color"], res["acc"], refs.background == SCENE))
             files = {"rgb": t.rgb_path(i)}

@@ -381,10 +381,10 @@ def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, refs, ref_
     its pixels taken at least half from them) for ``eval --reproject``; ``geometry`` caches each reference's."""
     from ..geometry import cameras
     from ..models import reproject as rp
-    from ..synthesis import nearest_views
+    from ..synthesis.views import colour_lenders
 
     centre = 0.5 * (np.asarray(s.bbox[0], np.float64) + np.asarray(s.bbox[1], np.float64))
-    pick = list(nearest_views(ref_c2w, s.c2w[t], centre, min(cfg.max_refs, len(refs))))
+    pick = list(colour_lenders(ref_c2w, s.c2w[t], centre, cfg))
     for j in pick:
         if j not in geometry:
             geometry[j] = _reference_geometry(s, refs[j], source, ref_images[j], ref_intr[j],
@@ -394,11 +394,9 @@ def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, refs, ref_
         acc = (depth > 0).astype(np.float32)
     else:
         depth, acc = out["depth"].numpy(), out["acc"].numpy()
-    col, wgt = rp.reference_colours(depth, s.c2w[t], s.intrinsics[t], ref_images[pick], [ref_c2w[j] for j in pick],
-                                    [ref_intr[j] for j in pick], np.stack([geometry[j][0] for j in pick]),
-                                    np.stack([geometry[j][1] for j in pick]), cfg)
-    pred, gate = rp.blend(out["color"].numpy(), acc, col, wgt, cfg)
-    return torch.from_numpy(pred), float(np.mean(gate >= 0.5))
+    pred, share = rp.lay_over(out["color"].numpy(), acc, depth, s.c2w[t], s.intrinsics[t], ref_images[pick],
+                              [ref_c2w[j] for j in pick], [ref_intr[j] for j in pick], [geometry[j] for j in pick], cfg)
+    return torch.from_numpy(pred), share
 
 
 def _mean(recs, key, sub=None):
