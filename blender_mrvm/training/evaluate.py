@@ -361,8 +361,8 @@ def _default_reproject():
 
 def _reference_geometry(s: ObjectScene, r: int, source: str, image, intr, mask, render):
     """(distances along the rays (h, w), object mask (h, w)) of reference ``r`` (a position in the scene) for
-    ``eval --reproject``: the model's render of that view ("model"; the data's mask where it has one, else
-    opacity > 0.5) or the data's depth map ("gt")."""
+    ``eval --reproject``: the model's render of that view ("model"; depth where its opacity reaches one half, as
+    synthesis writes it; the data's mask where it has one, else that opacity) or the data's depth map ("gt")."""
     from ..geometry import cameras
 
     if source == "gt":
@@ -371,8 +371,11 @@ def _reference_geometry(s: ObjectScene, r: int, source: str, image, intr, mask, 
                              f"wide), the model sees them at {image.shape[1]} px: pass --ref-size -1")
         dist = cameras.ray_distances(s.depths[r], s.intrinsics[r])
         return dist, dist > 0
+    from ..synthesis.views import ALPHA_DEPTH_THRESHOLD
+
     o = render(s.c2w[r], intr)
-    return o["depth"].numpy(), mask if mask is not None else o["acc"].numpy() > 0.5
+    drawn = o["acc"].numpy() >= ALPHA_DEPTH_THRESHOLD  # as synthesis: its depth maps hold a surface only there
+    return np.where(drawn, o["depth"].numpy(), 0.0), mask if mask is not None else drawn
 
 
 def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, refs, ref_images, ref_c2w, ref_intr, ref_masks,
