@@ -353,6 +353,10 @@ EVAL = [
        cls="silent-garbage"),
     _e("reprojection angle scale (--reproject-angle) must be a number >= 0", ["--reproject", "model", "--reproject-angle", "nan"],
        cls="silent-garbage"),
+    _e("--reproject-opacity must be two numbers", ["--reproject", "model", "--reproject-opacity", "0.5"]),
+    _e("opacity ramp (--reproject-opacity) needs 0 <= low < high <= 1", ["--reproject", "model", "--reproject-opacity",
+                                                                         "0.8,0.5"], cls="silent-garbage"),
+
     _e("--compare-to", ["--compare-to", "{w}/nope.json"]),
     _e("is not valid JSON", ["--compare-to", "{w}/bad/eval_bad.json"]),
     _e("is not an eval.json", ["--compare-to", "{w}/bad/eval_list.json"]),

@@ -65,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reproject-angle", type=float, default=rp.angle_scale,
                    help=f"with --reproject: weight references by exp((cos angle - 1) / this) between their ray and "
                    f"the view's (0 = alike; default {rp.angle_scale}, as synthesis)")
+    p.add_argument("--reproject-opacity", default=f"{rp.acc_lo},{rp.acc_hi}", metavar="LO,HI",
+                   help=f"with --reproject: the photos' colours are trusted from the view's opacity LO, fully from HI "
+                   f"(default {rp.acc_lo},{rp.acc_hi}, as synthesis)")
     p.add_argument("--reproject-refs", type=int, default=rp.max_refs,
                    help=f"with --reproject: the view's nearest this many references lend their colours (default "
                    f"{rp.max_refs}, as synthesis)")
@@ -101,7 +104,14 @@ def reproject_from_args(args):
     """The checked :class:`models.reproject.ReprojectConfig` of ``--reproject-*`` (an InputError when bad)."""
     from ..models.reproject import ReprojectConfig
 
-    cfg = ReprojectConfig(tau=args.reproject_tau, angle_scale=args.reproject_angle, max_refs=args.reproject_refs)
+    from ..errors import InputError
+
+    try:
+        lo, hi = (float(v) for v in str(args.reproject_opacity).split(","))
+    except ValueError as e:
+        raise InputError(f"--reproject-opacity must be two numbers LO,HI, got {args.reproject_opacity!r}") from e
+    cfg = ReprojectConfig(tau=args.reproject_tau, angle_scale=args.reproject_angle, max_refs=args.reproject_refs,
+                          acc_lo=lo, acc_hi=hi)
     cfg.check()
     return cfg
 

@@ -451,7 +451,8 @@ def reference_hull(model, ctx, ns, refs: References, skip: str):
 def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: int, device=None, hull=None,
                   skip: str = "off", workers: int = 1):
     """Progress generator over one view: yields rays finished, returns dict(color (H, W, 3) on white,
-    acc (H, W), depth_z (H, W) planar z-depth in world units, evaluated rays).
+    acc (H, W), depth_z (H, W) planar z-depth in world units where acc reaches ALPHA_DEPTH_THRESHOLD (0 elsewhere),
+    depth (H, W) the distance along each ray in world units wherever anything was rendered, evaluated rays).
 
     ``model.image_chunks`` of any model kind (box-clipped rays, misses are background), chunk by chunk
     so a caller can report progress and stop between chunks."""
@@ -463,6 +464,7 @@ def render_target(model, ctx, ns, intr: C.Intrinsics, c2w: np.ndarray, chunk: in
     acc = res["acc"]
     depth_z = torch.where(acc >= ALPHA_DEPTH_THRESHOLD, res["depth"] * float(ns.scale) * zdir, torch.zeros_like(acc))
     return {"color": res["color"].numpy(), "acc": acc.numpy(), "depth_z": depth_z.numpy(),
+            "depth": (res["depth"] * float(ns.scale)).numpy(),
             "evaluated": res["evaluated"], "rays": res["rays"], "box_rays": res["box_rays"]}
 
 
@@ -664,7 +666,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
             if rp_cfg is not None:
                 from ..models import reproject as rp
 
-                res["color"], share = rp.lay_over(res["color"], res["acc"], C.ray_distances(res["depth_z"], t.intrinsics),
+                res["color"], share = rp.lay_over(res["color"], res["acc"], res["depth"],
                                                   t.c2w_opencv, t.intrinsics, refs.images[lend],
                                                   [refs.c2w[k] for k in lend], [refs.intrinsics[k] for k in lend], geo,
                                                   rp_cfg)
