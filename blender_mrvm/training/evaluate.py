@@ -26,6 +26,7 @@ from ..datasets import format as F
 from ..datasets.loaders import ObjectScene
 from ..errors import InputError
 from ..models.metrics import psnr, ssim, ssim_gauss
+from ..models.reproject import ReprojectConfig
 from ..progress import Progress, as_step_of
 from ..synthesis import reference_shape, resize_mask, resize_view
 
@@ -251,6 +252,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     id: input view ids} when each target has its own references (then ``target_views`` defaults to its
     keys and ``input_views`` is not used)."""
     model.eval()
+    reproject_cfg = reproject_cfg or ReprojectConfig()
     no_depth = [f"{s.category}/{s.name}" for s in scenes if s.depths is None] if reproject == "gt" else []
     if no_depth:
         raise InputError(f"--reproject gt needs the data's depth maps; {len(no_depth)} object(s) have none "
@@ -303,7 +305,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             extra_scores = {}
             if reproject != "off":
                 own = _scores(pred, gt, lpips)
-                pred, share = _reprojected(s, t, out, reproject, reproject_cfg or _default_reproject(), refs,
+                pred, share = _reprojected(s, t, out, reproject, reproject_cfg, refs,
                                            ref_images, ref_c2w, ref_intr, ref_masks, render, geometry)
                 extra_scores = {"model_only": own, "reference_share": share}
             rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **_scores(pred, gt, lpips),
@@ -335,7 +337,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None,
                           "adaptation": asdict(adapt) if adapt is not None else None,
                           "reproject": None if reproject == "off" else
-                          {"depth": reproject, **asdict(reproject_cfg or _default_reproject())}}
+                          {"depth": reproject, **asdict(reproject_cfg)}}
     if reproject != "off" and records:
         own = [{**r, **r["model_only"]} for r in records]
         paired = compare_reports({"views": records}, {"views": own})["overall"]
@@ -351,12 +353,6 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             F.write_png(out_dir / "eval_grid.png", make_grid(grid_rows))
             report["grid"] = str(out_dir / "eval_grid.png")
     return report
-
-
-def _default_reproject():
-    from ..models.reproject import ReprojectConfig
-
-    return ReprojectConfig()
 
 
 def _reference_geometry(s: ObjectScene, r: int, source: str, image, intr, mask, render):
