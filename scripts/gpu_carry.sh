@@ -2,28 +2,43 @@
 # What a GPU session carries to the device machine (docs/gpu_session.md): the device has no bpy and no network,
 # and a call carries at most 64 MiB with the repository (~8 MB). Builds gpu_carry/ (git-ignored):
 #   gpu_carry/data/<set>/    a rendered dataset without depth/, normal/ and transforms.json (training and eval
-#                            read rgb, mask, pose, intrinsics and meta only): shapenet13_all is 34 MB this way
+#                            read rgb, mask, pose, intrinsics and meta only): shapenet13_all is 34 MB this way,
+#                            its train split alone (SPLITS=train) 24 MB
 #   gpu_carry/weights/       ImageNet VGG16 blocks 1-3 (the `accurate`/`paper` encoder, 6.9 MB) and the LPIPS
 #                            linear heads; the full VGG16 (57 MB, for the LPIPS loss) does not fit beside the data
-# Usage: scripts/gpu_carry.sh [DATASET ...]   (default data/shapenet13_all); then carry ["gpu_carry"] and run with
+# Usage: [SPLITS="train"] [DEPTH=1] [HALF=1] [FULL_VGG=1] scripts/gpu_carry.sh [DATASET ...]
+#   (default data/shapenet13_all); then carry ["gpu_carry"] and run with
 #   MRVM_WEIGHTS_DIR=gpu_carry/weights PYTHONPATH=$PWD python3 -m blender_mrvm ... --data gpu_carry/data/<set>
+#   SPLITS   keep only the objects these splits list (space-separated, e.g. "train" or "train test"); default all
+#   DEPTH=1  keep depth/ (the depth loss needs it: about 60 kB an object)
+#   HALF=1   store the weights in fp16 (they load into fp32 layers: half the bytes, ~1e-3 relative rounding)
+#   FULL_VGG=1  all 13 VGG16 convolutions (the LPIPS loss needs them: 57 MB, 29 MB with HALF=1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
 SETS=("$@"); [ ${#SETS[@]} -gt 0 ] || SETS=(data/shapenet13_all)
 rm -rf gpu_carry && mkdir -p gpu_carry/data gpu_carry/weights
 grep -qx '/gpu_carry/' .git/info/exclude 2>/dev/null || { mkdir -p .git/info && echo '/gpu_carry/' >> .git/info/exclude; }
+EXCL=(--exclude=normal --exclude=transforms.json)
+[ "${DEPTH:-0}" = 1 ] || EXCL+=(--exclude=depth)
 for s in "${SETS[@]}"; do
-  tar -C "$(dirname "$s")" --exclude=depth --exclude=normal --exclude=transforms.json -cf - "$(basename "$s")" \
-    | tar -C gpu_carry/data -xf -
+  name=$(basename "$s")
+  if [ -n "${SPLITS:-}" ]; then  # the split lists, the set's settings and the listed objects only
+    list=$(for sp in $SPLITS; do cat "$s/splits/$sp.lst"; done | sed "s|^|$name/|")
+    tar -C "$(dirname "$s")" "${EXCL[@]}" -cf - "$name/mrvm_dataset.json" "$name/splits" $list | tar -C gpu_carry/data -xf -
+  else
+    tar -C "$(dirname "$s")" "${EXCL[@]}" -cf - "$name" | tar -C gpu_carry/data -xf -
+  fi
 done
-$PY - <<'EOF'
-from pathlib import Path
+HALF=${HALF:-0} FULL_VGG=${FULL_VGG:-0} $PY - <<'EOF'
+import os
 from safetensors.torch import load_file, save_file
 from blender_mrvm.models import vgg
 src = vgg.weights_dir()
 full = load_file(str(src / vgg.VGG_FILE))
-keep = {k: v for k, v in full.items() if int(k.split(".")[0]) < 16}  # conv1_1 .. relu3_3: the encoder's blocks
+keep = full if os.environ["FULL_VGG"] == "1" else {k: v for k, v in full.items() if int(k.split(".")[0]) < 16}  # conv1_1 .. relu3_3
+if os.environ["HALF"] == "1":
+    keep = {k: v.half() for k, v in keep.items()}
 save_file(keep, "gpu_carry/weights/" + vgg.VGG_FILE)
 save_file(load_file(str(src / vgg.LPIPS_FILE)), "gpu_carry/weights/" + vgg.LPIPS_FILE)
 EOF

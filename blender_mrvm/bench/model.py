@@ -55,7 +55,6 @@ def run(args) -> int:
     from ..geometry import cameras
     from ..models import registry
     from ..synthesis.views import resolve_device
-    from .tradeoff import _autocast
 
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     device = str(resolve_device(args.device))
@@ -85,27 +84,45 @@ def run(args) -> int:
                 ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
                 for prec in precisions:
-                    with _autocast(prec, device):
-                        model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None,
-                                         workers=args.workers)  # warm-up
-                        sync()
-                        times, cpus, peaks = [], [], []
-                        for _ in range(args.repeats):
-                            with PeakMemory(device) as pm:
-                                t0, c0 = time.perf_counter(), time.process_time()
-                                res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr,
-                                                       chunk=args.chunk or None, workers=args.workers)
-                                sync()
-                                times.append(time.perf_counter() - t0)
-                                cpus.append(time.process_time() - c0)
-                            peaks.append(pm.mib)
+                    try:
+                        times, cpus, peaks, res = _time_renders(args, model, refs, ref_poses, rintr, bbox, target,
+                                                                intr, prec, device, sync)
+                    except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
+                        torch.cuda.empty_cache()
+                        print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: out of memory, skipped", flush=True)
+                        continue
                     rows.append(_row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res,
                                      args.chunk or model.chunk_rays))
                     print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: {rows[-1]['seconds_median']:.3f} s/view "
                           f"({rows[-1]['fps']:.1f} FPS), {res['evaluated']}/{res['rays']} rays evaluated, "
-                          f"peak +{max(peaks):.0f} MiB")
+                          f"peak +{max(peaks):.0f} MiB", flush=True)
+                    write_csv(out / "bench_model.csv", rows, quiet=True)  # a run cut short keeps its rows
+    if not rows:
+        raise InputError("bench model: no configuration could run (out of memory for every one)")
     write_csv(out / "bench_model.csv", rows)
     return 0
+
+
+def _time_renders(args, model, refs, ref_poses, rintr, bbox, target, intr, prec, device, sync):
+    """One warm-up render, then ``args.repeats`` timed ones: (wall seconds, process CPU seconds, peak extra MiB,
+    the last render's result)."""
+    from .tradeoff import _autocast
+
+    with _autocast(prec, device):
+        model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None,
+                         workers=args.workers)  # warm-up
+        sync()
+        times, cpus, peaks = [], [], []
+        for _ in range(args.repeats):
+            with PeakMemory(device) as pm:
+                t0, c0 = time.perf_counter(), time.process_time()
+                res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr,
+                                       chunk=args.chunk or None, workers=args.workers)
+                sync()
+                times.append(time.perf_counter() - t0)
+                cpus.append(time.process_time() - c0)
+            peaks.append(pm.mib)
+    return times, cpus, peaks, res
 
 
 def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res, chunk_rays) -> dict:

@@ -223,8 +223,13 @@ def run(args) -> int:
             params = sum(p.numel() for p in registry.build_model(cfg).parameters())
             for objects, rays in batches:
                 for prec in precisions:
-                    r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
-                                tmp / f"run_{len(rows)}")
+                    try:
+                        r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
+                                    tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}")
+                    except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
+                        torch.cuda.empty_cache()
+                        print(f"{name:9s} {objects}x{rays} {prec} {device}: out of memory, skipped", flush=True)
+                        continue
                     sps = args.steps / r["seconds"]
                     rows.append({
                         "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
@@ -240,5 +245,8 @@ def run(args) -> int:
                     util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
                     print(f"{name:9s} {objects}x{rays} {prec} {device}: {sps:.2f} steps/s, "
                           f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
+                    write_csv(out / "bench_train.csv", rows, quiet=True)  # a run cut short keeps its rows
+    if not rows:
+        raise InputError("bench train: no configuration could run (out of memory for every one)")
     write_csv(out / "bench_train.csv", rows)
     return 0

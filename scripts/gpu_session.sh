@@ -1,0 +1,68 @@
+#!/usr/bin/env bash
+# The device machine's side of a GPU session (docs/gpu_session.md): run there, from the repository root, with
+# gpu_carry/ carried (scripts/gpu_carry.sh). Python 3.12 with a CUDA torch, no bpy, no network; the bpy-free
+# packages import from the tree. Everything a call produces goes to $OUT (8 files of at most 16 MiB come back).
+#   scripts/gpu_session.sh bench                       training and rendering speed (bench train, bench model)
+#   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
+#                                                      runs side by side, each stopped (SIGINT) after SECONDS;
+#                                                      each run's last checkpoint's model in fp16 + its metrics
+#   scripts/gpu_session.sh eval CHECKPOINT DATA        eval --device cuda (no LPIPS: the full VGG16 stays home)
+set -uo pipefail
+export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
+OUT=${OUT:-gpu_out}
+mkdir -p "$OUT"
+PY=${PY:-python3}
+what=${1:-}; shift || true
+case "$what" in
+  bench)
+    nvidia-smi -L; $PY -c "import torch; print('torch', torch.__version__, torch.cuda.get_device_name(0))"
+    timeout ${BENCH_TRAIN_S:-330} $PY -m blender_mrvm bench train --device cuda \
+      --presets ${TRAIN_PRESETS:-fast,balanced,accurate,paper,gpnr:fast} --batches ${BATCHES:-2x256,8x1024,16x4096} \
+      --precisions fp32,bf16 --steps ${STEPS:-10} --warmup 3 --data ${BENCH_DATA:-gpu_carry/data/shapenet13_all} --out "$OUT/train"
+    timeout ${BENCH_MODEL_S:-150} $PY -m blender_mrvm bench model --device cuda \
+      --presets ${MODEL_PRESETS:-fast,balanced,accurate,paper,gpnr:fast} --views 2 --sizes 128,256 \
+      --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --out "$OUT/model"
+    # the CUDA paths of evaluation and synthesis, run for real with a shipped model
+    [ -z "${EVAL_DATA:-}" ] || timeout 90 $PY -m blender_mrvm eval --checkpoint shipped --data "$EVAL_DATA" --split train \
+      --n-inputs 2 --max-targets 10 --no-lpips --device cuda --out "$OUT/eval_cuda" 2>&1 | tail -n 25
+    [ -z "${EVAL_DATA:-}" ] || { obj=$(ls -d "$EVAL_DATA"/*/*/ | head -n 1); timeout 60 $PY -m blender_mrvm synthesize \
+      --references "$obj" --views 3 15 --orbit 8 --device cuda --out "$OUT/synth_cuda" && ls "$OUT/synth_cuda/rgb" | wc -l; }
+    ;;
+  train)
+    pids=()
+    while [ $# -ge 2 ]; do
+      cfg=$1; secs=$2; shift 2
+      name=$(basename "$cfg" .json)
+      timeout -s INT "$secs" $PY -m blender_mrvm train --config "$cfg" --out "runs/$name" > "$OUT/$name.log" 2>&1 &
+      pids+=($!)
+    done
+    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader -l 15 > "$OUT/gpu_util.log" 2>&1 &
+    smi=$!
+    for p in "${pids[@]}"; do wait "$p"; done
+    kill $smi 2>/dev/null
+    for d in runs/*/; do
+      name=$(basename "$d")
+      cp "$d/metrics.jsonl" "$OUT/$name.metrics.jsonl" 2>/dev/null
+      $PY - "$d" "$OUT/$name.safetensors" <<'EOF'
+import sys
+from pathlib import Path
+from safetensors import safe_open
+from safetensors.torch import save_file
+run, out = Path(sys.argv[1]), sys.argv[2]
+steps = sorted(run.glob("checkpoints/step_*/model.safetensors"))
+if not steps:
+    sys.exit(f"{run}: no checkpoint")
+with safe_open(str(steps[-1]), "pt") as f:
+    meta = f.metadata()
+    tensors = {k: (f.get_tensor(k).half() if f.get_tensor(k).is_floating_point() else f.get_tensor(k)) for k in f.keys()}
+save_file(tensors, out, metadata=meta)
+print(f"{out}: {steps[-1]}")
+EOF
+    done
+    ;;
+  eval)
+    $PY -m blender_mrvm eval --checkpoint "$1" --data "$2" --split train --n-inputs 2 --max-targets 10 \
+      --no-lpips --device cuda --out "$OUT/eval_$(basename "$2")"
+    ;;
+  *) echo "usage: $0 bench | train CONFIG SECONDS [...] | eval CHECKPOINT DATA" >&2; exit 2 ;;
+esac
