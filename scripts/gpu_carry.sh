@@ -1,9 +1,14 @@
 #!/usr/bin/env bash
 # What a GPU session carries to the device machine (docs/gpu_session.md): the device has no bpy and no network,
-# and a call carries at most 64 MiB with the repository (~8 MB). Builds gpu_carry/ (git-ignored):
-#   gpu_carry/data/<set>/    a rendered dataset without depth/, normal/ and transforms.json (training and eval
-#                            read rgb, mask, pose, intrinsics and meta only): shapenet13_all is 34 MB this way,
-#                            its train split alone (SPLITS=train) 24 MB
+# and a call carries at most 64 MiB with the repository (~8 MB) and its .git (~12 MB); many small files count
+# for more than their bytes (session 18: 42 MB of PNGs was refused, the same gzipped into one file, 32 MB, went).
+# Builds gpu_carry/ and packs it into gpu_pack/carry.tgz (both git-ignored): carry ["gpu_pack"] and unpack there
+# (scripts/gpu_session.sh does, when gpu_carry/ is absent). gpu_carry/ holds:
+#   gpu_carry/data/<set>/    a rendered dataset without depth/ and normal/ (training and eval read rgb, mask, pose,
+#                            intrinsics, transforms.json and meta): shapenet13_all is 34 MB this way, its train
+#                            split alone (SPLITS=train) 24 MB. transforms.json stays: a sphere-rig set's views have
+#                            their own fields of view and only it holds them (session 18 dropped it, and the
+#                            loader then silently gave every view the first one's; it now refuses)
 #   gpu_carry/weights/       ImageNet VGG16 blocks 1-3 (the `accurate`/`paper` encoder, 6.9 MB) and the LPIPS
 #                            linear heads; the full VGG16 (57 MB, for the LPIPS loss) does not fit beside the data
 # Usage: [SPLITS="train"] [DEPTH=1] [HALF=1] [FULL_VGG=1] scripts/gpu_carry.sh [DATASET ...]
@@ -19,7 +24,7 @@ PY=${PY:-.venv/bin/python}
 SETS=("$@"); [ ${#SETS[@]} -gt 0 ] || SETS=(data/shapenet13_all)
 rm -rf gpu_carry && mkdir -p gpu_carry/data gpu_carry/weights
 grep -qx '/gpu_carry/' .git/info/exclude 2>/dev/null || { mkdir -p .git/info && echo '/gpu_carry/' >> .git/info/exclude; }
-EXCL=(--exclude=normal --exclude=transforms.json)
+EXCL=(--exclude=normal)
 [ "${DEPTH:-0}" = 1 ] || EXCL+=(--exclude=depth)
 for s in "${SETS[@]}"; do
   name=$(basename "$s")
@@ -42,4 +47,7 @@ if os.environ["HALF"] == "1":
 save_file(keep, "gpu_carry/weights/" + vgg.VGG_FILE)
 save_file(load_file(str(src / vgg.LPIPS_FILE)), "gpu_carry/weights/" + vgg.LPIPS_FILE)
 EOF
-du -sb gpu_carry | awk '{printf "gpu_carry: %.1f MiB (the repository adds ~8 MB; a call carries 64 MiB)\n", $1 / 1048576}'
+grep -qx '/gpu_pack/' .git/info/exclude || echo '/gpu_pack/' >> .git/info/exclude
+mkdir -p gpu_pack && tar -C gpu_carry -cf - data weights | gzip -6 > gpu_pack/carry.tgz
+du -sb gpu_carry | awk '{printf "gpu_carry: %.1f MiB\n", $1 / 1048576}'
+du -sb gpu_pack/carry.tgz | awk '{printf "gpu_pack/carry.tgz: %.1f MiB (with the repository and its .git, ~20 MB, a call carries 64 MiB)\n", $1 / 1048576}'

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The device machine's side of a GPU session (docs/gpu_session.md): run there, from the repository root, with
-# gpu_carry/ carried (scripts/gpu_carry.sh). Python 3.12 with a CUDA torch, no bpy, no network; the bpy-free
+# gpu_pack/ carried (scripts/gpu_carry.sh). Python 3.12 with a CUDA torch, no bpy, no network; the bpy-free
 # packages import from the tree. Everything a call produces goes to $OUT (8 files of at most 16 MiB come back).
 #   scripts/gpu_session.sh bench                       training and rendering speed (bench train, bench model)
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
@@ -11,6 +11,9 @@ set -uo pipefail
 export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
 OUT=${OUT:-gpu_out}
 mkdir -p "$OUT"
+if [ ! -d gpu_carry ] && [ -f gpu_pack/carry.tgz ]; then mkdir -p gpu_carry && tar -xzf gpu_pack/carry.tgz -C gpu_carry; fi
+# TF32 matrix products for fp32 runs (the training calls of session 18 ran with it; the benches without)
+export TORCH_ALLOW_TF32_CUBLAS_OVERRIDE=${TORCH_ALLOW_TF32_CUBLAS_OVERRIDE:-1}
 PY=${PY:-python3}
 what=${1:-}; shift || true
 case "$what" in
@@ -22,11 +25,15 @@ case "$what" in
     timeout ${BENCH_MODEL_S:-150} $PY -m blender_mrvm bench model --device cuda \
       --presets ${MODEL_PRESETS:-fast,balanced,accurate,paper,gpnr:fast} --views 2 --sizes 128,256 \
       --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --out "$OUT/model"
-    # the CUDA paths of evaluation and synthesis, run for real with a shipped model
-    [ -z "${EVAL_DATA:-}" ] || timeout 90 $PY -m blender_mrvm eval --checkpoint shipped --data "$EVAL_DATA" --split train \
-      --n-inputs 2 --max-targets 10 --no-lpips --device cuda --out "$OUT/eval_cuda" 2>&1 | tail -n 25
-    [ -z "${EVAL_DATA:-}" ] || { obj=$(ls -d "$EVAL_DATA"/*/*/ | head -n 1); timeout 60 $PY -m blender_mrvm synthesize \
-      --references "$obj" --views 3 15 --orbit 8 --device cuda --out "$OUT/synth_cuda" && ls "$OUT/synth_cuda/rgb" | wc -l; }
+    # the CUDA paths of evaluation and synthesis, run for real with a shipped model (only their JSON comes back:
+    # at most 8 files return, and session 18's call lost bench_train.csv to the rendered views)
+    if [ -n "${EVAL_DATA:-}" ]; then
+      timeout 90 $PY -m blender_mrvm eval --checkpoint shipped --data "$EVAL_DATA" --split train --n-inputs 2 \
+        --max-targets 10 --no-lpips --device cuda --out /tmp/eval_cuda && cp /tmp/eval_cuda/eval.json "$OUT/eval_cuda.json"
+      obj=$(ls -d "$EVAL_DATA"/*/*/ | head -n 1)
+      timeout 60 $PY -m blender_mrvm synthesize --references "$obj" --views 3 15 --orbit 8 --device cuda \
+        --out /tmp/synth_cuda && cp /tmp/synth_cuda/synthesis.json "$OUT/synth_cuda.json"
+    fi
     ;;
   train)
     pids=()

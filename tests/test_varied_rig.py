@@ -4,6 +4,7 @@ turntable default unchanged (issue 11, item 4)."""
 from __future__ import annotations
 
 import argparse
+import json
 import math
 
 import numpy as np
@@ -128,6 +129,16 @@ def test_sphere_rig_renders_poses_and_intrinsics_that_reproject(bpy_empty, tmp_p
         assert iou > 0.85 and np.linalg.norm(c_rgb - c_mask) < 0.5, (i, iou, c_rgb - c_mask)
     errs = np.concatenate([depth_consistency(ov, a, b) for a in range(6) for b in range(6) if a != b])
     assert errs.size > 100 and np.median(errs) < 1e-3
+    # intrinsics.txt holds one camera: without transforms.json the views' own fields of view would be lost
+    tf = out / "car" / "car_000003" / "transforms.json"
+    frames = json.loads(tf.read_text())
+    frames["frames"] = frames["frames"][:-1]
+    tf.write_text(json.dumps(frames))
+    with pytest.raises(InputError, match="lacks view 5; restore it"):
+        F.read_object(out / "car" / "car_000003")
+    tf.unlink()
+    with pytest.raises(InputError, match="own intrinsics .*transforms.json, which is missing"):
+        F.read_object(out / "car" / "car_000003")
 
 
 def test_nearest_view_baseline_weighs_direction_and_distance():
