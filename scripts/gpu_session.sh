@@ -53,17 +53,11 @@ case "$what" in
       $PY - "$d" "$OUT/$name.safetensors" <<'EOF'
 import sys
 from pathlib import Path
-from safetensors import safe_open
-from safetensors.torch import save_file
-run, out = Path(sys.argv[1]), sys.argv[2]
-steps = sorted(run.glob("checkpoints/step_*/model.safetensors"))
+from blender_mrvm.training.checkpoint import half_copy
+steps = sorted(Path(sys.argv[1]).glob("checkpoints/step_*/model.safetensors"))
 if not steps:
-    sys.exit(f"{run}: no checkpoint")
-with safe_open(str(steps[-1]), "pt") as f:
-    meta = f.metadata()
-    tensors = {k: (f.get_tensor(k).half() if f.get_tensor(k).is_floating_point() else f.get_tensor(k)) for k in f.keys()}
-save_file(tensors, out, metadata=meta)
-print(f"{out}: {steps[-1]}")
+    sys.exit(f"{sys.argv[1]}: no checkpoint")
+print(f"{half_copy(steps[-1], Path(sys.argv[2]))}: {steps[-1]}")
 EOF
     done
     ;;

@@ -33,6 +33,7 @@ def main(argv=None) -> int:
     ap.add_argument("stem")
     ap.add_argument("--command", action="append", default=[], help="a command of the recipe (repeatable, in order)")
     ap.add_argument("--force", action="store_true", help="replace a shipped model of that name")
+    ap.add_argument("--fp16", action="store_true", help="store the weights in fp16 (half the bytes)")
     a = ap.parse_args(argv)
     dst = ASSET_DIR / f"{a.stem}.safetensors"
     if dst.exists() and not a.force:
@@ -45,7 +46,14 @@ def main(argv=None) -> int:
     side = {"model": {"kind": meta["model_kind"], "config": json.loads(meta["model_config"])}, "train": train,
             "step": int(meta["step"]), **{k: v for k, v in run_cfg.items() if k not in ("model", "train")},
             "sha256": hashlib.sha256(model_file.read_bytes()).hexdigest(), "commands": a.command}
-    shutil.copyfile(model_file, dst)
+    if a.fp16:
+        from blender_mrvm.training.checkpoint import half_copy
+
+        half_copy(model_file, dst)
+        side["sha256"] = hashlib.sha256(dst.read_bytes()).hexdigest()
+        side["fp16_of"] = str(model_file)
+    else:
+        shutil.copyfile(model_file, dst)
     (ASSET_DIR / f"{a.stem}.json").write_text(json.dumps(side, indent=2) + "\n")
     print(f"shipped {model_file} -> {dst} ({dst.stat().st_size / 1e6:.2f} MB, step {side['step']}, "
           f"sha256 {side['sha256'][:12]}...)")

@@ -194,3 +194,31 @@ def test_shipped_anyview_model_is_the_default_fine_tuned_for_cameras_anywhere(tm
         p[name] = float(psnr(out["color"], gt)[0])
     p_mean = float(psnr(mean_col, gt)[0])
     assert p["anyview"] > p_mean + 4.0 and p["anyview"] > p["default"] + 4.0, (p, p_mean)
+
+
+def test_half_copy_keeps_the_metadata_and_renders_as_the_fp32_file(tmp_path):
+    """``checkpoint.half_copy`` (how GPU-trained and shipped models travel): the same metadata and keys, floating
+    tensors in fp16 at half the bytes, and the model it loads renders within fp16 rounding of the original."""
+    from tests.test_bad_inputs import tiny_checkpoint
+
+    run = tiny_checkpoint(tmp_path / "run")
+    src = ckpt.model_file_of(run)
+    out = ckpt.half_copy(src, tmp_path / "half" / "model.safetensors")
+    assert ckpt.read_meta(out) == ckpt.read_meta(src)
+    from safetensors import safe_open
+
+    with safe_open(str(out), "pt") as f, safe_open(str(src), "pt") as g:
+        assert sorted(f.keys()) == sorted(g.keys())
+        assert all(f.get_tensor(k).dtype == (torch.float16 if g.get_tensor(k).is_floating_point()
+                                             else g.get_tensor(k).dtype) for k in f.keys())
+    a, cfg, _ = ckpt.load_model(src)
+    b, cfg_b, _ = ckpt.load_model(out)
+    assert cfg == cfg_b
+    for (k, x), (k2, y) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert k == k2 and y.dtype == x.dtype  # loaded back into the fp32 layers
+        assert torch.allclose(x, y, rtol=2e-3, atol=1e-4), k
+    root = make_sphere_dataset(tmp_path / "data", n_objects=1, n_views=4, resolution=16, seed=2)
+    s = load_dataset(root, "test")[0]
+    outs = [m.synthesize(s.images[[0, 1]], [s.c2w[0], s.c2w[1]], [s.intrinsics[0], s.intrinsics[1]], s.bbox,
+                         s.c2w[2], s.intrinsics[2])["color"] for m in (a, b)]
+    assert (outs[0] - outs[1]).abs().max() < 2e-2
