@@ -204,7 +204,7 @@ def test_half_copy_keeps_the_metadata_and_renders_as_the_fp32_file(tmp_path):
     run = tiny_checkpoint(tmp_path / "run")
     src = ckpt.model_file_of(run)
     out = ckpt.half_copy(src, tmp_path / "half" / "model.safetensors")
-    assert ckpt.read_meta(out) == ckpt.read_meta(src)
+    assert ckpt.read_meta(out) == ckpt.read_meta(src) and out.stat().st_mode & 0o044  # readable by others too
     from safetensors import safe_open
 
     with safe_open(str(out), "pt") as f, safe_open(str(src), "pt") as g:

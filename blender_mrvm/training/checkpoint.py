@@ -181,5 +181,6 @@ def half_copy(model_file: Path, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp")
     save_file(tensors, str(tmp), metadata=meta)
+    ordinary_permissions(tmp)  # safetensors writes owner-only
     os.replace(tmp, out)
     return out
