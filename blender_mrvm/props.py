@@ -24,6 +24,9 @@ SHIPPED_MODELS = MODEL_KINDS + [
                                                      "captures (Recover Poses), not objects on white"),
     ("mrvm_anyview", "NeRFormer + MRVM, any viewpoint", "The default model fine-tuned on sphere-rig renders too: "
                      "for cameras above, below or nearer than the 30-degree turntable (slightly worse on it)"),
+    ("mrvm_quality", "NeRFormer + MRVM, quality", "The paper's NeRFormer with an ImageNet VGG16 encoder, partly "
+                     "trained on a GPU: the best for cameras anywhere (on the turntable the default is sharper); "
+                     "many times slower on a CPU"),
 ]
 """The shipped novel-view models the panel offers (``models.pretrained``: one per kind, then named models)."""
 

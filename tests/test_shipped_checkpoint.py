@@ -222,3 +222,40 @@ def test_half_copy_keeps_the_metadata_and_renders_as_the_fp32_file(tmp_path):
     outs = [m.synthesize(s.images[[0, 1]], [s.c2w[0], s.c2w[1]], [s.intrinsics[0], s.intrinsics[1]], s.bbox,
                          s.c2w[2], s.intrinsics[2])["color"] for m in (a, b)]
     assert (outs[0] - outs[1]).abs().max() < 2e-2
+
+
+def test_shipped_quality_model_is_the_gpu_trained_paper_arch_and_beats_the_anyview_model(tmp_path):
+    """'shipped:mrvm_quality' (the panel's "NeRFormer + MRVM, quality"): the `accurate` preset (the paper's
+    per-view token streams, ImageNet VGG16 encoder), at most 25 MB, trained in three recorded stages (MRVM
+    pretraining and a restarted finetuning run on a GPU, then the LPIPS patch loss on the CPU), and it does what
+    it is for: two references from a sphere rig of the analytic scene, where it renders the view 2.9 dB above the
+    nearer reference and 1.3 dB above the any-view model (17.2 / 14.3 / 15.9 dB when shipped)."""
+    from blender_mrvm.models.pretrained import SHIPPED_NAMED, resolve_checkpoint
+
+    stem = SHIPPED_NAMED["mrvm_quality"]
+    path = ASSET_DIR / f"{stem}.safetensors"
+    if not path.is_file():
+        pytest.skip("this copy does not ship the quality model")
+    assert resolve_checkpoint("shipped:mrvm-quality") == path and path.stat().st_size <= 25 * 1024 * 1024
+    meta = ckpt.read_meta(path)
+    model, cfg, _ = ckpt.load_model(path)
+    assert cfg.nerformer.arch == "nerformer" and cfg.encoder.backbone == "vgg16" and cfg.name == "accurate"
+    side = json.loads((ASSET_DIR / f"{stem}.json").read_text())
+    assert json.loads(meta["train_config"]) == side["train"] and int(meta["step"]) == side["train"]["iterations"]
+    s1 = json.loads((ASSET_DIR / f"{stem}_stage1.json").read_text())["train"]
+    s2 = json.loads((ASSET_DIR / f"{stem}_stage2.json").read_text())["train"]
+    assert s1["device"] == s2["device"] == "cuda" and s1["pretrain_frac"] == 1.0 and s2["pretrain_frac"] == 0.0
+    assert s2["init_checkpoint"] and side["train"]["init_checkpoint"] and side["train"]["lpips_weight"] > 0
+    root = make_sphere_dataset(tmp_path, n_objects=1, n_views=6, resolution=32, seed=5, rig="sphere")
+    s = load_dataset(root, "test")[0]
+    refs, tgt = [0, 3], 1
+    gt = torch.from_numpy(s.images[tgt])
+    anyview, _, _ = ckpt.load_model(resolve_checkpoint("shipped:mrvm_anyview"))
+    p = {}
+    for name, m in (("quality", model), ("anyview", anyview)):
+        out = m.synthesize(s.images[refs], [s.c2w[r] for r in refs], [s.intrinsics[r] for r in refs], s.bbox,
+                           s.c2w[tgt], s.intrinsics[tgt])
+        assert torch.isfinite(out["color"]).all()
+        p[name] = float(psnr(out["color"], gt)[0])
+    nearest = max(float(psnr(torch.from_numpy(s.images[r]), gt)[0]) for r in refs)
+    assert p["quality"] > nearest + 2.0 and p["quality"] > p["anyview"] + 0.5, (p, nearest)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", type=Path, default=None,
-                   help="run folder, checkpoint folder or .safetensors file of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, or shipped:mrvm_anyview for cameras off the turntable (default: the shipped NeRFormer+MRVM model)")
+                   help="run folder, checkpoint folder or .safetensors file of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: the shipped NeRFormer+MRVM model)")
     p.add_argument("--data", type=Path, required=True, help="dataset root (ours, SRN, NMR/DVR, NeRF-synthetic)")
     p.add_argument("--split", default="test", help="split to evaluate (default test)")
     p.add_argument("--format", dest="fmt", default=None, help="dataset format (default: detect)")

@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--orbit-radius", type=float, default=None, help="orbit radius (default: the references' distance)")
     p.add_argument("--orbit-size", type=int, default=0, help="orbit images' longer side in pixels (default: the references')")
     p.add_argument("--checkpoint", type=Path, default=None,
-                   help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, or shipped:mrvm_anyview for cameras off the turntable (default: the shipped NeRFormer+MRVM model)")
+                   help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: the shipped NeRFormer+MRVM model)")
     p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda (default auto)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--depth", action="store_true", default=None, help="also write depth maps (EXR); "

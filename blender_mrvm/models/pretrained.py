@@ -18,11 +18,15 @@ DEFAULT_NAME = "mrvm_shapenet13_all"
 """Stem of the default checkpoint: ``<stem>.safetensors`` (weights + config) and ``<stem>.json`` (run config)."""
 SHIPPED = {"nerformer_mrvm": DEFAULT_NAME, "gpnr": "gpnr_shapenet13_all"}
 """Stem of the shipped checkpoint of each model kind (the first is the default)."""
-SHIPPED_NAMED = {"gpnr_captures": "gpnr_captures64", "mrvm_anyview": "mrvm_shapenet13_anyview"}
+SHIPPED_NAMED = {"gpnr_captures": "gpnr_captures64", "mrvm_anyview": "mrvm_shapenet13_anyview",
+                 "mrvm_quality": "mrvm_shapenet13_quality"}
 """Further shipped models of a kind, by name (``shipped:<name>``): ``gpnr_captures``, the GPNR model
 fine-tuned on capture-like rooms (``make-captures``) for scenes and photo captures rather than objects on
 white; ``mrvm_anyview``, the default NeRFormer+MRVM model fine-tuned on turntable and sphere-rig renders
-(directions anywhere, field of view 30-60 degrees, varied distance) for cameras off the turntable."""
+(directions anywhere, field of view 30-60 degrees, varied distance) for cameras off the turntable;
+``mrvm_quality``, the `accurate` preset (the paper's NeRFormer arch, ImageNet VGG16 encoder, 32 + 16 samples)
+pretrained with MRVM and fine-tuned on a GPU on turntable and sphere-rig renders, then fine-tuned with the LPIPS
+patch loss on the CPU: the best model for cameras anywhere, about ten times slower than the others on a CPU."""
 SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 """Stem of the shipped Sem2NeRF checkpoint (not a novel-view kind of the registry: ``shipped:sem2nerf``)."""
 
@@ -37,6 +41,9 @@ FIGURES = {
     "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.4 dB / LPIPS 0.269 (default model "
                     "15.9 / 0.336, nearest view 15.2 / 0.259); on the 30-degree turntable 0.7 dB below the default; "
                     "~1.0 s per 128 px view on 2 CPU cores",
+    "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.9 dB / LPIPS 0.258 (any-view model "
+                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.5 / 0.264 (default 20.7 / 0.217); "
+                    "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); 6 FPS on an H100",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
 object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy";
@@ -68,7 +75,8 @@ def viewpoint_note(checkpoint, c2ws, centre) -> str:
         return ""
     return (f"{int(off.sum())} of {len(el)} cameras are off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the "
             f"default model was trained on (elevations {el.min():.0f} to {el.max():.0f} degrees); for such views "
-            "use shipped:mrvm_anyview (the panel's 'NeRFormer + MRVM, any viewpoint')")
+            "use shipped:mrvm_anyview (the panel's 'NeRFormer + MRVM, any viewpoint'), or shipped:mrvm_quality (its "
+            "'quality': sharper there, many times slower on a CPU)")
 
 
 def _normal_name(name: str | None) -> str:
