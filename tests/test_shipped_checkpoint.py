@@ -160,39 +160,16 @@ def test_shipped_anyview_model_is_the_default_fine_tuned_for_cameras_anywhere(tm
     references from a sphere rig of the analytic scene (cameras well above and below the turntable), where
     the default model renders a near-empty view (9.7 dB, the mean colour 9.3), it renders the object
     (15.9 dB, nearest reference 14.3)."""
-    from blender_mrvm.models.pretrained import SHIPPED_NAMED, resolve_checkpoint
-
-    stem = SHIPPED_NAMED["mrvm_anyview"]
-    path = ASSET_DIR / f"{stem}.safetensors"
-    if not path.is_file():
-        pytest.skip("this copy does not ship the any-view model")
-    assert resolve_checkpoint("shipped:mrvm-anyview") == path and path.stat().st_size <= 25 * 1024 * 1024
-    meta = ckpt.read_meta(path)
-    model, cfg, _ = ckpt.load_model(path)
+    model, cfg, side, (s1, s2) = _named_model("mrvm_anyview", "any-view")
     default_model, default_cfg, _ = ckpt.load_model(default_checkpoint())
     assert cfg == default_cfg  # a fine-tune: the same network
-    side = json.loads((ASSET_DIR / f"{stem}.json").read_text())
-    assert json.loads(meta["train_config"]) == side["train"] and int(meta["step"]) == side["train"]["iterations"]
     # two fine-tuning runs: the first from the default file, the second from the first's run folder
-    s1 = json.loads((ASSET_DIR / f"{stem}_stage1.json").read_text())["train"]
-    s2 = json.loads((ASSET_DIR / f"{stem}_stage2.json").read_text())["train"]
     assert s1["init_checkpoint"].endswith(default_checkpoint().name) and s2["init_checkpoint"] == s1["out_dir"]
     assert {k: v for k, v in s2.items() if k != "init_checkpoint"} == {k: v for k, v in side["train"].items()
                                                                         if k in s2 and k != "init_checkpoint"}
     for t in (s1, s2):
         assert any(d.endswith("sphere64_train") for d in t["data"]) and any(d.endswith("shapenet13_all") for d in t["data"])
-    root = make_sphere_dataset(tmp_path, n_objects=1, n_views=6, resolution=32, seed=5, rig="sphere")
-    s = load_dataset(root, "test")[0]
-    refs, tgt = [0, 3], 1
-    gt = torch.from_numpy(s.images[tgt])
-    mean_col = torch.from_numpy(np.broadcast_to(s.images[refs].reshape(-1, 3).mean(0), gt.shape).copy())
-    p = {}
-    for name, m in (("anyview", model), ("default", default_model)):
-        out = m.synthesize(s.images[refs], [s.c2w[r] for r in refs], [s.intrinsics[r] for r in refs], s.bbox,
-                           s.c2w[tgt], s.intrinsics[tgt])
-        assert torch.isfinite(out["color"]).all()
-        p[name] = float(psnr(out["color"], gt)[0])
-    p_mean = float(psnr(mean_col, gt)[0])
+    p, p_mean, _ = _sphere_rig_scores(tmp_path, {"anyview": model, "default": default_model})
     assert p["anyview"] > p_mean + 4.0 and p["anyview"] > p["default"] + 4.0, (p, p_mean)
 
 
@@ -230,32 +207,49 @@ def test_shipped_quality_model_is_the_gpu_trained_paper_arch_and_beats_the_anyvi
     pretraining and a restarted finetuning run on a GPU, then the LPIPS patch loss on the CPU), and it does what
     it is for: two references from a sphere rig of the analytic scene, where it renders the view 2.9 dB above the
     nearer reference and 1.3 dB above the any-view model (17.2 / 14.3 / 15.9 dB when shipped)."""
-    from blender_mrvm.models.pretrained import SHIPPED_NAMED, resolve_checkpoint
+    from blender_mrvm.models.pretrained import resolve_checkpoint
 
-    stem = SHIPPED_NAMED["mrvm_quality"]
-    path = ASSET_DIR / f"{stem}.safetensors"
-    if not path.is_file():
-        pytest.skip("this copy does not ship the quality model")
-    assert resolve_checkpoint("shipped:mrvm-quality") == path and path.stat().st_size <= 25 * 1024 * 1024
-    meta = ckpt.read_meta(path)
-    model, cfg, _ = ckpt.load_model(path)
+    model, cfg, side, (s1, s2) = _named_model("mrvm_quality", "quality")
     assert cfg.nerformer.arch == "nerformer" and cfg.encoder.backbone == "vgg16" and cfg.name == "accurate"
-    side = json.loads((ASSET_DIR / f"{stem}.json").read_text())
-    assert json.loads(meta["train_config"]) == side["train"] and int(meta["step"]) == side["train"]["iterations"]
-    s1 = json.loads((ASSET_DIR / f"{stem}_stage1.json").read_text())["train"]
-    s2 = json.loads((ASSET_DIR / f"{stem}_stage2.json").read_text())["train"]
     assert s1["device"] == s2["device"] == "cuda" and s1["pretrain_frac"] == 1.0 and s2["pretrain_frac"] == 0.0
     assert s2["init_checkpoint"] and side["train"]["init_checkpoint"] and side["train"]["lpips_weight"] > 0
+    anyview, _, _ = ckpt.load_model(resolve_checkpoint("shipped:mrvm_anyview"))
+    p, _, nearest = _sphere_rig_scores(tmp_path, {"quality": model, "anyview": anyview})
+    assert p["quality"] > nearest + 2.0 and p["quality"] > p["anyview"] + 0.5, (p, nearest)
+
+
+def _named_model(name: str, what: str):
+    """A named shipped model (``pretrained.SHIPPED_NAMED``): its path, metadata, loaded model and config, and its
+    sidecar, after the checks every shipped file passes (resolved by name, at most 25 MB, the sidecar's training
+    config is the one in the file); skips when this copy does not ship it."""
+    from blender_mrvm.models.pretrained import SHIPPED_NAMED, resolve_checkpoint
+
+    stem = SHIPPED_NAMED[name]
+    path = ASSET_DIR / f"{stem}.safetensors"
+    if not path.is_file():
+        pytest.skip(f"this copy does not ship the {what} model")
+    assert resolve_checkpoint("shipped:" + name.replace("_", "-")) == path and path.stat().st_size <= 25 * 1024 * 1024
+    meta = ckpt.read_meta(path)
+    model, cfg, _ = ckpt.load_model(path)
+    side = json.loads((ASSET_DIR / f"{stem}.json").read_text())
+    assert json.loads(meta["train_config"]) == side["train"] and int(meta["step"]) == side["train"]["iterations"]
+    stages = [json.loads((ASSET_DIR / f"{stem}_stage{i}.json").read_text())["train"] for i in (1, 2)]
+    return model, cfg, side, stages
+
+
+def _sphere_rig_scores(tmp_path, models: dict) -> tuple[dict, float, float]:
+    """PSNR of each model's view of the analytic scene's sphere rig (references 0 and 3, target 1, 32 px), and the
+    mean colour's and the nearer reference's (the trivial baselines)."""
     root = make_sphere_dataset(tmp_path, n_objects=1, n_views=6, resolution=32, seed=5, rig="sphere")
     s = load_dataset(root, "test")[0]
     refs, tgt = [0, 3], 1
     gt = torch.from_numpy(s.images[tgt])
-    anyview, _, _ = ckpt.load_model(resolve_checkpoint("shipped:mrvm_anyview"))
     p = {}
-    for name, m in (("quality", model), ("anyview", anyview)):
+    for name, m in models.items():
         out = m.synthesize(s.images[refs], [s.c2w[r] for r in refs], [s.intrinsics[r] for r in refs], s.bbox,
                            s.c2w[tgt], s.intrinsics[tgt])
         assert torch.isfinite(out["color"]).all()
         p[name] = float(psnr(out["color"], gt)[0])
+    mean_col = torch.from_numpy(np.broadcast_to(s.images[refs].reshape(-1, 3).mean(0), gt.shape).copy())
     nearest = max(float(psnr(torch.from_numpy(s.images[r]), gt)[0]) for r in refs)
-    assert p["quality"] > nearest + 2.0 and p["quality"] > p["anyview"] + 0.5, (p, nearest)
+    return p, float(psnr(mean_col, gt)[0]), nearest
