@@ -41,8 +41,8 @@ FIGURES = {
     "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.4 dB / LPIPS 0.269 (default model "
                     "15.9 / 0.336, nearest view 15.2 / 0.259); on the 30-degree turntable 0.7 dB below the default; "
                     "~1.0 s per 128 px view on 2 CPU cores",
-    "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.9 dB / LPIPS 0.258 (any-view model "
-                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.5 / 0.264 (default 20.7 / 0.217); "
+    "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.8 dB / LPIPS 0.250 (any-view model "
+                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 20.7 / 0.217); "
                     "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); 6 FPS on an H100",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
