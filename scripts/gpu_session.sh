@@ -6,7 +6,6 @@
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16 + its metrics
-#   scripts/gpu_session.sh eval CHECKPOINT DATA        eval --device cuda (no LPIPS: the full VGG16 stays home)
 set -uo pipefail
 export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
 OUT=${OUT:-gpu_out}
@@ -61,9 +60,5 @@ print(f"{half_copy(steps[-1], Path(sys.argv[2]))}: {steps[-1]}")
 EOF
     done
     ;;
-  eval)
-    $PY -m blender_mrvm eval --checkpoint "$1" --data "$2" --split train --n-inputs 2 --max-targets 10 \
-      --no-lpips --device cuda --out "$OUT/eval_$(basename "$2")"
-    ;;
-  *) echo "usage: $0 bench | train CONFIG SECONDS [...] | eval CHECKPOINT DATA" >&2; exit 2 ;;
+  *) echo "usage: $0 bench | train CONFIG SECONDS [...]" >&2; exit 2 ;;
 esac

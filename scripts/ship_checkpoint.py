@@ -45,15 +45,15 @@ def main(argv=None) -> int:
     train = run_cfg.get("train") or json.loads(meta.get("train_config", "{}"))
     side = {"model": {"kind": meta["model_kind"], "config": json.loads(meta["model_config"])}, "train": train,
             "step": int(meta["step"]), **{k: v for k, v in run_cfg.items() if k not in ("model", "train")},
-            "sha256": hashlib.sha256(model_file.read_bytes()).hexdigest(), "commands": a.command}
+            "commands": a.command}
     if a.fp16:
         from blender_mrvm.training.checkpoint import half_copy
 
         half_copy(model_file, dst)
-        side["sha256"] = hashlib.sha256(dst.read_bytes()).hexdigest()
         side["fp16_of"] = str(model_file)
     else:
         shutil.copyfile(model_file, dst)
+    side["sha256"] = hashlib.sha256(dst.read_bytes()).hexdigest()  # of the file shipped
     (ASSET_DIR / f"{a.stem}.json").write_text(json.dumps(side, indent=2) + "\n")
     print(f"shipped {model_file} -> {dst} ({dst.stat().st_size / 1e6:.2f} MB, step {side['step']}, "
           f"sha256 {side['sha256'][:12]}...)")

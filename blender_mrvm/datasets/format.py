@@ -430,10 +430,10 @@ def read_object(obj_dir: Path) -> ObjectViews:
         raise InputError(f"{obj_dir}: no intrinsics.txt or transforms.json")
     idx = sorted(int(p.stem) for p in (obj_dir / "pose").glob("*.txt") if p.stem.isdigit())
     idx = [i for i in idx if view_paths(obj_dir, i)["rgb"].is_file()]
-    if meta.get("per_view_intrinsics") and any(i not in by_view for i in idx):
+    lost = [i for i in idx if i not in by_view] if meta.get("per_view_intrinsics") else []
+    if lost:
         # intrinsics.txt holds one camera: falling back to it would silently give most views a wrong field of
         # view (a GPU session's slimmed copy without transforms.json trained on such views, session 18)
-        lost = [i for i in idx if i not in by_view]
         raise InputError(f"{obj_dir}: its views have their own intrinsics (meta.json per_view_intrinsics), kept in "
                          f"transforms.json, which {'lacks view ' + str(lost[0]) if tf.is_file() else 'is missing'}; "
                          "restore it from the rendered set (render-dataset writes it)")
