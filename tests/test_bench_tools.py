@@ -180,7 +180,7 @@ def test_bench_train_times_the_real_trainer(tmp_path, capsys):
         bt.parse_precisions("fp32,fp16", "cpu")  # fp16 autocast is a GPU setting
     out = tmp_path / "b"
     assert main(["bench", "train", "--presets", "fast", "--batches", "1x32,2x16", "--steps", "2", "--warmup", "1",
-                 "--resolution", "16", "--out", str(out)]) == 0
+                 "--profile", "1", "--resolution", "16", "--out", str(out)]) == 0
     rows = list(csv.DictReader(open(out / "bench_train.csv")))
     assert [(r["objects_per_step"], r["rays_per_object"]) for r in rows] == [("1", "32"), ("2", "16")]
     for r in rows:
@@ -188,9 +188,19 @@ def test_bench_train_times_the_real_trainer(tmp_path, capsys):
         assert sps > 0 and rps == pytest.approx(sps * 32, rel=1e-3)
         assert float(r["cpu_seconds_per_step"]) > 0 and r["gpu_util_pct"] == "" and int(r["params"]) > 0
         assert 0 < float(r["draw_share"]) < 1
+        # --profile: the profiled step's operator calls; no CUDA runtime calls and no device time on the CPU
+        assert float(r["aten_ops_per_step"]) > 100
+        assert float(r["kernel_launches_per_step"]) == float(r["syncs_per_step"]) == 0 and r["device_ms_per_step"] == ""
+    # two objects a step call the model twice: about twice the operators of one
+    assert 1.5 < float(rows[1]["aten_ops_per_step"]) / float(rows[0]["aten_ops_per_step"]) < 2.5
+    table = (out / "bench_train_profile.txt").read_text()
+    assert table.count("== fast") == 2 and "1x32 fp32 cpu" in table and "aten::" in table and "Self CPU" in table
     from blender_mrvm.training.trainer import RayBatcher
 
     assert RayBatcher.draw.__name__ == "draw"  # the timing wrapper is gone afterwards
     assert "steps/s" in capsys.readouterr().out
     assert main(["bench", "train", "--presets", "fast", "--batches", "1x0", "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "c").exists()
+    for bad in (["--warmup", "0"], ["--profile", "-1"]):  # the first step carries the set-up: never timed
+        assert main(["bench", "train", "--presets", "fast", *bad, "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "c").exists()

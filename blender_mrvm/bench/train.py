@@ -12,7 +12,14 @@ Each row: steps and rays per second (wall), process CPU seconds per step, the sh
 the batch on the CPU (``RayBatcher.draw``: picking views, making rays; the rest is the model, the loss, the
 backward pass and the update), the peak extra memory of the timed steps (``bench.PeakMemory``: on CUDA the allocator's peak), and on a GPU its mean utilisation over
 the timed steps (``torch.cuda.utilization``, else ``nvidia-smi``, sampled every 0.2 s). Written to
-``<out>/bench_train.csv``. Issue 11 asks a GPU session for exactly these (steps per second, GPU
+``<out>/bench_train.csv``.
+
+``--profile K`` runs K more steps per configuration under ``torch.profiler`` (CPU, and CUDA activities on a
+GPU; after the timed steps, so the timing is not the profiler's) and adds to each row the ATen operator calls,
+kernel launches, host-device synchronisations and device allocations per step and the device's busy
+milliseconds per step (kernels and copies); ``<out>/bench_train_profile.txt`` gets each configuration's
+operator table (the profiler's own). Comparing fp32 with bf16 rows says where a slower precision loses: more
+launches per step (casts), synchronisations, allocations, or slower kernels. Issue 11 asks a GPU session for exactly these (steps per second, GPU
 utilisation, bf16 against fp32)::
 
     python -m blender_mrvm bench train --device cuda --presets fast,balanced,accurate,paper,gpnr:fast \
@@ -46,10 +53,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--precisions", default="fp32", help="comma-separated fp32, bf16, fp16 (fp16 on a GPU only)")
     p.add_argument("--device", default="cpu", help="cpu or cuda[:N]")
     p.add_argument("--steps", type=int, default=20, help="timed steps per configuration")
-    p.add_argument("--warmup", type=int, default=3, help="untimed steps first (allocator, autotuning)")
+    p.add_argument("--warmup", type=int, default=3, help="untimed steps first (allocator, autotuning; at least 1)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (train.threads)")
     p.add_argument("--data", default=None, help="dataset root to train on (default: a small analytic set)")
     p.add_argument("--resolution", type=int, default=64, help="image side of the analytic set")
+    p.add_argument("--profile", type=int, default=0,
+                   help="steps profiled after the timed ones (torch.profiler; 0 = none): counts per step in the CSV, "
+                   "operator tables in bench_train_profile.txt")
 
 
 def parse_batches(text: str) -> list[tuple[int, int]]:
@@ -131,17 +141,57 @@ class GpuUtilisation:
             self.pct = sum(self.samples) / len(self.samples) if self.samples else None
 
 
+PROFILE_COUNTS = {
+    "kernel_launches": ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunchKernelEx",
+                        "cudaLaunchCooperativeKernel"),
+    "syncs": ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize", "cudaMemcpy"),
+    "device_allocs": ("cudaMalloc", "cudaFree", "cudaMallocAsync", "cudaFreeAsync"),
+}
+"""Profile columns (per step) counted from the CUDA runtime calls of these names (0 on the CPU)."""
+
+
+PROFILE_COLUMNS = ("aten_ops_per_step", *(f"{c}_per_step" for c in PROFILE_COUNTS), "device_ms_per_step")
+
+
+def profile_counts(events, steps: int) -> dict:
+    """Per-step counts from a profiler's ``key_averages()``: ATen operator calls, the :data:`PROFILE_COUNTS`
+    runtime calls, and the device's busy milliseconds (the summed time of the events that ran on the device:
+    kernels, copies, fills; '' where the profiler has no device time)."""
+    from torch.autograd import DeviceType
+
+    out = {"aten_ops_per_step": round(sum(e.count for e in events if e.key.startswith("aten::")) / steps, 1)}
+    for col, names in PROFILE_COUNTS.items():
+        out[f"{col}_per_step"] = round(sum(e.count for e in events if e.key in names) / steps, 1)
+    busy = [getattr(e, "self_device_time_total", getattr(e, "self_cuda_time_total", 0.0)) for e in events
+            if getattr(e, "device_type", None) == DeviceType.CUDA]
+    out["device_ms_per_step"] = round(sum(busy) / 1000 / steps, 3) if busy else ""
+    return out
+
+
+def profile_table(events, device: str, rows: int = 30) -> str:
+    """The profiler's own operator table, by self device time on a GPU (self CPU time otherwise)."""
+    keys = ("self_device_time_total", "self_cuda_time_total") if device.startswith("cuda") else ()
+    for key in (*keys, "self_cpu_time_total"):
+        try:
+            return events.table(sort_by=key, row_limit=rows)
+        except Exception:  # an older torch names the device column otherwise
+            continue
+    return ""
+
+
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
-            threads: int, run_dir: Path) -> dict:
-    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + 1`` steps in ``run_dir``; the timing of the
-    ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation."""
+            threads: int, run_dir: Path, profile: int = 0) -> dict:
+    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir``; the timing of
+    the ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation; with
+    ``profile`` > 0 the next ``profile`` steps under ``torch.profiler`` (:func:`profile_counts` and, as
+    ``profile_table``, :func:`profile_table`)."""
     import torch
 
     from ..progress import Progress
     from ..training.config import TrainConfig
     from ..training.trainer import RayBatcher, train
 
-    total = warmup + steps + 1
+    total = warmup + steps + profile + 1
     tcfg = TrainConfig(out_dir=str(run_dir), iterations=total, objects_per_step=objects,
                        rays_per_object=rays, amp=PRECISIONS[precision], device=device, threads=threads,
                        log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0)
@@ -161,6 +211,8 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
                 drawing[1] += time.perf_counter() - t
 
     RayBatcher.draw = timed_draw
+    prof = None
+    found: dict = {}
     try:
         gen = train(model_cfg, tcfg, resume=False, scenes=scenes, force=True)
         for ev in gen:
@@ -178,11 +230,25 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
                 drawing[0] = False
                 util.__exit__(None, None, None)
                 mem.__exit__(None, None, None)
+            if profile and ev.done == warmup + steps:
+                acts = [torch.profiler.ProfilerActivity.CPU]
+                if device.startswith("cuda"):
+                    acts.append(torch.profiler.ProfilerActivity.CUDA)
+                prof = torch.profiler.profile(activities=acts)
+                prof.__enter__()
+            elif prof is not None and ev.done == warmup + steps + profile:
+                sync()
+                prof.__exit__(None, None, None)
+                events = prof.key_averages()
+                found = {**profile_counts(events, profile), "profile_table": profile_table(events, device)}
+                prof = None
         gen.close()
     finally:
         RayBatcher.draw = draw
+        if prof is not None:  # stopped early: leave no profiler running
+            prof.__exit__(None, None, None)
     return {"seconds": wall, "cpu_seconds": cpu, "draw_share": drawing[1] / wall if wall else float("nan"),
-            "peak_extra_mib": mem.mib, "gpu_util_pct": util.pct}
+            "peak_extra_mib": mem.mib, "gpu_util_pct": util.pct, **found}
 
 
 def run(args) -> int:
@@ -196,8 +262,9 @@ def run(args) -> int:
 
     device = str(args.device).strip().lower()
     check_device(device)
-    if args.steps < 1 or args.warmup < 0 or args.threads < 1:
-        raise InputError("--steps and --threads must be at least 1, --warmup at least 0")
+    if args.steps < 1 or args.warmup < 1 or args.threads < 1 or args.profile < 0:
+        raise InputError("--steps, --warmup and --threads must be at least 1 (the first step carries the set-up: "
+                         "it is never timed), --profile at least 0")
     batches = parse_batches(args.batches)
     precisions = parse_precisions(args.precisions, device)
     presets = []
@@ -225,7 +292,7 @@ def run(args) -> int:
                 for prec in precisions:
                     try:
                         r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
-                                    tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}")
+                                    tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}", args.profile)
                     except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
                         torch.cuda.empty_cache()
                         print(f"{name:9s} {objects}x{rays} {prec} {device}: out of memory, skipped", flush=True)
@@ -240,8 +307,15 @@ def run(args) -> int:
                         "draw_share": round(r["draw_share"], 3),
                         "peak_extra_mib": round(r["peak_extra_mib"], 1),
                         "gpu_util_pct": "" if r["gpu_util_pct"] is None else round(r["gpu_util_pct"], 1),
+                        **{k: r.get(k, "") for k in PROFILE_COLUMNS if args.profile},
                         "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
                         "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__})
+                    if args.profile:
+                        out.mkdir(parents=True, exist_ok=True)
+                        with open(out / "bench_train_profile.txt", "w" if len(rows) == 1 else "a") as f:
+                            f.write(f"== {name} {objects}x{rays} {prec} {device}: {args.profile} step(s) profiled; per "
+                                    f"step: " + ", ".join(f"{k} {r.get(k, '')}" for k in PROFILE_COLUMNS) + "\n"
+                                    + r.get("profile_table", "") + "\n")
                     util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
                     print(f"{name:9s} {objects}x{rays} {prec} {device}: {sps:.2f} steps/s, "
                           f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
