@@ -3,6 +3,9 @@
 # gpu_pack/ carried (scripts/gpu_carry.sh). Python 3.12 with a CUDA torch, no bpy, no network; the bpy-free
 # packages import from the tree. Everything a call produces goes to $OUT (8 files of at most 16 MiB come back).
 #   scripts/gpu_session.sh bench                       training and rendering speed (bench train, bench model)
+#   scripts/gpu_session.sh profile                     why bf16 trains slower than fp32: bench train --profile
+#                                                      (ATen calls, launches, syncs, allocations, device-busy ms
+#                                                      per step; the profiler's operator tables)
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16 + its metrics
@@ -34,6 +37,13 @@ case "$what" in
         --out /tmp/synth_cuda && cp /tmp/synth_cuda/synthesis.json "$OUT/synth_cuda.json"
     fi
     ;;
+  profile)
+    nvidia-smi -L 2>/dev/null; $PY -c "import torch; print('torch', torch.__version__)"
+    timeout ${PROFILE_S:-240} $PY -m blender_mrvm bench train --device ${DEVICE:-cuda} \
+      --presets ${TRAIN_PRESETS:-balanced,accurate} --batches ${BATCHES:-8x1024} --precisions fp32,bf16 \
+      --steps ${STEPS:-5} --warmup 3 --profile ${PROFILE_STEPS:-2} --resolution ${RESOLUTION:-64} \
+      ${BENCH_DATA:+--data $BENCH_DATA} --out "$OUT/profile"
+    ;;
   train)
     pids=()
     while [ $# -ge 2 ]; do
@@ -60,5 +70,5 @@ print(f"{half_copy(steps[-1], Path(sys.argv[2]))}: {steps[-1]}")
 EOF
     done
     ;;
-  *) echo "usage: $0 bench | train CONFIG SECONDS [...]" >&2; exit 2 ;;
+  *) echo "usage: $0 bench | profile | train CONFIG SECONDS [...]" >&2; exit 2 ;;
 esac
