@@ -5,7 +5,8 @@
 #   scripts/gpu_session.sh bench                       training and rendering speed (bench train, bench model)
 #   scripts/gpu_session.sh profile                     why bf16 trains slower than fp32: bench train --profile
 #                                                      (ATen calls, launches, syncs, allocations, device-busy ms
-#                                                      per step; the profiler's operator tables)
+#                                                      per step; the profiler's operator tables); then the FPS of
+#                                                      `fast` at 256 px with the networks torch.compiled
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16 + its metrics
@@ -43,6 +44,10 @@ case "$what" in
       --presets ${TRAIN_PRESETS:-balanced,accurate} --batches ${BATCHES:-8x1024} --precisions fp32,bf16 \
       --steps ${STEPS:-5} --warmup 3 --profile ${PROFILE_STEPS:-2} --resolution ${RESOLUTION:-64} \
       ${BENCH_DATA:+--data $BENCH_DATA} --out "$OUT/profile"
+    # and what torch.compile buys the FPS target (fast at 256 px: 10.5 FPS in fp32 in session 18, target 30)
+    timeout ${COMPILE_S:-240} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets ${MODEL_PRESETS:-fast} \
+      --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --compile \
+      --out "$OUT/compiled"
     ;;
   train)
     pids=()

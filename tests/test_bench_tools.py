@@ -204,3 +204,32 @@ def test_bench_train_times_the_real_trainer(tmp_path, capsys):
     for bad in (["--warmup", "0"], ["--profile", "-1"]):  # the first step carries the set-up: never timed
         assert main(["bench", "train", "--presets", "fast", *bad, "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "c").exists()
+
+
+def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request(tmp_path, monkeypatch):
+    """`bench model`: one row per preset x size x references x precision, rays evaluated within the view's; with
+    `--compile` each network but the image encoder goes through torch.compile (recorded here instead: compiling
+    takes minutes on this CPU; the GPU session measures what it buys) and the row says so."""
+    import csv
+
+    from blender_mrvm.bench import model as bm
+    from blender_mrvm.cli import main
+
+    out = tmp_path / "m"
+    args = ["bench", "model", "--presets", "fast", "--views", "1,2", "--sizes", "16", "--repeats", "1", "--threads",
+            "1", "--out", str(out)]
+    assert main(args) == 0
+    rows = list(csv.DictReader(open(out / "bench_model.csv")))
+    assert [(r["ref_views"], r["size"], r["compiled"]) for r in rows] == [("1", "16", "False"), ("2", "16", "False")]
+    for r in rows:
+        assert float(r["seconds_median"]) > 0 and 0 < int(r["rays_evaluated"]) <= int(r["rays_total"]) == 256
+    seen = []
+    monkeypatch.setattr(torch, "compile", lambda m, **kw: seen.append((type(m).__name__, kw)) or m)
+    assert main([*args[:5], "2", *args[6:], "--compile"]) == 0
+    assert [r["compiled"] for r in csv.DictReader(open(out / "bench_model.csv"))] == ["True"]
+    names = [n for n, _ in seen]
+    assert "StreamBranch" in names and not any("Encoder" in n for n in names)
+    assert all(kw == {"dynamic": True} for _, kw in seen)
+    model = torch.nn.Module()
+    model.encoder, model.coarse, model.act = torch.nn.Linear(2, 2), torch.nn.Linear(2, 2), torch.nn.ReLU()
+    assert bm.compile_networks(model) == ["coarse"]  # weights, not the encoder; a weightless module is left

@@ -42,6 +42,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="cpu", help="cpu or cuda[:N] (GPU timings synchronise before reading the clock)")
     p.add_argument("--chunk", type=int, default=0, help="rays per forward pass (0 = the model's; a GPU wants 16384+)")
     p.add_argument("--precisions", default="fp32", help="comma-separated fp32, bf16, fp16 (fp16 on a GPU only)")
+    p.add_argument("--compile", action="store_true",
+                   help="torch.compile the model's networks first (every submodule but the image encoder, dynamic "
+                   "shapes; the warm-up render pays the compilation): a GPU experiment for the FPS target, minutes "
+                   "of compilation on a CPU")
     p.add_argument("--ref-size", type=int, default=0,
                    help="reference images' side in pixels (default 0: the view's size); synthesis gives a model its "
                    "training size (64 px for the shipped ones), so large views are best measured with --ref-size 64")
@@ -75,6 +79,8 @@ def run(args) -> int:
         torch.manual_seed(0)
         model = registry.build_model(cfg).eval().to(device)
         n_params = sum(p.numel() for p in model.parameters())
+        if args.compile:
+            compile_networks(model)
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
             for nv in [int(v) for v in args.views.split(",")]:
@@ -138,7 +144,7 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
     return {
         "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv,
         "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers, "params": n_params,
-        "device": device, "precision": prec,
+        "device": device, "precision": prec, "compiled": bool(args.compile),
         "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4), "fps": round(1.0 / sec, 2),
         "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
         "chunk_rays": chunk_rays, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
@@ -149,6 +155,17 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
         "rays_per_s": round(res["evaluated"] / sec, 1),
         "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__,
     }
+
+
+def compile_networks(model) -> list[str]:
+    """``torch.compile`` (dynamic shapes: chunks differ in length) each direct submodule of ``model`` that has
+    weights, but the image encoder (it runs once per reference, not per ray chunk); the names compiled."""
+    import torch
+
+    names = [n for n, m in model.named_children() if n != "encoder" and any(True for _ in m.parameters())]
+    for n in names:
+        setattr(model, n, torch.compile(getattr(model, n), dynamic=True))
+    return names
 
 
 def points_per_ray(cfg) -> int:
