@@ -12,18 +12,18 @@ Each row: steps and rays per second (wall), process CPU seconds per step, the sh
 the batch on the CPU (``RayBatcher.draw``: picking views, making rays; the rest is the model, the loss, the
 backward pass and the update), the peak extra memory of the timed steps (``bench.PeakMemory``: on CUDA the allocator's peak), and on a GPU its mean utilisation over
 the timed steps (``torch.cuda.utilization``, else ``nvidia-smi``, sampled every 0.2 s). Written to
-``<out>/bench_train.csv``.
+``<out>/bench_train.csv``. Issue 11 asks a GPU session for exactly these (steps per second, GPU
+utilisation, bf16 against fp32)::
+
+    python -m blender_mrvm bench train --device cuda --presets fast,balanced,accurate,paper,gpnr:fast \
+        --batches 2x256,8x1024,16x4096 --precisions fp32,bf16 --data data/shapenet13_all --out docs/bench_train_gpu
 
 ``--profile K`` runs K more steps per configuration under ``torch.profiler`` (CPU, and CUDA activities on a
 GPU; after the timed steps, so the timing is not the profiler's) and adds to each row the ATen operator calls,
 kernel launches, host-device synchronisations and device allocations per step and the device's busy
 milliseconds per step (kernels and copies); ``<out>/bench_train_profile.txt`` gets each configuration's
 operator table (the profiler's own). Comparing fp32 with bf16 rows says where a slower precision loses: more
-launches per step (casts), synchronisations, allocations, or slower kernels. Issue 11 asks a GPU session for exactly these (steps per second, GPU
-utilisation, bf16 against fp32)::
-
-    python -m blender_mrvm bench train --device cuda --presets fast,balanced,accurate,paper,gpnr:fast \
-        --batches 2x256,8x1024,16x4096 --precisions fp32,bf16 --data data/shapenet13_all --out docs/bench_train_gpu
+launches per step (casts), synchronisations, allocations, or slower kernels.
 """
 
 from __future__ import annotations
