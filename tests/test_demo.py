@@ -49,6 +49,10 @@ def test_demo_with_a_model(tmp_path, addon, capsys):
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "chair" in text and "over the better trivial baseline" in text
+    from blender_mrvm.commands.demo import demo_folder
+
+    assert (out / "scene_novel_views").is_dir()
+    demo_folder(out).check()  # `make demo` again writes over its own outputs (the .blend's images folder included)
     rep = json.loads((out / "metrics.json").read_text())
     assert rep["protocol"]["input_views"] == [1, 5] and rep["objects"] == ["procedural:chair:1000"]
     assert rep["overall"]["n"] == 6 and [v["view"] for v in rep["views"]] == [0, 2, 3, 4, 6, 7]
