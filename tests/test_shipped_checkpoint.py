@@ -44,14 +44,18 @@ def test_default_checkpoint_file_format_and_config():
     assert meta["train_image_size"] == "64"  # the data command's --resolution: synthesis shrinks larger references to it
     assert train["data"].endswith("shapenet13_all")
     assert (ASSET_DIR / "RECIPE.md").is_file()
-    # Four stages: stage 2 fine-tunes stage 1 with the opacity loss, stage 3 stage 2 with the LPIPS patch loss,
-    # stage 4 stage 3 four times as long with the depth loss beside them; the earlier stages' run configs are kept
-    # beside it.
+    # Five stages: stage 2 fine-tunes stage 1 with the opacity loss, stage 3 stage 2 with the LPIPS patch loss,
+    # stage 4 stage 3 four times as long with the depth loss beside them, stage 5 stage 4 with the same losses
+    # again; the earlier stages' run configs are kept beside it.
     assert train["init_checkpoint"] and train["opacity_weight"] > 0 and train["pretrain_frac"] == 0.0
     assert train["lpips_weight"] > 0 and train["patch_size"] > 0 and train["depth_weight"] > 0
     side3 = json.loads((ASSET_DIR / "mrvm_shapenet13_all_stage3.json").read_text())
-    assert from_dict(ModelConfig, side3["model"]["config"]) == cfg and side3["train"]["lpips_weight"] > 0
-    assert train["iterations"] == 4 * side3["train"]["iterations"] and not side3["train"].get("depth_weight")
+    side4 = json.loads((ASSET_DIR / "mrvm_shapenet13_all_stage4.json").read_text())
+    assert from_dict(ModelConfig, side3["model"]["config"]) == from_dict(ModelConfig, side4["model"]["config"]) == cfg
+    assert side3["train"]["lpips_weight"] > 0 and not side3["train"].get("depth_weight")
+    assert side4["train"]["iterations"] == 4 * side3["train"]["iterations"] and side4["train"]["depth_weight"] > 0
+    assert {k: v for k, v in side4["train"].items() if k not in ("iterations", "seed", "out_dir", "init_checkpoint")} \
+        == {k: v for k, v in train.items() if k not in ("iterations", "seed", "out_dir", "init_checkpoint")}
     from blender_mrvm.training.config import load_run_config
 
     m1, t1 = load_run_config(ASSET_DIR / "mrvm_shapenet13_all_stage1.json")
