@@ -51,15 +51,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 DEMO_FILES = ("scene.blend", "scene.png", "contact_sheet.png", "metrics.json")
-"""The demo's own files; its folders are ``dataset``, ``novel`` and ``scene_novel_views`` (the images the planes
-of scene.blend show, beside it: ``scene.novel_views.write_blend``)."""
+"""The demo's own files; its folders are ``dataset``, ``novel`` and scene.blend's images folder
+(``datasets.novel_views.blend_images_folder``)."""
 """What the demo writes at the top of --out (besides dataset/ and novel/)."""
 
 
 def demo_folder(out) -> "OwnedFolder":
     from ..guards import OwnedFolder
 
-    return OwnedFolder(Path(out), "mrvm_demo.json", DEMO_FILES, ("dataset", "novel", "scene_novel_views"))
+    from ..datasets.novel_views import blend_images_folder
+
+    return OwnedFolder(Path(out), "mrvm_demo.json", DEMO_FILES,
+                       ("dataset", "novel", blend_images_folder(Path(out) / "scene.blend").name))
 
 
 def check_args(args) -> None:

@@ -26,6 +26,13 @@ from ..errors import InputError
 from ..geometry.cameras import Intrinsics, as_pose
 from .format import atomic_write_json
 
+
+def blend_images_folder(blend_path: Path) -> Path:
+    """Where ``scene.novel_views.write_blend`` puts the images a .blend's image planes show: beside it,
+    ``<stem>_novel_views/`` (the demo owns it as one of its folders)."""
+    return Path(blend_path).parent / f"{Path(blend_path).stem}_novel_views"
+
+
 TARGETS_FORMAT = "blender_mrvm.targets"
 TARGETS_VERSION = 1
 MAX_REFERENCES = 10

@@ -27,7 +27,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from ..datasets.novel_views import Target
+from ..datasets.novel_views import Target, blend_images_folder
 from ..errors import InputError
 from ..geometry import cameras as C
 from . import camera as scam
@@ -286,7 +286,7 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
     scene.view_settings.view_transform = "Standard"  # the planes show the images' true colours
     existed = blend_path.exists()
-    folder = blend_path.parent / f"{blend_path.stem}_novel_views"
+    folder = blend_images_folder(blend_path)
     folder_existed = folder.exists()
     try:
         blend_path.parent.mkdir(parents=True, exist_ok=True)
