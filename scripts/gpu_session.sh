@@ -3,10 +3,11 @@
 # gpu_pack/ carried (scripts/gpu_carry.sh). Python 3.12 with a CUDA torch, no bpy, no network; the bpy-free
 # packages import from the tree. Everything a call produces goes to $OUT (8 files of at most 16 MiB come back).
 #   scripts/gpu_session.sh bench                       training and rendering speed (bench train, bench model)
-#   scripts/gpu_session.sh profile                     why bf16 trains slower than fp32: bench train --profile
-#                                                      (ATen calls, launches, syncs, allocations, device-busy ms
-#                                                      per step; the profiler's operator tables); then the FPS of
-#                                                      `fast` at 256 px with the networks torch.compiled
+#   scripts/gpu_session.sh profile                     bf16 against fp32 in training with cuDNN's attention
+#                                                      kept out and (A/B) allowed, profiled (ATen calls,
+#                                                      launches, syncs, allocations, device-busy ms per step;
+#                                                      operator tables); FPS at 256 px eager and compiled
+#                                                      (profiled); training with the networks compiled
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16 + its metrics
@@ -39,15 +40,32 @@ case "$what" in
     fi
     ;;
   profile)
-    nvidia-smi -L 2>/dev/null; $PY -c "import torch; print('torch', torch.__version__)"
-    timeout ${PROFILE_S:-240} $PY -m blender_mrvm bench train --device ${DEVICE:-cuda} \
-      --presets ${TRAIN_PRESETS:-balanced,accurate} --batches ${BATCHES:-8x1024} --precisions fp32,bf16 \
+    # Session 20's one call (~9 min). Each step has its own limit and adds to $OUT/all.tgz as it ends (a call
+    # cut short keeps what ran); the CSVs also come back as files.
+    G=/tmp/gpu_profile; mkdir -p $G
+    keep() { tar -czf "$OUT/all.tgz" -C $G . ; for f in $G/*/*.csv; do d=$(basename $(dirname $f)); cp $f "$OUT/$d.csv"; done; }
+    nvidia-smi -L 2>/dev/null; $PY -c "import torch; print('torch', torch.__version__, 'cudnn', torch.backends.cudnn.version())"
+    # 1. bf16 against fp32 with cuDNN's attention kept out (models/nerformer.configure_attention), profiled
+    timeout ${PROFILE_S:-200} $PY -m blender_mrvm bench train --device ${DEVICE:-cuda} \
+      --presets ${TRAIN_PRESETS:-balanced,accurate} --batches ${BATCHES:-8x1024,16x4096} --precisions fp32,bf16 \
       --steps ${STEPS:-5} --warmup 3 --profile ${PROFILE_STEPS:-2} --resolution ${RESOLUTION:-64} \
-      ${BENCH_DATA:+--data $BENCH_DATA} --out "$OUT/profile"
-    # and what torch.compile buys the FPS target (fast at 256 px: 10.5 FPS in fp32 in session 18, target 30)
-    timeout ${COMPILE_S:-240} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets ${MODEL_PRESETS:-fast} \
+      ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train; keep
+    # 2. the same in bf16 with cuDNN's attention allowed (what session 18 measured): the A/B of the cause
+    MRVM_CUDNN_ATTENTION=1 timeout ${CUDNN_S:-90} $PY -m blender_mrvm bench train --device ${DEVICE:-cuda} \
+      --presets ${TRAIN_PRESETS:-balanced,accurate} --batches 8x1024 --precisions bf16 \
+      --steps ${STEPS:-5} --warmup 3 --profile ${PROFILE_STEPS:-2} --resolution ${RESOLUTION:-64} \
+      ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train_cudnn; keep
+    # 3. frames per second at 256 px (issue 13: 30 for fast), eager then compiled, each with a profiled render
+    timeout ${MODEL_S:-60} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets ${MODEL_PRESETS:-fast,balanced} \
+      --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --profile \
+      --out $G/model; keep
+    timeout ${COMPILE_S:-150} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets fast \
       --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --compile \
-      --out "$OUT/compiled"
+      --profile --out $G/model_compiled; keep
+    # 4. training with the networks compiled, while time is left
+    timeout ${TRAIN_COMPILE_S:-120} $PY -m blender_mrvm bench train --device ${DEVICE:-cuda} --presets accurate \
+      --batches 8x1024 --precisions bf16,fp32 --steps ${STEPS:-5} --warmup 3 --compile --resolution ${RESOLUTION:-64} \
+      ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train_compiled; keep
     ;;
   train)
     pids=()

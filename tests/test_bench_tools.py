@@ -206,14 +206,37 @@ def test_bench_train_times_the_real_trainer(tmp_path, capsys):
     assert not (tmp_path / "c").exists()
 
 
-def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request(tmp_path, monkeypatch):
-    """`bench model`: one row per preset x size x references x precision, rays evaluated within the view's; with
-    `--compile` each network but the image encoder goes through torch.compile (recorded here instead: compiling
-    takes minutes on this CPU; the GPU session measures what it buys) and the row says so."""
+def test_bench_train_compiles_on_request_and_needs_no_openexr(tmp_path, monkeypatch):
+    """`bench train --compile` trains with the networks compiled (train.compile; recorded here instead of
+    compiled: minutes on this CPU) and says so per row; its analytic set has no depth or normal EXRs, so it runs
+    where OpenEXR is missing (the GPU machine: session 20's first call failed on exactly that)."""
     import csv
 
-    from blender_mrvm.bench import model as bm
+    import blender_mrvm.datasets.format as F
     from blender_mrvm.cli import main
+
+    def no_openexr(*a, **k):
+        raise ModuleNotFoundError("No module named 'OpenEXR'")
+
+    monkeypatch.setattr(F, "exr_writer", no_openexr)
+    seen = []
+    monkeypatch.setattr(torch.nn.Module, "compile", lambda m, **kw: seen.append(type(m).__name__))
+    out = tmp_path / "b"
+    assert main(["bench", "train", "--presets", "fast", "--batches", "1x16", "--steps", "1", "--warmup", "1",
+                 "--resolution", "16", "--compile", "--out", str(out)]) == 0
+    assert [r["compiled"] for r in csv.DictReader(open(out / "bench_train.csv"))] == ["True"]
+    assert seen == ["StreamBranch", "StreamBranch", "MRVMHead"]
+
+
+def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request(tmp_path, monkeypatch):
+    """`bench model`: one row per preset x size x references x precision, rays evaluated within the view's; with
+    `--compile` each network but the image encoder goes through nn.Module.compile (recorded here instead: compiling
+    takes minutes on this CPU; the GPU session measures what it buys) and the row says so; `--profile` adds one
+    profiled render's operator counts and its table."""
+    import csv
+
+    from blender_mrvm.cli import main
+    from blender_mrvm.models import registry
 
     out = tmp_path / "m"
     args = ["bench", "model", "--presets", "fast", "--views", "1,2", "--sizes", "16", "--repeats", "1", "--threads",
@@ -223,13 +246,48 @@ def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request
     assert [(r["ref_views"], r["size"], r["compiled"]) for r in rows] == [("1", "16", "False"), ("2", "16", "False")]
     for r in rows:
         assert float(r["seconds_median"]) > 0 and 0 < int(r["rays_evaluated"]) <= int(r["rays_total"]) == 256
+        assert "aten_ops_per_view" not in r
+    assert not (out / "bench_model_profile.txt").exists()
     seen = []
-    monkeypatch.setattr(torch, "compile", lambda m, **kw: seen.append((type(m).__name__, kw)) or m)
-    assert main([*args[:5], "2", *args[6:], "--compile"]) == 0
-    assert [r["compiled"] for r in csv.DictReader(open(out / "bench_model.csv"))] == ["True"]
+    monkeypatch.setattr(torch.nn.Module, "compile", lambda m, **kw: seen.append((type(m).__name__, kw)))
+    assert main([*args[:5], "2", *args[6:], "--compile", "--profile"]) == 0
+    rows = list(csv.DictReader(open(out / "bench_model.csv")))
+    assert [r["compiled"] for r in rows] == ["True"]
+    assert float(rows[0]["aten_ops_per_view"]) > 100 and float(rows[0]["kernel_launches_per_view"]) == 0
+    table = (out / "bench_model_profile.txt").read_text()
+    assert table.startswith("== fast 16px 2 ref(s) fp32 cpu compiled=True") and "aten::" in table
     names = [n for n, _ in seen]
     assert "StreamBranch" in names and not any("Encoder" in n for n in names)
     assert all(kw == {"dynamic": True} for _, kw in seen)
     model = torch.nn.Module()
     model.encoder, model.coarse, model.act = torch.nn.Linear(2, 2), torch.nn.Linear(2, 2), torch.nn.ReLU()
-    assert bm.compile_networks(model) == ["coarse"]  # weights, not the encoder; a weightless module is left
+    seen.clear()
+    assert registry.compile_networks(model, mode="max-autotune") == ["coarse"]  # not the encoder nor a weightless module
+    assert seen == [("Linear", {"dynamic": True, "mode": "max-autotune"})]
+
+
+def test_compiling_keeps_the_state_dict_and_the_outputs():
+    """compile_networks compiles in place (nn.Module.compile): the state dict keeps its keys, so a compiled
+    training run writes the same checkpoints; no forward runs here, so nothing is actually compiled."""
+    from blender_mrvm.models import registry
+
+    model = registry.build_model(registry.build_config(None, "fast"))
+    keys = list(model.state_dict())
+    assert registry.compile_networks(model) == ["coarse", "fine", "mrvm"]
+    assert list(model.state_dict()) == keys
+
+
+def test_cudnn_attention_is_kept_out_unless_asked(monkeypatch):
+    """Building a model turns cuDNN's attention off (it builds a graph per tensor shape: session 20 measured the
+    host spending 28-35 ms in each bf16 attention call); MRVM_CUDNN_ATTENTION=1 keeps it."""
+    from blender_mrvm.models import registry
+    from blender_mrvm.models.nerformer import CUDNN_ATTENTION_ENV, configure_attention
+
+    monkeypatch.delenv(CUDNN_ATTENTION_ENV, raising=False)
+    torch.backends.cuda.enable_cudnn_sdp(True)
+    registry.build_model(registry.build_config("gpnr", "fast"))  # any kind
+    assert not torch.backends.cuda.cudnn_sdp_enabled()
+    monkeypatch.setenv(CUDNN_ATTENTION_ENV, "1")
+    assert configure_attention() and torch.backends.cuda.cudnn_sdp_enabled()
+    monkeypatch.setenv(CUDNN_ATTENTION_ENV, "0")
+    assert not configure_attention() and not torch.backends.cuda.cudnn_sdp_enabled()

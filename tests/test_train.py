@@ -493,3 +493,30 @@ def test_opacity_loss_by_default_on_our_renders(tmp_path, data):
     cfg.write_text(json.dumps({"train": {"iterations": 2, "opacity_weight": 0.5}}))
     _, t = load_run_config(cfg, {"data": str(root), "out_dir": str(tmp_path / "new")})
     assert t.opacity_weight == 0.5
+
+
+def test_compile_flag_compiles_the_networks_after_the_weights_load(tmp_path, data, monkeypatch):
+    """`train --compile` sets train.compile: the trainer compiles the networks (not the encoder) once its
+    weights are in place, and the checkpoint is what an uncompiled run writes (same keys, loadable). Compiling is
+    recorded here instead (minutes on this CPU; session 20 measured it on a GPU and `bench train --compile`)."""
+    from blender_mrvm.cli import main
+
+    root, _ = data
+    seen = []
+    monkeypatch.setattr(torch.nn.Module, "compile", lambda m, **kw: seen.append((type(m).__name__, kw)))
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"model": {"preset": "fast", "overrides": TINY},
+                               "train": {"iterations": 1, "rays_per_object": 16, "objects_per_step": 1,
+                                         "threads": 1, "max_ref_views": 2, "ckpt_every": 1}}))
+    assert main(["train", "--config", str(cfg), "--data", str(root), "--out", str(tmp_path / "a"), "--compile"]) == 0
+    assert [n for n, _ in seen] == ["StreamBranch", "StreamBranch", "MRVMHead"]
+    assert all(kw == {"dynamic": True} for _, kw in seen)
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["train"]["compile"] is True
+    seen.clear()
+    assert main(["train", "--config", str(cfg), "--data", str(root), "--out", str(tmp_path / "b")]) == 0
+    assert not seen and json.loads((tmp_path / "b" / "config.json").read_text())["train"]["compile"] is False
+    from safetensors.torch import load_file
+
+    ka = load_file(str(ckpt.find_checkpoint(tmp_path / "a") / ckpt.MODEL_FILE))
+    kb = load_file(str(ckpt.find_checkpoint(tmp_path / "b") / ckpt.MODEL_FILE))
+    assert sorted(ka) == sorted(kb) and not any("_orig_mod" in k for k in ka)

@@ -46,6 +46,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="torch.compile the model's networks first (every submodule but the image encoder, dynamic "
                    "shapes; the warm-up render pays the compilation): a GPU experiment for the FPS target, minutes "
                    "of compilation on a CPU")
+    p.add_argument("--profile", action="store_true",
+                   help="one more render per configuration under torch.profiler (CUDA activities on a GPU), after the "
+                   "timed ones: ATen calls, kernel launches, syncs, device allocations and device-busy ms per view in "
+                   "the CSV, the profiler's operator table in bench_model_profile.txt")
     p.add_argument("--ref-size", type=int, default=0,
                    help="reference images' side in pixels (default 0: the view's size); synthesis gives a model its "
                    "training size (64 px for the shipped ones), so large views are best measured with --ref-size 64")
@@ -80,7 +84,7 @@ def run(args) -> int:
         model = registry.build_model(cfg).eval().to(device)
         n_params = sum(p.numel() for p in model.parameters())
         if args.compile:
-            compile_networks(model)
+            registry.compile_networks(model)
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
             for nv in [int(v) for v in args.views.split(",")]:
@@ -99,6 +103,13 @@ def run(args) -> int:
                         continue
                     rows.append(_row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res,
                                      args.chunk or model.chunk_rays))
+                    if args.profile:
+                        counts, table = _profile_render(args, model, refs, ref_poses, rintr, bbox, target, intr, prec,
+                                                        device, sync)
+                        rows[-1].update(counts)
+                        with open(out / "bench_model_profile.txt", "w" if len(rows) == 1 else "a") as f:
+                            f.write(f"== {preset} {size}px {nv} ref(s) {prec} {device} compiled={bool(args.compile)}: "
+                                    + ", ".join(f"{k} {v}" for k, v in counts.items()) + "\n" + table + "\n")
                     print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: {rows[-1]['seconds_median']:.3f} s/view "
                           f"({rows[-1]['fps']:.1f} FPS), {res['evaluated']}/{res['rays']} rays evaluated, "
                           f"peak +{max(peaks):.0f} MiB", flush=True)
@@ -131,6 +142,24 @@ def _time_renders(args, model, refs, ref_poses, rintr, bbox, target, intr, prec,
     return times, cpus, peaks, res
 
 
+def _profile_render(args, model, refs, ref_poses, rintr, bbox, target, intr, prec, device, sync):
+    """One render under ``torch.profiler``: (per-view counts as CSV columns, the operator table)."""
+    import torch
+
+    from .train import profile_counts, profile_table
+    from .tradeoff import _autocast
+
+    acts = [torch.profiler.ProfilerActivity.CPU]
+    if device.startswith("cuda"):
+        acts.append(torch.profiler.ProfilerActivity.CUDA)
+    with _autocast(prec, device), torch.profiler.profile(activities=acts) as prof:
+        model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None, workers=args.workers)
+        sync()
+    events = prof.key_averages()
+    counts = {k.replace("_per_step", "_per_view"): v for k, v in profile_counts(events, 1).items()}
+    return counts, profile_table(events, device)
+
+
 def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res, chunk_rays) -> dict:
     """One CSV row: a preset x size x reference count x precision."""
     import torch
@@ -155,17 +184,6 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
         "rays_per_s": round(res["evaluated"] / sec, 1),
         "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__,
     }
-
-
-def compile_networks(model) -> list[str]:
-    """``torch.compile`` (dynamic shapes: chunks differ in length) each direct submodule of ``model`` that has
-    weights, but the image encoder (it runs once per reference, not per ray chunk); the names compiled."""
-    import torch
-
-    names = [n for n, m in model.named_children() if n != "encoder" and any(True for _ in m.parameters())]
-    for n in names:
-        setattr(model, n, torch.compile(getattr(model, n), dynamic=True))
-    return names
 
 
 def points_per_ray(cfg) -> int:

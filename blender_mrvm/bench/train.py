@@ -57,6 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (train.threads)")
     p.add_argument("--data", default=None, help="dataset root to train on (default: a small analytic set)")
     p.add_argument("--resolution", type=int, default=64, help="image side of the analytic set")
+    p.add_argument("--compile", action="store_true",
+                   help="train with the networks torch.compiled (train.compile); the warm-up steps pay the compilation")
     p.add_argument("--profile", type=int, default=0,
                    help="steps profiled after the timed ones (torch.profiler; 0 = none): counts per step in the CSV, "
                    "operator tables in bench_train_profile.txt")
@@ -180,7 +182,7 @@ def profile_table(events, device: str, rows: int = 30) -> str:
 
 
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
-            threads: int, run_dir: Path, profile: int = 0) -> dict:
+            threads: int, run_dir: Path, profile: int = 0, compile: bool = False) -> dict:
     """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir``; the timing of
     the ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation; with
     ``profile`` > 0 the next ``profile`` steps under ``torch.profiler`` (:func:`profile_counts` and, as
@@ -194,7 +196,7 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
     total = warmup + steps + profile + 1
     tcfg = TrainConfig(out_dir=str(run_dir), iterations=total, objects_per_step=objects,
                        rays_per_object=rays, amp=PRECISIONS[precision], device=device, threads=threads,
-                       log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0)
+                       log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0, compile=compile)
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     mem, util = PeakMemory(device), GpuUtilisation(device)
     t0 = c0 = None
@@ -280,7 +282,8 @@ def run(args) -> int:
         if args.data:
             data, source = Path(args.data), str(args.data)
         else:
-            data = make_sphere_dataset(tmp / "data", n_objects=8, n_views=12, resolution=args.resolution)
+            data = make_sphere_dataset(tmp / "data", n_objects=8, n_views=12, resolution=args.resolution,
+                                       data_passes=False)  # no depth loss here: no OpenEXR needed
             source = f"analytic spheres, 8 objects x 12 views, {args.resolution} px"
         if not data.exists():
             raise InputError(f"--data {data} does not exist")
@@ -292,7 +295,8 @@ def run(args) -> int:
                 for prec in precisions:
                     try:
                         r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
-                                    tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}", args.profile)
+                                    tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}", args.profile,
+                                    args.compile)
                     except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
                         torch.cuda.empty_cache()
                         print(f"{name:9s} {objects}x{rays} {prec} {device}: out of memory, skipped", flush=True)
@@ -300,7 +304,7 @@ def run(args) -> int:
                     sps = args.steps / r["seconds"]
                     rows.append({
                         "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
-                        "precision": prec, "objects_per_step": objects, "rays_per_object": rays,
+                        "precision": prec, "compiled": bool(args.compile), "objects_per_step": objects, "rays_per_object": rays,
                         "rays_per_step": objects * rays, "steps": args.steps, "seconds": round(r["seconds"], 3),
                         "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
                         "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),

@@ -41,6 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="depth loss at this weight: each ray's light pulled onto the surface the training view's depth "
                         "map saw (overrides train.depth_weight; 0 = off, the default; needs depth maps, as our renders "
                         "have; NeRFormer+MRVM only; RECIPE.md)")
+    p.add_argument("--compile", action="store_true", default=None,
+                   help="torch.compile the networks before training (sets train.compile; worth it on a GPU, where "
+                        "small models wait on kernel launches; minutes of compilation on a CPU)")
     p.add_argument("--no-resume", action="store_true", help="start from scratch; a run folder that holds a run "
                    "needs --force too (its checkpoints and metrics are then removed)")
     p.add_argument("--force", action="store_true", help="with --no-resume: start over in a run folder that holds a run")
@@ -56,7 +59,8 @@ def run(args) -> int:
     mcfg, tcfg = load_run_config(args.config, {"data": data, "data_weights": args.data_weights, "out_dir": args.out_dir,
                                                "iterations": args.iterations, "seed": args.seed,
                                                "init_checkpoint": args.init_checkpoint,
-                                               "lpips_weight": args.lpips_weight, "depth_weight": args.depth_weight},
+                                               "lpips_weight": args.lpips_weight, "depth_weight": args.depth_weight,
+                                               "compile": args.compile},
                                   kind=args.kind, preset=args.preset)
     from ..training.config import data_roots
 

@@ -13,12 +13,35 @@ MRVM replaces chosen (point, view) tokens by a learned mask token before the fir
 from __future__ import annotations
 
 import math
+import os
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from .config import NeRFormerConfig
+
+
+CUDNN_ATTENTION_ENV = "MRVM_CUDNN_ATTENTION"
+"""Set to 1 to let ``scaled_dot_product_attention`` use cuDNN's kernels on a GPU (off by default: see
+:func:`configure_attention`)."""
+
+
+def configure_attention() -> bool:
+    """Keep cuDNN's attention out of ``scaled_dot_product_attention`` (process-wide; flash, memory-efficient
+    and math kernels remain), unless ``MRVM_CUDNN_ATTENTION=1``; returns whether cuDNN's is allowed.
+
+    Why: on Hopper GPUs torch prefers cuDNN's attention in bf16 / fp16, which builds a cuDNN graph for each
+    new tensor shape (hundreds of milliseconds on the host). Our attention batches are shaped by how many rays
+    hit the object's box, which changes with every object and view, so a graph was built on nearly every call:
+    session 18 measured bf16 training 3-4x slower than fp32 with the GPU idle (`balanced` 8 x 1024: 0.60 against
+    2.52 steps/s, 7 % against 32 % utilisation), and only for presets whose head width cuDNN takes (a multiple
+    of 8: not `fast`'s 12, whose bf16 slowdown was small). Called whenever a model is built
+    (``registry.build_model``); a no-op on a machine without CUDA."""
+    allowed = os.environ.get(CUDNN_ATTENTION_ENV, "0") == "1"
+    if hasattr(torch.backends.cuda, "enable_cudnn_sdp"):
+        torch.backends.cuda.enable_cudnn_sdp(allowed)
+    return allowed
 
 
 def harmonic(x: torch.Tensor, n_freqs: int) -> torch.Tensor:

@@ -47,8 +47,11 @@ def _trace(intr, c2w, centres, radii, colours):
 
 
 def make_sphere_dataset(root: Path, n_objects: int = 4, n_views: int = 8, resolution: int = 32, seed: int = 0,
-                        category: str = "spheres", fov_deg: float = 45.0, rig: str = "sphere") -> Path:
+                        category: str = "spheres", fov_deg: float = 45.0, rig: str = "sphere",
+                        data_passes: bool = True) -> Path:
     """Write ``n_objects`` objects with ``n_views`` views each under ``root`` (our format); returns root.
+    ``data_passes`` False leaves out the depth and normal EXRs (OpenEXR is then not needed: the GPU machine
+    has none; training without the depth loss never reads them).
 
     All but the last ``max(1, n_objects // 4)`` objects are listed in ``splits/train.lst``, the rest in ``test.lst``."""
     root = Path(root)
@@ -70,8 +73,9 @@ def make_sphere_dataset(root: Path, n_objects: int = 4, n_views: int = 8, resolu
             rgb, depth, normal, ids = _trace(intr, c2w, centres, radii, colours)
             vp = F.view_paths(obj_dir, i)
             F.write_png(vp["rgb"], F.to_uint8(rgb))
-            F.write_depth(vp["depth"], depth.astype(np.float32))
-            F.write_normals(vp["normal"], normal.astype(np.float32))
+            if data_passes:
+                F.write_depth(vp["depth"], depth.astype(np.float32))
+                F.write_normals(vp["normal"], normal.astype(np.float32))
             F.write_png(vp["mask"], ids.astype(np.uint8))
             F.write_srn_pose(vp["pose"], c2w)
         F.atomic_write_text(obj_dir / "intrinsics.txt", F.format_srn_intrinsics(intr))

@@ -280,6 +280,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                       f"identity ({', '.join(added)})", file=sys.stderr, flush=True)
         if dd.world > 1:
             _broadcast_params(model)
+    if cfg.compile:
+        registry.compile_networks(model)  # after the weights are in place (compiling keeps the state dict's keys)
     if dd.main:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.json").write_text(json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
