@@ -154,3 +154,28 @@ def test_stop_transmittance_bad_values():
     for bad in (-1e-3, 1.0):
         with pytest.raises(InputError, match="stop_transmittance"):
             validate(merge(model.cfg, {"render": {"stop_transmittance": bad}}))
+
+
+@pytest.mark.parametrize("preset", ["fast", "balanced", "gpnr:fast"])
+def test_every_linear_layer_is_one_matrix_product_at_inference(preset):
+    """Without a grad, torch.matmul does not fold a Linear's input that is a permuted view into rows: it broadcasts
+    the weight into a batched product over every point, which on a GPU is one launch per 65 535 points (session 20,
+    H200: 76 kernels, a fifth of a 256 px `fast` view's device time). No layer of a preset may get such an input."""
+    import numpy as np
+
+    from blender_mrvm.geometry import cameras
+
+    kind, _, name = preset.rpartition(":")
+    torch.manual_seed(0)
+    model = registry.build_model(registry.build_config(kind or None, name), load_pretrained=False).eval()
+    size = 24
+    intr = cameras.Intrinsics(30.0, 30.0, size / 2, size / 2, size, size)
+    eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5])]
+    refs = np.random.default_rng(0).random((2, size, size, 3)).astype(np.float32)
+    with torch.profiler.profile(record_shapes=True) as prof:
+        model.synthesize(refs, [cameras.look_at_opencv(e) for e in eyes[1:]], [intr] * 2,
+                         (np.full(3, -0.4), np.full(3, 0.4)), cameras.look_at_opencv(eyes[0]), intr)
+    linear_inputs = [e.input_shapes for e in prof.key_averages(group_by_input_shape=True) if e.key == "aten::linear"]
+    broadcast = [e.input_shapes for e in prof.key_averages(group_by_input_shape=True)
+                 if e.key == "aten::matmul" and len(e.input_shapes[0]) >= 3 and len(e.input_shapes[1]) == 2]
+    assert linear_inputs and not broadcast, broadcast

@@ -68,7 +68,11 @@ class StreamBranch(nn.Module):
         R, S, V, _ = feats.shape
         d = self.cfg.d_model
         vf = valid[..., None].to(feats.dtype)
-        x = self.token_proj(torch.cat([self.feat_proj(feats), ref_rgb, rel_dir], -1)) * vf
+        # feats arrives as a permuted view of the sampled maps: a Linear on it does not fold into one matrix
+        # product without a grad (torch.matmul broadcasts the weight into a batched product over every point: on an
+        # H200, 76 kernels and a fifth of a 256 px view's device time, session 20), so give it rows
+        f = self.feat_proj(feats.reshape(R * S * V, feats.shape[-1])).view(R, S, V, d)
+        x = self.token_proj(torch.cat([f, ref_rgb, rel_dir], -1)) * vf
         if view_mask is not None:
             x = torch.where(view_mask[..., None], self.mask_token.to(x.dtype).expand_as(x), x)
         code = torch.cat([harmonic(points, self.cfg.pos_freqs),
