@@ -8,6 +8,7 @@
 #                                                      launches, syncs, allocations, device-busy ms per step;
 #                                                      operator tables); FPS at 256 px eager and compiled
 #                                                      (profiled); training with the networks compiled
+#   scripts/gpu_session.sh fps                         FPS at 256 px, eager and compiled, profiled (issue 13)
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16 + its metrics
@@ -67,6 +68,17 @@ case "$what" in
       --batches 8x1024 --precisions bf16,fp32 --steps ${STEPS:-5} --warmup 3 --compile --resolution ${RESOLUTION:-64} \
       ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train_compiled; keep
     ;;
+  fps)
+    # frames per second at 256 px (issue 13: 30 for fast), eager then compiled, each with one profiled render
+    G=/tmp/gpu_fps; mkdir -p $G
+    nvidia-smi -L 2>/dev/null
+    timeout ${MODEL_S:-90} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets ${MODEL_PRESETS:-fast,balanced} \
+      --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --profile \
+      --out $G/model; tar -czf "$OUT/fps.tgz" -C $G .
+    timeout ${COMPILE_S:-150} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets fast \
+      --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --compile \
+      --profile --out $G/model_compiled; tar -czf "$OUT/fps.tgz" -C $G .
+    ;;
   train)
     pids=()
     while [ $# -ge 2 ]; do
@@ -93,5 +105,5 @@ print(f"{half_copy(steps[-1], Path(sys.argv[2]))}: {steps[-1]}")
 EOF
     done
     ;;
-  *) echo "usage: $0 bench | profile | train CONFIG SECONDS [...]" >&2; exit 2 ;;
+  *) echo "usage: $0 bench | profile | fps | train CONFIG SECONDS [...]" >&2; exit 2 ;;
 esac
