@@ -8,7 +8,9 @@
 #                                                      launches, syncs, allocations, device-busy ms per step;
 #                                                      operator tables); FPS at 256 px eager and compiled
 #                                                      (profiled); training with the networks compiled
-#   scripts/gpu_session.sh fps                         FPS at 256 px, eager and compiled, profiled (issue 13)
+#   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: eager, compiled,
+#                                                      each with and without the written-out view attention;
+#                                                      CUDA graphs
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16 + its metrics
@@ -69,15 +71,18 @@ case "$what" in
       ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train_compiled; keep
     ;;
   fps)
-    # frames per second at 256 px (issue 13: 30 for fast), eager then compiled, each with one profiled render
+    # frames per second at 256 px (issue 13: 30 for fast), each step with one profiled render: eager; eager with the
+    # view attention written out (MRVM_SHORT_ATTENTION=4); compiled, both ways; CUDA graphs (reduce-overhead)
     G=/tmp/gpu_fps; mkdir -p $G
+    keep() { tar -czf "$OUT/fps.tgz" -C $G . ; }
     nvidia-smi -L 2>/dev/null
-    timeout ${MODEL_S:-90} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets ${MODEL_PRESETS:-fast,balanced} \
-      --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --profile \
-      --out $G/model; tar -czf "$OUT/fps.tgz" -C $G .
-    timeout ${COMPILE_S:-150} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --presets fast \
-      --views 2 --sizes ${SIZES:-256} --precisions fp32,bf16 --chunk 65536 --ref-size 64 --repeats 5 --compile \
-      --profile --out $G/model_compiled; tar -czf "$OUT/fps.tgz" -C $G .
+    bm() { out=$1; shift; timeout ${STEP_S:-150} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --views 2 \
+      --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 --repeats 5 --profile --out $G/$out "$@"; keep; }
+    bm eager --presets ${MODEL_PRESETS:-fast,balanced} --precisions fp32,bf16
+    MRVM_SHORT_ATTENTION=4 bm eager_short --presets fast --precisions fp32,bf16
+    bm compiled --presets fast --precisions fp32,bf16 --compile
+    MRVM_SHORT_ATTENTION=4 bm compiled_short --presets fast --precisions fp32,bf16 --compile
+    MRVM_SHORT_ATTENTION=4 bm graphs_short --presets fast --precisions fp32 --compile-mode reduce-overhead
     ;;
   train)
     pids=()

@@ -264,6 +264,11 @@ def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request
     seen.clear()
     assert registry.compile_networks(model, mode="max-autotune") == ["coarse"]  # not the encoder nor a weightless module
     assert seen == [("Linear", {"dynamic": True, "mode": "max-autotune"})]
+    seen.clear()
+    assert main([*args[:5], "2", *args[6:], "--compile-mode", "reduce-overhead"]) == 0
+    row = next(csv.DictReader(open(out / "bench_model.csv")))
+    assert row["compiled"] == "True" and row["compile_mode"] == "reduce-overhead"
+    assert seen and all(kw == {"dynamic": True, "mode": "reduce-overhead"} for _, kw in seen)
 
 
 def test_compiling_keeps_the_state_dict_and_the_outputs():

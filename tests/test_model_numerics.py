@@ -292,3 +292,33 @@ def test_model_property_random_poses(az, el, dist, fov):
 test_model_property_random_poses.model = GeneralizableNeRF(model_config(
     "fast", {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
              "sampler": {"n_coarse": 4, "n_fine": 2}})).eval()
+
+
+def test_short_attention_matches_the_fused_kernel(monkeypatch):
+    """The written-out attention for short sequences (MRVM_SHORT_ATTENTION, a GPU experiment) gives what the fused
+    kernel gives, masks and a sequence with no valid key included, and a model renders the same through it."""
+    import numpy as np
+
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models import nerformer, registry
+
+    torch.manual_seed(0)
+    att = nerformer.Attention(24, 2)
+    x = torch.randn(50, 3, 24)
+    valid = torch.rand(50, 3) > 0.4
+    valid[0] = False  # nothing to attend to: uniform weights, never NaN
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 0)
+    ref = att(x, valid)
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 4)
+    got = att(x, valid)
+    assert torch.isfinite(got).all() and torch.allclose(got, ref, atol=1e-5)
+    model = registry.build_model(registry.build_config(None, "fast"), load_pretrained=False).eval()
+    intr = cameras.Intrinsics(30.0, 30.0, 8.0, 8.0, 16, 16)
+    eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5])]
+    refs = np.random.default_rng(0).random((2, 16, 16, 3)).astype(np.float32)
+    args = (refs, [cameras.look_at_opencv(e) for e in eyes[1:]], [intr] * 2, (np.full(3, -0.4), np.full(3, 0.4)),
+            cameras.look_at_opencv(eyes[0]), intr)
+    short = model.synthesize(*args)
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 0)
+    fused = model.synthesize(*args)
+    assert np.allclose(np.asarray(short["color"]), np.asarray(fused["color"]), atol=1e-5)

@@ -46,6 +46,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="torch.compile the model's networks first (every submodule but the image encoder, dynamic "
                    "shapes; the warm-up render pays the compilation): a GPU experiment for the FPS target, minutes "
                    "of compilation on a CPU")
+    p.add_argument("--compile-mode", default=None,
+                   choices=("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs"),
+                   help="torch.compile's mode (implies --compile): reduce-overhead replays CUDA graphs, which the "
+                   "bench's fixed view allows (a real orbit changes the ray count every view)")
     p.add_argument("--profile", action="store_true",
                    help="one more render per configuration under torch.profiler (CUDA activities on a GPU), after the "
                    "timed ones: ATen calls, kernel launches, syncs, device allocations and device-busy ms per view in "
@@ -83,8 +87,8 @@ def run(args) -> int:
         torch.manual_seed(0)
         model = registry.build_model(cfg).eval().to(device)
         n_params = sum(p.numel() for p in model.parameters())
-        if args.compile:
-            registry.compile_networks(model)
+        if args.compile or args.compile_mode:
+            registry.compile_networks(model, None if args.compile_mode in (None, "default") else args.compile_mode)
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
             for nv in [int(v) for v in args.views.split(",")]:
@@ -108,7 +112,7 @@ def run(args) -> int:
                                                         device, sync)
                         rows[-1].update(counts)
                         with open(out / "bench_model_profile.txt", "w" if len(rows) == 1 else "a") as f:
-                            f.write(f"== {preset} {size}px {nv} ref(s) {prec} {device} compiled={bool(args.compile)}: "
+                            f.write(f"== {preset} {size}px {nv} ref(s) {prec} {device} compiled={args.compile_mode or bool(args.compile)}: "
                                     + ", ".join(f"{k} {v}" for k, v in counts.items()) + "\n" + table + "\n")
                     print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: {rows[-1]['seconds_median']:.3f} s/view "
                           f"({rows[-1]['fps']:.1f} FPS), {res['evaluated']}/{res['rays']} rays evaluated, "
@@ -173,7 +177,8 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
     return {
         "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv,
         "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers, "params": n_params,
-        "device": device, "precision": prec, "compiled": bool(args.compile),
+        "device": device, "precision": prec, "compiled": bool(args.compile or args.compile_mode),
+        "compile_mode": (args.compile_mode or "default") if (args.compile or args.compile_mode) else "",
         "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4), "fps": round(1.0 / sec, 2),
         "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
         "chunk_rays": chunk_rays, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),

@@ -44,6 +44,25 @@ def configure_attention() -> bool:
     return allowed
 
 
+SHORT_ATTENTION_ENV = "MRVM_SHORT_ATTENTION"
+SHORT_ATTENTION_MAX = int(os.environ.get(SHORT_ATTENTION_ENV, "0") or 0)
+"""Sequences of at most this many tokens attend through :func:`short_attention` instead of the fused kernel (0 =
+never, the default). An experiment for the GPU: its profile (session 20, H200) put a quarter to a third of a
+256 px `fast` view's device time in the memory-efficient kernel, whose 64 x 64 tiles run over the view attention's
+2-3 tokens; set ``MRVM_SHORT_ATTENTION=4`` to measure the written-out form (``bench model``) before it is trusted."""
+
+
+def short_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Scaled dot-product attention written out for short sequences: q, k, v (B, h, L, dh), ``mask`` broadcastable
+    to (B, h, L, L) bool (True = attend) or None. Elementwise products and sums that torch.compile fuses; the same
+    result as ``scaled_dot_product_attention`` (softmax in float32)."""
+    s = (q[..., :, None, :] * k[..., None, :, :]).sum(-1).float() * q.shape[-1] ** -0.5  # (B, h, L, L)
+    if mask is not None:
+        s = s.masked_fill(~mask, float("-inf"))
+    w = torch.softmax(s, -1).to(v.dtype)
+    return (w[..., None] * v[..., None, :, :]).sum(-2)
+
+
 def harmonic(x: torch.Tensor, n_freqs: int) -> torch.Tensor:
     """[x, sin(2^k pi x), cos(2^k pi x)] for k < n_freqs along the last axis."""
     if n_freqs == 0:
@@ -75,7 +94,10 @@ class Attention(nn.Module):
             any_valid = key_valid.any(-1)
             q = q * any_valid.to(q.dtype)[:, None, None, None]
             mask = (key_valid | ~any_valid[:, None])[:, None, None, :]
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)  # fused; 2-3x the speed of matmul+softmax on CPU
+        if L <= SHORT_ATTENTION_MAX:
+            y = short_attention(q, k, v, mask)
+        else:
+            y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)  # fused; 2-3x the speed of matmul+softmax on CPU
         return self.out(y.transpose(1, 2).reshape(B, L, D))
 
 
