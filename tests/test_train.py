@@ -520,3 +520,40 @@ def test_compile_flag_compiles_the_networks_after_the_weights_load(tmp_path, dat
     ka = load_file(str(ckpt.find_checkpoint(tmp_path / "a") / ckpt.MODEL_FILE))
     kb = load_file(str(ckpt.find_checkpoint(tmp_path / "b") / ckpt.MODEL_FILE))
     assert sorted(ka) == sorted(kb) and not any("_orig_mod" in k for k in ka)
+
+
+def test_average_of_two_runs_is_their_mean_and_refuses_other_models(tmp_path, data):
+    """scripts/average_checkpoints.py (a model soup): the weights are the mean of the runs', the config and
+    metadata the first's (with averaged_from), the file loads as a model; another model config, or one file, is
+    a one-line error and writes nothing."""
+    import importlib.util
+
+    from safetensors.torch import load_file
+
+    root, scenes = data
+    for name, seed in (("a", 0), ("b", 1)):
+        mcfg, tcfg = _cfgs(tmp_path / name, root, iterations=1, ckpt_every=1, seed=seed)
+        run_to_end(train(mcfg, tcfg, scenes=scenes))
+    spec = importlib.util.spec_from_file_location("avg", ROOT / "scripts" / "average_checkpoints.py")
+    avg = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(avg)
+    out = tmp_path / "soup.safetensors"
+    assert avg.main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out)]) == 0
+    fa, fb = (ckpt.find_checkpoint(tmp_path / n) / ckpt.MODEL_FILE for n in "ab")
+    wa, wb, ws = load_file(str(fa)), load_file(str(fb)), load_file(str(out))
+    differ = [k for k in wa if wa[k].is_floating_point() and not torch.equal(wa[k], wb[k])]
+    assert differ  # two seeds: the runs' weights differ, so the test can tell a mean from a copy
+    for k in wa:
+        assert torch.allclose(ws[k], (wa[k].double() + wb[k].double()).div(2).to(wa[k].dtype), atol=1e-7)
+    meta = ckpt.read_meta(out)
+    assert json.loads(meta["averaged_from"]) == ["step_0000001/model.safetensors"] * 2
+    assert meta["model_config"] == ckpt.read_meta(fa)["model_config"]
+    model, _, _ = ckpt.load_model(out)
+    assert sum(p.numel() for p in model.parameters()) > 0
+    mcfg, tcfg = _cfgs(tmp_path / "c", root, iterations=1, ckpt_every=1)
+    other = model_config("fast", {**TINY, "nerformer": {"d_model": 8, "n_heads": 2}})
+    run_to_end(train(other, tcfg, scenes=scenes))
+    bad = tmp_path / "bad.safetensors"
+    assert avg.main([str(tmp_path / "a"), str(tmp_path / "c"), "--out", str(bad)]) == 2
+    assert avg.main([str(tmp_path / "a"), "--out", str(bad)]) == 2
+    assert not bad.exists()

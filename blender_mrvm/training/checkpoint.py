@@ -164,23 +164,62 @@ def load_trainer_state(ck: Path) -> dict[str, Any]:
     return torch.load(Path(ck) / STATE_FILE, map_location="cpu", weights_only=True)
 
 
+def _read_tensors(model_file: Path) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
+    """A model file's metadata and tensors."""
+    from safetensors import safe_open
+
+    with safe_open(str(model_file), "pt") as f:
+        return f.metadata() or {}, {k: f.get_tensor(k) for k in f.keys()}
+
+
+def _write_tensors(tensors: dict[str, torch.Tensor], meta: dict[str, str], out: Path) -> Path:
+    """Write a model file atomically, with ordinary permissions (safetensors writes owner-only)."""
+    from safetensors.torch import save_file
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    save_file(tensors, str(tmp), metadata=meta)
+    ordinary_permissions(tmp)
+    os.replace(tmp, out)
+    return out
+
+
 def half_copy(model_file: Path, out: Path) -> Path:
     """A copy of a model file with its floating-point tensors stored in fp16 (half the bytes; they load into the
     model's fp32 layers, ~1e-3 relative rounding) and the same metadata: how shipped and GPU-trained models
     travel (at most 16 MiB a file comes back from the GPU machine; 25 MB a shipped model). Written atomically."""
-    from safetensors import safe_open
-    from safetensors.torch import save_file
+    meta, tensors = _read_tensors(Path(model_file))
+    return _write_tensors({k: t.half() if t.is_floating_point() else t for k, t in tensors.items()}, meta, Path(out))
 
-    model_file, out = Path(model_file), Path(out)
-    with safe_open(str(model_file), "pt") as f:
-        meta = f.metadata()
-        tensors = {}
-        for k in f.keys():
-            t = f.get_tensor(k)
-            tensors[k] = t.half() if t.is_floating_point() else t
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    save_file(tensors, str(tmp), metadata=meta)
-    ordinary_permissions(tmp)  # safetensors writes owner-only
-    os.replace(tmp, out)
-    return out
+
+def average_model_files(model_files: list[Path], out: Path) -> Path:
+    """The mean of the weights of models fine-tuned from one starting point ("model soup", Wortsman et al. 2022:
+    runs that share a start usually sit in one basin, and their mean often generalises better than each, at no
+    cost at inference). The files must hold the same model config and tensors; the first one's metadata is kept,
+    with ``averaged_from`` (the files' names) added. Floats are averaged in float64 and stored in the first
+    file's dtype. InputError for fewer than two files, a different config, or different tensors."""
+    files = [Path(f) for f in model_files]
+    if len(files) < 2:
+        raise InputError(f"averaging needs at least two model files, got {len(files)}")
+    meta, acc = _read_tensors(files[0])
+    dtypes = {k: t.dtype for k, t in acc.items()}
+    acc = {k: t.double() if t.is_floating_point() else t for k, t in acc.items()}
+    for f in files[1:]:
+        m, ts = _read_tensors(f)
+        if m.get("model_config") != meta.get("model_config") or m.get("model_kind") != meta.get("model_kind"):
+            raise InputError(f"{f} holds another model than {files[0]} (model config differs): only runs of one "
+                             "model can be averaged")
+        if set(ts) != set(acc) or any(ts[k].shape != acc[k].shape for k in acc):
+            raise InputError(f"{f} holds other tensors than {files[0]}")
+        for k, t in ts.items():
+            if t.is_floating_point():
+                acc[k] += t.double()
+            elif not torch.equal(t, acc[k]):
+                raise InputError(f"{f}: non-float tensor {k} differs from {files[0]}'s")
+    n = len(files)
+    mean = {k: (t / n).to(dtypes[k]) if t.is_floating_point() else t for k, t in acc.items()}
+    if not all(torch.isfinite(t).all() for t in mean.values() if t.is_floating_point()):
+        raise InputError("the average holds non-finite weights: one of the files is broken")
+    return _write_tensors(mean, {**meta, "averaged_from": json.dumps([f"{f.parent.name}/{f.name}" for f in files])},
+                          Path(out))
