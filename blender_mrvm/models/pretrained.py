@@ -32,7 +32,7 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 
 FIGURES = {
-    "nerformer_mrvm": "2 views 20.9 dB / LPIPS 0.184 (held-out 64 px objects; nearest view 0.234); "
+    "nerformer_mrvm": "2 views 21.3 dB / LPIPS 0.176 (held-out 64 px objects; nearest view 15.4 dB / 0.234); "
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.304, 5 views 24.4 / 0.136 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
@@ -42,7 +42,7 @@ FIGURES = {
                     "15.8 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 1.6 dB below the default; "
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.8 dB / LPIPS 0.250 (any-view model "
-                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 21.5 / 0.187); "
+                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 22.1 / 0.176); "
                     "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); 6 FPS on an H100",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
@@ -52,7 +52,7 @@ the capture model's a median of 3 held-out room views at 128 px with 2 chunk wor
 
 DEFAULT_ELEVATION_DEG = 30.0
 """Where the default model's training cameras sit: the NMR turntable, 30 degrees above the object's centre
-(world z up). Off it the model degrades fast (RECIPE.md: sphere-rig views near-empty, 15.8 dB against 21.5
+(world z up). Off it the model degrades fast (RECIPE.md: sphere-rig views near-empty, 15.8 dB against 22.1
 on the turntable); ``mrvm_anyview`` is trained for cameras anywhere."""
 ELEVATION_TOLERANCE_DEG = 20.0
 """How far from :data:`DEFAULT_ELEVATION_DEG` a camera may sit before :func:`viewpoint_note` speaks."""
