@@ -87,8 +87,9 @@ def run(args) -> int:
         torch.manual_seed(0)
         model = registry.build_model(cfg).eval().to(device)
         n_params = sum(p.numel() for p in model.parameters())
-        if args.compile or args.compile_mode:
-            registry.compile_networks(model, None if args.compile_mode in (None, "default") else args.compile_mode)
+        mode = compile_mode(args)
+        if mode:
+            registry.compile_networks(model, None if mode == "default" else mode)
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
             for nv in [int(v) for v in args.views.split(",")]:
@@ -146,6 +147,11 @@ def _time_renders(args, model, refs, ref_poses, rintr, bbox, target, intr, prec,
     return times, cpus, peaks, res
 
 
+def compile_mode(args) -> str:
+    """torch.compile's mode for this bench ('default' for a bare --compile), '' when nothing is compiled."""
+    return args.compile_mode or ("default" if args.compile else "")
+
+
 def _profile_render(args, model, refs, ref_poses, rintr, bbox, target, intr, prec, device, sync):
     """One render under ``torch.profiler``: (per-view counts as CSV columns, the operator table)."""
     import torch
@@ -177,8 +183,7 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
     return {
         "kind": registry.kind_of(cfg), "preset": name, "size": size, "ref_size": rs, "ref_views": nv,
         "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers, "params": n_params,
-        "device": device, "precision": prec, "compiled": bool(args.compile or args.compile_mode),
-        "compile_mode": (args.compile_mode or "default") if (args.compile or args.compile_mode) else "",
+        "device": device, "precision": prec, "compiled": bool(compile_mode(args)), "compile_mode": compile_mode(args),
         "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4), "fps": round(1.0 / sec, 2),
         "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
         "chunk_rays": chunk_rays, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),

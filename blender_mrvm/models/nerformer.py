@@ -32,11 +32,12 @@ def configure_attention() -> bool:
     and math kernels remain), unless ``MRVM_CUDNN_ATTENTION=1``; returns whether cuDNN's is allowed.
 
     Why: on Hopper GPUs torch prefers cuDNN's attention in bf16 / fp16, which builds a cuDNN graph for each
-    new tensor shape (hundreds of milliseconds on the host). Our attention batches are shaped by how many rays
+    new tensor shape (28-35 ms of host time per call in session 20's H200 profile). Our attention batches are shaped by how many rays
     hit the object's box, which changes with every object and view, so a graph was built on nearly every call:
     session 18 measured bf16 training 3-4x slower than fp32 with the GPU idle (`balanced` 8 x 1024: 0.60 against
     2.52 steps/s, 7 % against 32 % utilisation), and only for presets whose head width cuDNN takes (a multiple
-    of 8: not `fast`'s 12, whose bf16 slowdown was small). Called whenever a model is built
+    of 8: not `fast`'s 12, whose bf16 slowdown was small). With it off, on an H200, bf16 trained 1.4-2.5x faster
+    and `accurate` at 16 x 4096 1.28x faster than fp32 (docs/bench_gpu/session20/). Called whenever a model is built
     (``registry.build_model``); a no-op on a machine without CUDA."""
     allowed = os.environ.get(CUDNN_ATTENTION_ENV, "0") == "1"
     if hasattr(torch.backends.cuda, "enable_cudnn_sdp"):
