@@ -13,7 +13,11 @@
 #                                                      CUDA graphs
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
-#                                                      each run's last checkpoint's model in fp16 + its metrics
+#                                                      each run's last checkpoint's model in fp16, its log, and
+#                                                      the run itself (<name>.run.tgz: config, metrics, last
+#                                                      checkpoint with the optimizer) for the next session: put
+#                                                      it in gpu_pack/runs/ here and the next call resumes it
+#                                                      exactly (GPU sessions are 15 minutes; a run spans several)
 set -uo pipefail
 export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
 OUT=${OUT:-gpu_out}
@@ -85,6 +89,13 @@ case "$what" in
     MRVM_SHORT_ATTENTION=4 bm graphs_short --presets fast --precisions fp32 --compile-mode reduce-overhead
     ;;
   train)
+    # runs carried back from an earlier session (gpu_pack/runs/<name>.run.tgz) resume where they stopped
+    mkdir -p runs
+    for t in gpu_pack/runs/*.run.tgz; do
+      [ -f "$t" ] || continue
+      n=$(basename "$t" .run.tgz); mkdir -p "runs/$n" && tar -xzf "$t" -C "runs/$n" \
+        && echo "runs/$n: resuming from $(ls runs/$n/checkpoints)"
+    done
     pids=()
     while [ $# -ge 2 ]; do
       cfg=$1; secs=$2; shift 2
@@ -98,7 +109,15 @@ case "$what" in
     kill $smi 2>/dev/null
     for d in runs/*/; do
       name=$(basename "$d")
-      cp "$d/metrics.jsonl" "$OUT/$name.metrics.jsonl" 2>/dev/null
+      last=$(ls -d "$d"checkpoints/step_* 2>/dev/null | sort | tail -n 1)
+      if [ -n "$last" ]; then
+        # the run, resumable (at most 16 MiB come back per file: `accurate`'s model and AdamW state are ~14 MB)
+        tar -czf "$OUT/$name.run.tgz" -C "$d" config.json metrics.jsonl "checkpoints/$(basename "$last")"
+        if [ "$(stat -c %s "$OUT/$name.run.tgz")" -gt 16777216 ]; then
+          echo "$name.run.tgz is over 16 MiB and would not come back: only the metrics do" >&2
+          rm "$OUT/$name.run.tgz"; cp "$d/metrics.jsonl" "$OUT/$name.metrics.jsonl"
+        fi
+      fi
       $PY - "$d" "$OUT/$name.safetensors" <<'EOF'
 import sys
 from pathlib import Path
