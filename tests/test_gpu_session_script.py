@@ -1,0 +1,72 @@
+"""scripts/gpu_session.sh's train mode carries a run across GPU sessions (docs/gpu_session.md): a call stopped by
+its time limit returns the run resumable (<name>.run.tgz), and the next call, with that file in gpu_pack/runs/,
+resumes it from its last checkpoint instead of starting over. Run here on the CPU with a tiny model."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from blender_mrvm.training.synthetic import make_sphere_dataset
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _call(root: Path, out: Path, seconds: int) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1"}
+    return subprocess.run(["bash", "scripts/gpu_session.sh", "train", "tiny.json", str(seconds)], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=seconds + 120)
+
+
+def _steps(tgz: Path) -> tuple[list[str], list[int], list[str]]:
+    """metrics.jsonl's lines, their steps, and the archive's names."""
+    with tarfile.open(tgz) as t:
+        names = t.getnames()
+        lines = [line for line in t.extractfile("metrics.jsonl").read().decode().splitlines() if line.strip()]
+    return lines, [json.loads(line)["step"] for line in lines], names
+
+
+@pytest.mark.slow
+def test_a_run_stopped_by_its_limit_comes_back_resumable_and_resumes(tmp_path):
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "gpu_session.sh", root / "scripts")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    (root / "gpu_carry").mkdir()
+    data = make_sphere_dataset(root / "data", n_objects=2, n_views=4, resolution=16, data_passes=False)
+    cfg = {"model": {"kind": "nerformer_mrvm", "config": {"name": "fast"}},
+           "train": {"data": str(data), "split": "train", "iterations": 1_000_000, "objects_per_step": 1,
+                     "rays_per_object": 16, "ckpt_every": 2, "log_every": 1, "threads": 1, "device": "cpu",
+                     "pretrain_frac": 0.0, "lpips_weight": 0.0, "opacity_weight": 0.0}}
+    (root / "tiny.json").write_text(json.dumps(cfg))
+
+    first = _call(root, tmp_path / "out1", 20)
+    tgz = tmp_path / "out1" / "tiny.run.tgz"
+    assert tgz.is_file(), first.stdout + first.stderr
+    assert (tmp_path / "out1" / "tiny.safetensors").is_file()
+    lines1, steps1, names = _steps(tgz)
+    ck = [n for n in names if n.startswith("checkpoints/step_") and n.count("/") == 1]
+    assert len(ck) == 1 and {"config.json", f"{ck[0]}/model.safetensors", f"{ck[0]}/trainer_state.pt"} <= set(names)
+    saved = int(ck[0].rsplit("_", 1)[1])
+    assert saved >= 2
+
+    # the next session: a bare machine with the returned run in gpu_pack/runs/
+    shutil.rmtree(root / "runs")
+    (root / "gpu_pack" / "runs").mkdir(parents=True)
+    shutil.copy(tgz, root / "gpu_pack" / "runs")
+    second = _call(root, tmp_path / "out2", 20)
+    assert f"resuming from step_{saved:07d}" in second.stdout, second.stdout + second.stderr
+    lines2, steps2, names2 = _steps(tmp_path / "out2" / "tiny.run.tgz")
+    # one unbroken history: the first call's lines up to its checkpoint, kept as they were (a run started over
+    # would rewrite them with its own times), then the second call's from the step after it
+    k = steps1.index(saved) + 1
+    assert lines2[:k] == lines1[:k]
+    assert all(b == a + 1 for a, b in zip(steps2, steps2[1:])) and steps2[-1] > saved
+    assert int(next(n for n in names2 if n.count("/") == 1 and "step_" in n).rsplit("_", 1)[1]) >= saved
