@@ -345,22 +345,41 @@ class Sem2NeRF(nn.Module):
         B, R = far.shape
         flat_far = far.reshape(-1)
         t = samplers.stratified(flat_far, cfg.n_coarse, perturb, generator)  # (B*R, S)
+
+        def query_at(tt: torch.Tensor):
+            """The field at distances ``tt`` (B*R, S) along the rays: sigma (B*R, S), logits (B*R, S, C), rgb."""
+            S = tt.shape[-1]
+            pts = o.reshape(-1, 1, 3) + tt[..., None] * d.reshape(-1, 1, 3)
+            dirs = d.reshape(-1, 1, 3).expand(-1, S, -1)
+            sig, lg, col = self.query(pts.reshape(B, R * S, 3), dirs.reshape(B, R * S, 3), mask_code, style_code)
+            return sig.view(B * R, S), lg.view(B * R, S, -1), col.view(B * R, S, 3)
+
         if cfg.n_fine > 0:
+            # At inference the coarse points' values are kept and only the fine points are evaluated: every
+            # point's value depends on that point alone, so this renders the same view as evaluating all of them
+            # again (40 % fewer field queries with 16 + 8 samples). Training evaluates them again, with gradients.
+            reuse = not torch.is_grad_enabled()
             with torch.no_grad():
-                pts = o.reshape(-1, 1, 3) + t[..., None] * d.reshape(-1, 1, 3)
-                sig, _, _ = self.query(pts.view(B, -1, 3), d.reshape(-1, 1, 3).expand_as(pts).reshape(B, -1, 3),
-                                       mask_code, style_code)
-                w, _ = renderer.render_weights(sig.view(B * R, -1), renderer.deltas_from_t(t, flat_far - t[:, -1]))
+                coarse = query_at(t)
+                w, _ = renderer.render_weights(coarse[0], renderer.deltas_from_t(t, flat_far - t[:, -1]))
                 edges = samplers.bin_edges(t, flat_far)
                 tf = samplers.sample_pdf(edges, w, cfg.n_fine, deterministic=not perturb, generator=generator)
-            t = torch.sort(torch.cat([t, tf], -1), -1).values
-        S = t.shape[-1]
-        pts = o.reshape(-1, 1, 3) + t[..., None] * d.reshape(-1, 1, 3)
-        dirs = d.reshape(-1, 1, 3).expand(-1, S, -1)
-        sigma, logits, rgb = self.query(pts.reshape(B, R * S, 3), dirs.reshape(B, R * S, 3), mask_code, style_code)
-        out = renderer.volume_render(sigma.view(B * R, S), rgb.view(B * R, S, 3), t, cfg.white_background,
+            if reuse:
+                t, order = torch.sort(torch.cat([t, tf], -1), -1)
+
+                def merged(c: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+                    x = torch.cat([c, f], 1)
+                    return torch.gather(x, 1, order if x.dim() == 2 else order[..., None].expand(-1, -1, x.shape[-1]))
+
+                sigma, logits, rgb = (merged(c, f) for c, f in zip(coarse, query_at(tf)))
+            else:
+                t = torch.sort(torch.cat([t, tf], -1), -1).values
+                sigma, logits, rgb = query_at(t)
+        else:
+            sigma, logits, rgb = query_at(t)
+        out = renderer.volume_render(sigma, rgb, t, cfg.white_background,
                                      last_delta=(flat_far - t[:, -1]).clamp_min(0.0))
-        probs = torch.softmax(logits.float().view(B * R, S, -1), -1)
+        probs = torch.softmax(logits.float(), -1)
         sem = (out["weights"][..., None] * probs).sum(-2)
         sem = torch.cat([sem[:, :1] + (1.0 - out["acc"]).clamp_min(0.0)[:, None], sem[:, 1:]], -1)
         return (out["color"].view(B, R, 3), out["acc"].view(B, R), sem.view(B, R, -1))
