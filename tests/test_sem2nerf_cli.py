@@ -215,3 +215,35 @@ def test_shipped_sem2nerf_on_unseen_library_objects(bpy_empty, tmp_path):
           "novel", {k: round(nov[k], 3) for k in ("psnr", "lpips", "fg_iou")})
     assert res["objects"] == 13 and inp["miou"] > 0.85 and inp["psnr"] > 19.0 and nov["fg_iou"] > 0.5
     assert nov["psnr"] > 16.0 and nov["lpips"] < 0.4  # held out: 18.3 dB / 0.32; the category's mean photo 15.5 / 0.45
+
+
+def test_bench_tradeoff_sweeps_a_sem2nerf_checkpoint(tmp_path, trained):
+    """bench tradeoff takes a Sem2NeRF checkpoint beside the reference-view kinds: its own knobs (samples,
+    precision, chunk; one at a time), novel-view quality with part mIoU, and a front of its own."""
+    import csv
+
+    from blender_mrvm.bench import tradeoff as tr
+
+    run, data, _ = trained
+    out = tmp_path / "bt"
+    assert main(["bench", "tradeoff", "--data", str(data), "--split", "test", "--checkpoints", str(run),
+                 "--objects", "1", "--targets", "2", "--repeats", "1", "--size", "16", "--no-lpips",
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "bench_tradeoff.csv")))
+    assert {r["kind"] for r in rows} == {"sem2nerf"}
+    pts = {r["point"]: r for r in rows}
+    assert set(pts) == {"as trained", "3+1 samples", "6+0 samples", "12+4 samples", "bf16", "chunk 256",
+                        "chunk 4096"}  # TINY: 6 + 2 samples
+    assert [int(pts[p]["samples_per_ray"]) for p in ("as trained", "3+1 samples", "6+0 samples", "12+4 samples")] \
+        == [8, 4, 6, 16]
+    for p, r in pts.items():
+        assert float(r["seconds_per_view"]) > 0 and int(r["rays_total"]) == 16 * 16
+        if p.startswith("chunk"):
+            assert r["psnr"] == "" and r["chunk"] == p.split()[1]
+        else:
+            assert 5 < float(r["psnr"]) < 60 and 0 <= float(r["miou"]) <= 1, (p, r)
+    # fewer samples render other images; bf16 renders (autocast) close to fp32
+    assert pts["3+1 samples"]["psnr"] != pts["as trained"]["psnr"]
+    assert abs(float(pts["bf16"]["psnr"]) - float(pts["as trained"]["psnr"])) < 1.0
+    assert "## sem2nerf: seconds against PSNR" in (out / "bench_tradeoff_front.md").read_text()
+    assert tr.sem2nerf_targets(24, 3) == [6, 12, 18] and tr.sem2nerf_targets(4, 2) == [1, 2]

@@ -16,6 +16,11 @@ own setting one knob at a time, at inference (the weights stay; every point is a
 - ``skip``: box clipping only, visual-hull culling (``models/hull.py``), hull tightening;
 - ``chunk``: rays per forward pass (time and memory only: the numbers are the same).
 
+Sem2NeRF (``shipped:sem2nerf`` or a ``sem2nerf train`` checkpoint; one part mask in, views out) has its own
+knobs: ``samples`` (coarse + fine points per ray: half, no fine pass, double), ``precision`` and ``chunk``; its
+quality is scored on novel views rendered from each object's view-0 mask (mean style), with their part mIoU,
+and its time is one view's render with the mask already encoded (a user encodes a mask once, then renders views).
+
 Width and depth are training-time choices: each trained model given in ``--checkpoints`` (its kind and
 preset) is a point of its own. For every point:
 
@@ -56,8 +61,9 @@ AXES = ("base", "samples", "gate", "stop", "filter", "refs", "nearest", "ref_siz
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="rendered dataset with held-out objects (make-shapenet)")
     p.add_argument("--split", default="test", help="held-out split (default test)")
-    p.add_argument("--checkpoints", default="shipped:nerformer_mrvm,shipped:gpnr",
-                   help="comma-separated checkpoints (files, run folders or shipped:<kind>); each is swept")
+    p.add_argument("--checkpoints", default="shipped:nerformer_mrvm,shipped:gpnr,shipped:sem2nerf",
+                   help="comma-separated checkpoints (files, run folders or shipped:<kind>, shipped:sem2nerf); "
+                        "each is swept")
     p.add_argument("--axes", default=",".join(AXES), help=f"comma-separated knobs to sweep ({', '.join(AXES)})")
     p.add_argument("--objects", type=int, default=13, help="held-out objects scored (one per category first)")
     p.add_argument("--targets", type=int, default=3, help="target views scored per object")
@@ -209,6 +215,103 @@ def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str, 
     return {k: round(float(o[k]), 4) for k in ("psnr", "ssim", "lpips") if o.get(k) is not None}
 
 
+def sem2nerf_file(spec: str):
+    """The model file of ``spec`` when it is a Sem2NeRF checkpoint, else None."""
+    from ..models.checkpoint_files import checked_header
+    from ..models.pretrained import resolve_checkpoint
+    from ..models.sem2nerf.config import MODEL_KIND
+
+    f, meta = checked_header(resolve_checkpoint(spec))
+    return f if meta.get("model_kind") == MODEL_KIND else None
+
+
+def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
+    """A Sem2NeRF checkpoint's points: its own setting, then each of its knobs moved alone."""
+    pts = [Point("base", "as trained", refs=1)] if "base" in axes else []
+    if "samples" in axes:
+        c, f = int(cfg.n_coarse), int(cfg.n_fine)
+        for cc, ff in [(max(2, c // 2), f // 2), (c, 0), (c * 2, f * 2)]:
+            if (cc, ff) != (c, f):
+                pts.append(Point("samples", f"{cc}+{ff} samples", {"n_coarse": cc, "n_fine": ff}, refs=1))
+    if "precision" in axes:
+        pts += [Point("precision", p, precision=p, refs=1)
+                for p in (("bf16", "fp16") if device.startswith("cuda") else ("bf16",))]
+    if "chunk" in axes:
+        pts += [Point("chunk", f"chunk {c}", {"chunk_rays": c}, refs=1, quality=False) for c in (256, 4096)]
+    return pts
+
+
+def sem2nerf_targets(n_views: int, k: int) -> list[int]:
+    """``k`` novel views spread evenly over an object's ``n_views``, away from the input view 0."""
+    return sorted({(i + 1) * n_views // (k + 1) for i in range(k)} - {0})
+
+
+def _sem2nerf_code(model, ob, device: str):
+    import torch
+
+    from ..models.sem2nerf.inputs import build_inputs
+
+    with torch.no_grad():
+        x = torch.from_numpy(build_inputs(ob.masks[0], model.cfg.labels))[None].to(device)
+        return model.encode(x, ob.c2w[0][None], ob.intrinsics[0])
+
+
+def measure_sem2nerf_speed(model, ob, pt: Point, size: int, repeats: int, device: str) -> dict:
+    """Median wall / CPU seconds of one ``size`` x ``size`` novel view of ``ob`` (mask encoded beforehand)."""
+    import torch
+
+    from ..models.rays import make_rays, normalize_pose
+
+    code, style = _sem2nerf_code(model, ob, device), model.default_style()
+    v = sem2nerf_targets(len(ob.images), 1)[0]
+    intr = ob.intrinsics[v].resized(size, size)
+    with _autocast(pt.precision, device):
+        model.render_image(intr, ob.c2w[v], code, style)  # warm-up
+        walls, cpus, peaks = [], [], []
+        for _ in range(repeats):
+            with PeakMemory(device) as pm:
+                w0, c0 = time.perf_counter(), time.process_time()
+                model.render_image(intr, ob.c2w[v], code, style)
+                if device.startswith("cuda"):
+                    torch.cuda.synchronize()
+                walls.append(time.perf_counter() - w0)
+                cpus.append(time.process_time() - c0)
+            peaks.append(pm.mib)
+    hit = make_rays(intr, normalize_pose(ob.c2w[v], np.zeros(3), model.cfg.scene_box), None, box=1.0).hit.numpy()
+    n = int(model.cfg.chunk_rays)
+    evaluated = sum(len(hit[i:i + n]) for i in range(0, len(hit), n) if hit[i:i + n].any())
+    sec = statistics.median(walls)
+    return {"seconds_per_view": round(sec, 4), "cpu_seconds_per_view": round(statistics.median(cpus), 4),
+            "rays_total": len(hit), "rays_box": int(hit.sum()), "rays_evaluated": evaluated,
+            "rays_per_s": round(evaluated / sec, 1), "peak_extra_mib": round(max(peaks), 1),
+            "samples_per_ray": int(model.cfg.n_coarse + model.cfg.n_fine)}
+
+
+def measure_sem2nerf_quality(model, objects, pt: Point, targets: int, lpips, device: str) -> dict:
+    """Mean PSNR / SSIM / LPIPS and part mIoU of ``targets`` novel views per object, rendered at the data's
+    size from the object's view-0 mask with the mean style."""
+    import torch
+
+    from ..models import metrics as M
+    from ..training.sem2nerf import miou
+
+    labels = torch.as_tensor(model.cfg.labels)
+    rows = []
+    with _autocast(pt.precision, device):
+        for ob in objects:
+            code = _sem2nerf_code(model, ob, device)
+            for v in sem2nerf_targets(len(ob.images), targets):
+                img = model.render_image(ob.intrinsics[v], ob.c2w[v], code, model.default_style())
+                pred = img["rgb"].float().clamp(0, 1).cpu()
+                gt = torch.from_numpy(ob.images[v])
+                r = {"psnr": float(M.psnr(pred, gt)[0]), "ssim": float(M.ssim(pred, gt)[0]),
+                     "miou": miou(ob.masks[v], labels[img["semantic"].float().argmax(-1).cpu()].numpy())}
+                if lpips is not None:
+                    r["lpips"] = float(lpips(pred, gt)[0])
+                rows.append(r)
+    return {k: round(float(np.mean([r[k] for r in rows])), 4) for k in rows[0]}
+
+
 def pareto(rows: list[dict], cost: str, loss: str) -> list[dict]:
     """Rows not dominated (lower cost and lower loss) by another, sorted by cost."""
     ok = [r for r in rows if r.get(loss) not in (None, "") and r.get(cost) not in (None, "")]
@@ -254,7 +357,46 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     load0 = os.getloadavg()[0]
     rows = []
+    def add(kind: str, spec: str, cfg, n_params: int, pt: Point, speed: dict, quality: dict, n_objects: int,
+            t0: float) -> None:
+        row = {"kind": kind, "checkpoint": spec, "preset": getattr(cfg, "name", ""), "params": n_params,
+               "axis": pt.axis, "point": pt.label, "refs": pt.nearest or pt.refs, "ref_size": pt.ref_size or "native",
+               "precision": pt.precision, "skip_empty": pt.skip if kind != "sem2nerf" else "",
+               "chunk": pt.chunk or pt.overrides.get("chunk_rays") or "model", "size": args.size, **speed,
+               "psnr": quality.get("psnr", ""), "ssim": quality.get("ssim", ""), "lpips": quality.get("lpips", ""),
+               "miou": quality.get("miou", ""),
+               "quality": "measured" if pt.quality else "same numbers as 'as trained' (chunking only)",
+               "objects": n_objects, "targets_per_object": args.targets,
+               "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers,
+               "device": args.device, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
+               "cpu": platform.processor() or platform.machine(), "torch": torch.__version__}
+        rows.append(row)
+        print(f"{kind:15s} {pt.axis:9s} {pt.label:16s} {speed['seconds_per_view']:7.3f} s/view "
+              f"(cpu {speed['cpu_seconds_per_view']:.3f})  psnr {row['psnr']}  lpips {row['lpips']}  "
+              f"[{time.perf_counter() - t0:.0f} s]", flush=True)
+        write_csv(out / "bench_tradeoff.csv", rows, quiet=True)  # after every point: a stopped sweep keeps its rows
+
+    masked = None
     for spec in [s.strip() for s in args.checkpoints.split(",") if s.strip()]:
+        s2n = sem2nerf_file(spec)
+        if s2n is not None:
+            from dataclasses import replace
+
+            from ..training.sem2nerf import load_masked_object, load_sem2nerf
+
+            model, cfg0, _ = load_sem2nerf(s2n, args.device)
+            if masked is None:
+                masked = [load_masked_object(path) for _, path in order[:args.objects]]
+            n_params = sum(p.numel() for p in model.parameters())
+            for pt in sem2nerf_sweep(cfg0, axes, args.device):
+                model.cfg = replace(cfg0, **pt.overrides)
+                t0 = time.perf_counter()
+                speed = measure_sem2nerf_speed(model, masked[0], pt, args.size, args.repeats, args.device)
+                quality = (measure_sem2nerf_quality(model, masked, pt, args.targets, lpips, args.device)
+                           if pt.quality else {})
+                add("sem2nerf", spec, cfg0, n_params, pt, speed, quality, len(masked), t0)
+            model.cfg = cfg0
+            continue
         ck = resolve_checkpoint(spec)
         model, cfg0, _, _ = load_checkpoint(ck, args.device)
         kind = registry.kind_of(cfg0)
@@ -266,21 +408,7 @@ def run(args) -> int:
                                   args.device, args.workers)
             quality = (measure_quality(model, scenes, pt, args.targets, lpips, args.device, args.workers)
                        if pt.quality else {})
-            row = {"kind": kind, "checkpoint": spec, "preset": getattr(cfg0, "name", ""), "params": n_params,
-                   "axis": pt.axis, "point": pt.label, "refs": pt.nearest or pt.refs, "ref_size": pt.ref_size or "native",
-                   "precision": pt.precision, "skip_empty": pt.skip, "chunk": pt.chunk or "model",
-                   "size": args.size, **speed,
-                   "psnr": quality.get("psnr", ""), "ssim": quality.get("ssim", ""), "lpips": quality.get("lpips", ""),
-                   "quality": "measured" if pt.quality else "same numbers as 'as trained' (chunking only)",
-                   "objects": len(scenes), "targets_per_object": args.targets,
-                   "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers,
-                   "device": args.device, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
-                   "cpu": platform.processor() or platform.machine(), "torch": torch.__version__}
-            rows.append(row)
-            print(f"{kind:15s} {pt.axis:9s} {pt.label:16s} {speed['seconds_per_view']:7.3f} s/view "
-                  f"(cpu {speed['cpu_seconds_per_view']:.3f})  psnr {row['psnr']}  lpips {row['lpips']}  "
-                  f"[{time.perf_counter() - t0:.0f} s]", flush=True)
-            write_csv(out / "bench_tradeoff.csv", rows, quiet=True)  # after every point: a stopped sweep keeps its rows
+            add(kind, spec, cfg0, n_params, pt, speed, quality, len(scenes), t0)
         model.cfg = cfg0
     write_csv(out / "bench_tradeoff.csv", rows)
     write_front(rows, out, load0)

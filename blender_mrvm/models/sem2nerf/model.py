@@ -176,7 +176,8 @@ class SirenField(nn.Module):
             lf = self.local(torch.cat([feat, x], -1))
             raw_sigma = raw_sigma + self.local_sigma(lf)[..., 0]
             gain = (self.label_gain * inside)[..., None]
-            logits = (logits + self.local_parts(lf)).scatter_add(-1, idx[..., None], gain)
+            logits = logits + self.local_parts(lf)  # (under autocast the gain, a parameter, is cast alike)
+            logits = logits.scatter_add(-1, idx[..., None], gain.to(logits.dtype))
             feats.append(lf)
         s_freq = style_code[:, :h] * cfg.freq_scale + cfg.freq_bias
         s_phase = style_code[:, h:]
