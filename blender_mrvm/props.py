@@ -36,6 +36,12 @@ DEVICES = [
     ("CUDA", "CUDA", "An NVIDIA GPU"),
 ]
 """Where the worker runs a model."""
+QUALITY_LEVELS = [
+    ("FULL", "Full", "Render as the model was trained"),
+    ("PREVIEW", "Preview", "Half the samples per ray: about 1.6-1.9x faster for a few tenths of a dB (a preview "
+                           "of the cameras and the look before the full render)"),
+]
+"""Inference speed/quality levels (``models.registry.quality_overrides``), the commands' ``--quality``."""
 IMAGE_OUTPUTS = [
     ("FILES", "Files", "Save PNG files into the output folder and reference them"),
     ("PACK", "Pack into .blend", "Pack the images into the .blend file"),
@@ -178,11 +184,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
     shipped_model: EnumProperty(name="Shipped model", items=SHIPPED_MODELS, default="nerformer_mrvm",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
     device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
-    quality: EnumProperty(name="Quality", items=[
-        ("FULL", "Full", "Render as the model was trained"),
-        ("PREVIEW", "Preview", "Half the samples per ray: about 1.6x faster for a few tenths of a dB (a preview "
-                               "of the cameras and the look before the full render)"),
-    ], default="FULL")
+    quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL")
     reference_sizing: EnumProperty(name="Reference size", items=[
         ("AUTO", "Auto", "Shrink references larger than the model's training images to that size (the model's "
                          "features are tuned to it; photos also encode much faster)"),
@@ -303,6 +305,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
                        description="Blend the style toward the style of another seed (0 = off)")
     mix_seed: IntProperty(name="Blend seed", default=1, min=0, description="Random code of the style blended in")
     device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
+    quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL")
     plane_distance: FloatProperty(name="Plane distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")
     output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")

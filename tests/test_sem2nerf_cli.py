@@ -94,6 +94,24 @@ def test_render_targets_and_style_mix(tmp_path, trained):
     assert not (tmp_path / "p").exists()
 
 
+def test_render_quality_preview_halves_the_samples(tmp_path, trained):
+    """--quality preview renders with half the samples per ray (registry.quality_overrides, the point bench
+    tradeoff measures), says so in sem2nerf.json, and renders other (valid) images; an unknown level is a
+    one-line error with nothing written."""
+    run, _, obj = trained
+    args = ["sem2nerf", "render", "--checkpoint", str(run), "--mask", str(obj / "mask" / "000000.png"),
+            "--pose", str(obj / "pose" / "000000.txt"), "--views", "2", "--threads", "1"]
+    for q in ("full", "preview"):
+        assert main([*args, "--out", str(tmp_path / q), "--quality", q]) == 0
+    full, prev = (json.loads((tmp_path / q / "sem2nerf.json").read_text()) for q in ("full", "preview"))
+    assert full["quality"] == "full" and full["samples_per_ray"] == [6, 2]  # TINY
+    assert prev["quality"] == "preview" and prev["samples_per_ray"] == [4, 1]  # at least 4 coarse
+    a, b = (DF.read_png(tmp_path / q / "rgb" / "000001.png") for q in ("full", "preview"))
+    assert a.shape == b.shape and not np.array_equal(a, b)
+    assert main([*args, "--out", str(tmp_path / "bad"), "--quality", "draft"]) == 2
+    assert not (tmp_path / "bad").exists()
+
+
 @pytest.mark.parametrize("case", ["unknown_label", "empty", "size", "no_pose", "rgb_mask", "bad_edit",
                                   "edit_absent", "not_sem2nerf"])
 def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, case):
@@ -232,10 +250,10 @@ def test_bench_tradeoff_sweeps_a_sem2nerf_checkpoint(tmp_path, trained):
     rows = list(csv.DictReader(open(out / "bench_tradeoff.csv")))
     assert {r["kind"] for r in rows} == {"sem2nerf"}
     pts = {r["point"]: r for r in rows}
-    assert set(pts) == {"as trained", "3+1 samples", "6+0 samples", "12+4 samples", "bf16", "chunk 256",
-                        "chunk 4096"}  # TINY: 6 + 2 samples
-    assert [int(pts[p]["samples_per_ray"]) for p in ("as trained", "3+1 samples", "6+0 samples", "12+4 samples")] \
-        == [8, 4, 6, 16]
+    assert set(pts) == {"as trained", "4+1 samples", "6+0 samples", "12+4 samples", "bf16", "chunk 256",
+                        "chunk 4096"}  # TINY: 6 + 2 samples; the half point is --quality preview's (at least 4 coarse)
+    assert [int(pts[p]["samples_per_ray"]) for p in ("as trained", "4+1 samples", "6+0 samples", "12+4 samples")] \
+        == [8, 5, 6, 16]
     for p, r in pts.items():
         assert float(r["seconds_per_view"]) > 0 and int(r["rays_total"]) == 16 * 16
         if p.startswith("chunk"):
@@ -243,7 +261,7 @@ def test_bench_tradeoff_sweeps_a_sem2nerf_checkpoint(tmp_path, trained):
         else:
             assert 5 < float(r["psnr"]) < 60 and 0 <= float(r["miou"]) <= 1, (p, r)
     # fewer samples render other images; bf16 renders (autocast) close to fp32
-    assert pts["3+1 samples"]["psnr"] != pts["as trained"]["psnr"]
+    assert pts["4+1 samples"]["psnr"] != pts["as trained"]["psnr"]
     assert abs(float(pts["bf16"]["psnr"]) - float(pts["as trained"]["psnr"])) < 1.0
     assert "## sem2nerf: seconds against PSNR" in (out / "bench_tradeoff_front.md").read_text()
     assert tr.sem2nerf_targets(24, 3) == [6, 12, 18] and tr.sem2nerf_targets(4, 2) == [1, 2]

@@ -200,12 +200,14 @@ def test_job_arguments_carry_the_style(s2n, tmp_path):
     from blender_mrvm.operators import sem2nerf as O
 
     p = s2n.props
-    p.style, p.style_seed, p.mix, p.mix_seed = "SEED", 7, 0.25, 9
+    p.style, p.style_seed, p.mix, p.mix_seed, p.quality = "SEED", 7, 0.25, 9, "PREVIEW"
     job = O.plan_from_props(bpy.context)
     before = _state()
     args = O.write_job(job, tmp_path / "job")
     assert _state() == before, "orbit cameras come with the results"
     assert args[:2] == ["render", "--checkpoint"] and args[-6:] == ["--style-seed", "7", "--mix-seed", "9", "--mix", "0.25"]
+    assert args[args.index("--quality") + 1] == "preview"
+    p.quality = "FULL"
     assert np.array_equal(DF.read_png(tmp_path / "job" / "mask.png"), DF.read_png(s2n.obj / "mask" / "000000.png"))
     targets, _ = read_targets(tmp_path / "job" / "targets.json")
     assert [t.name for t in targets] == ["MRVM Sem2NeRF 000", "MRVM Sem2NeRF 001"] and all(t.generated for t in targets)

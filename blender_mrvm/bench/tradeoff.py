@@ -229,8 +229,11 @@ def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
     """A Sem2NeRF checkpoint's points: its own setting, then each of its knobs moved alone."""
     pts = [Point("base", "as trained", refs=1)] if "base" in axes else []
     if "samples" in axes:
+        from ..models.registry import quality_overrides
+
         c, f = int(cfg.n_coarse), int(cfg.n_fine)
-        for cc, ff in [(max(2, c // 2), f // 2), (c, 0), (c * 2, f * 2)]:
+        half = quality_overrides(cfg, "preview")  # what `sem2nerf render --quality preview` renders
+        for cc, ff in [(half["n_coarse"], half["n_fine"]), (c, 0), (c * 2, f * 2)]:
             if (cc, ff) != (c, f):
                 pts.append(Point("samples", f"{cc}+{ff} samples", {"n_coarse": cc, "n_fine": ff}, refs=1))
     if "precision" in axes:

@@ -79,6 +79,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
     r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
+    r.add_argument("--quality", default="full", help="full (as trained) or preview: half the samples per ray, about "
+                   "1.9x faster for -0.13 dB at equal LPIPS (bench tradeoff, README 'Speed against accuracy')")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
     e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint, or shipped:sem2nerf")
@@ -157,7 +159,8 @@ def run(args) -> int:
                             intrinsics=args.intrinsics, fov=args.fov, views=args.views, edits=tuple(args.edit),
                             style_seed=args.style_seed, blend=args.blend, blend_steps=args.blend_steps,
                             force=args.force, threads=args.threads, device=args.device, targets=args.targets,
-                            mix_seed=args.mix_seed, mix=args.mix if args.mix_seed is not None else 0.0)
+                            mix_seed=args.mix_seed, mix=args.mix if args.mix_seed is not None else 0.0,
+                            quality=args.quality)
         summary = run_with_tqdm(render_from_mask(req), desc="sem2nerf render", unit="img")
         print(json.dumps({"out": args.out, "views": summary["views"], "edits": summary["edits"]}))
         return 0

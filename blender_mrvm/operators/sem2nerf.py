@@ -60,6 +60,8 @@ class Sem2NeRFJob:
     """Blend toward the style of this seed ..."""
     mix: float = 0.0
     """... by this factor."""
+    quality: str = "full"
+    """The render command's --quality: full or preview."""
 
 
 def _abspath(p: str) -> Path:
@@ -123,7 +125,7 @@ def plan_from_props(context) -> Sem2NeRFJob:
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     return Sem2NeRFJob(info.model_file, mask, where, c2w, intr, tuple(targets), p.device.lower(), cfg,
                        p.style_seed if p.style == "SEED" else None,
-                       p.mix_seed if p.mix > 0 else None, float(p.mix))
+                       p.mix_seed if p.mix > 0 else None, float(p.mix), p.quality.lower())
 
 
 def prepare(context, job: Sem2NeRFJob):
@@ -148,7 +150,8 @@ def write_job(job: Sem2NeRFJob, job_dir: Path) -> list[str]:
     write_targets(job_dir / "targets.json", list(job.targets))
     args = ["render", "--checkpoint", str(job.checkpoint), "--mask", str(job_dir / "mask.png"),
             "--pose", str(job_dir / "pose.txt"), "--intrinsics", str(job_dir / "intrinsics.txt"),
-            "--targets", str(job_dir / "targets.json"), "--device", job.device, "--out", str(job_dir / "out")]
+            "--targets", str(job_dir / "targets.json"), "--device", job.device, "--quality", job.quality,
+            "--out", str(job_dir / "out")]
     if job.style_seed is not None:
         args += ["--style-seed", str(job.style_seed)]
     if job.mix_seed is not None:

@@ -93,6 +93,7 @@ class MRVM_PT_sem2nerf(MRVMPanel, bpy.types.Panel):
         if p.mix > 0:
             col.prop(p, "mix_seed")
         col.prop(p, "device")
+        col.prop(p, "quality")
         col.prop(p, "plane_distance")
         col.prop(p, "output")
         if p.output == "FILES":

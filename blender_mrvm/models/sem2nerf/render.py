@@ -72,6 +72,8 @@ class RenderRequest:
     """Blend the style above toward the style of this seed for every view ..."""
     mix: float = 0.0
     """... by this factor in [0, 1] (0 = the style above, 1 = the seed's)."""
+    quality: str = "full"
+    """``full`` (as trained) or ``preview`` (half the samples per ray: ``models.registry.quality_overrides``)."""
 
 
 def palette(label_id: int) -> tuple[int, int, int]:
@@ -285,6 +287,10 @@ def prepare(req: RenderRequest) -> Prepared:
         raise InputError("--views must be >= 1 and --blend-steps >= 2")
     if not 0.0 <= req.mix <= 1.0:
         raise InputError("--mix must lie in [0, 1]")
+    from ..registry import QUALITY_LEVELS
+
+    if req.quality not in QUALITY_LEVELS:
+        raise InputError(f"--quality must be one of {', '.join(QUALITY_LEVELS)}, got {req.quality!r}")
     info = checkpoint_info(Path(req.checkpoint))
     size = info.size
     mask, edits = check_input_mask(read_mask_png(Path(req.mask)), info, f"mask {req.mask}", req.edits)
@@ -350,6 +356,11 @@ def render_from_mask(req: RenderRequest):
 
     device = str(resolve_device(req.device))
     model, cfg, meta = load_sem2nerf(p.info.model_file, device)
+    from dataclasses import replace
+
+    from ..registry import quality_overrides
+
+    model.cfg = replace(cfg, **quality_overrides(cfg, req.quality))
     out = Path(req.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
@@ -386,6 +397,7 @@ def render_from_mask(req: RenderRequest):
                    "style": "mean" if req.style_seed is None else f"seed {req.style_seed}",
                    "mix_seed": req.mix_seed, "mix": req.mix if req.mix_seed is not None else 0.0,
                    "blend_to_seed": req.blend, "blend_steps": req.blend_steps if req.blend is not None else 0,
+                   "quality": req.quality, "samples_per_ray": [model.cfg.n_coarse, model.cfg.n_fine],
                    "intrinsics": {"fx": p.intr.fx, "fy": p.intr.fy, "cx": p.intr.cx, "cy": p.intr.cy}}
         (tmp / "sem2nerf.json").write_text(json.dumps(summary, indent=2) + "\n")
         DF.move_into(tmp, out)
