@@ -87,6 +87,14 @@ case "$what" in
     bm compiled --presets fast --precisions fp32,bf16 --compile
     MRVM_SHORT_ATTENTION=4 bm compiled_short --presets fast --precisions fp32,bf16 --compile
     MRVM_SHORT_ATTENTION=4 bm graphs_short --presets fast --precisions fp32 --compile-mode reduce-overhead
+    # Sem2NeRF, the third kind, when a masked set came along (SPLITS=test MAX_OBJECTS=2 scripts/gpu_carry.sh):
+    # seconds per 256 px view (fps = 1 / seconds_per_view) at its samples and precisions, mask encoded once
+    S2N_DATA=${S2N_DATA:-gpu_carry/data/shapenet13_all}
+    if [ -f "$S2N_DATA/splits/test.lst" ]; then
+      timeout ${STEP_S:-150} $PY -m blender_mrvm bench tradeoff --device ${DEVICE:-cuda} --data "$S2N_DATA" \
+        --checkpoints shipped:sem2nerf --axes base,samples,precision,chunk --objects 2 --targets 2 --size 256 \
+        --repeats 5 --no-lpips --out $G/sem2nerf; keep
+    fi
     ;;
   train)
     # runs carried back from an earlier session (gpu_pack/runs/<name>.run.tgz) resume where they stopped

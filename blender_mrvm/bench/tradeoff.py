@@ -240,7 +240,8 @@ def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
         pts += [Point("precision", p, precision=p, refs=1)
                 for p in (("bf16", "fp16") if device.startswith("cuda") else ("bf16",))]
     if "chunk" in axes:
-        pts += [Point("chunk", f"chunk {c}", {"chunk_rays": c}, refs=1, quality=False) for c in (256, 4096)]
+        sizes = (256, 4096, 16384, 65536) if device.startswith("cuda") else (256, 4096)  # a GPU wants large ones
+        pts += [Point("chunk", f"chunk {c}", {"chunk_rays": c}, refs=1, quality=False) for c in sizes]
     return pts
 
 
