@@ -377,3 +377,66 @@ def test_inference_keeps_the_coarse_points_and_renders_what_evaluating_them_agai
     assert fast["acc"].max() > 0.2  # not an empty field, where anything would agree
     for k in ("rgb", "acc", "semantic"):
         assert torch.allclose(fast[k], full[k].detach(), atol=1e-5), k
+
+
+def test_render_image_evaluates_only_the_rays_it_needs(tiny):
+    """render_image renders only rays that cross the box (and, with cull_cone, the input mask's silhouette
+    cone) and gives the rest the background: the same image as rendering every ray, ray for ray."""
+    from dataclasses import replace
+
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models.rays import make_rays, normalize_pose
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF, silhouette_cone
+
+    torch.manual_seed(2)
+    m = Sem2NeRF(replace(tiny.cfg, density_bias=1.0, style_mean_samples=10, chunk_rays=37)).eval()
+    _, in_intr, in_c2w = _rays()
+    code = m.encode(_mask_inputs(m.cfg), in_c2w[None], in_intr)
+    intr = cameras.intrinsics_from_fov(np.deg2rad(110), 12, 12)  # wide enough that the corners miss the box
+    c2w = cameras.look_at_opencv(np.array([0.0, -1.3, 0.2]))
+    b = make_rays(intr, normalize_pose(c2w, np.zeros(3), m.cfg.scene_box), None, box=1.0)
+    assert 0 < int(b.hit.sum()) < len(b)
+    with torch.no_grad():
+        full = m.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, m.default_style())
+    img = m.render_image(intr, c2w, code, m.default_style())
+    assert m.last_render_stats == {"rays": len(b), "evaluated": int(b.hit.sum())}
+    for k in ("rgb", "acc", "semantic"):
+        assert torch.allclose(img[k].reshape(full[k][0].shape), full[k][0], atol=1e-5), k
+    # the silhouette cone: off the mask's foreground cone the rays are background, on it they render as before
+    cone = silhouette_cone(b, code)
+    assert 0 < int((cone & b.hit).sum()) < int(b.hit.sum())
+    m.cfg = replace(m.cfg, cull_cone=True)
+    culled = m.render_image(intr, c2w, code, m.default_style())
+    assert m.last_render_stats["evaluated"] == int((cone & b.hit).sum())
+    keep = (cone & b.hit).reshape(12, 12)
+    assert torch.allclose(culled["rgb"][keep], img["rgb"][keep], atol=1e-5)
+    assert torch.all(culled["rgb"][~keep] == 1) and torch.all(culled["acc"][~keep] == 0)
+    assert torch.all(culled["semantic"][~keep].argmax(-1) == 0)
+
+
+def test_silhouette_cone_follows_the_mask():
+    """A ray through the foreground's cone is in it, one that passes beside the object is not; a dilation of
+    the mask widens the cone."""
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models.rays import RayBundle
+    from blender_mrvm.models.sem2nerf.model import MaskCode, silhouette_cone
+
+    S = 32
+    index = torch.zeros(1, 1, S, S)
+    index[..., 14:18, 14:18] = 1.0  # a small object at the image centre
+    intr = cameras.intrinsics_from_fov(np.deg2rad(40), S, S)
+    K = torch.tensor([[[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]]])
+    w2c = torch.eye(4)[None]
+    w2c[0, 2, 3] = 2.0  # the input camera 2 units behind the origin, looking along +z
+    mc = MaskCode(torch.zeros(1, 4), torch.zeros(1, 2, S, S), index, K, w2c)
+    # rays along x at depth 2 in front of the camera: through the centre (on the cone), and 0.8 to the side
+    o = torch.tensor([[-1.0, 0.0, 0.0], [-1.0, 0.8, 0.0]])
+    d = torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    b = RayBundle(o, d, torch.full((2,), 2.0), torch.ones(2, dtype=torch.bool), torch.zeros(2))
+    assert silhouette_cone(b, mc).tolist() == [True, False]
+    # a ray 1.5 px (at depth 2) beside the foreground's edge: outside without dilation, inside with 2 px
+    y = (18 + 1.5 - intr.cy) / intr.fy * 2.0
+    b1 = RayBundle(torch.tensor([[-1.0, y, 0.0]]), d[:1], torch.full((1,), 2.0), torch.ones(1, dtype=torch.bool),
+                   torch.zeros(1))
+    assert silhouette_cone(b1, mc, dilate_px=0).tolist() == [False]
+    assert silhouette_cone(b1, mc, dilate_px=2).tolist() == [True]

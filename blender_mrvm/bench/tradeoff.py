@@ -17,7 +17,8 @@ own setting one knob at a time, at inference (the weights stay; every point is a
 - ``chunk``: rays per forward pass (time and memory only: the numbers are the same).
 
 Sem2NeRF (``shipped:sem2nerf`` or a ``sem2nerf train`` checkpoint; one part mask in, views out) has its own
-knobs: ``samples`` (coarse + fine points per ray: half, no fine pass, double), ``precision`` and ``chunk``; its
+knobs: ``samples`` (coarse + fine points per ray: half, no fine pass, double), ``skip`` (the input mask's
+silhouette-cone culling on or off), ``precision`` and ``chunk``; its
 quality is scored on novel views rendered from each object's view-0 mask (mean style), with their part mIoU,
 and its time is one view's render with the mask already encoded (a user encodes a mask once, then renders views).
 
@@ -236,6 +237,9 @@ def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
         for cc, ff in [(half["n_coarse"], half["n_fine"]), (c, 0), (c * 2, f * 2)]:
             if (cc, ff) != (c, f):
                 pts.append(Point("samples", f"{cc}+{ff} samples", {"n_coarse": cc, "n_fine": ff}, refs=1))
+    if "skip" in axes:
+        on = not cfg.cull_cone
+        pts.append(Point("skip", "cone culling" if on else "no cone culling", {"cull_cone": on}, refs=1))
     if "precision" in axes:
         pts += [Point("precision", p, precision=p, refs=1)
                 for p in (("bf16", "fp16") if device.startswith("cuda") else ("bf16",))]
@@ -282,8 +286,7 @@ def measure_sem2nerf_speed(model, ob, pt: Point, size: int, repeats: int, device
                 cpus.append(time.process_time() - c0)
             peaks.append(pm.mib)
     hit = make_rays(intr, normalize_pose(ob.c2w[v], np.zeros(3), model.cfg.scene_box), None, box=1.0).hit.numpy()
-    n = int(model.cfg.chunk_rays)
-    evaluated = sum(len(hit[i:i + n]) for i in range(0, len(hit), n) if hit[i:i + n].any())
+    evaluated = model.last_render_stats["evaluated"]
     sec = statistics.median(walls)
     return {"seconds_per_view": round(sec, 4), "cpu_seconds_per_view": round(statistics.median(cpus), 4),
             "rays_total": len(hit), "rays_box": int(hit.sum()), "rays_evaluated": evaluated,

@@ -98,6 +98,26 @@ def local_features(pts: torch.Tensor, mc: MaskCode) -> tuple[torch.Tensor, torch
     return feat, idx[:, 0, :, 0].round().long(), inside
 
 
+def silhouette_cone(bundle, mc: MaskCode, n_check: int = 64, dilate_px: int = 2) -> torch.Tensor:
+    """(R,) bool: rays (normalised frame, :class:`..rays.RayBundle`) that pass through the input mask's
+    silhouette cone. The input mask is the object's silhouette from that camera and the object lies inside the
+    input view (as in every training image), so a ray that stays outside the cone meets only empty space: a
+    visual hull of one view (``models/hull.py`` does the same with several references). Checked at ``n_check``
+    points evenly along each ray against the foreground dilated by ``dilate_px`` pixels (thin parts between the
+    points, the model's soft edges); points behind the input camera or outside its image are outside the cone."""
+    R = len(bundle)
+    dev = mc.device
+    t = torch.linspace(0.0, 1.0, n_check, device=dev)[None, :] * bundle.far.to(dev).float()[:, None]
+    pts = bundle.origins.to(dev).float()[:, None] + t[..., None] * bundle.dirs.to(dev).float()[:, None]
+    grid, z = project_to_input(pts.reshape(1, -1, 3), mc)
+    fg = (mc.index > 0).float()
+    if dilate_px > 0:
+        fg = F.max_pool2d(fg, 2 * dilate_px + 1, stride=1, padding=dilate_px)
+    on = F.grid_sample(fg, grid[:, :, None], mode="nearest", padding_mode="zeros", align_corners=False)[0, 0, :, 0]
+    on = (on > 0) & (z[0] > 1e-3)
+    return on.view(R, n_check).any(-1).cpu()
+
+
 # ------------------------------------------------------------------------------------------- SIREN
 
 def _frequency_init(layer: nn.Linear, freq: float = 25.0) -> None:
@@ -422,12 +442,23 @@ class Sem2NeRF(nn.Module):
         import numpy as np
 
         bundle = make_rays(intr, normalize_pose(c2w_world, np.zeros(3), self.cfg.scene_box), None, box=1.0)
-        outs = []
+        need = bundle.hit.bool() & (bundle.far > 0)
+        if self.cfg.cull_cone and isinstance(mask_code, MaskCode):
+            need &= silhouette_cone(bundle, mask_code[:1])
+        self.last_render_stats = {"rays": len(bundle), "evaluated": int(need.sum())}
+        dev = mask_code.device
+        h, w, C = intr.height, intr.width, self.cfg.n_labels
+        bg = 1.0 if self.cfg.white_background else 0.0
+        out = {"rgb": torch.full((len(bundle), 3), bg, device=dev), "acc": torch.zeros(len(bundle), device=dev),
+               "semantic": torch.full((len(bundle), C), math.log(1e-6), device=dev)}
+        out["semantic"][:, 0] = 0.0  # what render_rays gives a ray that meets nothing: the background label
+        sel = torch.nonzero(need).flatten()
         n = self.cfg.chunk_rays
-        for i in range(0, len(bundle), n):
-            b = bundle.select(slice(i, i + n))
-            outs.append(self.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], mask_code[:1],
-                                         style_code[:1]))
-        h, w = intr.height, intr.width
-        return {k: torch.cat([o[k][0] for o in outs], 0).reshape(h, w, -1).squeeze(-1) if k == "acc"
-                else torch.cat([o[k][0] for o in outs], 0).reshape(h, w, -1) for k in outs[0]}
+        for i in range(0, len(sel), n):
+            idx = sel[i:i + n]
+            b = bundle.select(idx)
+            o = self.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], mask_code[:1],
+                                 style_code[:1])
+            for k in out:
+                out[k][idx.to(dev)] = o[k][0].to(out[k].dtype)
+        return {k: v.reshape(h, w) if k == "acc" else v.reshape(h, w, -1) for k, v in out.items()}
