@@ -32,17 +32,18 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 
 FIGURES = {
-    "nerformer_mrvm": "2 views 21.3 dB / LPIPS 0.176 (held-out 64 px objects; nearest view 15.4 dB / 0.234); "
+    "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234); "
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.304, 5 views 24.4 / 0.136 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
     "gpnr_captures": "15 held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.124 (nearest photo "
                      "24.2 / 0.160, mean of the two 27.7 / 0.160); ~6 s per 128 px view on 2 CPU cores",
     "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.4 dB / LPIPS 0.269 (default model "
-                    "15.8 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 1.6 dB below the default; "
+                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 2.9 dB below the default "
+                    "(20.0 against 22.9 dB on held-out turntable objects); "
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.8 dB / LPIPS 0.250 (any-view model "
-                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 22.1 / 0.176); "
+                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 22.9 / 0.164); "
                     "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); 6 FPS on an H100",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
@@ -52,7 +53,7 @@ the capture model's a median of 3 held-out room views at 128 px with 2 chunk wor
 
 DEFAULT_ELEVATION_DEG = 30.0
 """Where the default model's training cameras sit: the NMR turntable, 30 degrees above the object's centre
-(world z up). Off it the model degrades fast (RECIPE.md: sphere-rig views near-empty, 15.8 dB against 22.1
+(world z up). Off it the model degrades fast (RECIPE.md: sphere-rig views near-empty, 15.7 dB against 22.9
 on the turntable); ``mrvm_anyview`` is trained for cameras anywhere."""
 ELEVATION_TOLERANCE_DEG = 20.0
 """How far from :data:`DEFAULT_ELEVATION_DEG` a camera may sit before :func:`viewpoint_note` speaks."""
