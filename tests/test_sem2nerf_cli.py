@@ -267,3 +267,17 @@ def test_bench_tradeoff_sweeps_a_sem2nerf_checkpoint(tmp_path, trained):
     assert abs(float(pts["bf16"]["psnr"]) - float(pts["as trained"]["psnr"])) < 1.0
     assert "## sem2nerf: seconds against PSNR" in (out / "bench_tradeoff_front.md").read_text()
     assert tr.sem2nerf_targets(24, 3) == [6, 12, 18] and tr.sem2nerf_targets(4, 2) == [1, 2]
+
+
+def test_bench_tradeoff_refuses_masks_of_another_size(tmp_path, trained, capsys):
+    """Sem2NeRF's encoder takes masks of its training size: a set rendered at another one is a one-line error
+    before anything is measured, not a sweep of meaningless figures."""
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    run, _, _ = trained
+    data = make_sphere_dataset(tmp_path / "d32", n_objects=4, n_views=4, resolution=32, data_passes=False)
+    assert main(["bench", "tradeoff", "--data", str(data), "--split", "test", "--checkpoints", str(run),
+                 "--objects", "1", "--targets", "1", "--repeats", "1", "--no-lpips", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "masks are 32x32 px" in err[0] and "16 px" in err[0]
+    assert not (tmp_path / "o" / "bench_tradeoff.csv").exists()

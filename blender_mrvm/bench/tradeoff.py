@@ -394,6 +394,10 @@ def run(args) -> int:
             model, cfg0, _ = load_sem2nerf(s2n, args.device)
             if masked is None:
                 masked = [load_masked_object(path) for _, path in order[:args.objects]]
+            for ob in masked:  # the encoder takes masks of its training size (as `sem2nerf eval` checks)
+                if ob.masks.shape[1:] != (cfg0.image_size, cfg0.image_size):
+                    raise InputError(f"{ob.category}/{ob.name}: masks are {ob.masks.shape[2]}x{ob.masks.shape[1]} px, "
+                                     f"{spec} takes {cfg0.image_size} px masks (render the set at that resolution)")
             n_params = sum(p.numel() for p in model.parameters())
             for pt in sem2nerf_sweep(cfg0, axes, args.device):
                 model.cfg = replace(cfg0, **pt.overrides)
