@@ -399,7 +399,7 @@ def test_render_image_evaluates_only_the_rays_it_needs(tiny):
     with torch.no_grad():
         full = m.render_rays(b.origins[None], b.dirs[None], b.far[None], b.hit[None], code, m.default_style())
     img = m.render_image(intr, c2w, code, m.default_style())
-    assert m.last_render_stats == {"rays": len(b), "evaluated": int(b.hit.sum())}
+    assert m.last_render_stats == {"rays": len(b), "box": int(b.hit.sum()), "evaluated": int(b.hit.sum())}
     for k in ("rgb", "acc", "semantic"):
         assert torch.allclose(img[k].reshape(full[k][0].shape), full[k][0], atol=1e-5), k
     # the silhouette cone: off the mask's foreground cone the rays are background, on it they render as before

@@ -169,37 +169,43 @@ def _autocast(precision: str, device: str):
     return torch.autocast("cuda" if device.startswith("cuda") else "cpu", dtype=dtype)
 
 
-def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: int, device: str,
-                  workers: int = 1) -> dict:
-    """Median wall / CPU seconds of one ``size`` x ``size`` view, rays, and peak extra memory (MiB)."""
+def _timed(render, precision: str, repeats: int, device: str) -> tuple[Any, dict]:
+    """(the last result, median wall / CPU seconds and peak extra MiB) of ``render()`` after one warm-up call."""
     import torch
 
-    from ..synthesis import reference_shape, resize_mask, resize_view
-
-    w, h = reference_shape(scene.intrinsics[refs[0]], pt.ref_size)
-    mr = [resize_view(scene.images[r], scene.intrinsics[r], w, h) for r in refs]
-    masks = None if scene.masks is None else np.stack([resize_mask(scene.masks[r], w, h) for r in refs])
-    t = [v for v in range(len(scene)) if v not in refs][0]
-    intr = scene.intrinsics[t].resized(size, size)
-    args = (np.stack([im for im, _ in mr]), [scene.c2w[r] for r in refs], [k for _, k in mr], scene.bbox,
-            scene.c2w[t], intr)
-    kw = dict(chunk=pt.chunk or None, ref_masks=masks, skip=pt.skip, workers=workers)
-    with _autocast(pt.precision, device):
-        model.synthesize(*args, **kw)  # warm-up
+    with _autocast(precision, device):
+        render()  # warm-up
         walls, cpus, peaks = [], [], []
         for _ in range(repeats):
             with PeakMemory(device) as pm:
                 w0, c0 = time.perf_counter(), time.process_time()
-                res = model.synthesize(*args, **kw)
+                res = render()
                 if device.startswith("cuda"):
                     torch.cuda.synchronize()
                 walls.append(time.perf_counter() - w0)
                 cpus.append(time.process_time() - c0)
             peaks.append(pm.mib)
-    sec = statistics.median(walls)
-    return {"seconds_per_view": round(sec, 4), "cpu_seconds_per_view": round(statistics.median(cpus), 4),
-            "rays_total": res["rays"], "rays_box": res["box_rays"], "rays_evaluated": res["evaluated"],
-            "rays_per_s": round(res["evaluated"] / sec, 1), "peak_extra_mib": round(max(peaks), 1),
+    return res, {"seconds_per_view": round(statistics.median(walls), 4),
+                 "cpu_seconds_per_view": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1)}
+
+
+def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: int, device: str,
+                  workers: int = 1) -> dict:
+    """Median wall / CPU seconds of one ``size`` x ``size`` view, rays, and peak extra memory (MiB)."""
+    from ..synthesis import reference_shape, resize_mask, resize_view
+
+    w, h = reference_shape(scene.intrinsics[refs[0]], pt.ref_size)
+    mr = [resize_view(scene.images[r], scene.intrinsics[r], w, h) for r in refs]
+    masks = None if scene.masks is None else np.stack([resize_mask(scene.masks[r], w, h) for r in refs])
+    tgt = [v for v in range(len(scene)) if v not in refs][0]
+    intr = scene.intrinsics[tgt].resized(size, size)
+    args = (np.stack([im for im, _ in mr]), [scene.c2w[r] for r in refs], [k for _, k in mr], scene.bbox,
+            scene.c2w[tgt], intr)
+    kw = dict(chunk=pt.chunk or None, ref_masks=masks, skip=pt.skip, workers=workers)
+    res, t = _timed(lambda: model.synthesize(*args, **kw), pt.precision, repeats, device)
+    sec = t["seconds_per_view"]
+    return {**t, "rays_total": res["rays"], "rays_box": res["box_rays"], "rays_evaluated": res["evaluated"],
+            "rays_per_s": round(res["evaluated"] / sec, 1),
             "samples_per_ray": round(res.get("samples", 0) / max(1, res["evaluated"]), 2) if res.get("samples") else ""}
 
 
@@ -266,31 +272,13 @@ def _sem2nerf_code(model, ob, device: str):
 
 def measure_sem2nerf_speed(model, ob, pt: Point, size: int, repeats: int, device: str) -> dict:
     """Median wall / CPU seconds of one ``size`` x ``size`` novel view of ``ob`` (mask encoded beforehand)."""
-    import torch
-
-    from ..models.rays import make_rays, normalize_pose
-
     code, style = _sem2nerf_code(model, ob, device), model.default_style()
     v = sem2nerf_targets(len(ob.images), 1)[0]
     intr = ob.intrinsics[v].resized(size, size)
-    with _autocast(pt.precision, device):
-        model.render_image(intr, ob.c2w[v], code, style)  # warm-up
-        walls, cpus, peaks = [], [], []
-        for _ in range(repeats):
-            with PeakMemory(device) as pm:
-                w0, c0 = time.perf_counter(), time.process_time()
-                model.render_image(intr, ob.c2w[v], code, style)
-                if device.startswith("cuda"):
-                    torch.cuda.synchronize()
-                walls.append(time.perf_counter() - w0)
-                cpus.append(time.process_time() - c0)
-            peaks.append(pm.mib)
-    hit = make_rays(intr, normalize_pose(ob.c2w[v], np.zeros(3), model.cfg.scene_box), None, box=1.0).hit.numpy()
-    evaluated = model.last_render_stats["evaluated"]
-    sec = statistics.median(walls)
-    return {"seconds_per_view": round(sec, 4), "cpu_seconds_per_view": round(statistics.median(cpus), 4),
-            "rays_total": len(hit), "rays_box": int(hit.sum()), "rays_evaluated": evaluated,
-            "rays_per_s": round(evaluated / sec, 1), "peak_extra_mib": round(max(peaks), 1),
+    _, t = _timed(lambda: model.render_image(intr, ob.c2w[v], code, style), pt.precision, repeats, device)
+    st = model.last_render_stats  # (the rays render_image made and evaluated)
+    return {**t, "rays_total": st["rays"], "rays_box": st["box"], "rays_evaluated": st["evaluated"],
+            "rays_per_s": round(st["evaluated"] / t["seconds_per_view"], 1),
             "samples_per_ray": int(model.cfg.n_coarse + model.cfg.n_fine)}
 
 

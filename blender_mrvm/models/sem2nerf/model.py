@@ -443,9 +443,10 @@ class Sem2NeRF(nn.Module):
 
         bundle = make_rays(intr, normalize_pose(c2w_world, np.zeros(3), self.cfg.scene_box), None, box=1.0)
         need = bundle.hit.bool() & (bundle.far > 0)
+        box = int(need.sum())
         if self.cfg.cull_cone and isinstance(mask_code, MaskCode):
             need &= silhouette_cone(bundle, mask_code[:1])
-        self.last_render_stats = {"rays": len(bundle), "evaluated": int(need.sum())}
+        self.last_render_stats = {"rays": len(bundle), "box": box, "evaluated": int(need.sum())}
         dev = mask_code.device
         h, w, C = intr.height, intr.width, self.cfg.n_labels
         bg = 1.0 if self.cfg.white_background else 0.0
