@@ -206,6 +206,30 @@ def test_bench_train_times_the_real_trainer(tmp_path, capsys):
     assert not (tmp_path / "c").exists()
 
 
+def test_bench_train_times_the_lpips_patch_recipe(tmp_path):
+    """`bench train --lpips-weight`: the shipped recipe's step (one P x P patch per object scored by LPIPS-VGG)
+    is timed and the row says so; a ray count that is no P x P patch with P >= 16 is one error before any
+    work."""
+    import csv
+
+    from blender_mrvm.bench import train as bt
+    from blender_mrvm.cli import main
+
+    assert bt.patch_side(256) == 16 and bt.patch_side(1024) == 32
+    for bad in (255, 100, 225):
+        with pytest.raises(Exception, match="P >= 16"):
+            bt.patch_side(bad)
+    out = tmp_path / "b"
+    assert main(["bench", "train", "--presets", "fast", "--batches", "2x256", "--steps", "1", "--warmup", "1",
+                 "--resolution", "16", "--lpips-weight", "1", "--out", str(out)]) == 0
+    (row,) = list(csv.DictReader(open(out / "bench_train.csv")))
+    assert row["lpips_weight"] == "1.0" and float(row["rays_per_s"]) > 0
+    for bad in (["--batches", "2x100"], ["--lpips-weight", "-1"]):
+        assert main(["bench", "train", "--presets", "fast", "--lpips-weight", "1", *bad,
+                     "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "c").exists()
+
+
 def test_bench_train_compiles_on_request_and_needs_no_openexr(tmp_path, monkeypatch):
     """`bench train --compile` trains with the networks compiled (train.compile; recorded here instead of
     compiled: minutes on this CPU) and says so per row; its analytic set has no depth or normal EXRs, so it runs

@@ -70,6 +70,46 @@ def test_lpips_zero_for_identical_and_grows_with_noise():
 
 
 @needs_weights
+def test_lpips_batch_is_each_image_on_its_own():
+    """pred and gt go through VGG as one batch (``LPIPS.distance``): each image's distance is the one it gets
+    alone, computed the textbook way (two separate passes through VGG's own layers: at 16 px the last stage sees
+    one pixel, where ``features`` takes only the 3x3 kernels' centres), and a single gt broadcasts over the
+    batch."""
+    import torch.nn.functional as F
+
+    lp = LPIPS()
+    g = torch.Generator().manual_seed(1)
+    pred, gt = torch.rand(3, 3, 16, 16, generator=g), torch.rand(3, 3, 16, 16, generator=g)
+
+    def plain_features(x01):  # VGG's own layers, one after the other
+        x, out = (x01 * 2.0 - 1.0 - lp.shift) / lp.scale, []
+        for i, layer in enumerate(lp.net):
+            x = layer(x)
+            if i in lp.taps:
+                out.append(x)
+        return out
+
+    def alone(a, b):
+        total = 0.0
+        for fa, fb, w in zip(plain_features(a), plain_features(b), lp.lins):
+            fa = fa / (fa.norm(dim=1, keepdim=True) + 1e-10)
+            fb = fb / (fb.norm(dim=1, keepdim=True) + 1e-10)
+            total = total + F.conv2d((fa - fb) ** 2, w).mean(dim=(1, 2, 3))
+        return total
+
+    with torch.no_grad():
+        both = lp.distance(pred, gt)
+        each = torch.cat([alone(pred[i:i + 1], gt[i:i + 1]) for i in range(3)])
+        one_gt = lp.distance(pred, gt[:1])
+        each_one_gt = torch.cat([alone(pred[i:i + 1], gt[:1]) for i in range(3)])
+    assert both.shape == (3,) and float(each.min()) > 0.05
+    assert torch.allclose(both, each, rtol=1e-4) and torch.allclose(one_gt, each_one_gt, rtol=1e-4)
+    assert len(set(round(float(v), 4) for v in both)) == 3  # three different pairs, not one repeated
+    hwc = pred.permute(0, 2, 3, 1)
+    assert torch.allclose(lp(hwc, gt.permute(0, 2, 3, 1)), each, rtol=1e-4)  # the evaluation entry point
+
+
+@needs_weights
 def test_lpips_weights_are_the_pretrained_ones():
     lins = vgg.load_lpips_lin()
     assert [w.shape[1] for w in lins] == list(vgg.LPIPS_CHANNELS)

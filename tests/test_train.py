@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import subprocess
@@ -430,6 +431,51 @@ def test_lpips_patch_training(tmp_path, data):
         replace(tcfg, patch_scale_min=0.0)
     with pytest.raises(InputError, match="lpips_weight"):
         replace(tcfg, lpips_weight=-1.0)
+
+
+def test_step_patches_scored_as_one_batch_match_one_at_a_time(tmp_path, data):
+    """With the LPIPS patch loss the trainer scores a step's patches as one VGG batch after the last object
+    (``patch_lpips``) and backpropagates the step once: the same losses and gradients, up to float rounding, as
+    each object's LPIPS computed and backpropagated on its own, and the logged parts too."""
+    from blender_mrvm.models import registry
+    from blender_mrvm.models.metrics import LPIPS
+    from blender_mrvm.training.trainer import object_loss, patch_lpips
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "p", root, lpips_weight=0.7, patch_size=16, patch_scale_min=0.5,
+                       pretrain_frac=0.0, opacity_weight=0.1)
+    torch.manual_seed(0)
+    model = registry.build_model(mcfg)
+    model.train()
+    phase = model.train_phase(5, tcfg)
+    batcher = RayBatcher(scenes, tcfg, mcfg.sampler.box_padding, seed=3)
+    batches = [batcher.draw(False) for _ in range(3)]
+    lp = LPIPS()
+
+    def grads(deferred: bool):
+        model.zero_grad(set_to_none=True)
+        gen = torch.Generator().manual_seed(9)
+        patches, total, lpips_logged = ([] if deferred else None), [], 0.0
+        for b in batches:
+            b = dict(b, cams=copy.deepcopy(b["cams"]))
+            loss, parts = object_loss(model, b, tcfg, phase, gen, "cpu", lp, patches)
+            total.append(loss)
+            lpips_logged += parts.get("lpips", 0.0)
+        if deferred:
+            lpv = patch_lpips(lp, patches)
+            assert lpv.shape == (3,)
+            total.append(tcfg.lpips_weight * lpv.sum())
+            lpips_logged = float(lpv.detach().sum())
+        loss = torch.stack(total).sum()
+        loss.backward()
+        return float(loss.detach()), lpips_logged, [p.grad.clone() for p in model.parameters() if p.grad is not None]
+
+    l1, lp1, g1 = grads(False)
+    l2, lp2, g2 = grads(True)
+    assert lp1 > 0.01 and l1 == pytest.approx(l2, rel=1e-5) and lp1 == pytest.approx(lp2, rel=1e-5)
+    assert len(g1) == len(g2) > 0
+    for a, b in zip(g1, g2):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
 
 
 def test_distortion_loss(tmp_path, data):

@@ -59,6 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolution", type=int, default=64, help="image side of the analytic set")
     p.add_argument("--compile", action="store_true",
                    help="train with the networks torch.compiled (train.compile); the warm-up steps pay the compilation")
+    p.add_argument("--lpips-weight", type=float, default=0.0,
+                   help="train with the LPIPS patch loss at this weight (train.lpips_weight, as the shipped recipe "
+                   "does): each object's rays are then one P x P patch, so RAYS must be P*P with P >= 16 (2x256: "
+                   "two 16 x 16 patches)")
     p.add_argument("--profile", type=int, default=0,
                    help="steps profiled after the timed ones (torch.profiler; 0 = none): counts per step in the CSV, "
                    "operator tables in bench_train_profile.txt")
@@ -181,8 +185,22 @@ def profile_table(events, device: str, rows: int = 30) -> str:
     return ""
 
 
+def patch_side(rays: int) -> int:
+    """P for a batch of ``rays`` target rays per object under the LPIPS patch loss (one P x P patch, P >= 16);
+    InputError when ``rays`` is no such square."""
+    import math
+
+    from ..errors import InputError
+
+    side = math.isqrt(rays)
+    if side * side != rays or side < 16:
+        raise InputError(f"--lpips-weight trains on P x P patches: rays per object must be P*P with P >= 16 "
+                         f"(256, 576, 1024, ...), got {rays}")
+    return side
+
+
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
-            threads: int, run_dir: Path, profile: int = 0, compile: bool = False) -> dict:
+            threads: int, run_dir: Path, profile: int = 0, compile: bool = False, lpips_weight: float = 0.0) -> dict:
     """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir``; the timing of
     the ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation; with
     ``profile`` > 0 the next ``profile`` steps under ``torch.profiler`` (:func:`profile_counts` and, as
@@ -196,7 +214,8 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
     total = warmup + steps + profile + 1
     tcfg = TrainConfig(out_dir=str(run_dir), iterations=total, objects_per_step=objects,
                        rays_per_object=rays, amp=PRECISIONS[precision], device=device, threads=threads,
-                       log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0, compile=compile)
+                       log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0, compile=compile,
+                       lpips_weight=lpips_weight, patch_size=patch_side(rays) if lpips_weight > 0 else 16)
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     mem, util = PeakMemory(device), GpuUtilisation(device)
     t0 = c0 = None
@@ -268,6 +287,11 @@ def run(args) -> int:
         raise InputError("--steps, --warmup and --threads must be at least 1 (the first step carries the set-up: "
                          "it is never timed), --profile at least 0")
     batches = parse_batches(args.batches)
+    if not args.lpips_weight >= 0:
+        raise InputError(f"--lpips-weight must be >= 0, got {args.lpips_weight}")
+    if args.lpips_weight > 0:
+        for _, rays in batches:
+            patch_side(rays)
     precisions = parse_precisions(args.precisions, device)
     presets = []
     for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
@@ -296,7 +320,7 @@ def run(args) -> int:
                     try:
                         r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
                                     tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}", args.profile,
-                                    args.compile)
+                                    args.compile, args.lpips_weight)
                     except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
                         torch.cuda.empty_cache()
                         print(f"{name:9s} {objects}x{rays} {prec} {device}: out of memory, skipped", flush=True)
@@ -305,7 +329,7 @@ def run(args) -> int:
                     rows.append({
                         "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
                         "precision": prec, "compiled": bool(args.compile), "objects_per_step": objects, "rays_per_object": rays,
-                        "rays_per_step": objects * rays, "steps": args.steps, "seconds": round(r["seconds"], 3),
+                        "rays_per_step": objects * rays, "lpips_weight": args.lpips_weight, "steps": args.steps, "seconds": round(r["seconds"], 3),
                         "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
                         "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),
                         "draw_share": round(r["draw_share"], 3),

@@ -301,16 +301,35 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             opt.zero_grad(set_to_none=True)
             tot = {"loss": 0.0, "mse_fine": 0.0, "opacity": 0.0, "hit": 0.0,
                    **{k: 0.0 for k in phase.loss_weights}}
+            # Each object's loss is backpropagated on its own (only one object's graph is held), except with the
+            # LPIPS patch loss: then the step's patches are scored as one VGG batch after the last object
+            # (``patch_lpips``) and the step's graphs go back together (patches are small: P x P rays each).
+            patches: list | None = [] if lp is not None else None
+            held = []
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
                 with _autocast(cfg, device):
-                    loss, parts = object_loss(model, b, cfg, phase, gen, device, lp)
+                    loss, parts = object_loss(model, b, cfg, phase, gen, device, lp, patches)
                 for k, v in parts.items():
                     tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
                 tot["loss"] += float(loss.detach())
-                if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
+                if not loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
+                    continue
+                if patches is None:
                     (scaler.scale(loss) if scaler else loss).backward()
+                else:
+                    held.append(loss)
+            if patches:
+                with _autocast(cfg, device):
+                    lpv = patch_lpips(lp, patches)
+                lpips_total = lpv.sum() * (cfg.lpips_weight / cfg.objects_per_step)
+                tot["lpips"] = float(lpv.detach().sum()) / cfg.objects_per_step
+                tot["loss"] += float(lpips_total.detach())
+                held.append(lpips_total)
+            if held:
+                loss = torch.stack([x.float() for x in held]).sum()
+                (scaler.scale(loss) if scaler else loss).backward()
             if dd.world > 1:
                 _allreduce_grads(params, dd.world)
             if scaler:
@@ -371,14 +390,18 @@ def object_weights(data_weights, counts: list[int]) -> np.ndarray | None:
 
 
 def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: TrainPhase,
-                gen: torch.Generator, device, lp=None) -> tuple[torch.Tensor, dict[str, float]]:
+                gen: torch.Generator, device, lp=None,
+                patches: list | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """The loss of one object's batch and its parts, for any model kind.
 
     Photometric MSE over all drawn rays (rays that miss the box are predicted as the background and
     cost nothing to evaluate), the same for each auxiliary head (``coarse_weight``), the opacity BCE
     against the object mask when ``opacity_weight`` > 0, LPIPS of the final colour's patch when the
     batch is a patch and ``lp`` (:class:`models.metrics.LPIPS`) is given (``lpips_weight``), and the
-    model's auxiliary losses with the weights of its training phase (e.g. MRVM's lambda)."""
+    model's auxiliary losses with the weights of its training phase (e.g. MRVM's lambda).
+
+    With a ``patches`` list the LPIPS term is left to the caller: the (predicted, true) (1, 3, P, P) patch
+    pair is appended to it instead (:func:`patch_lpips` scores a step's patches as one VGG batch)."""
     rays, gt = b["rays"], b["gt"].to(device)
     hit = rays.hit.to(device)
     n = gt.shape[0]
@@ -432,14 +455,24 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
         full = gt.clone() if b.get("scene") else torch.full_like(gt, bg)
         full = full.index_put((hit.nonzero().flatten(),), out["color"].float())
         p = b["patch"]
-        lpv = lpips_loss(lp, full.T.reshape(1, 3, p, p), gt.T.reshape(1, 3, p, p))
-        loss = loss + cfg.lpips_weight * lpv
-        parts["lpips"] = float(lpv.detach())
+        pair = full.T.reshape(1, 3, p, p), gt.T.reshape(1, 3, p, p)
+        if patches is not None:
+            patches.append(pair)
+        else:
+            lpv = lpips_loss(lp, *pair)
+            loss = loss + cfg.lpips_weight * lpv
+            parts["lpips"] = float(lpv.detach())
     for name, value in out.get("aux_losses", {}).items():
         if value is not None:
             loss = loss + phase.loss_weights.get(name, 0.0) * value
             parts[name] = float(value.detach())
     return loss, parts
+
+
+def patch_lpips(lp, patches: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
+    """LPIPS (K,) of a step's K (predicted, true) (1, 3, P, P) patch pairs, scored as one VGG batch (one pair
+    at a time costs about K times as much on a CPU: ``models.metrics.LPIPS.distance``)."""
+    return lp.distance(torch.cat([a for a, _ in patches]), torch.cat([b for _, b in patches]))
 
 
 def interval_shares(t: torch.Tensor, far: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
