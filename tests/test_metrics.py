@@ -110,6 +110,31 @@ def test_lpips_batch_is_each_image_on_its_own():
 
 
 @needs_weights
+def test_scores_against_batches_lpips_with_the_same_numbers():
+    """evaluate.scores_against (eval, the demo, Sem2NeRF's eval): a view's model image and its baselines are scored
+    against the truth with LPIPS in one VGG batch; each figure is the one the pair gets on its own, tensors and
+    arrays alike, and without LPIPS the other metrics still come."""
+    import numpy as np
+
+    from blender_mrvm.training.evaluate import scores_against
+
+    lp = LPIPS()
+    g = torch.Generator().manual_seed(2)
+    gt = torch.rand(32, 32, 3, generator=g)
+    cands = {"model": (gt + 0.05 * torch.randn(gt.shape, generator=g)).clamp(0, 1),
+             "baseline_nearest": torch.rand(32, 32, 3, generator=g),
+             "baseline_mean": np.broadcast_to(np.array([0.5, 0.4, 0.3], np.float32), (32, 32, 3))}
+    sc = scores_against(gt.numpy(), cands, lp)
+    assert list(sc) == list(cands)
+    for k, img in cands.items():
+        img = torch.as_tensor(np.ascontiguousarray(img))
+        assert sc[k]["lpips"] == pytest.approx(float(lp(img, gt)[0]), rel=1e-4, abs=1e-6)
+        assert sc[k]["psnr"] == pytest.approx(float(psnr(img, gt)[0]), rel=1e-6)
+    assert sc["model"]["lpips"] < sc["baseline_nearest"]["lpips"]
+    assert "lpips" not in scores_against(gt, cands, None)["model"]
+
+
+@needs_weights
 def test_lpips_weights_are_the_pretrained_ones():
     lins = vgg.load_lpips_lin()
     assert [w.shape[1] for w in lins] == list(vgg.LPIPS_CHANNELS)

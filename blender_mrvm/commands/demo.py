@@ -138,7 +138,7 @@ def novel_views_demo(args) -> int:
     from ..progress import run_with_tqdm
     from ..scene.render import RenderConfig, render_dataset
     from ..synthesis import SynthesisConfig, load_checkpoint, synthesize_views, targets_from_views
-    from ..training.evaluate import alpha_scores, summarize
+    from ..training.evaluate import alpha_scores, scores_against, summarize
     from .make_shapenet import eval_views
 
     t_start = time.perf_counter()
@@ -189,10 +189,11 @@ def novel_views_demo(args) -> int:
             gt = to_float_rgb(ov.rgb(pos[v]))
             near = ref_imgs[_nearest(ov, [pos[r] for r in refs], pos[v])]
             alpha = F.read_png(job / "out" / tg.rgb_path(i))[..., 3].astype(np.float64) / 255.0
-            rec = {"category": cat, "object": obj.name, "view": v, **_scores(pred, gt, lpips),
+            sc = scores_against(gt, {"model": pred, "baseline_nearest": near,
+                                     "baseline_mean": np.broadcast_to(mean, gt.shape).astype(np.float32)}, lpips)
+            rec = {"category": cat, "object": obj.name, "view": v, **sc["model"],
                    "alpha": alpha_scores(alpha, np.asarray(ov.mask(pos[v])) > 0),
-                   "baseline_nearest": _scores(near, gt, lpips),
-                   "baseline_mean": _scores(np.broadcast_to(mean, gt.shape).astype(np.float32), gt, lpips)}
+                   "baseline_nearest": sc["baseline_nearest"], "baseline_mean": sc["baseline_mean"]}
             records.append(rec)
             rows.append((cat, v, ref_imgs, pred, gt, rec["psnr"]))
     t_synth = time.perf_counter() - t
@@ -228,19 +229,6 @@ def _nearest(ov, refs: list[int], tgt: int) -> int:
 
     c = lambda k: ov.c2w_opencv[k][:3, 3] / np.linalg.norm(ov.c2w_opencv[k][:3, 3])  # noqa: E731
     return max(range(len(refs)), key=lambda j: float(c(refs[j]) @ c(tgt)))
-
-
-def _scores(pred, gt, lpips) -> dict:
-    import numpy as np
-    import torch
-
-    from ..models.metrics import psnr, ssim
-
-    p, g = torch.from_numpy(np.ascontiguousarray(pred)), torch.from_numpy(np.ascontiguousarray(gt))
-    out = {"psnr": float(psnr(p, g)[0]), "ssim": float(ssim(p, g)[0])}
-    if lpips is not None:
-        out["lpips"] = float(lpips(p, g)[0])
-    return out
 
 
 def _print_table(report: dict, with_lpips: bool) -> None:

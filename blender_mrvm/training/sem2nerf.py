@@ -627,6 +627,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     novel view. Also: editing locality (every object) and style-blend monotonicity (the first
     ``blend_objects`` objects)."""
     from ..models import metrics as M
+    from .evaluate import scores_against
     from ..models.sem2nerf.inputs import build_inputs
 
     if views_every < 1:
@@ -666,14 +667,11 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
             fg = ob.masks[v] > 0
             base = np.where(fg[..., None], means.get(ob.category, np.full_like(gt, 0.5)), 1.0).astype(np.float32)
             sem = labels_t[img["semantic"].argmax(-1)].numpy()
-            pt, gtt, bt = torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(base)
-            ft = torch.from_numpy(photos.get(ob.category, np.full_like(gt, 1.0)))
+            sc = scores_against(gt, {"": pred, "base_": base,
+                                     "base_free_": photos.get(ob.category, np.full_like(gt, 1.0))}, lp)
             per_view.append({
                 "object": f"{ob.category}/{ob.name}", "category": ob.category, "view": int(v), "input_view": v == v_in,
-                "psnr": float(M.psnr(pt, gtt)[0]), "ssim": float(M.ssim(pt, gtt)[0]), "lpips": float(lp(pt, gtt)[0]),
-                "base_psnr": float(M.psnr(bt, gtt)[0]), "base_ssim": float(M.ssim(bt, gtt)[0]),
-                "base_lpips": float(lp(bt, gtt)[0]), "base_free_psnr": float(M.psnr(ft, gtt)[0]),
-                "base_free_ssim": float(M.ssim(ft, gtt)[0]), "base_free_lpips": float(lp(ft, gtt)[0]),
+                **{f"{k}{m}": sc[k][m] for k in ("", "base_", "base_free_") for m in ("psnr", "ssim", "lpips")},
                 "miou": miou(ob.masks[v], sem),
                 "fg_iou": float((fg & (sem > 0)).sum() / max((fg | (sem > 0)).sum(), 1))})
             if len(grid_rows) < 16 and (v == v_in or len(row) < 6):
