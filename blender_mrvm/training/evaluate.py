@@ -307,6 +307,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
         if nearest and s.masks is not None and skip != "off":
             hull = model.world_hull(s.masks[others], [s.c2w[k] for k in others], [s.intrinsics[k] for k in others],
                                     s.bbox)
+        elif ref_masks is not None and skip != "off":  # the references' hull once for all the object's targets
+            hull = model.world_hull(ref_masks, ref_c2w, ref_intr, s.bbox)  # (synthesize would build it per view)
         render = partial(m.synthesize, ref_images, ref_c2w, ref_intr, s.bbox, chunk=chunk, ref_masks=ref_masks,
                          skip=skip, workers=workers, hull=hull)
         geometry: dict[int, tuple] = {}  # reference position -> its geometry, rendered when first read
