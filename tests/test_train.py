@@ -478,6 +478,25 @@ def test_step_patches_scored_as_one_batch_match_one_at_a_time(tmp_path, data):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
 
 
+def test_lpips_groups_of_objects_give_the_same_step(tmp_path, data, monkeypatch):
+    """A step of 3 objects with the LPIPS patch loss: scored one object at a time (LPIPS_GROUP 1), in a group of 2
+    and then 1, or all together, the step's loss, LPIPS and gradient norm agree (every patch scored once, every
+    graph backpropagated once)."""
+    from blender_mrvm.training import trainer as T
+
+    root, scenes = data
+    logs = []
+    for group in (1, 2, 8):
+        monkeypatch.setattr(T, "LPIPS_GROUP", group)
+        mcfg, tcfg = _cfgs(tmp_path / f"g{group}", root, lpips_weight=0.7, patch_size=16, patch_scale_min=0.5,
+                           pretrain_frac=0.0, iterations=1, objects_per_step=3, ckpt_every=1)
+        run_to_end(train(mcfg, tcfg, scenes=scenes))
+        logs.append(json.loads((tmp_path / f"g{group}" / "metrics.jsonl").read_text().splitlines()[0]))
+    for k in ("loss", "lpips", "grad_norm", "mse_fine"):
+        assert logs[0][k] > 0
+        assert logs[1][k] == pytest.approx(logs[0][k], rel=1e-4) and logs[2][k] == pytest.approx(logs[0][k], rel=1e-4)
+
+
 def test_distortion_loss(tmp_path, data):
     """Mip-NeRF 360's distortion loss: the brute-force double sum, 0 for an empty ray, lower for weight in one
     short interval than for the same weight in two layers apart, independent of the box's scale; the trainer

@@ -302,10 +302,25 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             tot = {"loss": 0.0, "mse_fine": 0.0, "opacity": 0.0, "hit": 0.0,
                    **{k: 0.0 for k in phase.loss_weights}}
             # Each object's loss is backpropagated on its own (only one object's graph is held), except with the
-            # LPIPS patch loss: then the step's patches are scored as one VGG batch after the last object
-            # (``patch_lpips``) and the step's graphs go back together (patches are small: P x P rays each).
+            # LPIPS patch loss: then up to LPIPS_GROUP objects' patches are scored as one VGG batch
+            # (``patch_lpips``) and their graphs go back together (patches are small: P x P rays each).
             patches: list | None = [] if lp is not None else None
-            held = []
+            held: list[torch.Tensor] = []
+
+            def backward_held():
+                if patches:
+                    with _autocast(cfg, device):
+                        lpv = patch_lpips(lp, patches)
+                    lpips_part = lpv.sum() * (cfg.lpips_weight / cfg.objects_per_step)
+                    tot["lpips"] = tot.get("lpips", 0.0) + float(lpv.detach().sum()) / cfg.objects_per_step
+                    tot["loss"] += float(lpips_part.detach())
+                    held.append(lpips_part)
+                    patches.clear()
+                if held:
+                    total = held[0] if len(held) == 1 else torch.stack([x.float() for x in held]).sum()
+                    (scaler.scale(total) if scaler else total).backward()
+                    held.clear()
+
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
                 with _autocast(cfg, device):
@@ -314,22 +329,11 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                     tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
                 tot["loss"] += float(loss.detach())
-                if not loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
-                    continue
-                if patches is None:
-                    (scaler.scale(loss) if scaler else loss).backward()
-                else:
+                if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
                     held.append(loss)
-            if patches:
-                with _autocast(cfg, device):
-                    lpv = patch_lpips(lp, patches)
-                lpips_total = lpv.sum() * (cfg.lpips_weight / cfg.objects_per_step)
-                tot["lpips"] = float(lpv.detach().sum()) / cfg.objects_per_step
-                tot["loss"] += float(lpips_total.detach())
-                held.append(lpips_total)
-            if held:
-                loss = torch.stack([x.float() for x in held]).sum()
-                (scaler.scale(loss) if scaler else loss).backward()
+                if patches is None or len(patches) >= LPIPS_GROUP:
+                    backward_held()
+            backward_held()
             if dd.world > 1:
                 _allreduce_grads(params, dd.world)
             if scaler:
@@ -467,6 +471,11 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
             loss = loss + phase.loss_weights.get(name, 0.0) * value
             parts[name] = float(value.detach())
     return loss, parts
+
+
+LPIPS_GROUP = 8
+"""With the LPIPS patch loss, objects whose patches are scored as one VGG batch and whose graphs are held until
+then (more objects a step go in groups of this many: memory stays bounded on a GPU step of many objects)."""
 
 
 def patch_lpips(lp, patches: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
