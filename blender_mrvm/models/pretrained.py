@@ -38,12 +38,12 @@ FIGURES = {
             "on 2 CPU cores; best with many nearby views",
     "gpnr_captures": "15 held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.124 (nearest photo "
                      "24.2 / 0.160, mean of the two 27.7 / 0.160); ~6 s per 128 px view on 2 CPU cores",
-    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.4 dB / LPIPS 0.269 (default model "
-                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 2.9 dB below the default "
-                    "(20.0 against 22.9 dB on held-out turntable objects); "
+    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.6 dB / LPIPS 0.252 (default model "
+                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 3.1 dB below the default "
+                    "(19.8 against 22.9 dB on held-out turntable objects); "
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.8 dB / LPIPS 0.250 (any-view model "
-                    "18.4 / 0.268, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 22.9 / 0.164); "
+                    "18.6 / 0.252, nearest view 15.2 / 0.259); on the turntable 20.6 / 0.254 (default 22.9 / 0.164); "
                     "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); 6 FPS on an H100",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
