@@ -317,7 +317,6 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             pred = out["color"]
             gt = torch.from_numpy(s.images[t])
             cands = {}
-            share = None
             if reproject != "off":
                 cands["model_only"] = pred
                 pred, share = _reprojected(s, t, out, reproject, reproject_cfg, refs,
