@@ -287,7 +287,7 @@ def measure_sem2nerf_quality(model, objects, pt: Point, targets: int, lpips, dev
     size from the object's view-0 mask with the mean style."""
     import torch
 
-    from ..models import metrics as M
+    from ..training.evaluate import scores_against
     from ..training.sem2nerf import miou
 
     labels = torch.as_tensor(model.cfg.labels)
@@ -299,11 +299,9 @@ def measure_sem2nerf_quality(model, objects, pt: Point, targets: int, lpips, dev
                 img = model.render_image(ob.intrinsics[v], ob.c2w[v], code, model.default_style())
                 pred = img["rgb"].float().clamp(0, 1).cpu()
                 gt = torch.from_numpy(ob.images[v])
-                r = {"psnr": float(M.psnr(pred, gt)[0]), "ssim": float(M.ssim(pred, gt)[0]),
-                     "miou": miou(ob.masks[v], labels[img["semantic"].float().argmax(-1).cpu()].numpy())}
-                if lpips is not None:
-                    r["lpips"] = float(lpips(pred, gt)[0])
-                rows.append(r)
+                sc = scores_against(gt, {"view": pred}, lpips)["view"]
+                rows.append({**{k: sc[k] for k in ("psnr", "ssim", "lpips") if k in sc},
+                             "miou": miou(ob.masks[v], labels[img["semantic"].float().argmax(-1).cpu()].numpy())})
     return {k: round(float(np.mean([r[k] for r in rows])), 4) for k in rows[0]}
 
 

@@ -201,21 +201,32 @@ def patch_side(rays: int) -> int:
 
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
             threads: int, run_dir: Path, profile: int = 0, compile: bool = False, lpips_weight: float = 0.0) -> dict:
-    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir``; the timing of
-    the ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation; with
+    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir`` at the bench's
+    batch shape and precision (:func:`measure_config`)."""
+    from ..training.config import TrainConfig
+
+    tcfg = TrainConfig(objects_per_step=objects, rays_per_object=rays, amp=PRECISIONS[precision], device=device,
+                       threads=threads, seed=0, compile=compile, lpips_weight=lpips_weight,
+                       patch_size=patch_side(rays) if lpips_weight > 0 else 16)
+    return measure_config(model_cfg, tcfg, scenes, steps, warmup, run_dir, profile)
+
+
+def measure_config(model_cfg, tcfg, scenes, steps: int, warmup: int, run_dir: Path, profile: int = 0) -> dict:
+    """Train ``model_cfg`` with the run settings ``tcfg`` (any recipe; its length, logging, checkpoints and init
+    are the bench's) on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir``; the timing of the
+    ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation; with
     ``profile`` > 0 the next ``profile`` steps under ``torch.profiler`` (:func:`profile_counts` and, as
     ``profile_table``, :func:`profile_table`)."""
     import torch
 
     from ..progress import Progress
-    from ..training.config import TrainConfig
+    from ..training.config import replace
     from ..training.trainer import RayBatcher, train
 
     total = warmup + steps + profile + 1
-    tcfg = TrainConfig(out_dir=str(run_dir), iterations=total, objects_per_step=objects,
-                       rays_per_object=rays, amp=PRECISIONS[precision], device=device, threads=threads,
-                       log_every=total, ckpt_every=total, keep_checkpoints=1, seed=0, compile=compile,
-                       lpips_weight=lpips_weight, patch_size=patch_side(rays) if lpips_weight > 0 else 16)
+    tcfg = replace(tcfg, out_dir=str(run_dir), iterations=total, log_every=total, ckpt_every=total,
+                   keep_checkpoints=1, init_checkpoint="")
+    device = tcfg.device
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     mem, util = PeakMemory(device), GpuUtilisation(device)
     t0 = c0 = None
