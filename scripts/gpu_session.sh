@@ -8,9 +8,9 @@
 #                                                      launches, syncs, allocations, device-busy ms per step;
 #                                                      operator tables); FPS at 256 px eager and compiled
 #                                                      (profiled); training with the networks compiled
-#   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: eager, compiled,
-#                                                      each with and without the written-out view attention;
-#                                                      CUDA graphs
+#   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: every preset and kind
+#                                                      eager; `fast` with the written-out attention, eager and
+#                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16, its log, and
@@ -75,24 +75,32 @@ case "$what" in
       ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train_compiled; keep
     ;;
   fps)
-    # frames per second at 256 px (issue 13: 30 for fast), each step with one profiled render: eager; eager with the
-    # view attention written out (MRVM_SHORT_ATTENTION=4); compiled, both ways; CUDA graphs (reduce-overhead)
+    # frames per second at 256 px (issue 13: 30 for fast), each step with one profiled render. Session 23's call:
+    # every preset and kind eager (fp32, bf16: the table per preset and kind); then `fast` fp32 with the attention
+    # written out for sequences of up to 16 tokens (MRVM_SHORT_ATTENTION=16: the view attention's 2-3 and the ray
+    # attention's 8 + 8 fine samples), eager and compiled; CUDA graphs (reduce-overhead) on the compiled networks
     G=/tmp/gpu_fps; mkdir -p $G
-    keep() { tar -czf "$OUT/fps.tgz" -C $G . ; }
-    nvidia-smi -L 2>/dev/null
+    keep() { tar -czf "$OUT/fps.tgz" -C $G . ; }  # one file (at most 8 come back), rewritten after every step
+    nvidia-smi -L 2>/dev/null; $PY -c "import torch; print('torch', torch.__version__, 'cudnn', torch.backends.cudnn.version())"
     bm() { out=$1; shift; timeout ${STEP_S:-150} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --views 2 \
-      --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 --repeats 5 --profile --out $G/$out "$@"; keep; }
-    bm eager --presets ${MODEL_PRESETS:-fast,balanced} --precisions fp32,bf16
-    MRVM_SHORT_ATTENTION=4 bm eager_short --presets fast --precisions fp32,bf16
-    bm compiled --presets fast --precisions fp32,bf16 --compile
-    MRVM_SHORT_ATTENTION=4 bm compiled_short --presets fast --precisions fp32,bf16 --compile
-    MRVM_SHORT_ATTENTION=4 bm graphs_short --presets fast --precisions fp32 --compile-mode reduce-overhead
+      --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 --repeats ${REPEATS:-5} --profile --out $G/$out "$@"; keep; }
+    # the same machine's baseline, when the tree before a change came along (git archive <rev> blender_mrvm into
+    # gpu_old/, carried): `python -m` imports from the working directory, so it runs from there
+    old() { out=$1; shift; (cd gpu_old && PYTHONPATH=$PWD timeout ${STEP_S:-150} $PY -m blender_mrvm bench model \
+      --device ${DEVICE:-cuda} --views 2 --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 --repeats ${REPEATS:-5} \
+      --out $G/$out "$@"); keep; }
+    [ -d gpu_old/blender_mrvm ] && old old_eager --presets fast,balanced --precisions fp32
+    bm eager --presets ${MODEL_PRESETS:-fast,balanced,accurate,gpnr:fast} --precisions fp32,bf16
+    MRVM_SHORT_ATTENTION=16 bm eager_short16 --presets fast --precisions fp32
+    bm compiled --presets fast --precisions fp32 --compile
+    MRVM_SHORT_ATTENTION=16 bm compiled_short16 --presets fast --precisions fp32 --compile
+    MRVM_SHORT_ATTENTION=16 bm graphs_short16 --presets fast --precisions fp32 --compile-mode reduce-overhead
     # Sem2NeRF, the third kind, when a masked set came along (SPLITS=test MAX_OBJECTS=2 scripts/gpu_carry.sh):
     # seconds per 256 px view (fps = 1 / seconds_per_view) at its samples and precisions, mask encoded once
     S2N_DATA=${S2N_DATA:-gpu_carry/data/shapenet13_all}
     if [ -f "$S2N_DATA/splits/test.lst" ]; then
-      timeout ${STEP_S:-150} $PY -m blender_mrvm bench tradeoff --device ${DEVICE:-cuda} --data "$S2N_DATA" \
-        --checkpoints shipped:sem2nerf --axes base,samples,precision,chunk --objects 2 --targets 2 --size 256 \
+      timeout ${S2N_S:-90} $PY -m blender_mrvm bench tradeoff --device ${DEVICE:-cuda} --data "$S2N_DATA" \
+        --checkpoints shipped:sem2nerf --axes ${S2N_AXES:-base,samples,precision} --objects 2 --targets 2 --size 256 \
         --repeats 5 --no-lpips --out $G/sem2nerf; keep
     fi
     ;;

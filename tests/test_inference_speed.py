@@ -179,3 +179,44 @@ def test_every_linear_layer_is_one_matrix_product_at_inference(preset):
     broadcast = [e.input_shapes for e in prof.key_averages(group_by_input_shape=True)
                  if e.key == "aten::matmul" and len(e.input_shapes[0]) >= 3 and len(e.input_shapes[1]) == 2]
     assert linear_inputs and not broadcast, broadcast
+
+
+def test_rays_made_by_torch_equal_the_numpy_rays():
+    """A GPU view makes its rays on the device (``make_rays`` with torch pixels, ``rays.pixel_rows``): the same
+    float64 rays as the host's numpy path, skew, rows and misses included."""
+    import numpy as np
+
+    from blender_mrvm.geometry import cameras
+    from blender_mrvm.models.rays import pixel_rows
+
+    intr = cameras.Intrinsics(41.0, 39.5, 17.2, 12.9, 33, 27, skew=0.7)
+    c2w = cameras.look_at_opencv(np.array([4.2, -2.6, 1.8]))
+    vv, uu = np.meshgrid(np.arange(5, 19) + 0.5, np.arange(33) + 0.5, indexing="ij")
+    a = make_rays(intr, c2w, np.stack([uu, vv], -1).reshape(-1, 2), box=1.1)
+    b = make_rays(intr, c2w, pixel_rows(5, 19, 33), box=1.1)
+    assert 0 < int(a.hit.sum()) < len(a)
+    assert torch.equal(a.hit, b.hit)
+    for k in ("origins", "dirs", "far", "depth_offset", "up"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert x.dtype == y.dtype == torch.float64 and x.shape == y.shape, k
+        assert torch.allclose(x, y, rtol=0, atol=1e-12), k
+
+
+@pytest.mark.parametrize("kind", ["nerformer_mrvm", "gpnr"])
+def test_a_view_rendered_through_device_side_rays_is_the_same(kind, monkeypatch):
+    """``image_chunks``' device path (rays made by torch, the view gathered where it renders, one copy to the host at
+    the end: what a GPU runs) gives the host path's image, counts and span; forced here on the CPU."""
+    from blender_mrvm.models import base
+
+    model, imgs, poses, intr, masks, bbox, target = model_and_scene()
+    if kind == "gpnr":
+        torch.manual_seed(0)
+        model = registry.build_model(registry.build_config("gpnr", "fast")).eval()
+    host = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, chunk=97)
+    monkeypatch.setattr(base, "rays_on_host", lambda device: False)
+    dev = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, chunk=97)
+    for k in ("color", "acc", "depth"):
+        assert torch.allclose(host[k], dev[k], rtol=0, atol=1e-5), k
+    for k in ("rays", "box_rays", "evaluated", "samples"):
+        assert host[k] == dev[k], k
+    assert host["span"] == pytest.approx(dev["span"], abs=1e-9)

@@ -412,6 +412,16 @@ def test_render_image_evaluates_only_the_rays_it_needs(tiny):
     assert torch.allclose(culled["rgb"][keep], img["rgb"][keep], atol=1e-5)
     assert torch.all(culled["rgb"][~keep] == 1) and torch.all(culled["acc"][~keep] == 0)
     assert torch.all(culled["semantic"][~keep].argmax(-1) == 0)
+    # the rays made by torch where the model renders (a GPU's path, forced here on the CPU): the same view
+    from blender_mrvm.models import base
+
+    stats = dict(m.last_render_stats)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(base, "rays_on_host", lambda device: False)
+        dev_path = m.render_image(intr, c2w, code, m.default_style())
+    assert m.last_render_stats == stats
+    for k in ("rgb", "acc", "semantic"):
+        assert torch.allclose(dev_path[k], culled[k], atol=1e-5), k
 
 
 def test_silhouette_cone_follows_the_mask():

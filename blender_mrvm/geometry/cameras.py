@@ -357,20 +357,30 @@ def rays_opencv(intr: Intrinsics, c2w_opencv: np.ndarray, pixels: np.ndarray | N
 
     With ``normalize=False`` the direction has unit z in camera space, so ``origin + z * dir`` is the
     point at planar depth z (what a z-depth map stores).
+
+    ``pixels`` may also be a float64 torch tensor (on any device): the rays are then torch tensors on its
+    device, by the same arithmetic (a GPU view makes its rays where it renders them).
     """
-    if pixels is None:
-        pixels = pixel_centers(intr.width, intr.height)
-    pixels = np.asarray(pixels, dtype=np.float64)
-    u, v = pixels[..., 0], pixels[..., 1]
+    c2w = as_pose(c2w_opencv)
+    if pixels is not None and not isinstance(pixels, np.ndarray) and hasattr(pixels, "device"):
+        import torch
+
+        px = pixels.to(torch.float64)
+        rot = torch.as_tensor(c2w[:3, :3], device=px.device)
+        xp = torch
+    else:
+        px = pixel_centers(intr.width, intr.height) if pixels is None else np.asarray(pixels, dtype=np.float64)
+        rot, xp = c2w[:3, :3], np
+    u, v = px[..., 0], px[..., 1]
     y = (v - intr.cy) / intr.fy
     x = (u - intr.cx - intr.skew * y) / intr.fx
-    d_cam = np.stack([x, y, np.ones_like(x)], axis=-1)
-    c2w = as_pose(c2w_opencv)
-    d = d_cam @ c2w[:3, :3].T
+    d_cam = xp.stack([x, y, xp.ones_like(x)], -1)
+    d = d_cam @ rot.T
     if normalize:
-        d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    o = np.broadcast_to(c2w[:3, 3], d.shape).copy()
-    return o, d
+        d = d / xp.linalg.norm(d, axis=-1, keepdims=True) if xp is np else d / d.norm(dim=-1, keepdim=True)
+    if xp is np:
+        return np.broadcast_to(c2w[:3, 3], d.shape).copy(), d
+    return torch.as_tensor(c2w[:3, 3], device=d.device).expand(d.shape).clone(), d
 
 
 def axis_cosines(intr: Intrinsics, pixels: np.ndarray | None = None) -> np.ndarray:

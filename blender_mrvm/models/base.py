@@ -25,12 +25,18 @@ from torch import nn
 
 from ..geometry import cameras
 from .projection import RefCameras
-from .rays import RayBundle, make_rays, normalization, normalize_pose
+from .rays import RayBundle, make_rays, normalization, normalize_pose, pixel_rows
 
 
 RAY_BLOCK = 1 << 16
 """Pixels whose rays are made at once in :meth:`RayModel.image_chunks` (with ``chunk_rays`` rays per forward
 pass, this bounds a view's memory whatever its size; only the output images grow with it)."""
+
+
+def rays_on_host(device: torch.device) -> bool:
+    """Whether a view's rays are made in numpy (on the CPU, where numpy is as fast as torch) rather than by torch
+    on ``device`` (a GPU: :meth:`RayModel.image_chunks`). Both give the same rays (tests compare them)."""
+    return device.type == "cpu"
 
 
 @dataclass
@@ -167,22 +173,31 @@ class RayModel(nn.Module):
 
         H, W = int(intr.height), int(intr.width)
         n = H * W
-        bg = 1.0 if self.white_background else 0.0
-        color = torch.full((n, 3), bg)
-        depth = torch.zeros(n)
-        acc = torch.zeros(n)
-        chunk = int(chunk or self.chunk_rays)
         keep = footprint(hull, intr, c2w_norm) if hull is not None and skip != "off" else None
-        box_rays = evaluated = samples = 0
-        span = 0.0
+        # On a GPU the rays are made, rendered and gathered there, and the view crosses to the host once at the
+        # end: made on the host in numpy, a 256 px view's rays took longer than the model's whole render (session
+        # 20's FPS profile spent half of a view outside device work). The hull's marching runs on the host.
+        dev = self.device if keep is None else torch.device("cpu")
+        bg = 1.0 if self.white_background else 0.0
+        color = torch.full((n, 3), bg, device=dev)
+        depth = torch.zeros(n, device=dev)
+        acc = torch.zeros(n, device=dev)
+        chunk = int(chunk or self.chunk_rays)
+        evaluated = samples = 0
+        box_rays = torch.zeros((), dtype=torch.int64, device=dev)
+        span = torch.zeros((), dtype=torch.float64, device=dev)
         rows = max(1, RAY_BLOCK // W)  # rays are made a block of rows at a time: memory does not grow with the view
         workers = int(workers) if self.device.type == "cpu" else 1  # a GPU takes one chunk at a time
         for r0 in range(0, H, rows):
             r1 = min(H, r0 + rows)
-            vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
-            rays = make_rays(intr, c2w_norm, np.stack([uu, vv], -1).reshape(-1, 2), box=box)
+            if rays_on_host(dev):
+                vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
+                pixels = np.stack([uu, vv], -1).reshape(-1, 2)
+            else:
+                pixels = pixel_rows(r0, r1, W, dev)
+            rays = make_rays(intr, c2w_norm, pixels, box=box)
             base = r0 * W
-            box_rays += int(rays.hit.sum())
+            box_rays += rays.hit.sum()
             box_far = rays.far
             if keep is not None:
                 rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)], workers=workers)
@@ -191,17 +206,18 @@ class RayModel(nn.Module):
             sels = [idx[s:s + chunk] for s in range(0, idx.numel(), chunk)]
             for sel, sub, o in self._chunk_results(ctx, rays, sels, workers):
                 a = o["acc"].float()
-                out = sel + base
-                color[out] = o["color"].float().cpu()
-                acc[out] = a.cpu()
-                depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).cpu()
+                out = sel.to(dev) + base
+                color[out] = o["color"].float().to(dev)
+                acc[out] = a.to(dev)
+                depth[out] = torch.where(a > 0, o["depth"].float() + sub.depth_offset.float(), torch.zeros_like(a)).to(dev)
                 samples += int(o.get("samples", 0))
                 yield sel.numel()
             evaluated += int(idx.numel())
-            span += float((rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum())
-        span = span / evaluated if evaluated else 0.0
-        return {"color": color.view(H, W, 3).clamp(0, 1), "depth": depth.view(H, W), "acc": acc.view(H, W).clamp(0, 1),
-                "rays": n, "box_rays": box_rays, "evaluated": evaluated, "span": span, "samples": samples}
+            span += (rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum()
+        span = float(span) / evaluated if evaluated else 0.0
+        return {"color": color.view(H, W, 3).clamp(0, 1).cpu(), "depth": depth.view(H, W).cpu(),
+                "acc": acc.view(H, W).clamp(0, 1).cpu(), "rays": n, "box_rays": int(box_rays), "evaluated": evaluated,
+                "span": span, "samples": samples}
 
     def _chunk_results(self, ctx, rays: RayBundle, sels: list, workers: int):
         """(sel, rays, outputs) of each chunk of ray indices in ``sels``, in order. With ``workers`` > 1 they

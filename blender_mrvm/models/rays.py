@@ -44,8 +44,11 @@ def intersect_box(origins, dirs, bbox_min, bbox_max):
     """
     is_torch = isinstance(origins, torch.Tensor)
     xp = torch if is_torch else np
-    lo = xp.as_tensor(bbox_min, dtype=origins.dtype) if is_torch else np.asarray(bbox_min, np.float64)
-    hi = xp.as_tensor(bbox_max, dtype=origins.dtype) if is_torch else np.asarray(bbox_max, np.float64)
+    if is_torch:
+        lo = torch.as_tensor(bbox_min, dtype=origins.dtype, device=origins.device)
+        hi = torch.as_tensor(bbox_max, dtype=origins.dtype, device=origins.device)
+    else:
+        lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
     zero = dirs == 0
     safe = xp.where(zero, xp.ones_like(dirs), dirs)
     if is_torch:
@@ -101,17 +104,32 @@ class RayBundle:
                          self.depth_offset.to(device), None if self.up is None else self.up.to(device))
 
 
-def make_rays(intr: cameras.Intrinsics, c2w_norm: np.ndarray, pixels: np.ndarray | None = None,
+def make_rays(intr: cameras.Intrinsics, c2w_norm: np.ndarray, pixels: np.ndarray | torch.Tensor | None = None,
               box: float = 1.0) -> RayBundle:
     """Rays through ``pixels`` ((N, 2), default all pixel centres, row-major) of a normalised camera,
-    clipped to the cube [-box, box]^3."""
+    clipped to the cube [-box, box]^3. ``pixels`` as a torch tensor makes the rays on its device (in float64
+    there, by the same arithmetic: :func:`pixel_rows` gives a block of rows' pixel centres)."""
     o, d = cameras.rays_opencv(intr, c2w_norm, pixels)
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
     lo, hi = np.full(3, -box), np.full(3, box)
     tn, tf, hit = intersect_box(o, d, lo, hi)
+    up = cameras.camera_up(c2w_norm)
+    if isinstance(o, torch.Tensor):
+        zero = torch.zeros_like(tn)
+        tn = torch.where(hit, tn, zero)
+        far = torch.where(hit, tf - tn, zero)
+        return RayBundle(o + tn[:, None] * d, d, far, hit, tn, torch.as_tensor(up, device=d.device).expand(d.shape).clone())
     tn = np.where(hit, tn, 0.0)
     far = np.where(hit, tf - tn, 0.0)
     entry = o + tn[:, None] * d
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
-    up = np.broadcast_to(cameras.camera_up(c2w_norm), d.shape).copy()
-    return RayBundle(t(entry), t(d), t(far), t(hit), t(tn), t(up))
+    return RayBundle(t(entry), t(d), t(far), t(hit), t(tn), t(np.broadcast_to(up, d.shape).copy()))
+
+
+def pixel_rows(r0: int, r1: int, width: int, device=None) -> torch.Tensor:
+    """((r1 - r0) * width, 2) float64 pixel centres (u, v) of image rows r0..r1, row-major, on ``device``
+    (:func:`make_rays` makes their rays there)."""
+    v = torch.arange(r0, r1, dtype=torch.float64, device=device) + 0.5
+    u = torch.arange(width, dtype=torch.float64, device=device) + 0.5
+    vv, uu = torch.meshgrid(v, u, indexing="ij")
+    return torch.stack([uu, vv], -1).reshape(-1, 2)

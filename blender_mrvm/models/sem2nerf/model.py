@@ -115,7 +115,7 @@ def silhouette_cone(bundle, mc: MaskCode, n_check: int = 64, dilate_px: int = 2)
         fg = F.max_pool2d(fg, 2 * dilate_px + 1, stride=1, padding=dilate_px)
     on = F.grid_sample(fg, grid[:, :, None], mode="nearest", padding_mode="zeros", align_corners=False)[0, 0, :, 0]
     on = (on > 0) & (z[0] > 1e-3)
-    return on.view(R, n_check).any(-1).cpu()
+    return on.view(R, n_check).any(-1).to(bundle.hit.device)
 
 
 # ------------------------------------------------------------------------------------------- SIREN
@@ -438,16 +438,18 @@ class Sem2NeRF(nn.Module):
     @torch.no_grad()
     def render_image(self, intr, c2w_world, mask_code: torch.Tensor, style_code: torch.Tensor) -> dict[str, torch.Tensor]:
         """A full view (H, W) of one object: rgb (H, W, 3), acc (H, W), semantic (H, W, C) log-probs."""
-        from ..rays import make_rays, normalize_pose
+        from .. import base
+        from ..rays import make_rays, normalize_pose, pixel_rows
         import numpy as np
 
-        bundle = make_rays(intr, normalize_pose(c2w_world, np.zeros(3), self.cfg.scene_box), None, box=1.0)
+        dev = mask_code.device
+        pixels = None if base.rays_on_host(dev) else pixel_rows(0, int(intr.height), int(intr.width), dev)
+        bundle = make_rays(intr, normalize_pose(c2w_world, np.zeros(3), self.cfg.scene_box), pixels, box=1.0)
         need = bundle.hit.bool() & (bundle.far > 0)
         box = int(need.sum())
         if self.cfg.cull_cone and isinstance(mask_code, MaskCode):
             need &= silhouette_cone(bundle, mask_code[:1])
         self.last_render_stats = {"rays": len(bundle), "box": box, "evaluated": int(need.sum())}
-        dev = mask_code.device
         h, w, C = intr.height, intr.width, self.cfg.n_labels
         bg = 1.0 if self.cfg.white_background else 0.0
         out = {"rgb": torch.full((len(bundle), 3), bg, device=dev), "acc": torch.zeros(len(bundle), device=dev),
