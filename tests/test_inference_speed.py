@@ -220,3 +220,16 @@ def test_a_view_rendered_through_device_side_rays_is_the_same(kind, monkeypatch)
     for k in ("rays", "box_rays", "evaluated", "samples"):
         assert host[k] == dev[k], k
     assert host["span"] == pytest.approx(dev["span"], abs=1e-9)
+
+
+def test_inference_chunk_is_the_configs_on_the_cpu_and_large_on_a_gpu(monkeypatch):
+    """A GPU renders at least models.base.GPU_CHUNK_RAYS rays a forward pass (the configs' 512 are sized for a
+    2-core CPU); a chunk asked for is kept as it is, on either device."""
+    from blender_mrvm.models import base
+
+    model, *_ = model_and_scene()
+    assert model.inference_chunk() == model.chunk_rays == 512
+    assert model.inference_chunk(97) == 97
+    monkeypatch.setattr(type(model), "device", property(lambda self: torch.device("cuda")))
+    assert model.inference_chunk() == base.GPU_CHUNK_RAYS == 16384
+    assert model.inference_chunk(97) == 97

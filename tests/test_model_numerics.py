@@ -295,7 +295,7 @@ test_model_property_random_poses.model = GeneralizableNeRF(model_config(
 
 
 def test_short_attention_matches_the_fused_kernel(monkeypatch):
-    """The written-out attention for short sequences (MRVM_SHORT_ATTENTION, a GPU experiment) gives what the fused
+    """The written-out attention for short sequences (the GPU default at inference, MRVM_SHORT_ATTENTION) gives what the fused
     kernel gives, masks and a sequence with no valid key included, and a model renders the same through it."""
     import numpy as np
 
@@ -312,13 +312,41 @@ def test_short_attention_matches_the_fused_kernel(monkeypatch):
     monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 4)
     got = att(x, valid)
     assert torch.isfinite(got).all() and torch.allclose(got, ref, atol=1e-5)
+    x16 = torch.randn(40, 16, 24)  # the ray attention's 8 + 8 samples of `fast`'s fine pass
+    valid16 = torch.rand(40, 16) > 0.3
+    valid16[3] = False
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 0)
+    ref16 = att(x16, valid16)
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 16)
+    assert torch.allclose(att(x16, valid16), ref16, atol=1e-5)
     model = registry.build_model(registry.build_config(None, "fast"), load_pretrained=False).eval()
     intr = cameras.Intrinsics(30.0, 30.0, 8.0, 8.0, 16, 16)
     eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5])]
     refs = np.random.default_rng(0).random((2, 16, 16, 3)).astype(np.float32)
     args = (refs, [cameras.look_at_opencv(e) for e in eyes[1:]], [intr] * 2, (np.full(3, -0.4), np.full(3, 0.4)),
             cameras.look_at_opencv(eyes[0]), intr)
-    short = model.synthesize(*args)
+    short = model.synthesize(*args)  # SHORT_ATTENTION_MAX 16: view and ray attention written out
     monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 0)
     fused = model.synthesize(*args)
     assert np.allclose(np.asarray(short["color"]), np.asarray(fused["color"]), atol=1e-5)
+
+
+def test_short_attention_default_policy(monkeypatch):
+    """Unset, the written-out attention is used at inference on a GPU only (measured there: session 23), never on the
+    CPU or in training; MRVM_SHORT_ATTENTION overrides both ways."""
+    from types import SimpleNamespace
+
+    from blender_mrvm.models import nerformer
+
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", None)
+    gpu, cpu = SimpleNamespace(is_cuda=True), torch.zeros(1)
+    with torch.no_grad():
+        assert nerformer.short_attention_max(gpu) == nerformer.SHORT_ATTENTION_CUDA == 16
+        assert nerformer.short_attention_max(cpu) == 0
+    with torch.enable_grad():
+        assert nerformer.short_attention_max(gpu) == 0
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 0)
+    with torch.no_grad():
+        assert nerformer.short_attention_max(gpu) == 0
+    monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 4)
+    assert nerformer.short_attention_max(cpu) == 4

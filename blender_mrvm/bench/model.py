@@ -107,7 +107,7 @@ def run(args) -> int:
                         print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: out of memory, skipped", flush=True)
                         continue
                     rows.append(_row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res,
-                                     args.chunk or model.chunk_rays))
+                                     model.inference_chunk(args.chunk or None)))
                     if args.profile:
                         counts, table = _profile_render(args, model, refs, ref_poses, rintr, bbox, target, intr, prec,
                                                         device, sync)

@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--depth", action="store_true", default=None, help="also write depth maps (EXR); "
                    "default: as targets.json says")
-    p.add_argument("--chunk", type=int, default=0, help="rays per forward pass (0 = the model's setting)")
+    p.add_argument("--chunk", type=int, default=0, help="rays per forward pass (0 = the model's setting; at least 16384 on a GPU)")
     p.add_argument("--ref-size", type=int, default=0, help="resize references to this longer side in pixels; "
                    "0 (default) shrinks references larger than the model's training images to that size; "
                    "-1 keeps the first reference's size")

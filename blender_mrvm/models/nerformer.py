@@ -46,11 +46,26 @@ def configure_attention() -> bool:
 
 
 SHORT_ATTENTION_ENV = "MRVM_SHORT_ATTENTION"
-SHORT_ATTENTION_MAX = int(os.environ.get(SHORT_ATTENTION_ENV, "0") or 0)
-"""Sequences of at most this many tokens attend through :func:`short_attention` instead of the fused kernel (0 =
-never, the default). An experiment for the GPU: its profile (session 20, H200) put a quarter to a third of a
-256 px `fast` view's device time in the memory-efficient kernel, whose 64 x 64 tiles run over the view attention's
-2-3 tokens; set ``MRVM_SHORT_ATTENTION=4`` to measure the written-out form (``bench model``) before it is trusted."""
+SHORT_ATTENTION_CUDA = 16
+"""At inference on a GPU, sequences of at most this many tokens attend through :func:`short_attention` (the view
+attention's 2-3 tokens, and the ray attention of presets with at most 16 samples a pass: `fast`'s 8 + 8, `balanced`'s
+12 coarse). Measured on an H100 (session 23, docs/bench_gpu/session23/), `fast` at 256 px: the fused kernel's
+64 x 64 tiles over such sequences were a third of the device time; written out, eager 16.9 -> 20.4 FPS and compiled
+22.7 -> 40.7 FPS (46.7 with CUDA graphs), device time 34.2 -> 16.3 ms."""
+_SHORT_ENV = os.environ.get(SHORT_ATTENTION_ENV, "")
+SHORT_ATTENTION_MAX: int | None = int(_SHORT_ENV) if _SHORT_ENV.strip() else None
+"""``MRVM_SHORT_ATTENTION=N`` forces the written-out form for sequences of at most N tokens everywhere (0 = never);
+unset (None), :func:`short_attention_max` decides by device and grad mode."""
+
+
+def short_attention_max(x: torch.Tensor) -> int:
+    """The longest sequence that attends through :func:`short_attention` for input ``x``: ``SHORT_ATTENTION_MAX`` when
+    set; else :data:`SHORT_ATTENTION_CUDA` at inference on a GPU, and 0 (the fused kernel) on the CPU, where the
+    fused kernel is faster (CPU training 5 % slower written out, session 22), and in training, where the written-out
+    form's (B, heads, L, L, d) products cost memory and its speed on a GPU is unmeasured."""
+    if SHORT_ATTENTION_MAX is not None:
+        return SHORT_ATTENTION_MAX
+    return SHORT_ATTENTION_CUDA if x.is_cuda and not torch.is_grad_enabled() else 0
 
 
 def short_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
@@ -95,7 +110,7 @@ class Attention(nn.Module):
             any_valid = key_valid.any(-1)
             q = q * any_valid.to(q.dtype)[:, None, None, None]
             mask = (key_valid | ~any_valid[:, None])[:, None, None, :]
-        if L <= SHORT_ATTENTION_MAX:
+        if L <= short_attention_max(x):
             y = short_attention(q, k, v, mask)
         else:
             y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)  # fused; 2-3x the speed of matmul+softmax on CPU

@@ -69,7 +69,7 @@ class SynthesisConfig:
     depth: bool | None = None
     """Write depth maps; None = as the targets file asks."""
     chunk_rays: int = 0
-    """Rays per forward pass (0 = the model config's ``render.chunk_rays``)."""
+    """Rays per forward pass (0 = the model config's ``render.chunk_rays``, at least ``models.base.GPU_CHUNK_RAYS`` on a GPU)."""
     ref_size: int = 0
     """Reference size: N > 0 resizes them so their longer side has N pixels; 0 (auto) shrinks references
     larger than the images the model was trained on (the checkpoint's ``train_image_size``) to that
@@ -581,7 +581,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         model = yield from adapt_to_references(model, refs, cfg.adapt, total, per_view)
         adapt_seconds = time.perf_counter() - ta
     per_target = len(refs.views) > per_view  # more references than a view uses: its nearest, per target
-    chunk = int(cfg.chunk_rays) if cfg.chunk_rays and cfg.chunk_rays > 0 else int(model.chunk_rays)
+    chunk = model.inference_chunk(cfg.chunk_rays if cfg.chunk_rays and cfg.chunk_rays > 0 else None)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
