@@ -420,8 +420,10 @@ def test_render_image_evaluates_only_the_rays_it_needs(tiny):
         mp.setattr(base, "rays_on_host", lambda device: False)
         dev_path = m.render_image(intr, c2w, code, m.default_style())
     assert m.last_render_stats == stats
+    small = m.render_image(intr, c2w, code, m.default_style(), chunk=5)  # a chunk asked for (bench tradeoff's axis)
     for k in ("rgb", "acc", "semantic"):
         assert torch.allclose(dev_path[k], culled[k], atol=1e-5), k
+        assert torch.allclose(small[k], culled[k], atol=1e-5), k
 
 
 def test_silhouette_cone_follows_the_mask():

@@ -251,7 +251,7 @@ def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
                 for p in (("bf16", "fp16") if device.startswith("cuda") else ("bf16",))]
     if "chunk" in axes:
         sizes = (256, 4096, 16384, 65536) if device.startswith("cuda") else (256, 4096)  # a GPU wants large ones
-        pts += [Point("chunk", f"chunk {c}", {"chunk_rays": c}, refs=1, quality=False) for c in sizes]
+        pts += [Point("chunk", f"chunk {c}", chunk=c, refs=1, quality=False) for c in sizes]
     return pts
 
 
@@ -275,7 +275,8 @@ def measure_sem2nerf_speed(model, ob, pt: Point, size: int, repeats: int, device
     code, style = _sem2nerf_code(model, ob, device), model.default_style()
     v = sem2nerf_targets(len(ob.images), 1)[0]
     intr = ob.intrinsics[v].resized(size, size)
-    _, t = _timed(lambda: model.render_image(intr, ob.c2w[v], code, style), pt.precision, repeats, device)
+    _, t = _timed(lambda: model.render_image(intr, ob.c2w[v], code, style, chunk=pt.chunk or None), pt.precision,
+                  repeats, device)
     st = model.last_render_stats  # (the rays render_image made and evaluated)
     return {**t, "rays_total": st["rays"], "rays_box": st["box"], "rays_evaluated": st["evaluated"],
             "rays_per_s": round(st["evaluated"] / t["seconds_per_view"], 1),

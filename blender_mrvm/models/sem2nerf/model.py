@@ -436,8 +436,10 @@ class Sem2NeRF(nn.Module):
         return {"rgb": rgb, "acc": acc, "semantic": torch.log(sem.clamp_min(1e-6))}
 
     @torch.no_grad()
-    def render_image(self, intr, c2w_world, mask_code: torch.Tensor, style_code: torch.Tensor) -> dict[str, torch.Tensor]:
-        """A full view (H, W) of one object: rgb (H, W, 3), acc (H, W), semantic (H, W, C) log-probs."""
+    def render_image(self, intr, c2w_world, mask_code: torch.Tensor, style_code: torch.Tensor,
+                     chunk: int | None = None) -> dict[str, torch.Tensor]:
+        """A full view (H, W) of one object: rgb (H, W, 3), acc (H, W), semantic (H, W, C) log-probs. ``chunk``: rays
+        per forward pass (default the config's ``chunk_rays``, at least ``models.base.GPU_CHUNK_RAYS`` on a GPU)."""
         from .. import base
         from ..rays import make_rays, normalize_pose, pixel_rows
         import numpy as np
@@ -456,7 +458,8 @@ class Sem2NeRF(nn.Module):
                "semantic": torch.full((len(bundle), C), math.log(1e-6), device=dev)}
         out["semantic"][:, 0] = 0.0  # what render_rays gives a ray that meets nothing: the background label
         sel = torch.nonzero(need).flatten()
-        n = max(self.cfg.chunk_rays, base.GPU_CHUNK_RAYS) if dev.type == "cuda" else self.cfg.chunk_rays
+        n = int(chunk) if chunk else (max(self.cfg.chunk_rays, base.GPU_CHUNK_RAYS) if dev.type == "cuda"
+                                      else self.cfg.chunk_rays)
         for i in range(0, len(sel), n):
             idx = sel[i:i + n]
             b = bundle.select(idx)
