@@ -497,45 +497,6 @@ def test_lpips_groups_of_objects_give_the_same_step(tmp_path, data, monkeypatch)
         assert logs[1][k] == pytest.approx(logs[0][k], rel=1e-4) and logs[2][k] == pytest.approx(logs[0][k], rel=1e-4)
 
 
-def test_object_loss_parts_stay_on_the_device_until_read(tmp_path, data):
-    """The trainer asks ``object_loss`` for its parts as tensors (read from a GPU once a step, not ~10 times an
-    object): they are 0-dim tensors with the values the float form gives, every part, MRVM masking, the opacity,
-    depth and distortion terms included; a batch whose rays all miss gives its miss error either way."""
-    import copy
-
-    from blender_mrvm.models import registry
-    from blender_mrvm.training.trainer import RayBatcher, _as_floats, object_loss
-
-    root, scenes = data
-    mcfg, tcfg = _cfgs(tmp_path / "t", root, pretrain_frac=1.0, opacity_weight=0.1, distortion_weight=0.01)
-    torch.manual_seed(0)
-    model = registry.build_model(mcfg)
-    model.train()
-    phase = model.train_phase(0, tcfg)
-    assert phase.kwargs.get("mask_views")
-    b = RayBatcher(scenes, tcfg, mcfg.sampler.box_padding, seed=3).draw(False)
-    got = {}
-    for as_tensors in (False, True):
-        gen = torch.Generator().manual_seed(9)
-        loss, parts = object_loss(model, dict(b, cams=copy.deepcopy(b["cams"])), tcfg, phase, gen, "cpu",
-                                  as_tensors=as_tensors)
-        got[as_tensors] = (float(loss), parts)
-    assert got[False][0] == got[True][0]
-    floats, tensors = got[False][1], got[True][1]
-    assert set(floats) == set(tensors) >= {"hit", "mse_fine", "mse_coarse", "opacity", "distortion", "mrvm"}
-    assert all(isinstance(v, float) for v in floats.values())
-    assert all(isinstance(tensors[k], torch.Tensor) and tensors[k].dim() == 0 for k in tensors if k != "hit")
-    assert _as_floats(tensors) == floats
-    rays = b["rays"]
-    missing = dict(b, cams=copy.deepcopy(b["cams"]), rays=rays.select(torch.nonzero(~rays.hit).flatten()),
-                   gt=torch.full_like(b["gt"][~rays.hit], 0.5), mask=None)  # grey where the background is white
-    assert len(missing["rays"]) > 0
-    for as_tensors in (False, True):
-        loss, parts = object_loss(model, dict(missing), tcfg, phase, torch.Generator().manual_seed(9), "cpu",
-                                  as_tensors=as_tensors)
-        assert float(loss) == 0.0 and float(parts["mse_fine"]) == pytest.approx(0.25) and parts["hit"] == 0.0
-
-
 def test_distortion_loss(tmp_path, data):
     """Mip-NeRF 360's distortion loss: the brute-force double sum, 0 for an empty ray, lower for weight in one
     short interval than for the same weight in two layers apart, independent of the box's scale; the trainer

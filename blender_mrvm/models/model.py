@@ -154,7 +154,7 @@ class GeneralizableNeRF(RayModel):
                 with torch.no_grad():
                     target = self.coarse(g[0], g[1], g[2], t_all)["latent"]
                 out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
-                out["n_masked"] = point_mask.sum()  # a tensor: no wait for a GPU
+                out["n_masked"] = int(point_mask.sum())
         return self._finish(out, rays)
 
     def _fine_rays(self, coarse: dict, train: bool) -> torch.Tensor | None:
@@ -301,7 +301,7 @@ class GeneralizableNeRF(RayModel):
                     with torch.no_grad():
                         target = self.coarse(**g)["latent"]
                     out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
-                out["n_masked"] = point_mask.sum()  # a tensor: no wait for a GPU
+                out["n_masked"] = int(point_mask.sum())
                 out["point_mask"] = point_mask
         return self._finish(out, rays)
 

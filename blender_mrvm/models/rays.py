@@ -98,11 +98,10 @@ class RayBundle:
         return RayBundle(self.origins[idx], self.dirs[idx], self.far[idx], self.hit[idx], self.depth_offset[idx],
                          None if self.up is None else self.up[idx])
 
-    def to(self, device, non_blocking: bool = False) -> "RayBundle":
-        """The same rays on ``device`` (``non_blocking``: host -> GPU copies without a stream sync each)."""
-        t = lambda x: x.to(device, non_blocking=non_blocking)  # noqa: E731
-        return RayBundle(t(self.origins), t(self.dirs), t(self.far), t(self.hit), t(self.depth_offset),
-                         None if self.up is None else t(self.up))
+    def to(self, device) -> "RayBundle":
+        """The same rays on ``device``."""
+        return RayBundle(self.origins.to(device), self.dirs.to(device), self.far.to(device), self.hit.to(device),
+                         self.depth_offset.to(device), None if self.up is None else self.up.to(device))
 
 
 def make_rays(intr: cameras.Intrinsics, c2w_norm: np.ndarray, pixels: np.ndarray | torch.Tensor | None = None,

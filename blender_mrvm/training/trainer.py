@@ -36,7 +36,7 @@ from ..datasets.loaders import ObjectScene, load_dataset
 from ..errors import InputError
 from ..geometry.cameras import axis_cosines
 from ..models import registry
-from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras
+from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
 from ..models.rays import make_rays
 from ..progress import Progress
 from .patches import bilinear, lpips_loss, sample_patch
@@ -312,8 +312,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                     with _autocast(cfg, device):
                         lpv = patch_lpips(lp, patches)
                     lpips_part = lpv.sum() * (cfg.lpips_weight / cfg.objects_per_step)
-                    tot["lpips"] = tot.get("lpips", 0.0) + lpv.detach().sum() / cfg.objects_per_step
-                    tot["loss"] += lpips_part.detach()
+                    tot["lpips"] = tot.get("lpips", 0.0) + float(lpv.detach().sum()) / cfg.objects_per_step
+                    tot["loss"] += float(lpips_part.detach())
                     held.append(lpips_part)
                     patches.clear()
                 if held:
@@ -324,11 +324,11 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             for _ in range(cfg.objects_per_step):
                 b = batcher.draw(step < bbox_steps)
                 with _autocast(cfg, device):
-                    loss, parts = object_loss(model, b, cfg, phase, gen, device, lp, patches, as_tensors=True)
+                    loss, parts = object_loss(model, b, cfg, phase, gen, device, lp, patches)
                 for k, v in parts.items():
                     tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
-                tot["loss"] += loss.detach()
+                tot["loss"] += float(loss.detach())
                 if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
                     held.append(loss)
                 if patches is None or len(patches) >= LPIPS_GROUP:
@@ -339,15 +339,10 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             if scaler:
                 scaler.unscale_(opt)
             gnorm = torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip) if cfg.grad_clip > 0 else torch.tensor(0.0)
-            # the step's figures read from the device at once: the only wait for a GPU in a step (object_loss
-            # keeps its parts on the device)
-            read = _as_floats({**tot, "grad_norm": gnorm})
-            gnorm = read.pop("grad_norm")
-            tot = read
             # before the update: a NaN never reaches the weights (under torchrun the all-reduced gradient
             # norm, the same on every rank, so all stop together; fp16's scaler skips inf steps itself)
             by_norm = dd.world > 1 and scaler is None and cfg.grad_clip > 0
-            run_folder.check_loss(gnorm if by_norm else tot["loss"], step + 1, saved or found,
+            run_folder.check_loss(float(gnorm) if by_norm else tot["loss"], step + 1, saved or found,
                                   "gradient norm" if by_norm else "loss")
             if scaler:
                 scaler.step(opt)
@@ -356,7 +351,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 opt.step()
             model.after_step(phase)
             done = step + 1
-            last = {"step": done, "lr": lr, **phase.logs, "grad_norm": gnorm,
+            last = {"step": done, "lr": lr, **phase.logs, "grad_norm": float(gnorm),
                     "psnr_fine": -10 * math.log10(max(tot["mse_fine"], 1e-10)), **tot,
                     "time_s": time.perf_counter() - t0}
             if log and (done % cfg.log_every == 0 or done == cfg.iterations or done == start + 1):
@@ -398,8 +393,9 @@ def object_weights(data_weights, counts: list[int]) -> np.ndarray | None:
     return w / w.sum()
 
 
-def object_loss(model, b: dict, cfg: TrainConfig, phase: TrainPhase, gen, device, lp=None,
-                patches: list | None = None, as_tensors: bool = False) -> tuple[torch.Tensor, dict[str, float]]:
+def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: TrainPhase,
+                gen: torch.Generator, device, lp=None,
+                patches: list | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """The loss of one object's batch and its parts, for any model kind.
 
     Photometric MSE over all drawn rays (rays that miss the box are predicted as the background and
@@ -409,72 +405,59 @@ def object_loss(model, b: dict, cfg: TrainConfig, phase: TrainPhase, gen, device
     model's auxiliary losses with the weights of its training phase (e.g. MRVM's lambda).
 
     With a ``patches`` list the LPIPS term is left to the caller: the (predicted, true) (1, 3, P, P) patch
-    pair is appended to it instead (:func:`patch_lpips` scores a step's patches as one VGG batch).
-
-    On a GPU nothing here waits for the device: which rays hit the box (and which have a surface depth) is known
-    on the host, so the selections are index tensors made there and copied without a stream sync, and with
-    ``as_tensors`` the parts stay detached 0-dim tensors (the trainer reads a step's parts at once). Without it
-    they are floats."""
-    rays = b["rays"]
-    hit_h = rays.hit  # on the host: the batcher makes the rays there
-    sel = torch.nonzero(hit_h).flatten()
-    miss = torch.nonzero(~hit_h).flatten()
-    put = lambda x: x.to(device, non_blocking=True)  # noqa: E731 (host -> device without a stream sync)
-    gt = put(b["gt"])
-    sel_d, miss_d = put(sel), put(miss)
+    pair is appended to it instead (:func:`patch_lpips` scores a step's patches as one VGG batch)."""
+    rays, gt = b["rays"], b["gt"].to(device)
+    hit = rays.hit.to(device)
     n = gt.shape[0]
     bg = 1.0 if model.white_background else 0.0
     if b.get("scene"):  # a whole scene: what lies outside the box is not the model's to say (background.py)
-        n = max(1, sel.numel())
+        n = max(1, int(hit.sum()))
         miss_err = gt.new_zeros(())
     else:
-        miss_err = ((bg - gt[miss_d]) ** 2).sum()
-    parts = {"hit": sel.numel() / max(1, len(hit_h))}
+        miss_err = ((bg - gt[~hit]) ** 2).sum()
+    parts = {"hit": float(hit.float().mean())}
     cams = b["cams"]
-    cams.w2c, cams.K = put(cams.w2c), put(cams.K)
-    ctx = model.encode(put(b["images"]), cams)
-    done = (lambda: parts) if as_tensors else (lambda: _as_floats(parts))
-    if not sel.numel():
-        parts["mse_fine"] = (miss_err / (3 * n)).detach()
-        return torch.zeros((), device=device), done()
-    sub = rays.select(sel)
-    out = model.render_rays(ctx, sub.to(device, non_blocking=True), train=True, generator=gen, **phase.kwargs)
-    g_hit = gt[sel_d]
+    cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)
+    ctx = model.encode(b["images"].to(device), cams)
+    if not bool(hit.any()):
+        parts["mse_fine"] = float(miss_err / (3 * n))
+        return torch.zeros((), device=device), parts
+    sel = torch.nonzero(rays.hit).flatten()
+    out = model.render_rays(ctx, rays_to(rays.select(sel), device), train=True, generator=gen, **phase.kwargs)
+    g_hit = gt[hit]
     mse = ((out["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
     loss = mse
-    parts["mse_fine"] = mse.detach()
-    m = put(b["mask"]) if b.get("mask") is not None else None
-    opa = _opacity(out["acc"], m, sel_d, miss_d) if cfg.opacity_weight > 0 else None
+    parts["mse_fine"] = float(mse.detach())
+    m = b["mask"].to(device) if b.get("mask") is not None else None
+    opa = opacity_loss(out["acc"], m, hit) if cfg.opacity_weight > 0 else None
     for name, head in out.get("aux_heads", {}).items():
         mse_h = ((head["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
         loss = loss + cfg.coarse_weight * mse_h
-        parts[f"mse_{name}"] = mse_h.detach()
+        parts[f"mse_{name}"] = float(mse_h.detach())
         if opa is not None:
-            opa = opa + cfg.coarse_weight * _opacity(head["acc"], m, sel_d, miss_d)
+            opa = opa + cfg.coarse_weight * opacity_loss(head["acc"], m, hit)
     if opa is not None:
         loss = loss + cfg.opacity_weight * opa
-        parts["opacity"] = opa.detach()
-    far = put(sub.far)
+        parts["opacity"] = float(opa.detach())
     if cfg.distortion_weight > 0:
         fine = out["fine"]
-        dist = distortion_loss(fine["weights"], fine["t"], far)
+        dist = distortion_loss(fine["weights"], fine["t"], rays.far[sel].to(device))
         loss = loss + cfg.distortion_weight * dist
-        parts["distortion"] = dist.detach()
+        parts["distortion"] = float(dist.detach())
     if cfg.depth_weight > 0 and b.get("surface") is not None:
-        t_star = b["surface"][sel]
-        ok = torch.nonzero(torch.isfinite(t_star)).flatten()
-        if ok.numel():
-            ok_d = put(ok)
+        t_star = b["surface"].to(device)[sel]
+        ok = torch.isfinite(t_star)
+        if bool(ok.any()):
+            far = rays.far[sel].to(device)
             heads = [out["fine"], *out.get("aux_heads", {}).values()]
-            ts, fo = put(t_star[ok]), far[ok_d]
             dl = sum((1.0 if h is out["fine"] else cfg.coarse_weight)
-                     * surface_loss(h["weights"][ok_d], h["t"][ok_d], fo, ts) for h in heads)
-            loss = loss + cfg.depth_weight * dl * (ok.numel() / n)
-            parts["depth"] = dl.detach()
+                     * surface_loss(h["weights"][ok], h["t"][ok], far[ok], t_star[ok]) for h in heads)
+            loss = loss + cfg.depth_weight * dl * (int(ok.sum()) / n)
+            parts["depth"] = float(dl.detach())
     if lp is not None and b.get("patch"):
         # the whole patch: rays that miss the box show the background (or, in a scene, the photo itself)
         full = gt.clone() if b.get("scene") else torch.full_like(gt, bg)
-        full = full.index_put((sel_d,), out["color"].float())
+        full = full.index_put((hit.nonzero().flatten(),), out["color"].float())
         p = b["patch"]
         pair = full.T.reshape(1, 3, p, p), gt.T.reshape(1, 3, p, p)
         if patches is not None:
@@ -482,24 +465,12 @@ def object_loss(model, b: dict, cfg: TrainConfig, phase: TrainPhase, gen, device
         else:
             lpv = lpips_loss(lp, *pair)
             loss = loss + cfg.lpips_weight * lpv
-            parts["lpips"] = lpv.detach()
+            parts["lpips"] = float(lpv.detach())
     for name, value in out.get("aux_losses", {}).items():
         if value is not None:
             loss = loss + phase.loss_weights.get(name, 0.0) * value
-            parts[name] = value.detach()
-    return loss, done()
-
-
-def _as_floats(parts: dict) -> dict:
-    """``parts`` with its 0-dim tensors read as floats, one copy per device they are on (one wait for a GPU)."""
-    out = dict(parts)
-    by_dev: dict[torch.device, list[str]] = {}
-    for k, v in parts.items():
-        if isinstance(v, torch.Tensor):
-            by_dev.setdefault(v.device, []).append(k)
-    for keys in by_dev.values():
-        out.update(zip(keys, torch.stack([parts[k].detach().float().reshape(()) for k in keys]).tolist()))
-    return out
+            parts[name] = float(value.detach())
+    return loss, parts
 
 
 LPIPS_GROUP = 8
@@ -552,17 +523,11 @@ def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> to
     """Binary cross-entropy of the accumulated opacity of the rays that hit the box (``acc``, one per
     True in ``hit``) against the object mask of all rays (``mask``); averaged over all rays, since a ray
     that misses the box has opacity 0 and no loss when the mask agrees (else the constant log(eps))."""
-    hit = hit.to(mask.device)
-    return _opacity(acc, mask, torch.nonzero(hit).flatten(), torch.nonzero(~hit).flatten())
-
-
-def _opacity(acc: torch.Tensor, mask: torch.Tensor, sel: torch.Tensor, miss: torch.Tensor) -> torch.Tensor:
-    """:func:`opacity_loss` with the rays that hit the box (``sel``) and those that miss (``miss``) as indices."""
     eps = 1e-4
     a = acc.float().clamp(eps, 1 - eps)
-    m = mask[sel]
+    m = mask[hit]
     bce = -(m * torch.log(a) + (1 - m) * torch.log1p(-a)).sum()
-    missed_fg = mask[miss].sum() * -math.log(eps)  # constant: object pixels outside the box (box too small)
+    missed_fg = mask[~hit].sum() * -math.log(eps)  # constant: object pixels outside the box (box too small)
     return (bce + missed_fg) / mask.numel()
 
 
