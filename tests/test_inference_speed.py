@@ -233,3 +233,6 @@ def test_inference_chunk_is_the_configs_on_the_cpu_and_large_on_a_gpu(monkeypatc
     monkeypatch.setattr(type(model), "device", property(lambda self: torch.device("cuda")))
     assert model.inference_chunk() == base.GPU_CHUNK_RAYS == 16384
     assert model.inference_chunk(97) == 97
+    # the one policy every kind uses (Sem2NeRF's render_image too): a config's larger chunk stays
+    assert base.inference_chunk(1024, "cuda") == 16384 and base.inference_chunk(1 << 20, "cuda") == 1 << 20
+    assert base.inference_chunk(1024, "cpu") == 1024 and base.inference_chunk(1024, "cuda", 5) == 5

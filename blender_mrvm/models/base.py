@@ -39,6 +39,14 @@ RAY_BLOCK = 1 << 16
 pass, this bounds a view's memory whatever its size; only the output images grow with it)."""
 
 
+def inference_chunk(chunk_rays: int, device: torch.device, chunk: int | None = None) -> int:
+    """Rays per forward pass at inference for a model whose config says ``chunk_rays``, on ``device``: ``chunk`` when
+    given (> 0), else ``chunk_rays``, raised to :data:`GPU_CHUNK_RAYS` on a GPU (every model kind's one policy)."""
+    if chunk:
+        return int(chunk)
+    return max(int(chunk_rays), GPU_CHUNK_RAYS) if torch.device(device).type == "cuda" else int(chunk_rays)
+
+
 def rays_on_host(device: torch.device) -> bool:
     """Whether a view's rays are made in numpy (on the CPU, where numpy is as fast as torch) rather than by torch
     on ``device`` (a GPU: :meth:`RayModel.image_chunks`). Both give the same rays (tests compare them)."""
@@ -109,11 +117,8 @@ class RayModel(nn.Module):
         return 512
 
     def inference_chunk(self, chunk: int | None = None) -> int:
-        """Rays per forward pass at inference: ``chunk`` when given (> 0), else the config's ``chunk_rays``, raised to
-        :data:`GPU_CHUNK_RAYS` on a GPU."""
-        if chunk:
-            return int(chunk)
-        return max(int(self.chunk_rays), GPU_CHUNK_RAYS) if self.device.type == "cuda" else int(self.chunk_rays)
+        """Rays per forward pass at inference on this model's device (:func:`inference_chunk`)."""
+        return inference_chunk(self.chunk_rays, self.device, chunk)
 
     @property
     def max_ref_views(self) -> int:

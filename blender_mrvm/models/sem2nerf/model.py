@@ -458,8 +458,7 @@ class Sem2NeRF(nn.Module):
                "semantic": torch.full((len(bundle), C), math.log(1e-6), device=dev)}
         out["semantic"][:, 0] = 0.0  # what render_rays gives a ray that meets nothing: the background label
         sel = torch.nonzero(need).flatten()
-        n = int(chunk) if chunk else (max(self.cfg.chunk_rays, base.GPU_CHUNK_RAYS) if dev.type == "cuda"
-                                      else self.cfg.chunk_rays)
+        n = base.inference_chunk(self.cfg.chunk_rays, dev, chunk)
         for i in range(0, len(sel), n):
             idx = sel[i:i + n]
             b = bundle.select(idx)
