@@ -11,12 +11,15 @@
 #                            loader then silently gave every view the first one's; it now refuses)
 #   gpu_carry/weights/       ImageNet VGG16 blocks 1-3 (the `accurate`/`paper` encoder, 6.9 MB) and the LPIPS
 #                            linear heads; the full VGG16 (57 MB, for the LPIPS loss) does not fit beside the data
-# Usage: [SPLITS="train"] [MAX_OBJECTS=N] [DEPTH=1] [HALF=1] [FULL_VGG=1] scripts/gpu_carry.sh [DATASET ...]
+# Usage: [SPLITS="train"] [MAX_OBJECTS=N] [PER_CATEGORY=K] [DEPTH=1] [HALF=1] [FULL_VGG=1] scripts/gpu_carry.sh [DATASET ...]
 #   (default data/shapenet13_all); then carry ["gpu_carry"] and run with
 #   MRVM_WEIGHTS_DIR=gpu_carry/weights PYTHONPATH=$PWD python3 -m blender_mrvm ... --data gpu_carry/data/<set>
 #   SPLITS   keep only the objects these splits list (space-separated, e.g. "train" or "train test"); default all
 #   MAX_OBJECTS  with SPLITS: only the first N objects the lists name (e.g. SPLITS=test MAX_OBJECTS=2: a set for
-#            timing Sem2NeRF on the GPU, `gpu_session.sh fps`; the split lists stay whole, absent objects are skipped)
+#            timing Sem2NeRF on the GPU, `gpu_session.sh fps`); the carried splits' lists are cut to the objects kept
+#   PER_CATEGORY  with SPLITS: only the first K objects of each category (the lists run category by category, so
+#            MAX_OBJECTS alone would keep the first categories): both training sets fit one call this way
+#            (SPLITS=train PER_CATEGORY=12 HALF=1 for data/shapenet13_all and data/sphere64_train)
 #   DEPTH=1  keep depth/ (the depth loss needs it: about 60 kB an object)
 #   HALF=1   store the weights in fp16 (they load into fp32 layers: half the bytes, ~1e-3 relative rounding)
 #   FULL_VGG=1  all 13 VGG16 convolutions (the LPIPS loss needs them: 57 MB, 29 MB with HALF=1)
@@ -31,8 +34,13 @@ EXCL=(--exclude=normal)
 for s in "${SETS[@]}"; do
   name=$(basename "$s")
   if [ -n "${SPLITS:-}" ]; then  # the split lists, the set's settings and the listed objects only
-    list=$(for sp in $SPLITS; do cat "$s/splits/$sp.lst"; done | head -n "${MAX_OBJECTS:-1000000}" | sed "s|^|$name/|")
+    list=$(for sp in $SPLITS; do cat "$s/splits/$sp.lst"; done | awk -F/ -v k="${PER_CATEGORY:-0}" \
+      'k == 0 || n[$1]++ < k' | head -n "${MAX_OBJECTS:-1000000}" | sed "s|^|$name/|")
     tar -C "$(dirname "$s")" "${EXCL[@]}" -cf - "$name/mrvm_dataset.json" "$name/splits" $list | tar -C gpu_carry/data -xf -
+    # the carried splits' lists name the carried objects only (the loaders refuse a split with objects missing)
+    for sp in $SPLITS; do
+      grep -xF -f <(printf '%s\n' $list | sed "s|^$name/||") "$s/splits/$sp.lst" > "gpu_carry/data/$name/splits/$sp.lst" || true
+    done
   else
     tar -C "$(dirname "$s")" "${EXCL[@]}" -cf - "$name" | tar -C gpu_carry/data -xf -
   fi
