@@ -70,3 +70,45 @@ def test_a_run_stopped_by_its_limit_comes_back_resumable_and_resumes(tmp_path):
     assert lines2[:k] == lines1[:k]
     assert all(b == a + 1 for a, b in zip(steps2, steps2[1:])) and steps2[-1] > saved
     assert int(next(n for n in names2 if n.count("/") == 1 and "step_" in n).rsplit("_", 1)[1]) >= saved
+
+
+@pytest.mark.slow
+def test_gpu_carry_keeps_k_objects_a_category_and_the_loader_takes_them(tmp_path):
+    """scripts/gpu_carry.sh with PER_CATEGORY=K carries the first K objects of each category of the named splits (the
+    lists run category by category: MAX_OBJECTS alone keeps the first categories) and cuts the carried split lists
+    to them, so the training loader takes the carried set instead of refusing it as half-rendered."""
+    from blender_mrvm.datasets.loaders import load_dataset
+
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "gpu_carry.sh", root / "scripts")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    (root / ".git").mkdir()
+    data = tmp_path / "data" / "set"
+    for i, cat in enumerate(("a", "b")):
+        make_sphere_dataset(data, n_objects=4, n_views=3, resolution=8, category=cat, seed=i, data_passes=False)
+    (data / "splits" / "train.lst").write_text("".join(f"{c}/obj00{j}\n" for c in "ab" for j in range(3)))
+    (data / "splits" / "test.lst").write_text("a/obj003\nb/obj003\n")
+    with pytest.raises(Exception, match="half-rendered"):  # what the loader said before the lists were cut
+        _refused(data)
+    env = {**os.environ, "SPLITS": "train", "PER_CATEGORY": "2", "PY": sys.executable}
+    run = subprocess.run(["bash", "scripts/gpu_carry.sh", str(data)], cwd=root, env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+    carried = root / "gpu_carry" / "data" / "set"
+    kept = ["a/obj000", "a/obj001", "b/obj000", "b/obj001"]
+    assert (carried / "splits" / "train.lst").read_text().split() == kept
+    assert sorted(p.relative_to(carried).as_posix() for p in carried.glob("*/obj*")) == kept
+    assert len(load_dataset(carried, "train")) == 4
+    assert (root / "gpu_pack" / "carry.tgz").is_file()
+    assert "/gpu_carry/" in (root / ".git" / "info" / "exclude").read_text()
+
+
+def _refused(data: Path) -> None:
+    """The loader on a copy of ``data`` with one listed object removed (a carry that kept the whole lists)."""
+    from blender_mrvm.datasets.loaders import load_dataset
+
+    part = data.parent / "part"
+    shutil.copytree(data, part)
+    shutil.rmtree(part / "b" / "obj002")
+    load_dataset(part, "train")
