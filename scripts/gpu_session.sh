@@ -75,10 +75,10 @@ case "$what" in
       ${BENCH_DATA:+--data $BENCH_DATA} --out $G/train_compiled; keep
     ;;
   fps)
-    # frames per second at 256 px (issue 13: 30 for fast), each step with one profiled render. Session 23's call:
-    # every preset and kind eager (fp32, bf16: the table per preset and kind); then `fast` fp32 with the attention
-    # written out for sequences of up to 16 tokens (MRVM_SHORT_ATTENTION=16: the view attention's 2-3 and the ray
-    # attention's 8 + 8 fine samples), eager and compiled; CUDA graphs (reduce-overhead) on the compiled networks
+    # frames per second at 256 px (issue 13: 30 for fast), each step with one profiled render: every preset and
+    # kind eager (fp32, bf16); `fast` fp32 eager and compiled with the fused attention kernel (MRVM_SHORT_ATTENTION=0)
+    # against the default on a GPU since session 23 (attention over up to 16 tokens written out); CUDA graphs
+    # (reduce-overhead) on the compiled networks
     G=/tmp/gpu_fps; mkdir -p $G
     keep() { tar -czf "$OUT/fps.tgz" -C $G . ; }  # one file (at most 8 come back), rewritten after every step
     nvidia-smi -L 2>/dev/null; $PY -c "import torch; print('torch', torch.__version__, 'cudnn', torch.backends.cudnn.version())"
@@ -91,14 +91,15 @@ case "$what" in
       --out $G/$out "$@"); keep; }
     [ -d gpu_old/blender_mrvm ] && old old_eager --presets fast,balanced --precisions fp32
     bm eager --presets ${MODEL_PRESETS:-fast,balanced,accurate,gpnr:fast} --precisions fp32,bf16
-    MRVM_SHORT_ATTENTION=16 bm eager_short16 --presets fast --precisions fp32
+    MRVM_SHORT_ATTENTION=0 bm eager_fused --presets fast --precisions fp32
     bm compiled --presets fast --precisions fp32 --compile
-    MRVM_SHORT_ATTENTION=16 bm compiled_short16 --presets fast --precisions fp32 --compile
-    MRVM_SHORT_ATTENTION=16 bm graphs_short16 --presets fast --precisions fp32 --compile-mode reduce-overhead
-    # Sem2NeRF, the third kind, when a masked set came along (SPLITS=test MAX_OBJECTS=2 scripts/gpu_carry.sh):
+    MRVM_SHORT_ATTENTION=0 bm compiled_fused --presets fast --precisions fp32 --compile
+    bm graphs --presets fast --precisions fp32 --compile-mode reduce-overhead
+    # Sem2NeRF, the third kind, when a masked test set came along (SPLITS=test MAX_OBJECTS=2 scripts/gpu_carry.sh;
+    # skipped when the test list's first object was not carried, as in a pack of train splits):
     # seconds per 256 px view (fps = 1 / seconds_per_view) at its samples and precisions, mask encoded once
     S2N_DATA=${S2N_DATA:-gpu_carry/data/shapenet13_all}
-    if [ -f "$S2N_DATA/splits/test.lst" ]; then
+    if [ -f "$S2N_DATA/splits/test.lst" ] && [ -d "$S2N_DATA/$(head -n 1 "$S2N_DATA/splits/test.lst")" ]; then
       timeout ${S2N_S:-90} $PY -m blender_mrvm bench tradeoff --device ${DEVICE:-cuda} --data "$S2N_DATA" \
         --checkpoints shipped:sem2nerf --axes ${S2N_AXES:-base,samples,precision} --objects 2 --targets 2 --size 256 \
         --repeats 5 --no-lpips --out $G/sem2nerf; keep
