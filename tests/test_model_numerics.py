@@ -350,3 +350,9 @@ def test_short_attention_default_policy(monkeypatch):
         assert nerformer.short_attention_max(gpu) == 0
     monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", 4)
     assert nerformer.short_attention_max(cpu) == 4
+    from blender_mrvm.errors import InputError
+
+    for bad in ("yes", -1):  # a one-line error when a model first attends, not a traceback at import
+        monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", bad)
+        with pytest.raises(InputError, match="MRVM_SHORT_ATTENTION"):
+            nerformer.short_attention_max(cpu)

@@ -19,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..errors import InputError
 from .config import NeRFormerConfig
 
 
@@ -52,8 +53,19 @@ attention's 2-3 tokens, and the ray attention of presets with at most 16 samples
 12 coarse). Measured on an H100 (session 23, docs/bench_gpu/session23/), `fast` at 256 px: the fused kernel's
 64 x 64 tiles over such sequences were a third of the device time; written out, eager 16.9 -> 20.4 FPS and compiled
 22.7 -> 40.7 FPS (46.7 with CUDA graphs), device time 34.2 -> 16.3 ms."""
-_SHORT_ENV = os.environ.get(SHORT_ATTENTION_ENV, "")
-SHORT_ATTENTION_MAX: int | None = int(_SHORT_ENV) if _SHORT_ENV.strip() else None
+
+
+def _short_from_env() -> int | str | None:
+    raw = os.environ.get(SHORT_ATTENTION_ENV, "").strip()
+    if not raw:
+        return None
+    try:
+        return int(raw)
+    except ValueError:
+        return raw  # reported (one line, exit 2) when a model first attends, not as a traceback at import
+
+
+SHORT_ATTENTION_MAX: int | str | None = _short_from_env()
 """``MRVM_SHORT_ATTENTION=N`` forces the written-out form for sequences of at most N tokens everywhere (0 = never);
 unset (None), :func:`short_attention_max` decides by device and grad mode."""
 
@@ -63,8 +75,12 @@ def short_attention_max(x: torch.Tensor) -> int:
     set; else :data:`SHORT_ATTENTION_CUDA` at inference on a GPU, and 0 (the fused kernel) on the CPU, where the
     fused kernel is faster (CPU training 5 % slower written out, session 22), and in training, where the written-out
     form's (B, heads, L, L, d) products cost memory and its speed on a GPU is unmeasured."""
-    if SHORT_ATTENTION_MAX is not None:
-        return SHORT_ATTENTION_MAX
+    m = SHORT_ATTENTION_MAX
+    if m is not None:
+        if isinstance(m, str) or m < 0:
+            raise InputError(f"{SHORT_ATTENTION_ENV}={m}: give a whole number of tokens, 0 or more (0 = the fused "
+                             "kernel always), or leave it unset")
+        return m
     return SHORT_ATTENTION_CUDA if x.is_cuda and not torch.is_grad_enabled() else 0
 
 
