@@ -82,13 +82,15 @@ case "$what" in
     G=/tmp/gpu_fps; mkdir -p $G
     keep() { tar -czf "$OUT/fps.tgz" -C $G . ; }  # one file (at most 8 come back), rewritten after every step
     nvidia-smi -L 2>/dev/null; $PY -c "import torch; print('torch', torch.__version__, 'cudnn', torch.backends.cudnn.version())"
-    bm() { out=$1; shift; timeout ${STEP_S:-150} $PY -m blender_mrvm bench model --device ${DEVICE:-cuda} --views 2 \
-      --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 --repeats ${REPEATS:-5} --profile --out $G/$out "$@"; keep; }
+    # one bench model step (each its own inductor cache: a compilation killed by its limit leaves a partial file
+    # that the next step would load)
+    model() { out=$1; shift; TORCHINDUCTOR_CACHE_DIR=/tmp/inductor_$out timeout ${STEP_S:-150} $PY -m blender_mrvm \
+      bench model --device ${DEVICE:-cuda} --views 2 --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 \
+      --repeats ${REPEATS:-5} --out $G/$out "$@"; keep; }
+    bm() { out=$1; shift; model "$out" --profile "$@"; }
     # the same machine's baseline, when the tree before a change came along (git archive <rev> blender_mrvm into
     # gpu_old/, carried): `python -m` imports from the working directory, so it runs from there
-    old() { out=$1; shift; (cd gpu_old && PYTHONPATH=$PWD timeout ${STEP_S:-150} $PY -m blender_mrvm bench model \
-      --device ${DEVICE:-cuda} --views 2 --sizes ${SIZES:-256} --chunk 65536 --ref-size 64 --repeats ${REPEATS:-5} \
-      --out $G/$out "$@"); keep; }
+    old() { (cd gpu_old && PYTHONPATH=$PWD model "$@"); }
     [ -d gpu_old/blender_mrvm ] && old old_eager --presets fast,balanced --precisions fp32
     bm eager --presets ${MODEL_PRESETS:-fast,balanced,accurate,gpnr:fast} --precisions fp32,bf16
     MRVM_SHORT_ATTENTION=0 bm eager_fused --presets fast --precisions fp32

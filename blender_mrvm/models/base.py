@@ -208,12 +208,8 @@ class RayModel(nn.Module):
         workers = int(workers) if self.device.type == "cpu" else 1  # a GPU takes one chunk at a time
         for r0 in range(0, H, rows):
             r1 = min(H, r0 + rows)
-            if rays_on_host(dev):
-                vv, uu = np.meshgrid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5, indexing="ij")
-                pixels = np.stack([uu, vv], -1).reshape(-1, 2)
-            else:
-                pixels = pixel_rows(r0, r1, W, dev)
-            rays = make_rays(intr, c2w_norm, pixels, box=box)
+            pixels = pixel_rows(r0, r1, W, None if rays_on_host(dev) else dev)
+            rays = make_rays(intr, c2w_norm, pixels.numpy() if rays_on_host(dev) else pixels, box=box)
             base = r0 * W
             box_rays += rays.hit.sum()
             box_far = rays.far
