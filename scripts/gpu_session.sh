@@ -15,8 +15,9 @@
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16, its log, and
 #                                                      the run itself (<name>.run.tgz: config, metrics, last
-#                                                      checkpoint with the optimizer) for the next session: put
-#                                                      it in gpu_pack/runs/ here and the next call resumes it
+#                                                      checkpoint with the optimizer; over 15 MiB, in parts
+#                                                      <name>.run.tgz.partNN) for the next session: put it
+#                                                      in gpu_pack/runs/ here and the next call resumes it
 #                                                      exactly (GPU sessions are 15 minutes; a run spans several)
 set -uo pipefail
 export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
@@ -110,9 +111,10 @@ case "$what" in
   train)
     # runs carried back from an earlier session (gpu_pack/runs/<name>.run.tgz) resume where they stopped
     mkdir -p runs
-    for t in gpu_pack/runs/*.run.tgz; do
+    # (a run over the 16 MiB a returned file may have came back in parts: <name>.run.tgz.part00, part01, ...)
+    for t in gpu_pack/runs/*.run.tgz gpu_pack/runs/*.run.tgz.part00; do
       [ -f "$t" ] || continue
-      n=$(basename "$t" .run.tgz); mkdir -p "runs/$n" && tar -xzf "$t" -C "runs/$n" \
+      n=$(basename "${t%.part00}" .run.tgz); mkdir -p "runs/$n" && cat "${t%.part00}"* | tar -xzf - -C "runs/$n" \
         && echo "runs/$n: resuming from $(ls runs/$n/checkpoints)"
     done
     pids=()
@@ -130,11 +132,13 @@ case "$what" in
       name=$(basename "$d")
       last=$(ls -d "$d"checkpoints/step_* 2>/dev/null | sort | tail -n 1)
       if [ -n "$last" ]; then
-        # the run, resumable (at most 16 MiB come back per file: `accurate`'s model and AdamW state are ~14 MB)
+        # the run, resumable. At most 16 MiB come back per file, and `accurate`'s model with its AdamW state is
+        # ~26 MB packed (session 24 lost one that way), so a larger archive comes back in parts (RUN_PART_BYTES)
         tar -czf "$OUT/$name.run.tgz" -C "$d" config.json metrics.jsonl "checkpoints/$(basename "$last")"
-        if [ "$(stat -c %s "$OUT/$name.run.tgz")" -gt 16777216 ]; then
-          echo "$name.run.tgz is over 16 MiB and would not come back: only the metrics do" >&2
-          rm "$OUT/$name.run.tgz"; cp "$d/metrics.jsonl" "$OUT/$name.metrics.jsonl"
+        part=${RUN_PART_BYTES:-15728640}
+        if [ "$(stat -c %s "$OUT/$name.run.tgz")" -gt "$part" ]; then
+          split -d -a 2 -b "$part" "$OUT/$name.run.tgz" "$OUT/$name.run.tgz.part" && rm "$OUT/$name.run.tgz"
+          echo "$name.run.tgz came back in $(ls "$OUT/$name.run.tgz.part"* | wc -l) parts (cat them in order)" >&2
         fi
       fi
       $PY - "$d" "$OUT/$name.safetensors" <<'EOF'

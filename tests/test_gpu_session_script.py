@@ -19,8 +19,8 @@ from blender_mrvm.training.synthetic import make_sphere_dataset
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _call(root: Path, out: Path, seconds: int) -> subprocess.CompletedProcess:
-    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1"}
+def _call(root: Path, out: Path, seconds: int, **extra: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1", **extra}
     return subprocess.run(["bash", "scripts/gpu_session.sh", "train", "tiny.json", str(seconds)], cwd=root, env=env,
                           capture_output=True, text=True, timeout=seconds + 120)
 
@@ -47,9 +47,15 @@ def test_a_run_stopped_by_its_limit_comes_back_resumable_and_resumes(tmp_path):
                      "pretrain_frac": 0.0, "lpips_weight": 0.0, "opacity_weight": 0.0}}
     (root / "tiny.json").write_text(json.dumps(cfg))
 
-    first = _call(root, tmp_path / "out1", 20)
-    tgz = tmp_path / "out1" / "tiny.run.tgz"
-    assert tgz.is_file(), first.stdout + first.stderr
+    # a part size far under the tiny run's archive: it comes back in parts (an `accurate` run is ~26 MB packed and
+    # a returned file may have 16 MiB), each within the size, and the next call joins them
+    part = 40_000
+    first = _call(root, tmp_path / "out1", 20, RUN_PART_BYTES=str(part))
+    parts = sorted((tmp_path / "out1").glob("tiny.run.tgz.part*"))
+    assert len(parts) >= 2 and not (tmp_path / "out1" / "tiny.run.tgz").exists(), first.stdout + first.stderr
+    assert parts[0].name == "tiny.run.tgz.part00" and all(p.stat().st_size <= part for p in parts)
+    tgz = tmp_path / "tiny.run.tgz"
+    tgz.write_bytes(b"".join(p.read_bytes() for p in parts))
     assert (tmp_path / "out1" / "tiny.safetensors").is_file()
     lines1, steps1, names = _steps(tgz)
     ck = [n for n in names if n.startswith("checkpoints/step_") and n.count("/") == 1]
@@ -60,7 +66,8 @@ def test_a_run_stopped_by_its_limit_comes_back_resumable_and_resumes(tmp_path):
     # the next session: a bare machine with the returned run in gpu_pack/runs/
     shutil.rmtree(root / "runs")
     (root / "gpu_pack" / "runs").mkdir(parents=True)
-    shutil.copy(tgz, root / "gpu_pack" / "runs")
+    for p in parts:
+        shutil.copy(p, root / "gpu_pack" / "runs")
     second = _call(root, tmp_path / "out2", 20)
     assert f"resuming from step_{saved:07d}" in second.stdout, second.stdout + second.stderr
     lines2, steps2, names2 = _steps(tmp_path / "out2" / "tiny.run.tgz")
