@@ -402,3 +402,21 @@ def test_default_model_off_its_turntable_says_which_model_to_use(tmp_path, capsy
     rep = json.loads((out / "synthesis.json").read_text())
     assert "shipped:mrvm_anyview" in rep["viewpoint_note"]
     assert f"note: {rep['viewpoint_note']}" in capsys.readouterr().err
+
+
+def test_compile_on_request_compiles_every_network_but_the_encoder(setup, tmp_path, capsys, monkeypatch):
+    """`--compile` goes through registry.compile_networks (recorded here instead of compiled: minutes on this
+    CPU) for every network of the loaded model but the image encoder, and synthesis.json says so; without it
+    nothing is compiled."""
+    root, obj, ck, _ = setup
+    seen = []
+    monkeypatch.setattr(torch.nn.Module, "compile", lambda m, **kw: seen.append((type(m).__name__, kw)))
+    assert main(_args(root, obj, ck, tmp_path / "plain")) == 0
+    assert seen == [] and json.loads((tmp_path / "plain" / "synthesis.json").read_text())["compiled"] is False
+    assert main(_args(root, obj, ck, tmp_path / "compiled", "--compile")) == 0
+    from blender_mrvm.synthesis import load_checkpoint
+
+    model = load_checkpoint(ck)[0]
+    want = [type(m).__name__ for n, m in model.named_children() if n != "encoder" and any(True for _ in m.parameters())]
+    assert want and [name for name, _ in seen] == want and all(kw == {"dynamic": True} for _, kw in seen)
+    assert json.loads((tmp_path / "compiled" / "synthesis.json").read_text())["compiled"] is True

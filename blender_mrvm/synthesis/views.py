@@ -104,6 +104,13 @@ class SynthesisConfig:
     otherwise, for GPNR, whose colour already is a blend of the references', and at ``preview`` (it about doubles
     the time of a view: README, "Many references")."""
 
+    compile: bool = False
+    """``torch.compile`` the model's networks (not the image encoder; ``models.registry.compile_networks``) once
+    loaded and adapted. For many views on a GPU: `bench model` renders `fast` at 256 px at 41-47 views/s compiled
+    against 20 eager on an H100 (docs/bench_gpu/session23; not yet timed through synthesis, which also writes
+    files), the first view paying the compilation (tens of seconds); on a 2-core CPU compiling takes minutes
+    for ~15 % less time a view."""
+
     config_label = "synthesis"  # not a field: how messages name the fields
 
     def __post_init__(self) -> None:
@@ -580,6 +587,10 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         ta = time.perf_counter()
         model = yield from adapt_to_references(model, refs, cfg.adapt, total, per_view)
         adapt_seconds = time.perf_counter() - ta
+    if cfg.compile:
+        from ..models.registry import compile_networks
+
+        compile_networks(model)  # after adaptation (it trains a copy), before the first view compiles it
     per_target = len(refs.views) > per_view  # more references than a view uses: its nearest, per target
     chunk = model.inference_chunk(cfg.chunk_rays if cfg.chunk_rays and cfg.chunk_rays > 0 else None)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
@@ -738,7 +749,7 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
-            "quality": cfg.quality, "skip_empty": cfg.skip_empty, "nearest": cfg.nearest,
+            "quality": cfg.quality, "skip_empty": cfg.skip_empty, "nearest": cfg.nearest, "compiled": cfg.compile,
             "reference_colours": s.reference_colours,
             "adaptation": s.adaptation,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
