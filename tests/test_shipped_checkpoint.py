@@ -246,6 +246,38 @@ def test_half_copy_keeps_the_metadata_and_renders_as_the_fp32_file(tmp_path):
     assert (outs[0] - outs[1]).abs().max() < 2e-2
 
 
+def test_half_copy_gives_the_same_bytes_in_every_process(tmp_path):
+    """A model file written by ``half_copy`` / ``average_model_files`` is the same bytes whoever writes it, so a
+    shipped file's sha256 can be checked by making it again (``safetensors.save_file`` wrote the metadata in a
+    per-process hash order: one file halved in two processes differed). The file is valid safetensors: the library
+    reads back every tensor and the metadata, and it loads into the model."""
+    import hashlib
+    import subprocess
+    import sys
+
+    from safetensors import safe_open
+    from tests.test_bad_inputs import tiny_checkpoint
+
+    src = ckpt.model_file_of(tiny_checkpoint(tmp_path / "run"))
+    code = ("import sys; from blender_mrvm.training import checkpoint as c; "
+            "c.half_copy(sys.argv[1], sys.argv[2])")
+    outs = [tmp_path / f"half{i}.safetensors" for i in range(3)]
+    for i, out in enumerate(outs):  # PYTHONHASHSEED differs per process unless set; set it apart to be sure
+        subprocess.run([sys.executable, "-c", code, str(src), str(out)], check=True,
+                       env={**__import__("os").environ, "PYTHONHASHSEED": str(i + 1)})
+    digests = {hashlib.sha256(o.read_bytes()).hexdigest() for o in outs}
+    assert len(digests) == 1, digests
+    with safe_open(str(outs[0]), "pt") as f, safe_open(str(src), "pt") as g:
+        assert f.metadata() == g.metadata() and sorted(f.keys()) == sorted(g.keys())
+        for k in g.keys():
+            x, y = g.get_tensor(k), f.get_tensor(k)
+            assert x.shape == y.shape and torch.equal(y, x.half() if x.is_floating_point() else x), k
+    b = outs[0].read_bytes()
+    n = int.from_bytes(b[:8], "little")
+    assert n % 8 == 0 and json.loads(b[8:8 + n])["__metadata__"] == ckpt.read_meta(src)
+    ckpt.load_model(outs[0])  # loads into the fp32 model
+
+
 def test_shipped_quality_model_is_the_gpu_trained_paper_arch_and_beats_the_anyview_model(tmp_path):
     """'shipped:mrvm_quality' (the panel's "NeRFormer + MRVM, quality"): the `accurate` preset (the paper's
     per-view token streams, ImageNet VGG16 encoder), at most 25 MB, trained in seven recorded stages (MRVM

@@ -172,14 +172,43 @@ def _read_tensors(model_file: Path) -> tuple[dict[str, str], dict[str, torch.Ten
         return f.metadata() or {}, {k: f.get_tensor(k) for k in f.keys()}
 
 
-def _write_tensors(tensors: dict[str, torch.Tensor], meta: dict[str, str], out: Path) -> Path:
-    """Write a model file atomically, with ordinary permissions (safetensors writes owner-only)."""
-    from safetensors.torch import save_file
+_ST_DTYPES = {torch.float64: "F64", torch.float32: "F32", torch.float16: "F16", torch.bfloat16: "BF16",
+              torch.int64: "I64", torch.int32: "I32", torch.int16: "I16", torch.int8: "I8", torch.uint8: "U8",
+              torch.bool: "BOOL"}
 
+
+def safetensors_bytes(tensors: dict[str, torch.Tensor], meta: dict[str, str]) -> list[bytes]:
+    """The safetensors file of ``tensors`` and ``meta``, as byte blocks in file order, the same bytes in every
+    process. (``safetensors.save_file`` writes the metadata map in a per-process hash order, so one model halved
+    twice gave two sha256s and a shipped file's hash could not be checked by re-making it.) The layout is the
+    format's: a little-endian u64 header length, the JSON header padded with spaces to 8 bytes, then the tensors'
+    bytes back to back; metadata keys sorted, tensors by element size (largest first, so each starts aligned)
+    then name."""
+    import struct
+
+    header: dict[str, Any] = {"__metadata__": {k: str(meta[k]) for k in sorted(meta)}} if meta else {}
+    blobs, offset = [], 0
+    for name in sorted(tensors, key=lambda k: (-tensors[k].element_size(), k)):
+        t = tensors[name].detach().to("cpu").contiguous()
+        if t.dtype not in _ST_DTYPES:
+            raise TypeError(f"tensor {name!r} has dtype {t.dtype}, which model files do not store")
+        b = t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b""
+        header[name] = {"dtype": _ST_DTYPES[t.dtype], "shape": list(t.shape), "data_offsets": [offset, offset + len(b)]}
+        blobs.append(b)
+        offset += len(b)
+    h = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode()
+    h += b" " * (-len(h) % 8)
+    return [struct.pack("<Q", len(h)), h, *blobs]
+
+
+def _write_tensors(tensors: dict[str, torch.Tensor], meta: dict[str, str], out: Path) -> Path:
+    """Write a model file atomically and byte-stably (:func:`safetensors_bytes`), with ordinary permissions."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp")
-    save_file(tensors, str(tmp), metadata=meta)
+    with open(tmp, "wb") as f:
+        for block in safetensors_bytes(tensors, meta):
+            f.write(block)
     ordinary_permissions(tmp)
     os.replace(tmp, out)
     return out
