@@ -252,6 +252,7 @@ def test_half_copy_gives_the_same_bytes_in_every_process(tmp_path):
     per-process hash order: one file halved in two processes differed). The file is valid safetensors: the library
     reads back every tensor and the metadata, and it loads into the model."""
     import hashlib
+    import os
     import subprocess
     import sys
 
@@ -262,9 +263,9 @@ def test_half_copy_gives_the_same_bytes_in_every_process(tmp_path):
     code = ("import sys; from blender_mrvm.training import checkpoint as c; "
             "c.half_copy(sys.argv[1], sys.argv[2])")
     outs = [tmp_path / f"half{i}.safetensors" for i in range(3)]
-    for i, out in enumerate(outs):  # PYTHONHASHSEED differs per process unless set; set it apart to be sure
+    for i, out in enumerate(outs):  # each process its own hash seed
         subprocess.run([sys.executable, "-c", code, str(src), str(out)], check=True,
-                       env={**__import__("os").environ, "PYTHONHASHSEED": str(i + 1)})
+                       env={**os.environ, "PYTHONHASHSEED": str(i + 1)})
     digests = {hashlib.sha256(o.read_bytes()).hexdigest() for o in outs}
     assert len(digests) == 1, digests
     with safe_open(str(outs[0]), "pt") as f, safe_open(str(src), "pt") as g:
@@ -272,9 +273,7 @@ def test_half_copy_gives_the_same_bytes_in_every_process(tmp_path):
         for k in g.keys():
             x, y = g.get_tensor(k), f.get_tensor(k)
             assert x.shape == y.shape and torch.equal(y, x.half() if x.is_floating_point() else x), k
-    b = outs[0].read_bytes()
-    n = int.from_bytes(b[:8], "little")
-    assert n % 8 == 0 and json.loads(b[8:8 + n])["__metadata__"] == ckpt.read_meta(src)
+    assert int.from_bytes(outs[0].read_bytes()[:8], "little") % 8 == 0  # the tensors start 8-byte aligned
     ckpt.load_model(outs[0])  # loads into the fp32 model
 
 
