@@ -11,6 +11,7 @@
 #   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: every preset and kind
 #                                                      eager; `fast` with the written-out attention, eager and
 #                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
+#   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager and --compile, seconds a view
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16, its log, and
@@ -108,6 +109,29 @@ case "$what" in
         --repeats 5 --no-lpips --out $G/sem2nerf; keep
     fi
     ;;
+  synth)
+    # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped
+    # model eager and compiled, seconds per view from synthesis.json (the first view of a compiled run pays the
+    # compilation); one JSON per run, <model>_<eager|compiled>.json, also gathered into synth.tgz after each run
+    obj=$(ls -d ${SYNTH_DATA:-gpu_carry/data/shapenet13_all}/*/*/ | head -n 1)
+    for m in ${SYNTH_MODELS:-nerformer_mrvm mrvm_quality}; do
+      for c in eager compiled; do
+        flag=; [ "$c" = compiled ] && flag=--compile
+        TORCHINDUCTOR_CACHE_DIR=/tmp/inductor_synth_$m timeout ${STEP_S:-120} $PY -m blender_mrvm synthesize \
+          --references "$obj" --views 3 15 --orbit ${ORBIT:-24} --orbit-size ${SIZE:-256} --checkpoint shipped:$m \
+          --device ${DEVICE:-cuda} $flag --out /tmp/synth_${m}_$c --force \
+          && cp /tmp/synth_${m}_$c/synthesis.json "$OUT/${m}_$c.json" && tar -czf "$OUT/synth.tgz" -C "$OUT" --exclude synth.tgz .
+      done
+    done
+    $PY - "$OUT" <<'EOF2'
+import json, statistics, sys
+from pathlib import Path
+for f in sorted(Path(sys.argv[1]).glob("*_*.json")):
+    d = json.loads(f.read_text()); s = [t["seconds"] for t in d["targets"]]
+    print(f"{f.stem}: {len(s)} views of {d['targets'][0]['width']} px, first {s[0]:.3f} s, "
+          f"median of the rest {statistics.median(s[1:]):.4f} s ({1 / statistics.median(s[1:]):.1f} FPS), total {d['seconds']:.1f} s")
+EOF2
+    ;;
   train)
     # runs carried back from an earlier session (gpu_pack/runs/<name>.run.tgz) resume where they stopped
     mkdir -p runs
@@ -134,7 +158,10 @@ case "$what" in
       if [ -n "$last" ]; then
         # the run, resumable. At most 16 MiB come back per file, and `accurate`'s model with its AdamW state is
         # ~26 MB packed (session 24 lost one that way), so a larger archive comes back in parts (RUN_PART_BYTES)
-        tar -czf "$OUT/$name.run.tgz" -C "$d" config.json metrics.jsonl "checkpoints/$(basename "$last")"
+        # (RUN_CHECKPOINT=0: config and metrics alone, for runs side by side that would return more than 8 files
+        # and an `accurate` run, whose optimizer does not fit a carry beside the data anyway)
+        ck="checkpoints/$(basename "$last")"; [ "${RUN_CHECKPOINT:-1}" = 0 ] && ck=
+        tar -czf "$OUT/$name.run.tgz" -C "$d" config.json metrics.jsonl $ck
         part=${RUN_PART_BYTES:-15728640}
         if [ "$(stat -c %s "$OUT/$name.run.tgz")" -gt "$part" ]; then
           split -d -a 2 -b "$part" "$OUT/$name.run.tgz" "$OUT/$name.run.tgz.part" && rm "$OUT/$name.run.tgz"
@@ -152,5 +179,5 @@ print(f"{half_copy(steps[-1], Path(sys.argv[2]))}: {steps[-1]}")
 EOF
     done
     ;;
-  *) echo "usage: $0 bench | profile | fps | train CONFIG SECONDS [...]" >&2; exit 2 ;;
+  *) echo "usage: $0 bench | profile | fps | synth | train CONFIG SECONDS [...]" >&2; exit 2 ;;
 esac
