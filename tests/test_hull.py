@@ -128,3 +128,22 @@ def test_rays_made_in_row_blocks_give_the_same_image(monkeypatch):
     for k in ("color", "acc", "depth"):
         assert torch.allclose(whole[k], blocks[k], atol=1e-5), k
     assert (whole["evaluated"], whole["box_rays"]) == (blocks["evaluated"], blocks["box_rays"])
+
+
+@pytest.mark.parametrize("skip", ["cull", "tighten"])
+def test_empty_space_skipping_on_device_side_rays_gives_the_host_image(skip, monkeypatch):
+    """On a GPU a view's rays are made, clipped to the hull and rendered on the device (session 26: the hull's
+    marching had kept `synthesize`'s views on the host); forced here on the CPU, that path gives the host
+    path's pixels, counts and span."""
+    import blender_mrvm.models.base as B
+
+    model, imgs, poses, intr, masks, bbox, target = model_and_scene()
+    host = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip=skip, chunk=97)
+    monkeypatch.setattr(B, "rays_on_host", lambda device: False)
+    dev = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip=skip, chunk=97)
+    assert 0 < host["evaluated"] < host["box_rays"]
+    for k in ("color", "acc", "depth"):
+        assert torch.allclose(host[k], dev[k], rtol=0, atol=1e-5), k
+    for k in ("rays", "box_rays", "evaluated", "samples"):
+        assert host[k] == dev[k], k
+    assert host["span"] == pytest.approx(dev["span"], abs=1e-9)

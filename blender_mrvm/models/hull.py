@@ -181,7 +181,7 @@ def _meets_hull(rays: RayBundle, hull: Hull, ts: torch.Tensor, far: torch.Tensor
     G = hull.resolution
     occ_flat = hull.occupied.reshape(-1).to(rays.origins.device)
     origins, dirs = rays.origins.float(), rays.dirs.float()
-    met = torch.zeros(len(rays), dtype=torch.bool)
+    met = torch.zeros(len(rays), dtype=torch.bool, device=rays.origins.device)
     live = torch.nonzero(rays.hit).flatten()
     for s0 in range(0, len(ts), group):
         if live.numel() == 0:
@@ -202,7 +202,7 @@ def _clip(rays: RayBundle, hull: Hull, mode: str, steps_per_voxel: int) -> RayBu
     far = rays.far.double()
     step = hull.box / (G * steps_per_voxel)  # march spacing: 1 / steps_per_voxel of a half voxel edge
     n = int(np.ceil(float(far.max()) / step)) + 1 if len(rays) else 1
-    ts = torch.arange(n, dtype=torch.float64) * step
+    ts = torch.arange(n, dtype=torch.float64, device=far.device) * step
     if mode == "cull":
         hit = rays.hit & _meets_hull(rays, hull, ts, far)
         far_new = torch.where(hit, far, torch.zeros_like(far))

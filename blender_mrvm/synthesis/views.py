@@ -106,10 +106,12 @@ class SynthesisConfig:
 
     compile: bool = False
     """``torch.compile`` the model's networks (not the image encoder; ``models.registry.compile_networks``) once
-    loaded and adapted. For many views on a GPU: `bench model` renders `fast` at 256 px at 41-47 views/s compiled
-    against 20 eager on an H100 (docs/bench_gpu/session23; not yet timed through synthesis, which also writes
-    files), the first view paying the compilation (tens of seconds); on a 2-core CPU compiling takes minutes
-    for ~15 % less time a view."""
+    loaded and adapted. Experimental: `bench model` renders `fast` at 256 px at 41-47 views/s compiled against 20
+    eager on an H100 (docs/bench_gpu/session23), but timed through synthesis (session 26, same GPU, the shipped
+    `balanced`, a 24-view orbit at 256 px, empty-space skipping on) a view took 0.40 s compiled against 0.24 s
+    eager, after a first view of 33 s (docs/bench_gpu/session26). That run still marched the hull on the host;
+    it runs on the device since, untimed there. On a 2-core CPU compiling takes minutes for ~15 % less time a
+    view."""
 
     config_label = "synthesis"  # not a field: how messages name the fields
 
