@@ -45,7 +45,8 @@ FIGURES = {
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 20.1 dB / LPIPS 0.234 (any-view model "
                     "18.6 / 0.252, nearest view 15.2 / 0.259); on the turntable 21.3 / 0.220 (default 22.9 / 0.164); "
-                    "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); 6 FPS on an H100",
+                    "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); on an H100 6 FPS "
+                    "at 128 px, 1.9 at 256 px through synthesize",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
 object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy";
