@@ -43,10 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: the shipped NeRFormer+MRVM model)")
     p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda (default auto)")
     p.add_argument("--compile", action="store_true",
-                   help="torch.compile the model's networks first (experimental): `bench model` renders `fast` about "
-                        "twice as fast compiled on an H100, but through synthesize (session 26, H100, `balanced`, 256 px, "
-                        "empty-space skipping on) a view took 0.40 s compiled against 0.24 s eager, and the first view "
-                        "pays ~30 s of compilation; on a CPU minutes to compile (docs/bench_gpu/session26)")
+                   help="torch.compile the model's networks first (experimental: on an H100 not yet faster through "
+                        "synthesize than eager, the first view paying ~30 s of compilation; minutes on a CPU; README)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--depth", action="store_true", default=None, help="also write depth maps (EXR); "
                    "default: as targets.json says")

@@ -193,16 +193,14 @@ class RayModel(nn.Module):
         n = H * W
         # On a GPU the rays are made, rendered and gathered there, and the view crosses to the host once at the
         # end: made on the host in numpy, a 256 px view's rays took longer than the model's whole render (session
-        # 20's FPS profile spent half of a view outside device work). The hull's marching runs there too (until
-        # session 26 it ran on the host, and `synthesize`, which skips empty space by default, ran a 256 px view
-        # of `balanced` on an H100 in 0.24 s against `bench model`'s 0.13 without a hull); only the footprint's
-        # splat (a distance transform of the view's pixels) is made on the host.
+        # 20's FPS profile spent half of a view outside device work). The hull's marching runs there too (on the
+        # host until session 26); only the footprint's splat (a distance transform of the view's pixels) is made
+        # on the host.
         dev = self.device
         keep = None
         if hull is not None and skip != "off":
+            hull = hull.to(dev)  # the model's own hulls are built there
             keep = footprint(hull, intr, c2w_norm).to(dev)
-            if hull.occupied.device != dev:
-                hull = type(hull)(hull.occupied.to(dev), hull.box)
         bg = 1.0 if self.white_background else 0.0
         color = torch.full((n, 3), bg, device=dev)
         depth = torch.zeros(n, device=dev)
@@ -266,12 +264,12 @@ class RayModel(nn.Module):
                     pending.append((nxt, pool.submit(one, nxt)))
                 yield sel, sub, o
 
-    @staticmethod
-    def hull(ctx, ref_masks: np.ndarray, box: float):
-        """The references' visual hull (``models/hull.py``) for ``ctx`` (which holds the cameras)."""
+    def hull(self, ctx, ref_masks: np.ndarray, box: float):
+        """The references' visual hull (``models/hull.py``) for ``ctx`` (which holds the cameras), on the model's
+        device."""
         from .hull import build_hull
 
-        return build_hull(ref_masks, ctx.cams, box)
+        return build_hull(ref_masks, ctx.cams, box).to(self.device)
 
     def world_hull(self, masks: np.ndarray, c2w: Sequence[np.ndarray], intr: Sequence[cameras.Intrinsics],
                    bbox: tuple):
@@ -281,7 +279,7 @@ class RayModel(nn.Module):
         from .hull import build_hull
 
         ns = normalized_scene(bbox[0], bbox[1], self.box_padding)
-        return build_hull(masks, ref_cameras([ns.pose(c) for c in c2w], intr), ns.box)
+        return build_hull(masks, ref_cameras([ns.pose(c) for c in c2w], intr), ns.box).to(self.device)
 
     @torch.no_grad()
     def render_image(self, ctx, intr: cameras.Intrinsics, c2w_norm: np.ndarray, box: float,

@@ -49,6 +49,11 @@ class Hull:
     def resolution(self) -> int:
         return int(self.occupied.shape[0])
 
+    def to(self, device) -> "Hull":
+        """The hull on ``device`` (itself when it is there already)."""
+        device = torch.device(device)
+        return self if self.occupied.device == device else Hull(self.occupied.to(device), self.box)
+
     @property
     def fraction(self) -> float:
         """Share of the box's volume kept."""
