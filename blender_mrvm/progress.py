@@ -14,6 +14,7 @@ The generator's return value (``StopIteration.value``) is the result of the work
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from dataclasses import dataclass
 from typing import Any, Generator, Iterator
@@ -77,41 +78,83 @@ def _run_with_json(gen: ProgressGen, desc: str) -> Any:
     between progress events, so the generator is closed at a unit boundary. A KeyboardInterrupt
     raised at a random bytecode could land inside a Python callback that Blender runs during a
     render and be swallowed there (the child then ran to the end), or abort a unit half-written."""
+    with sigint_flag() as interrupted:
+        try:
+            while True:
+                if interrupted:
+                    raise KeyboardInterrupt
+                try:
+                    event = next(gen)
+                except StopIteration as stop:
+                    return stop.value
+                sys.stdout.write(progress_json(event, desc) + "\n")
+                sys.stdout.flush()
+        except KeyboardInterrupt:
+            gen.close()
+            raise
+
+
+@contextlib.contextmanager
+def sigint_flag(announce: str = ""):
+    """Turn Ctrl-C (SIGINT) into a flag (a list that gains the signal number) for the block's duration; the
+    caller checks it between progress events and closes its generator there, at a unit boundary, where the work
+    can keep what it finished (training saves a checkpoint). With ``announce``, the first Ctrl-C prints it to
+    stderr and hands SIGINT back to the handler before, so a second one stops at once. Off the main thread
+    (where Python cannot catch signals) nothing changes and the flag stays empty."""
     import signal
     import threading
 
-    interrupted: list[int] = []
+    flag: list[int] = []
     previous = None
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, lambda signum, frame: interrupted.append(signum))
+        def handler(signum, frame):
+            flag.append(signum)
+            if announce:
+                signal.signal(signal.SIGINT, previous)
+                sys.stderr.write(f"\n{announce}\n")
+                sys.stderr.flush()
+
+        previous = signal.signal(signal.SIGINT, handler)
     try:
-        while True:
-            if interrupted:
-                raise KeyboardInterrupt
-            try:
-                event = next(gen)
-            except StopIteration as stop:
-                return stop.value
-            sys.stdout.write(progress_json(event, desc) + "\n")
-            sys.stdout.flush()
-    except KeyboardInterrupt:
-        gen.close()
-        raise
+        yield flag
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
 
 
-def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: bool | None = None) -> Any:
+def _between_events(gen: ProgressGen, flag: list[int]) -> ProgressGen:
+    """``gen``'s events, raising KeyboardInterrupt before the next one once ``flag`` is set; ``gen`` is closed
+    (at the event it last yielded, so its unit in progress finished) when this generator ends in any way."""
+    try:
+        while True:
+            if flag:
+                raise KeyboardInterrupt
+            try:
+                event = next(gen)
+            except StopIteration as stop:
+                return stop.value
+            yield event
+    finally:
+        gen.close()
+
+
+def run_with_tqdm(gen: ProgressGen, desc: str = "", unit: str = "it", disable: bool | None = None,
+                  between_units: bool = False) -> Any:
     """Drive a progress generator with a tqdm bar on stderr; return its result.
 
     With ``MRVM_PROGRESS=json`` in the environment each event is instead one JSON line on stdout
-    (:func:`progress_json`), which the add-on's worker runner parses.
+    (:func:`progress_json`), which the add-on's worker runner parses; Ctrl-C then closes the generator between
+    events. ``between_units`` does the same on a terminal or in a log: the first Ctrl-C lets the unit in
+    progress finish (a training step, whose checkpoint is then saved) and says so, a second stops at once.
     """
     import os
 
     if os.environ.get(PROGRESS_ENV, "").lower() == "json":
         return _run_with_json(gen, desc)
+    if between_units:
+        note = f"{desc or 'work'}: stopping after the {unit} in progress (Ctrl-C again to stop at once)"
+        with sigint_flag(note) as flag:
+            return run_with_tqdm(_between_events(gen, flag), desc, unit, disable)
     if disable is None and not _is_tty(sys.stderr):
         # tqdm stays silent when stderr is a file or a pipe: print plain lines there instead
         quiet = os.environ.get("TQDM_DISABLE", "").lower() in ("1", "true", "yes")

@@ -11,7 +11,8 @@
 #   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: every preset and kind
 #                                                      eager; `fast` with the written-out attention, eager and
 #                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
-#   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager and --compile, seconds a view
+#   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
+#                                                      and without empty-space skipping, seconds a view
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16, its log, and
@@ -113,14 +114,21 @@ case "$what" in
     # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped
     # model eager and compiled, seconds per view from synthesis.json (the first view of a compiled run pays the
     # compilation); one JSON per run, <model>_<eager|compiled>.json, also gathered into synth.tgz after each run
+    # (variants: eager, compiled, and eager without empty-space skipping ("noskip": what the hull costs or saves
+    # on the device); compiled runs log torch's recompilations and graph breaks into synth.tgz's logs/)
     obj=$(ls -d ${SYNTH_DATA:-gpu_carry/data/shapenet13_all}/*/*/ | head -n 1)
+    mkdir -p /tmp/synth_logs
     for m in ${SYNTH_MODELS:-nerformer_mrvm mrvm_quality}; do
-      for c in eager compiled; do
-        flag=; [ "$c" = compiled ] && flag=--compile
-        TORCHINDUCTOR_CACHE_DIR=/tmp/inductor_synth_$m timeout ${STEP_S:-120} $PY -m blender_mrvm synthesize \
-          --references "$obj" --views 3 15 --orbit ${ORBIT:-24} --orbit-size ${SIZE:-256} --checkpoint shipped:$m \
-          --device ${DEVICE:-cuda} $flag --out /tmp/synth_${m}_$c --force \
-          && cp /tmp/synth_${m}_$c/synthesis.json "$OUT/${m}_$c.json" && tar -czf "$OUT/synth.tgz" -C "$OUT" --exclude synth.tgz .
+      for c in ${SYNTH_VARIANTS:-eager compiled noskip}; do
+        flag=; logs=  # (TORCH_LOGS set but empty breaks torch's logging)
+        [ "$c" = compiled ] && flag=--compile && logs=recompiles,graph_breaks
+        [ "$c" = noskip ] && flag="--skip-empty off"
+        env ${logs:+TORCH_LOGS=$logs} TORCHINDUCTOR_CACHE_DIR=/tmp/inductor_synth_$m timeout ${STEP_S:-120} $PY -m blender_mrvm \
+          synthesize --references "$obj" --views 3 15 --orbit ${ORBIT:-24} --orbit-size ${SIZE:-256} \
+          --checkpoint shipped:$m --device ${DEVICE:-cuda} $flag --out /tmp/synth_${m}_$c --force \
+          2> >(grep -v "^synthesize: " > /tmp/synth_logs/${m}_$c.log) \
+          && cp /tmp/synth_${m}_$c/synthesis.json "$OUT/${m}_$c.json"
+        tar -czf "$OUT/synth.tgz" -C "$OUT" --exclude synth.tgz . -C /tmp synth_logs
       done
     done
     $PY - "$OUT" <<'EOF2'

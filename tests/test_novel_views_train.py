@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 import types
 from pathlib import Path
 
@@ -154,6 +155,7 @@ def test_train_modal_escape_stops_the_worker(train_ready, tmp_path, monkeypatch)
     real = Wk.run_worker
     monkeypatch.setattr(Wk, "run_worker", lambda *a, **k: real(*a, on_start=procs.append, **k))
     train_ready.mrvm_train.iterations = 100000
+    train_ready.mrvm_train.checkpoint_every = 100000  # Esc's checkpoint is the only one
 
     class Driver(ProgressOperator):
         props_attr, job_name, cancel_hint = Op.props_attr, Op.job_name, Op.cancel_hint
@@ -170,10 +172,19 @@ def test_train_modal_escape_stops_the_worker(train_ready, tmp_path, monkeypatch)
     assert op.invoke(ctx, None) == {"RUNNING_MODAL"}
     assert op.modal(ctx, types.SimpleNamespace(type="TIMER")) == {"RUNNING_MODAL"}
     assert procs and procs[0].poll() is None
+    metrics = tmp_path / "run" / "metrics.jsonl"
+    t0 = time.monotonic()
+    while not (metrics.is_file() and metrics.read_text().strip()):  # a step or more done
+        assert procs[0].poll() is None and time.monotonic() - t0 < 120
+        assert op.modal(ctx, types.SimpleNamespace(type="TIMER")) == {"RUNNING_MODAL"}
     assert op.modal(ctx, types.SimpleNamespace(type="ESC")) == {"CANCELLED"}
     assert procs[0].poll() is not None
-    assert op.reports[-1] == ("WARNING", "Training cancelled; checkpoints written so far are kept (train again to continue)")
+    assert op.reports[-1] == ("WARNING", "Training cancelled; the step in progress finishes and is saved as a "
+                                         "checkpoint (train again to continue)")
     assert not train_ready.mrvm_train.running
+    # the worker finished its step and saved it: training again continues from there
+    step = int((tmp_path / "run" / "checkpoints" / "latest").read_text().strip().split("_")[1])
+    assert step >= 1
 
 
 def test_write_job_opacity_loss_only_with_masks(train_ready, tmp_path):

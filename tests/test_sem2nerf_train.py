@@ -219,3 +219,17 @@ def test_init_checkpoint_adds_the_style_colour_head(data, tmp_path):
     assert tcfg.style_part_colours and float(tuned.field.style_part_rgb.weight.detach().abs().sum()) > 0
     with pytest.raises(InputError, match="does not fit"):
         T.init_model(tmp_path / "old", {"hidden": 8})
+
+
+def test_a_run_closed_between_checkpoints_keeps_its_steps(data, tmp_path, capsys):
+    """Ctrl-C or the panel's Esc (the generator closed after a step) saves that step; the run resumes there."""
+    out = tmp_path / "run"
+    cfg = T.train_config(data=str(data), out_dir=str(out), preset="fast", model_overrides=TINY_MODEL, iterations=5,
+                         objects_per_step=2, patch_size=16, checkpoint_every=100, log_every=1, threads=1)
+    gen = T.train(cfg, resume=False)
+    next(gen), next(gen)
+    gen.close()
+    assert (out / "checkpoints" / "latest").read_text().strip() == "step_0000002"
+    assert "stopped after step 2 of 5" in capsys.readouterr().err
+    s = run_to_end(T.train(T.train_config(**{**cfg.__dict__, "iterations": 3}), resume=True))
+    assert s["step"] == 3 and (out / "checkpoints" / "latest").read_text().strip() == "step_0000003"

@@ -17,7 +17,7 @@ from blender_mrvm.datasets.loaders import load_dataset
 from blender_mrvm.models.config import model_config
 from blender_mrvm.progress import run_to_end
 from blender_mrvm.training import checkpoint as ckpt
-from blender_mrvm.training.config import TrainConfig, load_run_config, replace
+from blender_mrvm.training.config import TrainConfig, load_run_config, replace, run_config_dict
 from blender_mrvm.training.synthetic import make_sphere_dataset
 from blender_mrvm.training.trainer import RayBatcher, lr_at, train
 
@@ -622,3 +622,54 @@ def test_average_of_two_runs_is_their_mean_and_refuses_other_models(tmp_path, da
     assert avg.main([str(tmp_path / "a"), str(tmp_path / "c"), "--out", str(bad)]) == 2
     assert avg.main([str(tmp_path / "a"), "--out", str(bad)]) == 2
     assert not bad.exists()
+
+
+def test_a_run_closed_between_checkpoints_keeps_its_steps(tmp_path, data):
+    """Closing the run (Ctrl-C, the panel's Esc) after a step that is no checkpoint step saves that step, and
+    the resumed run ends with the weights of a run never stopped."""
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "a", root, iterations=4, ckpt_every=4, pretrain_frac=0.5)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    mcfg, tcfg_b = _cfgs(tmp_path / "b", root, iterations=4, ckpt_every=4, pretrain_frac=0.5)
+    gen = train(mcfg, tcfg_b, scenes=scenes)
+    for _ in range(3):
+        next(gen)
+    gen.close()
+    assert (tmp_path / "b" / "checkpoints" / "latest").read_text().strip() == "step_0000003"
+    assert run_to_end(train(mcfg, tcfg_b, scenes=scenes))["resumed_from"] == 3
+    a, _, _ = ckpt.load_model(tmp_path / "a")
+    b, _, _ = ckpt.load_model(tmp_path / "b")
+    for (k, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert torch.equal(x, y), k
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to a child process")
+def test_ctrl_c_in_the_cli_saves_the_step_in_progress(tmp_path, data):
+    """`train` from a terminal or a log: Ctrl-C lets the step finish, saves it, says where, exits 130 with one
+    `error:` line; the same command resumes from that step."""
+    import signal
+    import time
+
+    root, _ = data
+    mcfg, tcfg = _cfgs(tmp_path / "run", root, iterations=100000, ckpt_every=100000)
+    cfg = tmp_path / "run.json"
+    cfg.write_text(json.dumps(run_config_dict(mcfg, tcfg)))
+    cmd = [sys.executable, "-m", "blender_mrvm", "train", "--config", str(cfg)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    metrics = tmp_path / "run" / "metrics.jsonl"
+    t0 = time.monotonic()
+    while not (metrics.is_file() and len(metrics.read_text().splitlines()) >= 2):
+        assert proc.poll() is None and time.monotonic() - t0 < 120, proc.communicate()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    step = int((tmp_path / "run" / "checkpoints" / "latest").read_text().strip().split("_")[1])
+    assert step >= 2
+    assert f"stopped after step {step} of 100000" in err and "the same command resumes" in err
+    assert "Ctrl-C again to stop at once" in err
+    assert [l for l in err.splitlines() if l.startswith("error:")] == ["error: interrupted; finished work is kept"]
+    done = subprocess.run(cmd + ["--iterations", str(step + 1)], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1])["resumed_from"] == step

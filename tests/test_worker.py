@@ -40,6 +40,41 @@ def test_run_with_tqdm_json_mode(monkeypatch, capsys):
     assert capsys.readouterr().out == "", "without the variable nothing goes to stdout (tqdm writes to stderr)"
 
 
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to this process")
+def test_between_units_ctrl_c_finishes_the_unit_then_a_second_stops_at_once(monkeypatch, capsys):
+    """``run_with_tqdm(between_units=True)``: a Ctrl-C during unit 2 lets it finish and closes the work at its
+    event (where it can save), announced on stderr; a second Ctrl-C during the next unit stops it there; the
+    SIGINT handler is restored afterwards either way."""
+    import signal
+
+    monkeypatch.delenv("MRVM_PROGRESS", raising=False)
+    before = signal.getsignal(signal.SIGINT)
+    log: list = []
+
+    def work(signals_in: dict):
+        try:
+            for i in range(1, 6):
+                for _ in range(signals_in.get(i, 0)):
+                    os.kill(os.getpid(), signal.SIGINT)
+                log.append(f"unit {i} finished")
+                yield Progress(i, 5)
+        except GeneratorExit:
+            log.append("closed at its event")
+            raise
+
+    with pytest.raises(KeyboardInterrupt):
+        run_with_tqdm(work({2: 1}), desc="train", unit="step", disable=True, between_units=True)
+    assert log == ["unit 1 finished", "unit 2 finished", "closed at its event"]
+    assert "train: stopping after the step in progress (Ctrl-C again to stop at once)" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is before
+    log.clear()
+    with pytest.raises(KeyboardInterrupt):
+        run_with_tqdm(work({3: 2}), desc="train", unit="step", disable=True, between_units=True)
+    assert log == ["unit 1 finished", "unit 2 finished"]  # unit 3 was cut by the second Ctrl-C
+    assert signal.getsignal(signal.SIGINT) is before
+    assert run_with_tqdm(work({}), disable=True, between_units=True) is None and len(log) == 7
+
+
 def test_parse_progress_and_error_lines():
     ev = '{"mrvm": "progress", "done": 2, "total": 5, "message": "m", "skipped": 1, "desc": ""}'
     assert W.parse_progress(ev) == Progress(2, 5, "m", 1)

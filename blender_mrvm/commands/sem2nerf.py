@@ -149,7 +149,8 @@ def run(args) -> int:
                              checkpoint_every=args.checkpoint_every, seed=args.seed, threads=args.threads,
                              device=args.device, init_checkpoint=args.init,
                              **({"code_lr": args.code_lr} if args.code_lr is not None else {}))
-        summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step")
+        summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step",
+                                between_units=True)
         print(json.dumps(summary))
         return 0
     if cmd == "render":

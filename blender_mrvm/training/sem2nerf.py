@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -422,8 +423,21 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
             input_cache[(o, v)] = torch.from_numpy(build_inputs(objects[o].masks[v], labels))
         return input_cache[(o, v)]
 
+    def save(done: int) -> Path:
+        model.update_style_mean()
+        state = {"step": done, "codes": codes.detach().cpu(), "opt": opt.state_dict(),
+                 "rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
+                 "objects": [f"{o.category}/{o.name}" for o in objects]}
+        if disc is not None:
+            state["disc"] = disc.state_dict()
+            state["d_opt"] = d_opt.state_dict()
+        return save_checkpoint(out, done, model, h, state, keep=cfg.keep,
+                               extra_meta={"train": {"data": cfg.data, "split": cfg.split,
+                                                     "iterations": cfg.iterations, "gan_weight": cfg.gan_weight}})
+
     P = cfg.patch_size
     last_ck = None
+    saved_at = start  # the step of the newest checkpoint on disk
     t0 = time.time()
     metrics_f = open(out / "metrics.jsonl", "a")
     try:
@@ -503,18 +517,15 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                 metrics_f.write(json.dumps(rec) + "\n")
                 metrics_f.flush()
             if done % cfg.checkpoint_every == 0 or done == cfg.iterations:
-                model.update_style_mean()
-                state = {"step": done, "codes": codes.detach().cpu(), "opt": opt.state_dict(),
-                         "rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
-                         "objects": [f"{o.category}/{o.name}" for o in objects]}
-                if disc is not None:
-                    state["disc"] = disc.state_dict()
-                    state["d_opt"] = d_opt.state_dict()
-                last_ck = save_checkpoint(out, done, model, h, state, keep=cfg.keep,
-                                          extra_meta={"train": {"data": cfg.data, "split": cfg.split,
-                                                                "iterations": cfg.iterations,
-                                                                "gan_weight": cfg.gan_weight}})
-            yield Progress(done, cfg.iterations, f"loss {loss.item():.4f} l2 {l2.item():.4f} ce {ce.item():.3f}")
+                last_ck, saved_at = save(done), done
+            try:
+                yield Progress(done, cfg.iterations, f"loss {loss.item():.4f} l2 {l2.item():.4f} ce {ce.item():.3f}")
+            except GeneratorExit:  # closed between steps (Ctrl-C, Esc): the finished steps are kept
+                if saved_at != done:
+                    last_ck = save(done)
+                    print(f"sem2nerf train: stopped after step {done} of {cfg.iterations}; checkpoint {last_ck} "
+                          "(the same command resumes from it)", file=sys.stderr, flush=True)
+                raise
     finally:
         metrics_f.close()
     return {"step": max(start, cfg.iterations), "checkpoint": str(last_ck) if last_ck else None,

@@ -290,6 +290,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     log = open(run_dir / "metrics.jsonl", "a", encoding="utf-8") if dd.main else None
     last: dict[str, float] = {}
     saved = None
+    saved_at = start  # the step of the newest checkpoint on disk (the one resumed from, if any)
     try:
         t0 = time.perf_counter()
         for step in range(start, cfg.iterations):
@@ -359,7 +360,18 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 log.flush()
             if done % cfg.ckpt_every == 0 or done == cfg.iterations:
                 saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size)
-            yield Progress(done, cfg.iterations, f"loss {tot['loss']:.4f} psnr {last['psnr_fine']:.2f}")
+                saved_at = done
+            try:
+                yield Progress(done, cfg.iterations, f"loss {tot['loss']:.4f} psnr {last['psnr_fine']:.2f}")
+            except GeneratorExit:
+                # Closed between steps (Ctrl-C, the panel's Esc, `timeout -s INT`): the finished steps are kept
+                # as a checkpoint the next run resumes from, not lost back to the last ckpt_every. One process
+                # only: the ranks of a torchrun job stop at different steps, and saving is collective.
+                if dd.world == 1 and saved_at != done:
+                    saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size)
+                    print(f"train: stopped after step {done} of {cfg.iterations}; checkpoint {saved} "
+                          "(the same command resumes from it)", file=sys.stderr, flush=True)
+                raise
     finally:
         if log:
             log.close()
