@@ -13,6 +13,7 @@
 #                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
 #   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
 #                                                      and without empty-space skipping, seconds a view
+#   scripts/gpu_session.sh mrvm_scale                  MRVM against none at a GPU budget, both arms side by side
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16, its log, and
@@ -187,5 +188,53 @@ print(f"{half_copy(steps[-1], Path(sys.argv[2]))}: {steps[-1]}")
 EOF
     done
     ;;
-  *) echo "usage: $0 bench | profile | fps | synth | train CONFIG SECONDS [...]" >&2; exit 2 ;;
+  mrvm_scale)
+    # Issue 11: MRVM against the identical model without it at a GPU budget, beside the CPU's three budgets
+    # (RECIPE.md "MRVM against the identical model at three training budgets": the `fast` preset, the paper's
+    # two runs). Both arms side by side, each a pretraining run of PRE steps then a finetuning run of PRE/3 from
+    # it, OBJ x RAYS rays a step (default 180 + 60 steps of 16 x 4096: 15.7 M rays, 5x the CPU's largest budget).
+    # Steps, not time, are the budget: each run's timeout is only a guard, and the summary says if one cut a run
+    # short (then the arms are not comparable). Back: scale_<arm>.safetensors (fp16), scale_<arm>.log,
+    # scale_runs.tgz (configs and metrics), gpu_util.log; scored on the CPU (docs/gpu_session.md).
+    PRE=${PRE:-180}; FT=$((PRE / 3)); [ "$FT" -ge 1 ] || FT=1
+    mkdir -p runs /tmp/mrvm_scale
+    pids=()
+    for arm in mrvm base; do
+      $PY - "$arm" "/tmp/mrvm_scale/$arm.json" <<'EOF'
+import json, os, sys
+arm, out = sys.argv[1:]
+c = json.load(open(f"blender_mrvm/assets/checkpoints/ablation/budget_unseen_{arm}.json"))
+c["train"].update(data=os.environ.get("MRVM_DATA", "gpu_carry/data/shapenet13_all"), seed=int(os.environ.get("SEED", "0")),
+                  objects_per_step=int(os.environ.get("OBJ", "16")), rays_per_object=int(os.environ.get("RAYS", "4096")),
+                  device=os.environ.get("DEVICE", "cuda"), amp=os.environ.get("AMP", "none"), threads=0,
+                  log_every=5, ckpt_every=1000000, keep_checkpoints=1)
+json.dump(c, open(out, "w"), indent=1)
+EOF
+      ( timeout -s INT ${PRE_S:-360} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json --iterations $PRE \
+          --out runs/scale_${arm}_pre --no-resume --force
+        timeout -s INT ${FT_S:-150} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json \
+          --init runs/scale_${arm}_pre --iterations $FT --out runs/scale_$arm --no-resume --force ) > "$OUT/scale_$arm.log" 2>&1 &
+      pids+=($!)
+    done
+    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader -l 15 > "$OUT/gpu_util.log" 2>&1 &
+    smi=$!
+    for p in "${pids[@]}"; do wait "$p"; done
+    kill $smi 2>/dev/null
+    tar -czf "$OUT/scale_runs.tgz" -C runs $(cd runs && ls scale_*/config.json scale_*/metrics.jsonl 2>/dev/null)
+    for arm in mrvm base; do
+      $PY - "$arm" "$OUT/scale_$arm.safetensors" "$PRE" "$FT" <<'EOF'
+import sys
+from pathlib import Path
+from blender_mrvm.training.checkpoint import half_copy
+arm, out, pre, ft = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+for run, want in ((f"runs/scale_{arm}_pre", pre), (f"runs/scale_{arm}", ft)):
+    steps = sorted(Path(run).glob("checkpoints/step_*/model.safetensors"))
+    got = int(steps[-1].parent.name.split("_")[1]) if steps else 0
+    print(f"{run}: step {got} of {want}" + ("" if got == want else "  CUT SHORT: the arms are not comparable"))
+if steps:
+    half_copy(steps[-1], out)
+EOF
+    done
+    ;;
+  *) echo "usage: $0 bench | profile | fps | synth | mrvm_scale | train CONFIG SECONDS [...]" >&2; exit 2 ;;
 esac

@@ -3,6 +3,9 @@ profile, the sweep's points, and the OpenMP policy the CLI and the worker set. b
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -12,6 +15,8 @@ from blender_mrvm.bench import PeakMemory
 from blender_mrvm.bench import profile as prof
 from blender_mrvm.bench import tradeoff as tr
 from blender_mrvm.models import registry
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_pareto_keeps_exactly_the_undominated_points():
@@ -121,6 +126,9 @@ def test_omp_policy_is_set_unless_the_user_chose(monkeypatch):
 
 FAULTS = """
 import json, os, resource, sys
+import json
+from pathlib import Path
+
 import numpy as np
 from blender_mrvm import threads
 policy = threads.apply_malloc_defaults()
@@ -320,3 +328,40 @@ def test_cudnn_attention_is_kept_out_unless_asked(monkeypatch):
     assert configure_attention() and torch.backends.cuda.cudnn_sdp_enabled()
     monkeypatch.setenv(CUDNN_ATTENTION_ENV, "0")
     assert not configure_attention() and not torch.backends.cuda.cudnn_sdp_enabled()
+
+
+def test_mrvm_budgets_table_pairs_the_arms_and_names_a_gpu_budget_batch(tmp_path):
+    """scripts/mrvm_budgets_table.py: MRVM minus base per seed, budget and reference count; the GPU runs of
+    `gpu_session.sh mrvm_scale` (``budget_all_gpu_*``) get their own rows, with the batch read from the checkpoint."""
+    import importlib.util
+
+    from blender_mrvm.models.config import model_config
+    from blender_mrvm.models.model import GeneralizableNeRF
+    from blender_mrvm.training import checkpoint as ckpt
+
+    spec = importlib.util.spec_from_file_location("mrvm_budgets_table", ROOT / "scripts" / "mrvm_budgets_table.py")
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    mcfg = model_config("fast")
+    run = tmp_path / "run"
+    ckpt.save_checkpoint(run, 1, GeneralizableNeRF(mcfg), mcfg, None,
+                         {"train_config": json.dumps({"objects_per_step": 16, "rays_per_object": 4096})})
+
+    def report(psnr: list[float], path: Path) -> dict:
+        views = [{"category": "chair", "object": f"o{i // 2}", "view": i % 2, "psnr": p, "ssim": 0.5, "lpips": 0.3}
+                 for i, p in enumerate(psnr)]
+        return {"checkpoint": {"path": str(path)}, "views": views,
+                "overall": {"psnr": float(np.mean(psnr)), "ssim": 0.5, "lpips": 0.3,
+                            "baseline_nearest": {"psnr": 15.0, "lpips": 0.24}}}
+
+    for name, arm, psnr in (("budget_all_gpu_{}_s0_p240_2v", "mrvm", [21, 22, 20, 21]),
+                            ("budget_all_gpu_{}_s0_p240_2v", "base", [20, 21, 20, 20]),
+                            ("budget_all_{}_s1_p9000_2v", "mrvm", [20, 20, 20, 20]),
+                            ("budget_all_{}_s1_p9000_2v", "base", [20, 20, 21, 21])):
+        d = tmp_path / "eval" / name.format(arm)
+        d.mkdir(parents=True)
+        (d / "eval.json").write_text(json.dumps(report(psnr, run if "gpu" in name else tmp_path / "gone")))
+    rows = table.main(tmp_path / "eval").splitlines()[2:]
+    assert len(rows) == 2
+    assert rows[0].startswith("| all | 1 | 9000 + 3000 = 12000 | 2 | 4 |") and "| -0.500 [" in rows[0]
+    assert rows[1].startswith("| all, GPU 16 x 4096 rays a step | 0 | 240 + 80 = 320 | 2 | 4 |") and "| +0.750 [" in rows[1]

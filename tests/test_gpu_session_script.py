@@ -120,3 +120,37 @@ def _refused(data: Path) -> None:
     shutil.copytree(data, part)
     shutil.rmtree(part / "b" / "obj002")
     load_dataset(part, "train")
+
+
+@pytest.mark.slow
+def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path):
+    """`gpu_session.sh mrvm_scale` (issue 11's MRVM trend at a GPU budget), here on the CPU with a tiny batch: each
+    arm pretrains PRE steps (the MRVM arm masking) and finetunes PRE/3 from it (no masking, lr 1e-4), the arms
+    differ only in MRVM, and the fp16 models, logs and run configs come back with the steps each run reached."""
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "gpu_session.sh", root / "scripts")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    data = make_sphere_dataset(tmp_path / "data", n_objects=2, n_views=4, resolution=16, data_passes=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1", "DEVICE": "cpu", "OBJ": "1",
+           "RAYS": "16", "PRE": "3", "MRVM_DATA": str(data)}
+    r = subprocess.run(["bash", "scripts/gpu_session.sh", "mrvm_scale"], cwd=root, env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    for run, want in (("scale_mrvm_pre", 3), ("scale_mrvm", 1), ("scale_base_pre", 3), ("scale_base", 1)):
+        assert f"runs/{run}: step {want} of {want}\n" in r.stdout, r.stdout + r.stderr
+    assert "CUT SHORT" not in r.stdout
+    assert {p.name for p in out.iterdir()} >= {"scale_mrvm.safetensors", "scale_base.safetensors", "scale_mrvm.log",
+                                               "scale_base.log", "scale_runs.tgz"}
+    with tarfile.open(out / "scale_runs.tgz") as t:
+        cfg = {n.split("/")[0]: json.load(t.extractfile(n)) for n in t.getnames() if n.endswith("config.json")}
+        masking = {n.split("/")[0]: {json.loads(x)["masking"] for x in t.extractfile(n).read().decode().splitlines()}
+                   for n in t.getnames() if n.endswith("metrics.jsonl")}
+    assert [cfg[r]["model"]["config"]["mrvm"]["enabled"] for r in ("scale_mrvm_pre", "scale_base_pre")] == [True, False]
+    assert masking == {"scale_mrvm_pre": {True}, "scale_mrvm": {False}, "scale_base_pre": {False}, "scale_base": {False}}
+    assert cfg["scale_mrvm"]["train"]["lr"] == cfg["scale_base"]["train"]["lr"] == 1e-4  # the finetuning policy
+    strip = lambda c: {**c["train"], "out_dir": "", "init_checkpoint": ""}  # noqa: E731
+    assert strip(cfg["scale_mrvm"]) == strip(cfg["scale_base"]) and strip(cfg["scale_mrvm_pre"]) == strip(cfg["scale_base_pre"])
+    assert cfg["scale_mrvm_pre"]["train"]["objects_per_step"] == 1 and cfg["scale_mrvm_pre"]["train"]["rays_per_object"] == 16
