@@ -6,7 +6,7 @@ Fine-tune:       python -m blender_mrvm train --init runs/pretrain --data my_dat
 Several datasets: --data turntable_set --data sphere_set  (objects pooled; train.data as a JSON list)
 Resumes from the run folder's newest complete checkpoint unless --no-resume (which refuses a run folder
 holding a run unless --force). Ctrl-C (or SIGINT, e.g. `timeout -s INT`) finishes the step in progress and saves
-it as a checkpoint before stopping; a second Ctrl-C stops at once.
+it as a checkpoint before stopping (one process; under torchrun it stops at once); a second Ctrl-C stops at once.
 """
 
 from __future__ import annotations
@@ -70,9 +70,11 @@ def run(args) -> int:
     import os
 
     rank = int(os.environ.get("RANK", "0"))
-    # Ctrl-C lets the step in progress finish; the trainer then saves it (a second Ctrl-C stops at once)
+    # Ctrl-C lets the step in progress finish; the trainer then saves it (a second Ctrl-C stops at once). Not under
+    # torchrun: its ranks could stop a step apart and wait on each other's gradients, so they stop at once as before
+    single = int(os.environ.get("WORLD_SIZE", "1")) <= 1
     summary = run_with_tqdm(train(mcfg, tcfg, resume=not args.no_resume, force=args.force), desc="train", unit="step",
-                            disable=True if rank else None, between_units=True)
+                            disable=True if rank else None, between_units=single)
     out = Path(tcfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / f"summary_rank{summary['rank']}.json").write_text(json.dumps(summary, indent=2) + "\n")
