@@ -30,6 +30,13 @@ if [ ! -d gpu_carry ] && [ -f gpu_pack/carry.tgz ]; then mkdir -p gpu_carry && t
 # TF32 matrix products for fp32 runs (the training calls of session 18 ran with it; the benches without)
 export TORCH_ALLOW_TF32_CUBLAS_OVERRIDE=${TORCH_ALLOW_TF32_CUBLAS_OVERRIDE:-1}
 PY=${PY:-python3}
+
+wait_logging_gpu() {  # wait for these processes while nvidia-smi logs utilisation and memory every 15 s
+  nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader -l 15 > "$OUT/gpu_util.log" 2>&1 &
+  local smi=$! p
+  for p in "$@"; do wait "$p"; done
+  kill $smi 2>/dev/null
+}
 what=${1:-}; shift || true
 case "$what" in
   bench)
@@ -157,10 +164,7 @@ EOF2
       timeout -s INT "$secs" $PY -m blender_mrvm train --config "$cfg" --out "runs/$name" > "$OUT/$name.log" 2>&1 &
       pids+=($!)
     done
-    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader -l 15 > "$OUT/gpu_util.log" 2>&1 &
-    smi=$!
-    for p in "${pids[@]}"; do wait "$p"; done
-    kill $smi 2>/dev/null
+    wait_logging_gpu "${pids[@]}"
     for d in runs/*/; do
       name=$(basename "$d")
       last=$(ls -d "$d"checkpoints/step_* 2>/dev/null | sort | tail -n 1)
@@ -216,10 +220,7 @@ EOF
           --init runs/scale_${arm}_pre --iterations $FT --out runs/scale_$arm --no-resume --force ) > "$OUT/scale_$arm.log" 2>&1 &
       pids+=($!)
     done
-    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader -l 15 > "$OUT/gpu_util.log" 2>&1 &
-    smi=$!
-    for p in "${pids[@]}"; do wait "$p"; done
-    kill $smi 2>/dev/null
+    wait_logging_gpu "${pids[@]}"
     tar -czf "$OUT/scale_runs.tgz" -C runs $(cd runs && ls scale_*/config.json scale_*/metrics.jsonl 2>/dev/null)
     for arm in mrvm base; do
       $PY - "$arm" "$OUT/scale_$arm.safetensors" "$PRE" "$FT" <<'EOF'
