@@ -204,11 +204,15 @@ EOF
     mkdir -p runs /tmp/mrvm_scale
     pids=()
     for arm in mrvm base; do
-      $PY - "$arm" "/tmp/mrvm_scale/$arm.json" <<'EOF'
+      $PY - "$arm" "/tmp/mrvm_scale/$arm.json" "$PRE" <<'EOF'
 import json, os, sys
-arm, out = sys.argv[1:]
+from blender_mrvm.training.config import TrainConfig
+arm, out, pre = sys.argv[1], sys.argv[2], int(sys.argv[3])
 c = json.load(open(f"blender_mrvm/assets/checkpoints/ablation/budget_unseen_{arm}.json"))
-c["train"].update(data=os.environ.get("MRVM_DATA", "gpu_carry/data/shapenet13_all"), seed=int(os.environ.get("SEED", "0")),
+# the warmup in proportion to the run, as the CPU study's smallest budget had it (200 of 1000 steps): session 28's
+# first GPU run (PRE 180) kept the default 200 steps and never left its warmup, so the learning rate never peaked
+warmup = int(os.environ.get("WARMUP", min(c["train"].get("lr_warmup", TrainConfig.lr_warmup), max(1, pre // 5))))
+c["train"].update(lr_warmup=warmup, data=os.environ.get("MRVM_DATA", "gpu_carry/data/shapenet13_all"), seed=int(os.environ.get("SEED", "0")),
                   objects_per_step=int(os.environ.get("OBJ", "16")), rays_per_object=int(os.environ.get("RAYS", "4096")),
                   device=os.environ.get("DEVICE", "cuda"), amp=os.environ.get("AMP", "none"), threads=0,
                   log_every=5, ckpt_every=1000000, keep_checkpoints=1)

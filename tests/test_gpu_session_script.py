@@ -154,3 +154,6 @@ def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path):
     strip = lambda c: {**c["train"], "out_dir": "", "init_checkpoint": ""}  # noqa: E731
     assert strip(cfg["scale_mrvm"]) == strip(cfg["scale_base"]) and strip(cfg["scale_mrvm_pre"]) == strip(cfg["scale_base_pre"])
     assert cfg["scale_mrvm_pre"]["train"]["objects_per_step"] == 1 and cfg["scale_mrvm_pre"]["train"]["rays_per_object"] == 16
+    # the pretraining warmup in proportion to the run (PRE / 5, at most the default 200): session 28's first GPU
+    # runs kept 200 steps of warmup in a 180-step run, so their learning rate never peaked
+    assert cfg["scale_mrvm_pre"]["train"]["lr_warmup"] == cfg["scale_base_pre"]["train"]["lr_warmup"] == 1

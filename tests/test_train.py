@@ -224,6 +224,19 @@ def test_lr_schedule_and_config_file(tmp_path):
         load_run_config(p)
 
 
+def test_a_run_shorter_than_its_warmup_says_so(tmp_path, data, capsys):
+    """The default warmup (200 steps) on a 2-step run never reaches train.lr (session 28's GPU MRVM runs, 180
+    steps, were such runs unnoticed): train says so on stderr; a run past its warmup says nothing."""
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "a", root, lr_warmup=200)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    err = capsys.readouterr().err
+    assert "train.lr_warmup (200) is not below iterations (2)" in err and "to 1% of train.lr (0.003)" in err
+    mcfg, tcfg = _cfgs(tmp_path / "b", root, lr_warmup=1)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    assert "lr_warmup" not in capsys.readouterr().err
+
+
 def test_bf16_autocast_training_step_finite(tmp_path, data):
     root, scenes = data
     mcfg, tcfg = _cfgs(tmp_path / "bf", root, iterations=1, amp="bf16", objects_per_step=1)

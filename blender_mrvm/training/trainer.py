@@ -242,6 +242,12 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     model_cfg, note = bgrule.for_training(model_cfg, data_bg)  # the data decides what the images sit on
     if note and dd.main:
         print(f"note: {note}", file=sys.stderr)
+    if cfg.lr_warmup >= cfg.iterations and cfg.lr > 0 and dd.main:
+        # a short run with the default warmup (200 steps) never reaches train.lr and never decays: legal (a smoke
+        # run) but rarely meant (session 28's first GPU MRVM runs were such runs), so say so
+        print(f"note: train.lr_warmup ({cfg.lr_warmup}) is not below iterations ({cfg.iterations}): the learning "
+              f"rate only ramps up, to {cfg.iterations / max(1, cfg.lr_warmup):.0%} of train.lr "
+              f"({cfg.lr:g}), and never decays; set train.lr_warmup to a fraction of the run", file=sys.stderr)
     for name in ("distortion_weight", "depth_weight"):
         if getattr(cfg, name) > 0 and registry.kind_of(model_cfg) != "nerformer_mrvm":
             raise InputError(f"{name} needs a density field (a nerformer_mrvm model); this run trains a "
