@@ -79,19 +79,17 @@ def _run_with_json(gen: ProgressGen, desc: str) -> Any:
     raised at a random bytecode could land inside a Python callback that Blender runs during a
     render and be swallowed there (the child then ran to the end), or abort a unit half-written."""
     with sigint_flag() as interrupted:
+        events = _between_events(gen, interrupted)
         try:
             while True:
-                if interrupted:
-                    raise KeyboardInterrupt
                 try:
-                    event = next(gen)
+                    event = next(events)
                 except StopIteration as stop:
                     return stop.value
                 sys.stdout.write(progress_json(event, desc) + "\n")
                 sys.stdout.flush()
-        except KeyboardInterrupt:
-            gen.close()
-            raise
+        finally:
+            events.close()  # closes gen too, wherever this ended (a KeyboardInterrupt while writing included)
 
 
 @contextlib.contextmanager
