@@ -196,11 +196,13 @@ EOF
     # Issue 11: MRVM against the identical model without it at a GPU budget, beside the CPU's three budgets
     # (RECIPE.md "MRVM against the identical model at three training budgets": the `fast` preset, the paper's
     # two runs). Both arms side by side, each a pretraining run of PRE steps then a finetuning run of PRE/3 from
-    # it, OBJ x RAYS rays a step (default 180 + 60 steps of 16 x 4096: 15.7 M rays, 5x the CPU's largest budget).
+    # it, OBJ x RAYS rays a step (default 300 + 100 steps of 16 x 4096: 26 M rays, 8x the CPU's largest budget in
+    # rays, 400 updates against its 12 000; ~7.5 minutes on an H100; session 28's 180 + 60 kept a 200-step warmup).
     # Steps, not time, are the budget: each run's timeout is only a guard, and the summary says if one cut a run
-    # short (then the arms are not comparable). Back: scale_<arm>.safetensors (fp16), scale_<arm>.log,
+    # short (then the arms are not comparable; the guards allow 1.5 s a step, session 28 ran ~1.05 side by side).
+    # Back: scale_<arm>.safetensors (fp16), scale_<arm>.log,
     # scale_runs.tgz (configs and metrics), gpu_util.log; scored on the CPU (docs/gpu_session.md).
-    PRE=${PRE:-180}; FT=$((PRE / 3)); [ "$FT" -ge 1 ] || FT=1
+    PRE=${PRE:-300}; FT=$((PRE / 3)); [ "$FT" -ge 1 ] || FT=1
     mkdir -p runs /tmp/mrvm_scale
     pids=()
     for arm in mrvm base; do
@@ -218,9 +220,9 @@ c["train"].update(lr_warmup=warmup, data=os.environ.get("MRVM_DATA", "gpu_carry/
                   log_every=5, ckpt_every=1000000, keep_checkpoints=1)
 json.dump(c, open(out, "w"), indent=1)
 EOF
-      ( timeout -s INT ${PRE_S:-360} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json --iterations $PRE \
+      ( timeout -s INT ${PRE_S:-$((PRE * 3 / 2 + 60))} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json --iterations $PRE \
           --out runs/scale_${arm}_pre --no-resume --force
-        timeout -s INT ${FT_S:-150} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json \
+        timeout -s INT ${FT_S:-$((FT * 3 / 2 + 60))} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json \
           --init runs/scale_${arm}_pre --iterations $FT --out runs/scale_$arm --no-resume --force ) > "$OUT/scale_$arm.log" 2>&1 &
       pids+=($!)
     done
