@@ -12,7 +12,8 @@
 #                                                      eager; `fast` with the written-out attention, eager and
 #                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
 #   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
-#                                                      and without empty-space skipping, seconds a view
+#                                                      and without empty-space skipping (SYNTH_VARIANTS; also
+#                                                      nofoot: skipping without the footprint), seconds a view
 #   scripts/gpu_session.sh mrvm_scale                  MRVM against none at a GPU budget, both arms side by side
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
@@ -124,25 +125,39 @@ case "$what" in
     # compilation); one JSON per run, <model>_<eager|compiled>.json, also gathered into synth.tgz after each run
     # (variants: eager, compiled, and eager without empty-space skipping ("noskip": what the hull costs or saves
     # on the device); compiled runs log torch's recompilations and graph breaks into synth.tgz's logs/)
+    # ("nofoot": skipping without the view's footprint, every box ray marched: the footprint's splat and distance
+    # transform run on the host, the likeliest cost left on a GPU (session 28); measurement only, by replacing
+    # hull.footprint with "every pixel" in that process; the images must not change, tests/test_gpu_session_script.py)
     obj=$(ls -d ${SYNTH_DATA:-gpu_carry/data/shapenet13_all}/*/*/ | head -n 1)
-    mkdir -p /tmp/synth_logs
+    tmp=${SYNTH_TMP:-/tmp}
+    mkdir -p $tmp/synth_logs
+    nofoot='import sys, torch, runpy, blender_mrvm.models.hull as h
+def every_pixel(hull, intr, c2w):
+    print(f"nofoot: every pixel of a {intr.width}x{intr.height} view marched", file=sys.stderr)
+    return torch.ones(int(intr.height) * int(intr.width), dtype=torch.bool)
+h.footprint = every_pixel
+runpy.run_module("blender_mrvm", run_name="__main__")'
     for m in ${SYNTH_MODELS:-nerformer_mrvm mrvm_quality}; do
       for c in ${SYNTH_VARIANTS:-eager compiled noskip}; do
-        flag=; logs=  # (TORCH_LOGS set but empty breaks torch's logging)
+        flag=; logs=; launch=(-m blender_mrvm)  # (TORCH_LOGS set but empty breaks torch's logging)
         [ "$c" = compiled ] && flag=--compile && logs=recompiles,graph_breaks
         [ "$c" = noskip ] && flag="--skip-empty off"
-        env ${logs:+TORCH_LOGS=$logs} TORCHINDUCTOR_CACHE_DIR=/tmp/inductor_synth_$m timeout ${STEP_S:-120} $PY -m blender_mrvm \
-          synthesize --references "$obj" --views 3 15 --orbit ${ORBIT:-24} --orbit-size ${SIZE:-256} \
-          --checkpoint shipped:$m --device ${DEVICE:-cuda} $flag --out /tmp/synth_${m}_$c --force \
-          2> >(grep -v "^synthesize: " > /tmp/synth_logs/${m}_$c.log) \
-          && cp /tmp/synth_${m}_$c/synthesis.json "$OUT/${m}_$c.json"
-        tar -czf "$OUT/synth.tgz" -C "$OUT" --exclude synth.tgz . -C /tmp synth_logs
+        [ "$c" = nofoot ] && launch=(-c "$nofoot")
+        env ${logs:+TORCH_LOGS=$logs} TORCHINDUCTOR_CACHE_DIR=/tmp/inductor_synth_$m timeout ${STEP_S:-120} $PY "${launch[@]}" \
+          synthesize --references "$obj" --views ${SYNTH_VIEWS:-3 15} --orbit ${ORBIT:-24} --orbit-size ${SIZE:-256} \
+          --checkpoint shipped:$m --device ${DEVICE:-cuda} $flag --out $tmp/synth_${m}_$c --force \
+          2> >(grep -v "^synthesize: " > $tmp/synth_logs/${m}_$c.log) \
+          && cp $tmp/synth_${m}_$c/synthesis.json "$OUT/${m}_$c.json"
+        tar -czf "$OUT/synth.tgz" -C "$OUT" --exclude synth.tgz . -C $tmp synth_logs
       done
     done
     $PY - "$OUT" <<'EOF2'
 import json, statistics, sys
 from pathlib import Path
-for f in sorted(Path(sys.argv[1]).glob("*_*.json")):
+runs = sorted(Path(sys.argv[1]).glob("*_*.json"))
+if not runs:
+    sys.exit("synth: no run finished (their errors are in synth.tgz's synth_logs/)")
+for f in runs:
     d = json.loads(f.read_text()); s = [t["seconds"] for t in d["targets"]]
     print(f"{f.stem}: {len(s)} views of {d['targets'][0]['width']} px, first {s[0]:.3f} s, "
           f"median of the rest {statistics.median(s[1:]):.4f} s ({1 / statistics.median(s[1:]):.1f} FPS), total {d['seconds']:.1f} s")

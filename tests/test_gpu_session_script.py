@@ -157,3 +157,39 @@ def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path):
     # the pretraining warmup in proportion to the run (PRE / 5, at most the default 200): session 28's first GPU
     # runs kept 200 steps of warmup in a 180-step run, so their learning rate never peaked
     assert cfg["scale_mrvm_pre"]["train"]["lr_warmup"] == cfg["scale_base_pre"]["train"]["lr_warmup"] == 1
+
+
+@pytest.mark.slow
+def test_synth_variants_time_the_shipped_model_and_nofoot_changes_no_pixel(tmp_path):
+    """`gpu_session.sh synth` (issue 13's `synthesize` timings), here on the CPU at 32 px: each variant's timing
+    comes back, and `nofoot` (empty-space skipping with every box ray marched, the footprint left out) renders
+    the same pixels as the default: the footprint only saves marching, never changes a kept ray."""
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "gpu_session.sh", root / "scripts")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    data = make_sphere_dataset(tmp_path / "data", n_objects=1, n_views=4, resolution=64, data_passes=False)
+    out, tmp = tmp_path / "out", tmp_path / "tmp"
+    out.mkdir()
+    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1", "DEVICE": "cpu",
+           "SYNTH_DATA": str(data), "SYNTH_TMP": str(tmp), "SYNTH_VIEWS": "0 2", "ORBIT": "3", "SIZE": "32",
+           "SYNTH_MODELS": "nerformer_mrvm", "SYNTH_VARIANTS": "eager nofoot noskip"}
+    r = subprocess.run(["bash", "scripts/gpu_session.sh", "synth"], cwd=root, env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    for c in ("eager", "nofoot", "noskip"):
+        assert f"nerformer_mrvm_{c}: 3 views of 32 px" in r.stdout, r.stdout + r.stderr
+        assert json.loads((out / f"nerformer_mrvm_{c}.json").read_text())["device"] == "cpu"
+    import numpy as np
+    from PIL import Image
+
+    logs = {c: (tmp / "synth_logs" / f"nerformer_mrvm_{c}.log").read_text() for c in ("eager", "nofoot")}
+    assert logs["nofoot"].count("nofoot: every pixel of a 32x32 view marched") == 3 and "nofoot" not in logs["eager"]
+    pngs = sorted((tmp / "synth_nerformer_mrvm_eager").rglob("*.png"))
+    assert len(pngs) >= 3
+    for a in pngs:
+        b = tmp / "synth_nerformer_mrvm_nofoot" / a.relative_to(tmp / "synth_nerformer_mrvm_eager")
+        assert np.array_equal(np.asarray(Image.open(a)), np.asarray(Image.open(b))), a.name
+    ev = json.loads((out / "nerformer_mrvm_eager.json").read_text())
+    nf = json.loads((out / "nerformer_mrvm_nofoot.json").read_text())
+    assert [t["evaluated_rays"] for t in ev["targets"]] == [t["evaluated_rays"] for t in nf["targets"]]  # same rays
