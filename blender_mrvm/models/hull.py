@@ -34,6 +34,7 @@ from .projection import RefCameras
 from .rays import RayBundle
 
 MODES = ("off", "cull", "tighten")
+GPU_BLOCK = 16384  # rays marched at once on a GPU: ~7 M points at 64^3, a few hundred MB
 """Empty-space skipping modes (``off``: box clipping only)."""
 
 
@@ -98,8 +99,6 @@ def build_hull(masks: np.ndarray | torch.Tensor, cams: RefCameras, box: float, r
     occ = torch.nn.functional.max_pool3d(occ[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
     return Hull(occ, float(box))
 
-
-GPU_BLOCK = 16384  # rays marched at once on a GPU: ~7 M points at 64^3, a few hundred MB
 
 @functools.lru_cache(maxsize=4)
 def _centres(G: int, box: float) -> torch.Tensor:
@@ -183,6 +182,13 @@ def clip_rays(rays: RayBundle, hull: Hull, mode: str = "cull", keep: torch.Tenso
     return out
 
 
+def _voxel(pts: torch.Tensor, hull: Hull) -> torch.Tensor:
+    """Flat (x-major) index of the hull voxel holding each point (points outside the box clamp to its edge)."""
+    G = hull.resolution
+    ijk = ((pts + hull.box) * (G / (2 * hull.box))).long().clamp_(0, G - 1)
+    return (ijk[..., 0] * G + ijk[..., 1]) * G + ijk[..., 2]
+
+
 def _meets_hull(rays: RayBundle, hull: Hull, ts: torch.Tensor, far: torch.Tensor, group: int | None = None) -> torch.Tensor:
     """(R,) bool: whether a march point of each ray (at the distances ``ts``, those up to its ``far``) lies in
     a kept voxel. The same points and voxels as marching every ray to the end, ``group`` steps at a time,
@@ -190,15 +196,13 @@ def _meets_hull(rays: RayBundle, hull: Hull, ts: torch.Tensor, far: torch.Tensor
     On a GPU (``group`` None there) every step is taken at once: each group's dropping costs a host sync,
     and with them ``synthesize`` at 256 px was 3.4x slower with the hull than without it (session 28, H100);
     marching all the steps in one pass gives the same points and the same answer."""
-    G = hull.resolution
     occ_flat = hull.occupied.reshape(-1).to(rays.origins.device)
     origins, dirs = rays.origins.float(), rays.dirs.float()
     if group is None:
         group = 16 if rays.origins.device.type == "cpu" else len(ts)
     if group >= len(ts):
         pts = origins[:, None, :] + ts.float()[None, :, None] * dirs[:, None, :]
-        ijk = ((pts + hull.box) * (G / (2 * hull.box))).long().clamp_(0, G - 1)
-        lin = (ijk[..., 0] * G + ijk[..., 1]) * G + ijk[..., 2]
+        lin = _voxel(pts, hull)
         return rays.hit & (occ_flat[lin] & (ts[None, :] <= far[:, None] + 1e-9)).any(-1)
     met = torch.zeros(len(rays), dtype=torch.bool, device=rays.origins.device)
     live = torch.nonzero(rays.hit).flatten()
@@ -207,8 +211,7 @@ def _meets_hull(rays: RayBundle, hull: Hull, ts: torch.Tensor, far: torch.Tensor
             break
         t = ts[s0:s0 + group]
         pts = origins[live, None, :] + t.float()[None, :, None] * dirs[live, None, :]
-        ijk = ((pts + hull.box) * (G / (2 * hull.box))).long().clamp_(0, G - 1)
-        lin = (ijk[..., 0] * G + ijk[..., 1]) * G + ijk[..., 2]
+        lin = _voxel(pts, hull)
         f = far[live]
         now = (occ_flat[lin] & (t[None, :] <= f[:, None] + 1e-9)).any(-1)
         met[live[now]] = True
@@ -228,8 +231,7 @@ def _clip(rays: RayBundle, hull: Hull, mode: str, steps_per_voxel: int) -> RayBu
         return RayBundle(rays.origins, rays.dirs, far_new.to(rays.far.dtype), hit, rays.depth_offset, rays.up)
     pts = rays.origins.float()[:, None, :] + ts.float()[None, :, None] * rays.dirs.float()[:, None, :]  # (R, n, 3)
     inside = ts[None, :] <= far[:, None] + 1e-9
-    ijk = ((pts + hull.box) * (G / (2 * hull.box))).long().clamp_(0, G - 1)
-    lin = (ijk[..., 0] * G + ijk[..., 1]) * G + ijk[..., 2]
+    lin = _voxel(pts, hull)
     occ = hull.occupied.reshape(-1).to(lin.device)[lin] & inside & rays.hit[:, None]
     any_occ = occ.any(-1)
     hit = rays.hit & any_occ
