@@ -126,8 +126,9 @@ case "$what" in
     # (variants: eager, compiled, and eager without empty-space skipping ("noskip": what the hull costs or saves
     # on the device); compiled runs log torch's recompilations and graph breaks into synth.tgz's logs/)
     # ("nofoot": skipping without the view's footprint, every box ray marched: the footprint's splat and distance
-    # transform run on the host, the likeliest cost left on a GPU (session 28); measurement only, by replacing
-    # hull.footprint with "every pixel" in that process; the images must not change, tests/test_gpu_session_script.py)
+    # transform run on the host; measurement only, by replacing hull.footprint with "every pixel" in that process;
+    # the images must not change, tests/test_gpu_session_script.py. Session 29 timed it faster on an H100, so since
+    # then a GPU never makes the footprint (hull.footprint_pays) and there `nofoot` is the same as `eager`)
     obj=$(ls -d ${SYNTH_DATA:-gpu_carry/data/shapenet13_all}/*/*/ | head -n 1)
     tmp=${SYNTH_TMP:-/tmp}
     mkdir -p $tmp/synth_logs

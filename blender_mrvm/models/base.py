@@ -187,20 +187,22 @@ class RayModel(nn.Module):
 
         ``workers`` > 1 renders that many chunks at once on threads (CPU: each chunk's ops on one core,
         ``threads.render_workers``); results are written and yielded in chunk order all the same."""
-        from .hull import clip_rays, footprint
+        from .hull import clip_rays, footprint, footprint_pays
 
         H, W = int(intr.height), int(intr.width)
         n = H * W
         # On a GPU the rays are made, rendered and gathered there, and the view crosses to the host once at the
         # end: made on the host in numpy, a 256 px view's rays took longer than the model's whole render (session
         # 20's FPS profile spent half of a view outside device work). The hull's marching runs there too (on the
-        # host until session 26); only the footprint's splat (a distance transform of the view's pixels) is made
-        # on the host.
+        # host until session 26); the footprint (a splat and distance transform of the view's pixels, on the host)
+        # is made on the CPU only: on a GPU marching every box ray is faster (hull.footprint_pays).
         dev = self.device
+        skipping = hull is not None and skip != "off"
         keep = None
-        if hull is not None and skip != "off":
+        if skipping:
             hull = hull.to(dev)  # the model's own hulls are built there
-            keep = footprint(hull, intr, c2w_norm).to(dev)
+            if footprint_pays(dev):
+                keep = footprint(hull, intr, c2w_norm).to(dev)
         bg = 1.0 if self.white_background else 0.0
         color = torch.full((n, 3), bg, device=dev)
         depth = torch.zeros(n, device=dev)
@@ -218,8 +220,9 @@ class RayModel(nn.Module):
             base = r0 * W
             box_rays += rays.hit.sum()
             box_far = rays.far
-            if keep is not None:
-                rays = clip_rays(rays, hull, skip, keep=keep[base:base + len(rays)], workers=workers)
+            if skipping:
+                rays = clip_rays(rays, hull, skip, keep=None if keep is None else keep[base:base + len(rays)],
+                                 workers=workers)
             idx = torch.nonzero(rays.hit).flatten()
             yield len(rays) - idx.numel()
             sels = [idx[s:s + chunk] for s in range(0, idx.numel(), chunk)]
