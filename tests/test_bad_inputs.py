@@ -488,8 +488,17 @@ BENCH = [
     Case("tracebacks", ["bench", "model", "--precisions", "int4", "--out", "{new}"], "not among fp32"),
 ] + ([] if CUDA else [Case("tracebacks", ["bench", "model", "--device", "cuda", "--out", "{new}"], "no CUDA GPU")])
 
+# `sem2nerf eval` wrote eval.json and eval_grid.png into any --out only after the whole evaluation (session 29):
+# its output folder is now checked first, as `eval`'s is
+_S2E = ["sem2nerf", "eval", "--checkpoint", "shipped:sem2nerf", "--data", "{w}/ds"]
+SEM2NERF = [
+    Case("data-loss", _S2E + ["--out", "{w}/occupied"], "already holds files (precious.txt)"),
+    Case("data-loss", _S2E + ["--out", "{w}/a_file"], "exists and is not a folder"),
+    Case("data-loss", _S2E + ["--out", "{w}/ds"], "is the dataset folder"),
+]
+
 ALL = {"train": TRAIN, "synthesize": SYNTH, "eval": EVAL, "contact-sheet": SHEET, "demo": DEMO,
-       "recover-poses": POSES, "render-dataset": RENDER, "usage": USAGE, "bench": BENCH}
+       "recover-poses": POSES, "render-dataset": RENDER, "usage": USAGE, "bench": BENCH, "sem2nerf": SEM2NERF}
 CASES = [(f"{group}-{i:02d}", c) for group, cs in ALL.items() for i, c in enumerate(cs)]
 CLASSES: dict[str, int] = {}
 for _, _c in CASES:

@@ -95,7 +95,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="score the input view and every N-th other view (default 3)")
     e.add_argument("--blend-objects", type=int, default=3,
                    help="objects whose input view is rendered along a 5-step style blend (default 3)")
-    e.add_argument("--out", required=True, help="output folder for eval.json")
+    e.add_argument("--out", required=True, help="output folder for eval.json and eval_grid.png (a folder holding "
+                   "other files needs --force)")
+    e.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
 
     b = sub.add_parser("bench", help="time the input builders at 512 px -> CSV")
@@ -166,8 +168,12 @@ def run(args) -> int:
         print(json.dumps({"out": args.out, "views": summary["views"], "edits": summary["edits"]}))
         return 0
     if cmd == "eval":
+        from ..guards import check_not_input, check_output_folder
         from ..training import sem2nerf as T
 
+        # checked before the evaluation, not found when it writes at the end (as `eval` does)
+        check_not_input(Path(args.out), {"dataset": Path(args.data)})
+        check_output_folder(Path(args.out), args.force, "eval output folder", ours=T.EVAL_FILES)
         res = run_with_tqdm(T.evaluate(Path(args.checkpoint), Path(args.data), Path(args.out), split=args.split,
                                        holdout=args.holdout, max_objects=args.max_objects,
                                        input_view=args.input_view, views_every=args.views_every,

@@ -624,6 +624,10 @@ def _summarise_edits(rows: list[dict]) -> dict:
             "near_change": near, "far_change": far, "far_over_near": far / near if near > 0 else None}
 
 
+EVAL_FILES = ("eval.json", "eval_grid.png")
+"""What :func:`evaluate` writes into its output folder (a rerun may update them; anything else there needs --force)."""
+
+
 def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
              input_view: int = 0, views_every: int = 3, threads: int = 0, blend_objects: int = 3):
     """Progress generator over objects; writes ``out/eval.json`` and returns its dict.
