@@ -7,6 +7,7 @@ temporary folders or ask the user first.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from .errors import OutputError
@@ -41,6 +42,22 @@ def check_output_folder(path: Path, force: bool = False, what: str = "output fol
         if present:
             raise OutputError(f"{what} {path} already holds files ({_shown(present)}); choose another folder "
                               f"or pass {flag} to write over them")
+    return path
+
+
+def check_folder_writable(path: Path, what: str = "output folder") -> Path:
+    """``path`` can become a folder this process writes into: it is no file, and the nearest part of it that
+    exists is a folder this process may write into. (What it holds is :func:`check_output_folder`'s business.)"""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{what} {path} exists and is not a folder")
+    probe = path
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"cannot write {what} {path}: {probe} is not a folder")
+    if not os.access(probe, os.W_OK):
+        raise OutputError(f"cannot write into {probe}")
     return path
 
 

@@ -486,7 +486,11 @@ USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2
 BENCH = [
     Case("tracebacks", ["bench", "model", "--precisions", "fp16", "--out", "{new}"], "fp16 on a GPU"),
     Case("tracebacks", ["bench", "model", "--precisions", "int4", "--out", "{new}"], "not among fp32"),
-] + ([] if CUDA else [Case("tracebacks", ["bench", "model", "--device", "cuda", "--out", "{new}"], "no CUDA GPU")])
+] + ([] if CUDA else [Case("tracebacks", ["bench", "model", "--device", "cuda", "--out", "{new}"], "no CUDA GPU")]) + [
+    # --out naming a file: refused before measuring (it had raised FileExistsError after the whole bench)
+    Case("tracebacks", ["bench", name, "--out", "{w}/a_file"], "bench output folder")
+    for name in ("model", "train", "profile", "threads", "render", "capture")
+]
 
 # `sem2nerf eval` wrote eval.json and eval_grid.png into any --out only after the whole evaluation (session 29):
 # its output folder is now checked first, as `eval`'s is
@@ -495,6 +499,8 @@ SEM2NERF = [
     Case("data-loss", _S2E + ["--out", "{w}/occupied"], "already holds files (precious.txt)"),
     Case("data-loss", _S2E + ["--out", "{w}/a_file"], "exists and is not a folder"),
     Case("data-loss", _S2E + ["--out", "{w}/ds"], "is the dataset folder"),
+    Case("tracebacks", ["sem2nerf", "bench", "--out", "{w}/a_file", "--size", "16", "--repeats", "1"],
+         "bench output folder"),
 ]
 
 ALL = {"train": TRAIN, "synthesize": SYNTH, "eval": EVAL, "contact-sheet": SHEET, "demo": DEMO,

@@ -30,4 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    # every bench writes its figures into --out when it ends: a file or an unwritable place there is refused now,
+    # not after the measurements (it had raised FileExistsError at the end of the run)
+    if getattr(args, "out", None) is not None:
+        from ..guards import check_folder_writable
+
+        check_folder_writable(Path(args.out), "bench output folder")
     return int(args._bench.run(args) or 0)

@@ -182,8 +182,10 @@ def run(args) -> int:
         print(json.dumps(res["overall"]))
         return 0
     if cmd == "bench":
+        from ..guards import check_folder_writable
         from ..models.sem2nerf.inputs import bench
 
+        check_folder_writable(Path(args.out), "bench output folder")
         res = bench(Path(args.out), size=args.size, repeats=args.repeats)
         print(json.dumps({k: round(v, 3) for k, v in res.items()}))
         return 0

@@ -28,7 +28,6 @@ object of interest fits the unit sphere), else where the reference cameras' opti
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 import tempfile
@@ -41,7 +40,7 @@ import numpy as np
 
 from ..datasets import format as F
 from ..datasets.novel_views import MAX_POOL, MAX_REFERENCES, Target, read_targets
-from ..errors import InputError, OutputError
+from ..errors import InputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen, as_step_of
 
@@ -528,7 +527,7 @@ class SynthesisSummary:
 
 
 def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
-    from ..guards import check_not_input, check_output_folder
+    from ..guards import check_folder_writable, check_not_input, check_output_folder
 
     ours: tuple[str, ...] = ()
     if cfg is not None:
@@ -536,12 +535,7 @@ def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
         if Path(cfg.targets).resolve() == (out / "targets.json").resolve():
             ours = ("targets.json",)  # the targets file the run reads may sit in the output folder
     check_output_folder(out, force=bool(cfg and cfg.force), ours=ours)
-    parent = out.parent if out.parent != Path("") else Path(".")
-    probe = parent
-    while not probe.exists():
-        probe = probe.parent
-    if not os.access(probe, os.W_OK):
-        raise OutputError(f"cannot write into {probe}")
+    check_folder_writable(out)
 
 
 def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
