@@ -503,8 +503,20 @@ SEM2NERF = [
          "bench output folder"),
 ]
 
+# found by trying each command's --out on a file and a folder (session 29): tracebacks after the work, or a PNG
+# replaced without asking
+OTHER = [
+    Case("data-loss", ["preview-library", "--out", "{w}/a_file", "--seeds", "1", "--categories", "chair"],
+         "already exists; pass --force"),
+    Case("tracebacks", ["preview-library", "--out", "{w}/occupied", "--seeds", "1", "--categories", "chair"],
+         "is a folder; name a file"),
+    Case("tracebacks", ["build-extension", "--out", "{w}/a_file"], "extension output folder"),
+    Case("tracebacks", ["fetch-weights", "--out", "{w}/a_file"], "weight cache folder"),
+]
+
 ALL = {"train": TRAIN, "synthesize": SYNTH, "eval": EVAL, "contact-sheet": SHEET, "demo": DEMO,
-       "recover-poses": POSES, "render-dataset": RENDER, "usage": USAGE, "bench": BENCH, "sem2nerf": SEM2NERF}
+       "recover-poses": POSES, "render-dataset": RENDER, "usage": USAGE, "bench": BENCH, "sem2nerf": SEM2NERF,
+       "other": OTHER}
 CASES = [(f"{group}-{i:02d}", c) for group, cs in ALL.items() for i, c in enumerate(cs)]
 CLASSES: dict[str, int] = {}
 for _, _c in CASES:

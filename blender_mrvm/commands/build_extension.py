@@ -69,6 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from ..guards import check_folder_writable
+
+    check_folder_writable(Path(args.out), "extension output folder")
     zip_path = build(Path(args.out))
     validate(zip_path)
     print(f"built {zip_path} ({zip_path.stat().st_size / 1024:.0f} KiB); install it with "

@@ -7,7 +7,8 @@ from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="PNG file to write")
+    p.add_argument("--out", required=True, help="PNG file to write (an existing file needs --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out file")
     p.add_argument("--seeds", type=int, default=6, help="seeds per category (0 .. N-1 from --first-seed)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed")
     p.add_argument("--categories", default="all", help="comma-separated categories, or 'all'")
@@ -19,6 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
+    from ..guards import check_new_file
     from ..progress import run_with_tqdm
     from ..scene.procedural import CATEGORIES
     from ..scene.procedural.preview import contact_sheet
@@ -27,6 +29,8 @@ def run(args) -> int:
         raise InputError(f"--seeds must be positive, got {args.seeds}")
     if args.first_seed < 0:
         raise InputError(f"--first-seed must not be negative, got {args.first_seed}")
+    # before rendering: it had replaced an existing PNG without asking, and failed on a folder only at the end
+    check_new_file(Path(args.out), args.force, "contact sheet")
     cats = CATEGORIES if args.categories == "all" else tuple(c.strip() for c in args.categories.split(",") if c.strip())
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
     path = run_with_tqdm(contact_sheet(Path(args.out), cats, seeds, args.size, args.engine, args.samples, args.parts),
