@@ -512,6 +512,10 @@ OTHER = [
          "is a folder; name a file"),
     Case("tracebacks", ["build-extension", "--out", "{w}/a_file"], "extension output folder"),
     Case("tracebacks", ["fetch-weights", "--out", "{w}/a_file"], "weight cache folder"),
+    Case("tracebacks", ["train", "--preset", "fast", "--data", "{w}/ds", "--iterations", "1", "--out", "{w}/a_file"],
+         "run folder"),
+    Case("tracebacks", ["sem2nerf", "train", "--data", "{w}/ds", "--iterations", "1", "--out", "{w}/a_file"],
+         "run folder"),
 ]
 
 ALL = {"train": TRAIN, "synthesize": SYNTH, "eval": EVAL, "contact-sheet": SHEET, "demo": DEMO,

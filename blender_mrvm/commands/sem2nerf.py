@@ -139,8 +139,10 @@ def run(args) -> int:
 
     cmd = args.sem2nerf_command
     if cmd == "train":
+        from ..guards import check_folder_writable
         from ..training import sem2nerf as T
 
+        check_folder_writable(Path(args.out), "run folder")  # a file there had raised FileExistsError
         cfg = T.train_config(data=args.data, out_dir=args.out, preset=args.preset, split=args.split,
                              holdout=args.holdout, max_objects=args.max_objects, iterations=args.iterations,
                              objects_per_step=args.objects_per_step, other_views=args.other_views,

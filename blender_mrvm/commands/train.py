@@ -67,6 +67,9 @@ def run(args) -> int:
 
     if not data_roots(tcfg):
         raise InputError("no dataset: give --data or train.data in the config")
+    from ..guards import check_folder_writable
+
+    check_folder_writable(Path(tcfg.out_dir), "run folder")  # a file there had raised FileExistsError
     import os
 
     rank = int(os.environ.get("RANK", "0"))
