@@ -4,7 +4,8 @@
 # runs: a pretraining run (masking throughout for the MRVM arm; rays inside the object's box for its first
 # 75%) of P steps, then a finetuning run of P/3 steps started from it (training.config.FINETUNE: no masking,
 # lr 1e-4, whole image). One arm per call, so the two arms run side by side on two cores:
-#   scripts/mrvm_budgets.sh mrvm & scripts/mrvm_budgets.sh base; SEED=1 ... for a second seed
+#   scripts/mrvm_budgets.sh mrvm & scripts/mrvm_budgets.sh base; SEED=1 ... for a second seed; RAYS=1024 ... for
+#   4x the rays a step at the same number of updates
 # then: python scripts/mrvm_budgets_table.py
 # Needs data/shapenet13_$SETTING (make-shapenet --setting $SETTING --objects-per-category 30 --views 24 --resolution 64).
 set -eu
@@ -16,6 +17,14 @@ SEED=${SEED:-0}
 SETTING=${SETTING:-unseen}          # unseen | all
 NAME=budget_; [ "$SETTING" = unseen ] || NAME=budget_${SETTING}_
 CFG=blender_mrvm/assets/checkpoints/ablation/budget_unseen_$ARM.json
+RAYS=${RAYS:-}                      # rays per object a step; unset: the recipe's 256. Set, the runs and evaluations
+                                    # are named budget_[all_]r$RAYS_... and the table gives them their own rows
+if [ -n "$RAYS" ]; then
+  NAME=${NAME}r${RAYS}_
+  mkdir -p data/runs && c=data/runs/${NAME}${ARM}.json
+  $PY -c 'import json, sys; c = json.load(open(sys.argv[1])); c["train"]["rays_per_object"] = int(sys.argv[2]); json.dump(c, open(sys.argv[3], "w"), indent=1)' "$CFG" "$RAYS" "$c"
+  CFG=$c
+fi
 DATA=data/shapenet13_$SETTING
 EV="$PY -m blender_mrvm eval --data $DATA --max-objects-per-category 2 --max-targets 8 --threads 1"
 for P in $BUDGETS; do

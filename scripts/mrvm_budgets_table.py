@@ -2,8 +2,9 @@
 
     python scripts/mrvm_budgets_table.py [data/eval]
 
-Reads ``budget_[all_][gpu_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder (``all_``: the ``all``
-setting; ``gpu_``: ``scripts/gpu_session.sh mrvm_scale``'s runs, whose batch the row reads from the checkpoint), pairs each MRVM evaluation with the baseline's on the same views
+Reads ``budget_[all_][gpu_][r{RAYS}_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder (``all_``: the
+``all`` setting; ``gpu_``: ``scripts/gpu_session.sh mrvm_scale``'s runs; ``r{RAYS}_``: ``mrvm_budgets.sh`` with
+``RAYS``, more rays a step; the batch of both is read from the checkpoint), pairs each MRVM evaluation with the baseline's on the same views
 (``training.evaluate.compare_reports``: objects are the unit) and prints, per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
 difference with its 95% interval over objects (mean +- 1.96 standard errors).
 """
@@ -19,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from blender_mrvm.training.evaluate import compare_reports  # noqa: E402
 
-NAME = re.compile(r"budget_(all_)?(gpu_)?mrvm_s(\d+)_p(\d+)_(\d)v$")
+NAME = re.compile(r"budget_(all_)?(gpu_)?(r\d+_)?mrvm_s(\d+)_p(\d+)_(\d)v$")
 
 
 def interval(s: dict) -> str:
@@ -31,8 +32,8 @@ def interval(s: dict) -> str:
 
 def order(p: Path) -> list:
     """`unseen` before `all`, then seed, budget and reference count."""
-    setting, gpu, *nums = NAME.search(p.name).groups()
-    return [bool(setting), bool(gpu), *map(int, nums)]
+    setting, gpu, rays, *nums = NAME.search(p.name).groups()
+    return [bool(setting), bool(gpu), int((rays or "r0_")[1:-1]), *map(int, nums)]
 
 
 def batch(report: dict) -> str:
@@ -49,7 +50,7 @@ def batch(report: dict) -> str:
 def main(root: Path) -> str:
     rows = []
     for d in sorted((p for p in root.glob("budget_*mrvm_s*_p*_*v") if NAME.search(p.name)), key=order):
-        setting, gpu, seed, steps, views = NAME.search(d.name).groups()
+        setting, gpu, rays, seed, steps, views = NAME.search(d.name).groups()
         setting = "all" if setting else "unseen"
         other = root / d.name.replace("mrvm_s", "base_s")
         if not (d / "eval.json").is_file() or not (other / "eval.json").is_file():
@@ -60,6 +61,9 @@ def main(root: Path) -> str:
         finetune = int(steps) // 3  # scripts/mrvm_budgets.sh: F = P / 3
         if gpu:
             setting += f", GPU {batch(a)} rays a step".replace("GPU  rays a step", "GPU")
+        elif rays:  # scripts/mrvm_budgets.sh with RAYS: the recipe at more rays a step
+            b = batch(a)
+            setting += f", {b} rays a step" if b else f", {rays[1:-1]} rays per object a step"
         rows.append(f"| {setting} | {seed} | {steps} + {finetune} = {int(steps) + finetune} | {views} | {c['views']} "
                     f"| {oa['psnr']:.2f} / {oa['ssim']:.3f} / {oa['lpips']:.3f} "
                     f"| {ob['psnr']:.2f} / {ob['ssim']:.3f} / {ob['lpips']:.3f} "

@@ -357,11 +357,15 @@ def test_mrvm_budgets_table_pairs_the_arms_and_names_a_gpu_budget_batch(tmp_path
     for name, arm, psnr in (("budget_all_gpu_{}_s0_p240_2v", "mrvm", [21, 22, 20, 21]),
                             ("budget_all_gpu_{}_s0_p240_2v", "base", [20, 21, 20, 20]),
                             ("budget_all_{}_s1_p9000_2v", "mrvm", [20, 20, 20, 20]),
-                            ("budget_all_{}_s1_p9000_2v", "base", [20, 20, 21, 21])):
+                            ("budget_all_{}_s1_p9000_2v", "base", [20, 20, 21, 21]),
+                            ("budget_all_r1024_{}_s2_p1000_1v", "mrvm", [20, 20, 20, 20]),
+                            ("budget_all_r1024_{}_s2_p1000_1v", "base", [19, 19, 19, 19])):
         d = tmp_path / "eval" / name.format(arm)
         d.mkdir(parents=True)
         (d / "eval.json").write_text(json.dumps(report(psnr, run if "gpu" in name else tmp_path / "gone")))
     rows = table.main(tmp_path / "eval").splitlines()[2:]
-    assert len(rows) == 2
+    assert len(rows) == 3
     assert rows[0].startswith("| all | 1 | 9000 + 3000 = 12000 | 2 | 4 |") and "| -0.500 [" in rows[0]
-    assert rows[1].startswith("| all, GPU 16 x 4096 rays a step | 0 | 240 + 80 = 320 | 2 | 4 |") and "| +0.750 [" in rows[1]
+    # RAYS=1024 runs of scripts/mrvm_budgets.sh: their own rows (the checkpoint is gone, so the name gives the rays)
+    assert rows[1].startswith("| all, 1024 rays per object a step | 2 | 1000 + 333 = 1333 | 1 | 4 |") and "| +1.000" in rows[1]
+    assert rows[2].startswith("| all, GPU 16 x 4096 rays a step | 0 | 240 + 80 = 320 | 2 | 4 |") and "| +0.750 [" in rows[2]
