@@ -116,6 +116,16 @@ def test_modes_and_bad_input():
 
 
 
+def assert_same_render(host: dict, dev: dict) -> None:
+    """Two renders of one view by two paths: the same pixels, ray counts and span (and skipping did skip)."""
+    assert 0 < host["evaluated"] < host["box_rays"]
+    for k in ("color", "acc", "depth"):
+        assert torch.allclose(host[k], dev[k], rtol=0, atol=1e-5), k
+    for k in ("rays", "box_rays", "evaluated", "samples"):
+        assert host[k] == dev[k], k
+    assert host["span"] == pytest.approx(dev["span"], abs=1e-9)
+
+
 def test_rays_made_in_row_blocks_give_the_same_image(monkeypatch):
     """image_chunks makes rays a block of rows at a time (bounded memory): any block size, with or without
     culling, gives the same pixels as one block."""
@@ -141,12 +151,7 @@ def test_empty_space_skipping_on_device_side_rays_gives_the_host_image(skip, mon
     host = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip=skip, chunk=97)
     monkeypatch.setattr(B, "rays_on_host", lambda device: False)
     dev = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip=skip, chunk=97)
-    assert 0 < host["evaluated"] < host["box_rays"]
-    for k in ("color", "acc", "depth"):
-        assert torch.allclose(host[k], dev[k], rtol=0, atol=1e-5), k
-    for k in ("rays", "box_rays", "evaluated", "samples"):
-        assert host[k] == dev[k], k
-    assert host["span"] == pytest.approx(dev["span"], abs=1e-9)
+    assert_same_render(host, dev)
 
 
 @pytest.mark.parametrize("skip", ["cull", "tighten"])
@@ -168,12 +173,7 @@ def test_without_the_footprint_skipping_keeps_the_same_rays_and_pixels(skip, mon
     monkeypatch.setattr(H, "footprint_pays", lambda device: False)
     monkeypatch.setattr(B, "rays_on_host", lambda device: False)
     dev = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, ref_masks=masks, skip=skip, chunk=97)
-    assert 0 < host["evaluated"] < host["box_rays"]
-    for k in ("color", "acc", "depth"):
-        assert torch.allclose(host[k], dev[k], rtol=0, atol=1e-5), k
-    for k in ("rays", "box_rays", "evaluated", "samples"):
-        assert host[k] == dev[k], k
-    assert host["span"] == pytest.approx(dev["span"], abs=1e-9)
+    assert_same_render(host, dev)
 
 
 def test_gpu_march_in_one_pass_meets_the_same_rays_as_the_early_out_march():
