@@ -28,11 +28,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
+    from ..guards import check_folder_writable
     from ..models import vgg
 
     out = args.out or vgg.weights_dir()
-    from ..guards import check_folder_writable
-
     check_folder_writable(Path(out), "weight cache folder")
     if not args.force and (out / vgg.VGG_FILE).is_file() and (out / vgg.LPIPS_FILE).is_file():
         print(f"weights already in {out}")

@@ -52,6 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
+    from ..guards import check_folder_writable
     from ..progress import run_with_tqdm
     from ..training.config import load_run_config
     from ..training.trainer import train
@@ -67,8 +68,6 @@ def run(args) -> int:
 
     if not data_roots(tcfg):
         raise InputError("no dataset: give --data or train.data in the config")
-    from ..guards import check_folder_writable
-
     check_folder_writable(Path(tcfg.out_dir), "run folder")  # a file there had raised FileExistsError
     import os
 
