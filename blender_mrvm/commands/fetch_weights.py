@@ -32,10 +32,10 @@ def run(args) -> int:
     from ..models import vgg
 
     out = args.out or vgg.weights_dir()
-    check_folder_writable(Path(out), "weight cache folder")
     if not args.force and (out / vgg.VGG_FILE).is_file() and (out / vgg.LPIPS_FILE).is_file():
-        print(f"weights already in {out}")
+        print(f"weights already in {out}")  # (a complete cache in a read-only place is fine)
         return 0
+    check_folder_writable(Path(out), "weight cache folder")
     with tempfile.TemporaryDirectory() as tmp:
         sdist = args.sdist
         if sdist is None:
