@@ -48,6 +48,16 @@ def test_between_units_ctrl_c_finishes_the_unit_then_a_second_stops_at_once(monk
     import signal
 
     monkeypatch.delenv("MRVM_PROGRESS", raising=False)
+    # Ctrl-C as a terminal has it: a process started in the background (`cmd &`, as CI may run) inherits SIGINT
+    # ignored, and Python then leaves it so; the second Ctrl-C would go back to "ignored" and never stop the work
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _ctrl_c_twice(signal, capsys)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+
+
+def _ctrl_c_twice(signal, capsys):
     before = signal.getsignal(signal.SIGINT)
     log: list = []
 
