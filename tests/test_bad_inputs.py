@@ -75,6 +75,7 @@ def world(tmp_path_factory):
     (w / "occupied").mkdir()
     (w / "occupied" / "precious.txt").write_text("keep me")
     (w / "a_file").write_text("not a folder")
+    (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
     (w / "emptydir").mkdir()
     (w / "folder.png").mkdir()
     (w / "photos").mkdir()
@@ -462,6 +463,9 @@ RENDER = [
     Case("tracebacks", _RD + ["--shard", "3/2"], "shard must be i/n"),
     Case("tracebacks", _RD + ["--samples", "0"], "samples must be at least 1"),
     Case("tracebacks", _RD + ["--fov", "180"], "field of view"),
+    # an unreadable mesh: one error line, and no dataset folder holding only its manifest left behind (session 29)
+    Case("tracebacks", ["render-dataset", "--source", "{w}/broken.obj", "--out", "{new}", "--views", "2",
+                        "--resolution", "16"], "cannot read mesh file"),
 ]
 
 USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2

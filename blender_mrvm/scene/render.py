@@ -554,12 +554,19 @@ def _sigint_between_views():
             signal.signal(signal.SIGINT, previous)
 
 
+def _remove_if_untouched(out: Path) -> None:
+    """Remove a dataset folder this run created if it holds nothing but its root manifest and empty folders."""
+    if all(p.is_dir() or p == out / F.ROOT_MANIFEST for p in out.rglob("*")):
+        shutil.rmtree(out, ignore_errors=True)
+
+
 def render_dataset(cfg: RenderConfig) -> ProgressGen:
     """Render every object of ``cfg.sources`` (this shard's share); yields Progress, returns RenderSummary."""
     cfg.validate()
     user_scene = bpy.context.scene
     specs = shard_specs(O.resolve_sources(tuple(cfg.sources), cfg.category), cfg.shard)
     scene_cams = _scene_cameras(user_scene, cfg) if cfg.rig == "scene" else None
+    fresh = not Path(cfg.out).exists()
     prepare_output(cfg)
     n_views = len(scene_cams) if scene_cams else cfg.views
     total = len(specs) * n_views
@@ -567,19 +574,24 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
     t0 = time.perf_counter()
     done = 0
     yield Progress(0, total, "starting")
-    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
-        for spec in specs:
-            views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
-            try:
-                for event in views:
-                    done += 1
-                    summary.seconds = time.perf_counter() - t0
-                    yield Progress(done, total, event, skipped=summary.views_skipped)
-                    if interrupted:
-                        raise KeyboardInterrupt  # between views: every reported view is on disk
-            finally:
-                views.close()
-            summary.objects.append(spec.key)
+    try:
+        with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
+            for spec in specs:
+                views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
+                try:
+                    for event in views:
+                        done += 1
+                        summary.seconds = time.perf_counter() - t0
+                        yield Progress(done, total, event, skipped=summary.views_skipped)
+                        if interrupted:
+                            raise KeyboardInterrupt  # between views: every reported view is on disk
+                finally:
+                    views.close()
+                summary.objects.append(spec.key)
+    except Exception:
+        if fresh and done == 0:  # e.g. the first mesh cannot be read: leave no empty dataset behind
+            _remove_if_untouched(Path(cfg.out))
+        raise
     write_splits(Path(cfg.out))
     summary.seconds = time.perf_counter() - t0
     return summary
