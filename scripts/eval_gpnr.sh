@@ -5,7 +5,7 @@
 set -u
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
-ev() { $PY -m blender_mrvm eval --data data/shapenet13_all --threads 1 "$@"; }
+ev() { $PY -m blender_mrvm eval --data data/shapenet13_all --threads 1 --force "$@"; }  # reruns replace their scores
 V2=3,15; V5=1,6,11,16,21; V10=0,2,5,7,10,12,14,17,19,22
 for m in gpnr nerformer; do
   ck=shipped:gpnr; [ $m = nerformer ] && ck=shipped

@@ -51,7 +51,7 @@ case "$what" in
     # the CUDA paths of evaluation and synthesis, run for real with a shipped model (only their JSON comes back:
     # at most 8 files return, and session 18's call lost bench_train.csv to the rendered views)
     if [ -n "${EVAL_DATA:-}" ]; then
-      timeout 90 $PY -m blender_mrvm eval --checkpoint shipped --data "$EVAL_DATA" --split train --n-inputs 2 \
+      timeout 90 $PY -m blender_mrvm eval --checkpoint shipped --data "$EVAL_DATA" --split train --n-inputs 2 --force \
         --max-targets 10 --no-lpips --device cuda --out /tmp/eval_cuda && cp /tmp/eval_cuda/eval.json "$OUT/eval_cuda.json"
       obj=$(ls -d "$EVAL_DATA"/*/*/ | head -n 1)
       timeout 60 $PY -m blender_mrvm synthesize --references "$obj" --views 3 15 --orbit 8 --device cuda \

@@ -76,6 +76,8 @@ def world(tmp_path_factory):
     (w / "occupied" / "precious.txt").write_text("keep me")
     (w / "a_file").write_text("not a folder")
     (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
+    (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
+    (w / "earlier_eval" / "eval.json").write_text(json.dumps({"overall": {"psnr": 20.0}, "views": []}))
     (w / "emptydir").mkdir()
     (w / "folder.png").mkdir()
     (w / "photos").mkdir()
@@ -384,6 +386,7 @@ EVAL = [
     _e("no checkpoint found", base=["eval", "--data", "{w}/ds", "--checkpoint", "{w}/emptydir", "--no-lpips", "--input-views", "0"]),
     _e("already holds files (precious.txt)", ["--out", "{w}/occupied"], cls="data-loss"),
     _e("exists and is not a folder", ["--out", "{w}/a_file"], cls="data-loss"),
+    _e("already holds files (eval.json)", ["--out", "{w}/earlier_eval"], cls="data-loss"),
     _e("cannot read image", base=["eval", "--data", "{w}/bad/ds_truncpng", "--checkpoint", "{w}/ck", "--no-lpips",
                                   "--split", "train", "--input-views", "0"]),
 ]
@@ -500,6 +503,7 @@ BENCH = [
 # its output folder is now checked first, as `eval`'s is
 _S2E = ["sem2nerf", "eval", "--checkpoint", "shipped:sem2nerf", "--data", "{w}/ds"]
 SEM2NERF = [
+    Case("data-loss", _S2E + ["--out", "{w}/earlier_eval"], "already holds files (eval.json)"),
     Case("data-loss", _S2E + ["--out", "{w}/occupied"], "already holds files (precious.txt)"),
     Case("data-loss", _S2E + ["--out", "{w}/a_file"], "exists and is not a folder"),
     Case("data-loss", _S2E + ["--out", "{w}/ds"], "is the dataset folder"),

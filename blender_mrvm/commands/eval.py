@@ -96,8 +96,9 @@ def check_args(args) -> None:
 
     adapt_from_args(args)  # checked here, before anything is read
     reproject_from_args(args)
-    check_output_folder(args.out, args.force, "eval output folder",
-                        ours=("eval.json", "eval.md", "eval_grid.png", "compare.json"))
+    # an earlier evaluation (eval.json) is kept unless --force: the default folder is shared by every run, and a
+    # second checkpoint's scores had replaced the first's without a word (session 29); the rest is derived from it
+    check_output_folder(args.out, args.force, "eval output folder", ours=("eval.md", "eval_grid.png", "compare.json"))
 
 
 def reproject_from_args(args):

@@ -624,8 +624,9 @@ def _summarise_edits(rows: list[dict]) -> dict:
             "near_change": near, "far_change": far, "far_over_near": far / near if near > 0 else None}
 
 
-EVAL_FILES = ("eval.json", "eval_grid.png")
-"""What :func:`evaluate` writes into its output folder (a rerun may update them; anything else there needs --force)."""
+EVAL_FILES = ("eval_grid.png",)
+"""What :func:`evaluate` writes into its output folder that a rerun may replace without --force (not an earlier
+``eval.json``, as with ``eval``)."""
 
 
 def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", holdout: int = 0, max_objects: int = 0,
