@@ -5,7 +5,8 @@
 # 75%) of P steps, then a finetuning run of P/3 steps started from it (training.config.FINETUNE: no masking,
 # lr 1e-4, whole image). One arm per call, so the two arms run side by side on two cores:
 #   scripts/mrvm_budgets.sh mrvm & scripts/mrvm_budgets.sh base; SEED=1 ... for a second seed; RAYS=1024 ... for
-#   4x the rays a step at the same number of updates
+#   4x the rays a step at the same number of updates; RESUME=1 to continue runs an earlier call left unfinished
+#   (a budget longer than one session: each run resumes exactly from its newest checkpoint, every 1000 steps)
 # then: python scripts/mrvm_budgets_table.py
 # Needs data/shapenet13_$SETTING (make-shapenet --setting $SETTING --objects-per-category 30 --views 24 --resolution 64).
 set -eu
@@ -26,11 +27,12 @@ if [ -n "$RAYS" ]; then
   CFG=$c
 fi
 DATA=data/shapenet13_$SETTING
+FRESH="--no-resume --force"; [ "${RESUME:-0}" = 1 ] && FRESH=""
 EV="$PY -m blender_mrvm eval --data $DATA --max-objects-per-category 2 --max-targets 8 --threads 1"
 for P in $BUDGETS; do
   F=$((P / 3)); R=data/runs/${NAME}${ARM}_s${SEED}_p$P; E=data/eval/${NAME}${ARM}_s${SEED}_p$P
-  $PY -m blender_mrvm train --config $CFG --data $DATA --iterations $P --seed $SEED --out ${R}_pre --no-resume --force
-  $PY -m blender_mrvm train --config $CFG --data $DATA --init ${R}_pre --iterations $F --seed $SEED --out $R --no-resume --force
+  $PY -m blender_mrvm train --config $CFG --data $DATA --iterations $P --seed $SEED --out ${R}_pre $FRESH
+  $PY -m blender_mrvm train --config $CFG --data $DATA --init ${R}_pre --iterations $F --seed $SEED --out $R $FRESH
   $EV --checkpoint $R --n-inputs 2 --out ${E}_2v --force
   $EV --checkpoint $R --n-inputs 1 --out ${E}_1v --force
 done
