@@ -19,8 +19,9 @@ def _args(**kw):
     p = argparse.ArgumentParser()
     M.add_arguments(p)
     argv = ["--out", str(kw.pop("out", "/nonexistent/out"))]
-    for k, v in kw.items():
-        argv += [f"--{k.replace('_', '-')}", str(v)]
+    for k, v in kw.items():  # a value written "=v" goes as --name=v (one that starts with a minus sign)
+        v = str(v)
+        argv += [f"--{k.replace('_', '-')}{v}"] if v.startswith("=") else [f"--{k.replace('_', '-')}", v]
     return p.parse_args(argv)
 
 
@@ -179,3 +180,51 @@ def test_render_dataset_takes_the_varied_rig_too(tmp_path, capsys):
     assert main(["render-dataset", "--source", "procedural:car:0", "--rig", "turntable", "--fov-range", "30,40",
                  "--out", str(out)]) == 2
     assert "sphere or hemisphere" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("rig,band", [("sphere", (5.0, 55.0)), ("sphere", (-30.0, 10.0)), ("hemisphere", (20.0, 40.0))])
+def test_an_elevation_band_keeps_every_camera_in_it(rig, band):
+    """--elevation-range: directions uniform over the band (azimuth all round, sine of the elevation uniform);
+    the other draws keep their ranges, and without a band the rig is what it was (the same poses)."""
+    poses, intrs, recs = rigs.varied_cameras(rig, 400, 0.5, 64, 64, (30.0, 60.0), (0.85, 1.6), seed=3,
+                                             elevation_range_deg=band)
+    c = np.stack([p[:3, 3] for p in poses])
+    el = np.degrees(np.arcsin(c[:, 2] / np.linalg.norm(c, axis=1)))
+    assert band[0] - 1e-9 <= el.min() and el.max() <= band[1] + 1e-9
+    assert el.max() - el.min() > 0.8 * (band[1] - band[0])  # the band is filled, not one ring
+    s = np.sin(np.radians(el))
+    lo, hi = np.sin(np.radians(band))
+    assert abs(s.mean() - 0.5 * (lo + hi)) < 0.05 * (hi - lo)  # uniform in the sine: equal area
+    az = np.arctan2(c[:, 1], c[:, 0])
+    assert np.histogram(az, bins=4, range=(-math.pi, math.pi))[0].min() > 60  # all round
+    for p, intr, r in zip(poses, intrs, recs):
+        assert np.allclose(p[:3, 2], -p[:3, 3] / np.linalg.norm(p[:3, 3]))
+        assert 30.0 <= r["fov_x_deg"] <= 60.0 and 0.85 <= r["distance_factor"] <= 1.6
+    whole = rigs.varied_cameras(rig, 400, 0.5, 64, 64, (30.0, 60.0), (0.85, 1.6), seed=3)
+    # without a band, the draws of datasets rendered before the option (pinned: view 0's centre, view 1's fov)
+    assert np.allclose(whole[0][0][:3, 3], [-0.857207, -0.951802, 0.122904], atol=1e-6)
+    assert whole[2][1]["fov_x_deg"] == pytest.approx(33.892526, abs=1e-6)
+
+
+def test_elevation_band_is_recorded_and_checked(tmp_path, capsys):
+    args = _args(rig="sphere", fov_range="28,52", distance_range="0.85,1.3", elevation_range="5,55")
+    cams = M.camera_settings(args)
+    assert cams["elevation_range_deg"] == (5.0, 55.0)
+    st = M.render_configs(args)[0][1].settings()
+    assert st["elevation_range_deg"] == [5.0, 55.0]
+    assert M.protocol_rig(cams)["elevation_range_deg"] == [5.0, 55.0]
+    assert "elevation_range_deg" not in M.render_configs(_args(rig="sphere"))[0][1].settings()  # as before
+    for kw, match in [({"elevation_range": "10,50"}, "need --rig sphere"),
+                      ({"rig": "sphere", "elevation_range": "50,10"}, "exceeds its max"),
+                      ({"rig": "sphere", "elevation_range": "0,95"}, "must lie within")]:
+        with pytest.raises(InputError, match=match):
+            M.camera_settings(_args(**kw))
+    with pytest.raises(InputError, match="below the horizon"):
+        M.render_configs(_args(rig="hemisphere", elevation_range="=-10,20"))
+    from blender_mrvm.cli import main
+
+    out = tmp_path / "c"
+    assert main(["render-dataset", "--source", "procedural:car:0", "--rig", "hemisphere", "--elevation-range=-20,10",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "below the horizon" in err[0] and not out.exists()

@@ -50,6 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--distance-range", default=None, metavar="MIN,MAX",
                    help="sphere/hemisphere rigs: camera distance per view, as multiples of the distance at which the "
                         "object's bounding sphere fills the view (default %g,%g)" % DIST_DEFAULT)
+    p.add_argument("--elevation-range", default=None, metavar="MIN,MAX",
+                   help="sphere/hemisphere rigs: keep the camera directions to this band of elevations, degrees "
+                        "(e.g. 10,50 for cameras near the turntable's 30; a band that starts below the horizon is "
+                        "written --elevation-range=-30,10; default: the whole rig)")
 
 
 def eval_views(views: int, rig: str = "turntable") -> dict:
@@ -114,15 +118,19 @@ def camera_settings(args) -> dict:
 
     rig = getattr(args, "rig", "turntable")
     fov, dist = getattr(args, "fov_range", None), getattr(args, "distance_range", None)
+    el = getattr(args, "elevation_range", None)
     if rig not in RIGS:
         raise InputError(f"unknown rig {rig!r}; choose one of {', '.join(RIGS)}")
     if rig == "turntable":
-        if fov is not None or dist is not None:
-            raise InputError("--fov-range and --distance-range need --rig sphere or hemisphere")
+        if fov is not None or dist is not None or el is not None:
+            raise InputError("--fov-range, --distance-range and --elevation-range need --rig sphere or hemisphere")
         return {"rig": "turntable", "elevation_deg": TURNTABLE_ELEVATION}
-    return {"rig": rig,
+    cams = {"rig": rig,
             "fov_range_deg": parse_range(fov, "--fov-range", 0.0, 179.0) if fov is not None else FOV_DEFAULT,
             "distance_range": parse_range(dist, "--distance-range", 0.0, 100.0) if dist is not None else DIST_DEFAULT}
+    if el is not None:
+        cams["elevation_range_deg"] = parse_range(el, "--elevation-range", -90.0, 90.0, inclusive_lo=True)
+    return cams
 
 
 def render_configs(args) -> list[tuple[str, object]]:
@@ -155,8 +163,11 @@ def protocol_rig(cams: dict) -> dict:
     """The rig as eval_views.json records it (the turntable's record is what it always was)."""
     if cams["rig"] == "turntable":
         return {"rig": "turntable", "elevation_deg": cams["elevation_deg"]}
-    return {"rig": cams["rig"], "fov_range_deg": list(cams["fov_range_deg"]),
-            "distance_range": list(cams["distance_range"]), "cameras": "per object, seeded (meta.json 'cameras')"}
+    rec = {"rig": cams["rig"], "fov_range_deg": list(cams["fov_range_deg"]),
+           "distance_range": list(cams["distance_range"]), "cameras": "per object, seeded (meta.json 'cameras')"}
+    if cams.get("elevation_range_deg") is not None:
+        rec["elevation_range_deg"] = list(cams["elevation_range_deg"])
+    return rec
 
 
 def run(args) -> int:

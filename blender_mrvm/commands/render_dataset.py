@@ -55,6 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--distance-range", default=None, metavar="MIN,MAX",
                    help="sphere/hemisphere rigs: camera distance per view, multiples of the distance at which the "
                         "object's bounding sphere fills the view")
+    p.add_argument("--elevation-range", default=None, metavar="MIN,MAX",
+                   help="sphere/hemisphere rigs with varied cameras: keep the directions to this band of elevations, "
+                        "degrees (default: the whole rig)")
     p.add_argument("--seed", type=int, default=0, help="seed of random rigs and splits")
     p.add_argument("--category", default=None, help="category folder for mesh files / selected objects (default: custom)")
     p.add_argument("--split", default=None, choices=["train", "val", "test"], help="put every object into this split")
@@ -70,8 +73,11 @@ def config_from_args(args):
 
     from ..geometry import rigs
 
-    fov_range = dist_range = None
-    if args.fov_range is not None or args.distance_range is not None:
+    fov_range = dist_range = el_range = None
+    el = getattr(args, "elevation_range", None)
+    if el is not None:
+        el_range = rigs.parse_range(el, "--elevation-range", -90.0, 90.0, inclusive_lo=True)
+    if args.fov_range is not None or args.distance_range is not None or el_range is not None:
         fov_range = rigs.parse_range(args.fov_range, "--fov-range", 0.0, 179.0) if args.fov_range else rigs.FOV_RANGE_DEG
         dist_range = (rigs.parse_range(args.distance_range, "--distance-range", 0.0, 100.0) if args.distance_range
                       else rigs.DISTANCE_RANGE)
@@ -79,7 +85,7 @@ def config_from_args(args):
                         resolution=parse_resolution(args.resolution), engine=args.engine, samples=args.samples,
                         rgba=args.rgba, fov_deg=args.fov, elevation_deg=args.elevation, seed=args.seed,
                         category=args.category, shard=parse_shard(args.shard), force=args.force, split=args.split,
-                        fov_range_deg=fov_range, distance_range=dist_range)
+                        fov_range_deg=fov_range, distance_range=dist_range, elevation_range_deg=el_range)
 
 
 def run(args) -> int:

@@ -104,13 +104,17 @@ rarely of the object, which is smaller than its sphere)."""
 def varied_cameras(rig: str, n: int, bound_radius: float, width: int, height: int,
                    fov_range_deg: tuple[float, float] = FOV_RANGE_DEG,
                    distance_range: tuple[float, float] = DISTANCE_RANGE,
-                   seed: int = 0) -> tuple[list[np.ndarray], list, list[dict]]:
+                   seed: int = 0, elevation_range_deg: tuple[float, float] | None = None,
+                   ) -> tuple[list[np.ndarray], list, list[dict]]:
     """``n`` cameras on ``rig`` (sphere or hemisphere) with a field of view and a distance drawn per view.
 
     Directions are uniform on the sphere (or the upper half), seeded; each view's horizontal field of
     view is uniform in ``fov_range_deg``; its distance from the origin is the framing distance of the
     bounding sphere at that view's narrower field of view (:func:`framing_distance`) times a factor
-    uniform in ``distance_range``. Every camera looks at the origin (world z up). Returns (OpenCV
+    uniform in ``distance_range``. ``elevation_range_deg`` keeps the directions to a band of elevations
+    (uniform over the band's solid angle: azimuth uniform, sine of the elevation uniform), for cameras near a
+    turntable's height; None = the whole sphere (or upper half). Every camera looks at the origin (world z up).
+    Returns (OpenCV
     camera-to-world poses, :class:`Intrinsics` per view, one record per view: fov_x_deg, distance,
     distance_factor), all exactly what the views are rendered with.
     """
@@ -128,11 +132,23 @@ def varied_cameras(rig: str, n: int, bound_radius: float, width: int, height: in
         raise InputError(f"field of view range must lie within (0, 180) degrees, got {f0:g}..{f1:g}")
     if not 0.0 < d0 <= d1:
         raise InputError(f"distance range must be positive multiples, got {d0:g}..{d1:g}")
+    if elevation_range_deg is not None:
+        e0, e1 = elevation_range_deg
+        if not -90.0 <= e0 <= e1 <= 90.0:
+            raise InputError(f"elevation range must lie within [-90, 90] degrees, got {e0:g}..{e1:g}")
+        if rig == "hemisphere" and e0 < 0.0:
+            raise InputError(f"the hemisphere rig has no cameras below the horizon; elevation range {e0:g}..{e1:g}")
     rng = np.random.default_rng([int(seed), 7])
-    dirs = rng.normal(size=(n, 3))
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    if rig == "hemisphere":
-        dirs[:, 2] = np.abs(dirs[:, 2])
+    if elevation_range_deg is None:
+        dirs = rng.normal(size=(n, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        if rig == "hemisphere":
+            dirs[:, 2] = np.abs(dirs[:, 2])
+    else:
+        az = rng.uniform(0.0, 2.0 * math.pi, n)
+        z = rng.uniform(*np.sin(np.radians(np.asarray(elevation_range_deg, np.float64))), n)
+        ring = np.sqrt(np.clip(1.0 - z * z, 0.0, 1.0))
+        dirs = np.stack([ring * np.cos(az), ring * np.sin(az), z], axis=1)
     fovs = rng.uniform(f0, f1, n)
     factors = rng.uniform(d0, d1, n)
     poses, intrs, records = [], [], []

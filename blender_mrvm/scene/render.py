@@ -96,6 +96,8 @@ class RenderConfig:
     distance from ``distance_range``, seeded per object (``rigs.varied_cameras``); None = one ``fov_deg``."""
     distance_range: tuple[float, float] | None = None
     """With ``fov_range_deg``: camera distance as multiples of the framing distance at the view's field of view."""
+    elevation_range_deg: tuple[float, float] | None = None
+    """With ``fov_range_deg``: keep the directions to this band of elevations (degrees); None = the whole rig."""
 
     def validate(self) -> None:
         w, h = self.resolution
@@ -122,7 +124,15 @@ class RenderConfig:
             raise InputError(f"split must be one of {', '.join(F.SPLITS)}, got {self.split!r}")
         if (self.fov_range_deg is None) != (self.distance_range is None):
             raise InputError("varied cameras need both a field of view range and a distance range")
+        if self.elevation_range_deg is not None and self.fov_range_deg is None:
+            raise InputError("an elevation range needs varied cameras (a field of view range and a distance range)")
         if self.fov_range_deg is not None:
+            if self.elevation_range_deg is not None:
+                e0, e1 = self.elevation_range_deg
+                if not -90.0 <= e0 <= e1 <= 90.0:
+                    raise InputError(f"elevation range must lie within [-90, 90] degrees, got {e0:g},{e1:g}")
+                if self.rig == "hemisphere" and e0 < 0.0:
+                    raise InputError(f"the hemisphere rig has no cameras below the horizon; elevation range {e0:g},{e1:g}")
             if self.rig not in rigs.VARIED_RIGS:
                 raise InputError(f"varied field of view and distance need the sphere or hemisphere rig, got {self.rig!r}")
             f0, f1 = self.fov_range_deg
@@ -145,6 +155,8 @@ class RenderConfig:
         if self.fov_range_deg is not None:  # only then: settings of earlier datasets stay byte-identical
             d.update({"fov_range_deg": list(self.fov_range_deg), "distance_range": list(self.distance_range),
                       "camera_seed": "per object"})
+            if self.elevation_range_deg is not None:
+                d["elevation_range_deg"] = list(self.elevation_range_deg)
         return d
 
 
@@ -661,7 +673,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             cam_names = [c[2] for c in scene_cams]
         elif cfg.fov_range_deg is not None:
             poses, intrs, cam_records = rigs.varied_cameras(cfg.rig, cfg.views, radius, w, h, cfg.fov_range_deg,
-                                                            cfg.distance_range, seed=object_camera_seed(cfg, spec.key))
+                                                            cfg.distance_range, seed=object_camera_seed(cfg, spec.key),
+                                                            elevation_range_deg=cfg.elevation_range_deg)
             cam_names = []
         else:
             intr = C.intrinsics_from_fov(math.radians(cfg.fov_deg), w, h)
@@ -705,6 +718,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if cfg.fov_range_deg is not None:
             meta["render"].update({"fov_range_deg": list(cfg.fov_range_deg), "distance_range": list(cfg.distance_range),
                                    "camera_seed": object_camera_seed(cfg, spec.key)})
+            if cfg.elevation_range_deg is not None:
+                meta["render"]["elevation_range_deg"] = list(cfg.elevation_range_deg)
             meta["cameras"] = cam_records  # per view: fov_x_deg, distance, distance_factor (exact: see transforms.json)
         F.atomic_write_json(meta_path, meta)
         for k in F.VIEW_DIRS:
