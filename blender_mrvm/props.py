@@ -19,7 +19,11 @@ MODEL_KINDS = [
 ]
 """The model kinds (``models/registry.py``) the panel offers."""
 
-SHIPPED_MODELS = MODEL_KINDS + [
+SHIPPED_MODELS = [
+    ("auto", "Auto: by the cameras", "NeRFormer + MRVM: the default model when every camera sits near the 30-degree "
+                                     "turntable it was trained on (height, field of view, framing), else the "
+                                     "any-viewpoint model; the note after a run says which"),
+] + MODEL_KINDS + [
     ("gpnr_captures", "GPNR for rooms and captures", "GPNR trained on capture-like rooms: for scenes and photo "
                                                      "captures (Recover Poses), not objects on white"),
     ("mrvm_anyview", "NeRFormer + MRVM, any viewpoint", "The default model fine-tuned on sphere-rig renders too: "
@@ -28,7 +32,8 @@ SHIPPED_MODELS = MODEL_KINDS + [
                      "trained on a GPU: the best for cameras anywhere (on the turntable the default is sharper); "
                      "many times slower on a CPU"),
 ]
-"""The shipped novel-view models the panel offers (``models.pretrained``: one per kind, then named models)."""
+"""The shipped novel-view models the panel offers (``models.pretrained``: ``auto``'s choice by the cameras, one per
+kind, then named models)."""
 
 DEVICES = [
     ("AUTO", "Auto", "CUDA when available, else CPU"),
@@ -181,7 +186,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                              description="Field of view of the orbit cameras (along the longer image side)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
-    shipped_model: EnumProperty(name="Shipped model", items=SHIPPED_MODELS, default="nerformer_mrvm",
+    shipped_model: EnumProperty(name="Shipped model", items=SHIPPED_MODELS, default="auto",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
     device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
     quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL")

@@ -388,7 +388,8 @@ def test_operator_synthesizes_through_the_worker(ready, tmp_path, monkeypatch):
 
 
 def test_the_finish_message_carries_the_runs_viewpoint_note(tmp_path):
-    """What synthesis.json says about cameras off the default model's turntable reaches the status line."""
+    """What synthesis.json says about cameras off the default model's turntable, and which model Auto picked,
+    reaches the status line."""
     from blender_mrvm.operators import synthesize as S
 
     assert S.run_note(tmp_path) == ""  # no synthesis.json
@@ -399,6 +400,9 @@ def test_the_finish_message_carries_the_runs_viewpoint_note(tmp_path):
     assert S.run_note(tmp_path) == "use shipped:mrvm_anyview; adapting to 2 references"  # and the adaptation's
     (tmp_path / "synthesis.json").write_text(json.dumps({"viewpoint_note": "", "adaptation": None}))
     assert S.run_note(tmp_path) == ""
+    (tmp_path / "synthesis.json").write_text(json.dumps({"model_choice": "auto: the any-view model", "viewpoint_note": "",
+                                                         "adaptation": {"steps": 9, "note": "adapting"}}))
+    assert S.run_note(tmp_path) == "auto: the any-view model; adapting"  # Auto's choice first
     (tmp_path / "synthesis.json").write_text("[1, 2")
     assert S.run_note(tmp_path) == ""
 
@@ -574,7 +578,13 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
 
     if default_checkpoint() is None:
         _fails("no checkpoint chosen, and this version ships no trained model yet")
-    else:  # empty = the shipped model
+    else:  # empty = the shipped model the worker picks by the cameras (auto, the default), or the one chosen
+        assert p.shipped_model == "auto" and plan_from_props(bpy.context).checkpoint == "shipped:auto"
+        from blender_mrvm.panels.novel_views import MRVM_PT_novel_views as NVP
+        from blender_mrvm.models.pretrained import FIGURES as FIG
+
+        assert any(e[0] == "label" and FIG["auto"] in e[1] for e in _draw(NVP))
+        p.shipped_model = "nerformer_mrvm"
         assert plan_from_props(bpy.context).checkpoint == default_checkpoint()
     from blender_mrvm.models.pretrained import FIGURES, shipped_or_none
     from blender_mrvm.panels.novel_views import MRVM_PT_novel_views
@@ -582,8 +592,8 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
     from blender_mrvm.models.pretrained import SHIPPED, SHIPPED_NAMED
     from blender_mrvm.props import SHIPPED_MODELS
 
-    assert [e[0] for e in SHIPPED_MODELS] == [*SHIPPED, *SHIPPED_NAMED]  # the panel offers what is shipped
-    for name in [k for k, *_ in SHIPPED_MODELS[1:]]:  # the panel's other shipped models: chosen by name, figures shown
+    assert [e[0] for e in SHIPPED_MODELS] == ["auto", *SHIPPED, *SHIPPED_NAMED]  # the panel offers what is shipped
+    for name in [k for k, *_ in SHIPPED_MODELS[2:]]:  # the panel's other shipped models: chosen by name, figures shown
         p.shipped_model = name
         if shipped_or_none(name) is not None:
             assert plan_from_props(bpy.context).checkpoint == shipped_or_none(name)

@@ -17,6 +17,7 @@ from blender_mrvm.datasets import format as F
 from blender_mrvm.datasets.novel_views import Target, write_targets
 from blender_mrvm.errors import InputError, OutputError
 from blender_mrvm.geometry import cameras as C
+from blender_mrvm.geometry import rigs
 from blender_mrvm.progress import run_to_end
 from blender_mrvm import synthesis as S
 from blender_mrvm.training.synthetic import make_sphere_dataset
@@ -372,35 +373,89 @@ def test_quality_preview_renders_half_the_samples_of_either_kind(setup, tmp_path
         registry.quality_overrides(g, "draft")
 
 
-def test_default_model_off_its_turntable_says_which_model_to_use(tmp_path, capsys):
-    """The default model was trained on a 30-degree turntable; asked about cameras well above or below it
-    (a sphere rig), synthesis says so in one line on stderr and in synthesis.json and names the any-view
-    model; on the turntable, and for any other checkpoint, it says nothing."""
-    from blender_mrvm.models.pretrained import default_checkpoint, shipped_or_none, viewpoint_note
+def _turntable_cameras(els, fov=40.0, framing=0.99, az=0.0):
+    """Cameras around a box of half-diagonal 0.5 at the origin: elevations ``els`` (degrees) at azimuth ``az``,
+    square views of ``fov`` degrees, at ``framing`` (pretrained.turntable_offsets' measure; the turntable's are
+    0.75-1.05)."""
+    intr = C.intrinsics_from_fov(np.radians(fov), 64, 64)
+    dist = framing * 0.5 / np.sin(np.radians(fov) / 2.0)
+    a = np.radians(az)
+    c2ws = [C.look_at_opencv(dist * np.array([np.cos(np.radians(e)) * np.cos(a), np.cos(np.radians(e)) * np.sin(a),
+                                              np.sin(np.radians(e))])) for e in els]
+    return c2ws, [intr] * len(c2ws), (np.full(3, -0.5 / np.sqrt(3)), np.full(3, 0.5 / np.sqrt(3)))
 
-    if shipped_or_none(None) is None:
-        pytest.skip("this copy ships no default model")
-    centre = np.zeros(3)
-    at = lambda el: C.look_at_opencv(3.0 * np.array([np.cos(np.radians(el)), 0.0, np.sin(np.radians(el))]))  # noqa: E731
-    assert viewpoint_note(default_checkpoint(), [at(30), at(45), at(12)], centre) == ""
-    note = viewpoint_note(default_checkpoint(), [at(30), at(75), at(-40)], centre)
-    assert note.startswith("2 of 3 cameras are off the 30-degree turntable") and "(elevations -40 to 75 degrees)" in note
-    assert "shipped:mrvm_anyview" in note
-    assert viewpoint_note(tmp_path / "other.safetensors", [at(75)], centre) == ""
-    assert viewpoint_note(shipped_or_none("mrvm_anyview"), [at(75)], centre) == ""
-    # Through the CLI: an analytic sphere-rig object with the default model.
+
+def test_turntable_offsets_measure_elevation_field_of_view_framing_and_azimuth():
+    from blender_mrvm.models import pretrained as P
+
+    c2ws, intrs, box = _turntable_cameras([30, 45, -10])
+    off = P.turntable_offsets(c2ws, intrs, box)
+    assert np.allclose(off, [[0, 0, 0, 0], [15, 0, 0, 0], [40, 0, 0, 0]], atol=1e-9)
+    c2ws, intrs, box = _turntable_cameras([30], fov=55.0, framing=1.05 * np.exp(0.2), az=15.0 * 7 + 4.0)
+    assert np.allclose(P.turntable_offsets(c2ws, intrs, box), [[0, 15, 0.2, 4.0]], atol=1e-9)
+    c2ws, intrs, box = _turntable_cameras([30], framing=0.75 * np.exp(-0.1), az=-15.0 * 3 - 6.0)
+    assert np.allclose(P.turntable_offsets(c2ws, intrs, box), [[0, 0, 0.1, 6.0]], atol=1e-9)
+    # The training set's own cameras are all on it (make-shapenet's turntable, any object's bounding sphere).
+    for r in (0.72 * 0.5, 0.5):
+        d = rigs.framing_distance(r, np.radians(40.0))
+        for c in rigs.rig_poses("turntable", 24, d, elevation_deg=30.0):
+            assert np.allclose(P.turntable_offsets([c], intrs, box), 0.0, atol=1e-6)
+
+
+def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
+    """shipped:auto (synthesize's default): the default model when every camera, reference or target, sits near
+    its turntable; the any-view model when one is off in height, field of view or (with a real box) framing;
+    each run says which and why, in one line and in synthesis.json. Naming the default model off its turntable
+    gives the note that names the others."""
+    from blender_mrvm.models import pretrained as P
+
+    if P.shipped_or_none(None) is None or P.shipped_or_none("mrvm_anyview") is None:
+        pytest.skip("this copy lacks the default or the any-view model")
+    el_tol, fov_tol, frame_tol, az_tol = P.TURNTABLE_TOLERANCE
+    near = _turntable_cameras([30, 30 + 0.9 * el_tol, 30 - 0.9 * el_tol])
+    assert P.auto_model(*near) == ("nerformer_mrvm", P.auto_model(*near)[1])
+    assert "all 3 cameras near" in P.auto_model(*near)[1]
+    assert P.auto_model(*_turntable_cameras([30, 30], az=15.0 + 0.9 * az_tol))[0] == "nerformer_mrvm"
+    for cams, what in [(_turntable_cameras([30, 30 + 1.2 * el_tol + 1]), "elevations"),
+                       (_turntable_cameras([30, 30], fov=40 + 1.2 * fov_tol + 1), "fields of view"),
+                       (_turntable_cameras([30, 30], framing=1.05 * np.exp(1.5 * frame_tol + 0.02)), "framed"),
+                       (_turntable_cameras([30, 30], az=15.0 + 1.2 * az_tol + 0.5), "azimuths between")]:
+        name, why = P.auto_model(*cams)
+        assert name == "mrvm_anyview" and what in why and why.startswith("auto: the any-view model")
+    far = _turntable_cameras([30, 30], framing=1.05 * np.exp(1.5 * frame_tol + 0.02))
+    assert P.auto_model(*far, framing_known=False)[0] == "nerformer_mrvm"  # a guessed box says nothing of framing
+    assert P.is_auto("shipped:auto") and P.is_auto(" Shipped:AUTO ") and not P.is_auto("shipped")
+    from blender_mrvm.synthesis.views import trained_size
+
+    # synthesize sizes the references by the default model before auto picks: every candidate shares its size
+    assert trained_size(P.default_checkpoint()) == trained_size(P.shipped_or_none("mrvm_anyview")) > 0
+    with pytest.raises(InputError, match="picks a model from the cameras"):
+        P.resolve_checkpoint("shipped:auto")  # eval and the rest name a model
+    # The explicit default model's note uses the same rule.
+    assert P.viewpoint_note(P.default_checkpoint(), *near) == ""
+    note = P.viewpoint_note(P.default_checkpoint(), *_turntable_cameras([30, 75, -40]))
+    assert note.startswith("2 of 3 cameras are off the 30-degree turntable") and "elevations -40 to 75 degrees" in note
+    assert "shipped:auto" in note and "shipped:mrvm_anyview" in note
+    assert P.viewpoint_note(tmp_path / "other.safetensors", *_turntable_cameras([75])) == ""
+    assert P.viewpoint_note(P.shipped_or_none("mrvm_anyview"), *_turntable_cameras([75])) == ""
+    # Through the CLI: an analytic sphere-rig object, no --checkpoint (= shipped:auto), then the default named.
     data = make_sphere_dataset(tmp_path / "data", n_objects=1, n_views=6, resolution=16, seed=5, rig="sphere")
     obj = data / "spheres" / "obj000"
     ov = F.read_object(obj)
-    c = 0.5 * (np.asarray(ov.meta["bbox"][0]) + np.asarray(ov.meta["bbox"][1]))
-    el = [np.degrees(np.arcsin((p[2, 3] - c[2]) / np.linalg.norm(p[:3, 3] - c))) for p in ov.c2w_opencv]
-    assert max(abs(e - 30.0) for e in el) > 20.0  # the rig does leave the turntable
+    assert (P.turntable_offsets(ov.c2w_opencv, [ov.intrinsics] * 6, ov.meta["bbox"]).max(axis=0)
+            > np.asarray(P.TURNTABLE_TOLERANCE)).any()  # the rig does leave the turntable
     write_targets(tmp_path / "targets.json", S.targets_from_views(obj, [1, 2, 4, 5]))
-    out = tmp_path / "out"
-    assert main(["synthesize", "--references", str(obj), "--views", "0,3", "--targets", str(tmp_path / "targets.json"),
-                 "--out", str(out), "--device", "cpu", "--threads", "1", "--ref-size", "-1"]) == 0
-    rep = json.loads((out / "synthesis.json").read_text())
-    assert "shipped:mrvm_anyview" in rep["viewpoint_note"]
+    run = ["synthesize", "--references", str(obj), "--views", "0,3", "--targets", str(tmp_path / "targets.json"),
+           "--device", "cpu", "--threads", "1", "--ref-size", "-1"]
+    assert main([*run, "--out", str(tmp_path / "auto")]) == 0
+    rep = json.loads((tmp_path / "auto" / "synthesis.json").read_text())
+    assert rep["model_choice"].startswith("auto: the any-view model") and rep["viewpoint_note"] == ""
+    assert Path(rep["checkpoint"]).resolve() == P.shipped_or_none("mrvm_anyview").resolve()
+    assert f"note: {rep['model_choice']}" in capsys.readouterr().err
+    assert main([*run, "--out", str(tmp_path / "default"), "--checkpoint", "shipped"]) == 0
+    rep = json.loads((tmp_path / "default" / "synthesis.json").read_text())
+    assert "shipped:mrvm_anyview" in rep["viewpoint_note"] and rep["model_choice"] == ""
+    assert Path(rep["checkpoint"]).resolve() == P.default_checkpoint().resolve()
     assert f"note: {rep['viewpoint_note']}" in capsys.readouterr().err
 
 

@@ -33,7 +33,11 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 
 FIGURES = {
-    "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234); "
+    "auto": "the default model on its training turntable (2 views 21.9 dB / LPIPS 0.166), else the any-view model "
+            "(5-25 degrees off the turntable 18.2 / 0.273 against the default's 14.4 / 0.375; sphere rig 18.9 / 0.244 "
+            "against 15.0 / 0.343); ~1.0 s per 128 px view on 2 CPU cores",
+    "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234), on "
+                      "its training turntable's cameras only (a few degrees off them the any-view model is better); "
                       "~1.0 s per 128 px view on 2 CPU cores",
     "gpnr": "2 views 18.0 dB / LPIPS 0.304, 5 views 24.4 / 0.136 (held-out 64 px objects); ~1.7 s per 128 px view "
             "on 2 CPU cores; best with many nearby views",
@@ -57,29 +61,117 @@ DEFAULT_ELEVATION_DEG = 30.0
 """Where the default model's training cameras sit: the NMR turntable, 30 degrees above the object's centre
 (world z up). Off it the model degrades fast (RECIPE.md: sphere-rig views near-empty, 15.7 dB against 22.9
 on the turntable); ``mrvm_anyview`` is trained for cameras anywhere."""
-ELEVATION_TOLERANCE_DEG = 20.0
-"""How far from :data:`DEFAULT_ELEVATION_DEG` a camera may sit before :func:`viewpoint_note` speaks."""
+TURNTABLE_FOV_DEG = 40.0
+"""The default model's training cameras' field of view (square 64 px images)."""
+TURNTABLE_FRAMING = (0.75, 1.05)
+"""The default model's training framings: camera distance times the sine of half the narrower field of view,
+over half the object box's diagonal (``make-shapenet``'s turntable frames each object's bounding sphere at 1.05x,
+and those spheres are 0.72-1.0 of the box's half-diagonal)."""
+TURNTABLE_AZIMUTH_STEP_DEG = 15.0
+"""The default model's training azimuths: ``make-shapenet``'s 24 turntable views, every 15 degrees from 0."""
+TURNTABLE_TOLERANCE = (2.0, 2.0, 0.01, 2.0)
+"""How far a camera may sit from the default model's training cameras, in :func:`turntable_offsets`' four
+columns (elevation, field of view and azimuth in degrees, framing in log-distance), for the default model to be
+picked over the any-view model. Measured on held-out objects (RECIPE.md "Which model for which cameras",
+``scripts/viewpoint_rule.py``): the default model wins only on its own training cameras (by 2.3 dB on the
+turntable's validation objects); where every camera was within 5 degrees of them in height, field of view and azimuth (framing
+inside), the any-view model was already ahead (+0.7 dB, 53 views), at 5-25 degrees by +1 to +5 dB. The
+crossover lies between, so the bound is set below it."""
+AUTO = "auto"
+"""``shipped:auto``: the shipped object model that fits the cameras (:func:`auto_model`); synthesis's default."""
 
 
-def viewpoint_note(checkpoint, c2ws, centre) -> str:
-    """A one-line hint when the default model is asked about cameras (``c2ws``: 4x4 camera-to-world, world z
-    up) more than :data:`ELEVATION_TOLERANCE_DEG` above or below its training turntable, seen from ``centre``;
-    '' for any other checkpoint or when every camera is near the turntable's elevation."""
+def turntable_offsets(c2ws, intrinsics, bbox):
+    """How far each camera sits from the default model's training cameras: an (n, 4) array of the elevation
+    offset from :data:`DEFAULT_ELEVATION_DEG` (degrees, above the box's centre, world z up), the narrower field
+    of view's offset from :data:`TURNTABLE_FOV_DEG` (degrees), the framing's log-distance outside
+    :data:`TURNTABLE_FRAMING` (0 inside it) and the azimuth's offset from the nearest training azimuth
+    (:data:`TURNTABLE_AZIMUTH_STEP_DEG`, degrees). ``c2ws``: 4x4 camera-to-world; ``intrinsics``: one per
+    camera (``fov_x`` / ``fov_y`` in radians); ``bbox``: (min, max) corners of the object's box."""
     import numpy as np
 
+    lo, hi = (np.asarray(b, np.float64) for b in bbox)
+    centre, half = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    step = TURNTABLE_AZIMUTH_STEP_DEG
+    out = []
+    for c2w, intr in zip(c2ws, intrinsics):
+        d = np.asarray(c2w, np.float64)[:3, 3] - centre
+        dist = float(np.linalg.norm(d))
+        el = float(np.degrees(np.arcsin(np.clip(d[2] / dist, -1.0, 1.0)))) if dist > 0 else 90.0
+        az = float(np.degrees(np.arctan2(d[1], d[0])))
+        fov = min(intr.fov_x, intr.fov_y)
+        framing = dist * np.sin(fov / 2.0) / half if half > 0 else 1.0
+        out.append((abs(el - DEFAULT_ELEVATION_DEG), abs(np.degrees(fov) - TURNTABLE_FOV_DEG),
+                    max(0.0, np.log(TURNTABLE_FRAMING[0] / max(framing, 1e-9)), np.log(framing / TURNTABLE_FRAMING[1])),
+                    abs((az + step / 2.0) % step - step / 2.0)))
+    return np.asarray(out, np.float64).reshape(-1, 4)
+
+
+def _off_turntable(c2ws, intrinsics, bbox, framing_known: bool) -> tuple[int, int, str]:
+    """(cameras off the default model's training cameras, cameras, what is off: '' when none is)."""
+    import numpy as np
+
+    off = turntable_offsets(c2ws, intrinsics, bbox)
+    if not framing_known:
+        off[:, 2] = 0.0  # a box guessed from the cameras says nothing of the framing
+    bad = off > np.asarray(TURNTABLE_TOLERANCE)[None]
+    n = int(bad.any(axis=1).sum())
+    if n == 0:
+        return 0, len(off), ""
+    lo, hi = (np.asarray(b, np.float64) for b in bbox)
+    centre = 0.5 * (lo + hi)
+    el = [float(np.degrees(np.arcsin(np.clip((np.asarray(c)[2, 3] - centre[2]) / max(np.linalg.norm(
+        np.asarray(c)[:3, 3] - centre), 1e-12), -1.0, 1.0)))) for c in c2ws]
+    fov = [float(np.degrees(min(i.fov_x, i.fov_y))) for i in intrinsics]
+    what = []
+    if bad[:, 0].any():
+        what.append(f"elevations {min(el):.0f} to {max(el):.0f} degrees against {DEFAULT_ELEVATION_DEG:.0f}")
+    if bad[:, 1].any():
+        what.append(f"fields of view {min(fov):.0f} to {max(fov):.0f} degrees against {TURNTABLE_FOV_DEG:.0f}")
+    if bad[:, 2].any():
+        what.append("the object framed nearer or farther than on the turntable")
+    if bad[:, 3].any():
+        what.append(f"azimuths between its training views (every {TURNTABLE_AZIMUTH_STEP_DEG:.0f} degrees)")
+    return n, len(off), "; ".join(what)
+
+
+def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True) -> tuple[str, str]:
+    """``shipped:auto``: (the shipped object model for these cameras, one line saying why). The default model
+    when every camera (references and targets) sits within :data:`TURNTABLE_TOLERANCE` of its training
+    turntable, else the any-view model (``mrvm_anyview``, as fast; the default when this copy lacks it).
+    ``framing_known`` False (a box guessed from the cameras) leaves the framing out of the choice."""
+    n, total, what = _off_turntable(c2ws, intrinsics, bbox, framing_known)
+    if n == 0:
+        return "nerformer_mrvm", (f"auto: the default model (all {total} cameras near the {DEFAULT_ELEVATION_DEG:.0f}"
+                                  "-degree turntable it was trained on)")
+    if shipped_or_none("mrvm_anyview") is None:
+        return "nerformer_mrvm", (f"auto: the default model, though {n} of {total} cameras are off its turntable "
+                                  f"({what}): this copy ships no any-view model")
+    return "mrvm_anyview", (f"auto: the any-view model (shipped:mrvm_anyview): {n} of {total} cameras are off the "
+                            f"default model's turntable ({what}); shipped:mrvm_quality is sharper there, many times "
+                            "slower on a CPU")
+
+
+def is_auto(checkpoint) -> bool:
+    """Whether a checkpoint argument asks for :func:`auto_model`'s choice (``shipped:auto``)."""
+    raw = "" if checkpoint is None else str(checkpoint).strip().lower()
+    return raw == f"shipped:{AUTO}"
+
+
+def viewpoint_note(checkpoint, c2ws, intrinsics, bbox, framing_known: bool = True) -> str:
+    """A one-line hint when the default model, named explicitly, is asked about cameras beyond
+    :data:`TURNTABLE_TOLERANCE` of its training turntable (the cameras as for :func:`turntable_offsets`);
+    '' for any other checkpoint or when every camera is near the turntable."""
     default = shipped_or_none(None)
     if default is None or checkpoint is None or Path(checkpoint).resolve() != default.resolve():
         return ""
-    d = np.stack([np.asarray(c, np.float64)[:3, 3] for c in c2ws]) - np.asarray(centre, np.float64)[None]
-    n = np.linalg.norm(d, axis=1)
-    el = np.degrees(np.arcsin(np.clip(d[n > 0, 2] / n[n > 0], -1.0, 1.0)))
-    off = np.abs(el - DEFAULT_ELEVATION_DEG) > ELEVATION_TOLERANCE_DEG
-    if not off.any():
+    n, total, what = _off_turntable(c2ws, intrinsics, bbox, framing_known)
+    if n == 0:
         return ""
-    return (f"{int(off.sum())} of {len(el)} cameras are off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the "
-            f"default model was trained on (elevations {el.min():.0f} to {el.max():.0f} degrees); for such views "
-            "use shipped:mrvm_anyview (the panel's 'NeRFormer + MRVM, any viewpoint'), or shipped:mrvm_quality (its "
-            "'quality': sharper there, many times slower on a CPU)")
+    return (f"{n} of {total} cameras are off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model was "
+            f"trained on ({what}); for such views use shipped:auto or shipped:mrvm_anyview (the panel's 'Auto' or "
+            "'NeRFormer + MRVM, any viewpoint'), or shipped:mrvm_quality (its 'quality': sharper there, many times "
+            "slower on a CPU)")
 
 
 def _normal_name(name: str | None) -> str:
@@ -93,6 +185,9 @@ def shipped_checkpoint(kind: str | None = None) -> Path:
     from .registry import kind as kind_of_name
 
     name = _normal_name(kind)
+    if name == AUTO:
+        raise InputError("shipped:auto picks a model from the cameras of a synthesis (synthesize and the panel); "
+                         "here name one: shipped, shipped:mrvm_anyview or shipped:mrvm_quality")
     named = {"sem2nerf": (SEM2NERF_NAME, "Sem2NeRF", "a checkpoint of `python -m blender_mrvm sem2nerf train`"),
              **{n: (stem, n, "--checkpoint") for n, stem in SHIPPED_NAMED.items()}}
     if name in named:

@@ -47,8 +47,8 @@ class SynthesisJob:
     """Reference view indices in the object folder."""
     targets: tuple
     """``datasets.novel_views.Target`` per view to synthesize."""
-    checkpoint: Path
-    """Model checkpoint (file or folder) the worker loads."""
+    checkpoint: Path | str
+    """Model checkpoint (file or folder) the worker loads, or ``shipped:auto`` (it picks by the cameras)."""
     device: str
     """auto, cpu or cuda."""
     planes: object
@@ -86,7 +86,7 @@ def _abspath(p: str) -> Path:
     return Path(bpy.path.abspath(p.strip()))
 
 
-def _checkpoint(context, p) -> Path:
+def _checkpoint(context, p) -> Path | str:
     from .. import prefs as P
 
     if p.checkpoint.strip():
@@ -100,6 +100,11 @@ def _checkpoint(context, p) -> Path:
         if not ck.exists():
             raise InputError(f"the checkpoint folder set in the add-on preferences does not exist: {ck}")
         return ck
+    if p.shipped_model == "auto":  # the worker picks by the cameras (models.pretrained.auto_model)
+        if default_checkpoint() is None:
+            raise InputError("no checkpoint chosen, and this copy ships no default model: pick a checkpoint "
+                             "(model.safetensors written by `python -m blender_mrvm train`)")
+        return "shipped:auto"
     ck = default_checkpoint(p.shipped_model)
     if ck is None:
         raise InputError(f"no checkpoint chosen, and this copy ships no {p.shipped_model} model: pick a checkpoint "
@@ -207,12 +212,13 @@ def run_job(context, job: SynthesisJob, interp) -> "ProgressGen":
 
 
 def run_note(out: Path) -> str:
-    """The hints a finished run left in its ``synthesis.json`` for the user (the default model asked about
-    cameras off its training turntable: ``models.pretrained.viewpoint_note``; adaptation to few references:
-    ``training.adapt.few_references_note``), joined; '' if none."""
+    """The hints a finished run left in its ``synthesis.json`` for the user (which model Auto picked and why:
+    ``models.pretrained.auto_model``; the default model asked about cameras off its training turntable:
+    ``models.pretrained.viewpoint_note``; adaptation to few references: ``training.adapt.few_references_note``),
+    joined; '' if none."""
     try:
         rep = json.loads((Path(out) / "synthesis.json").read_text())
-        notes = [rep.get("viewpoint_note"), (rep.get("adaptation") or {}).get("note")]
+        notes = [rep.get("model_choice"), rep.get("viewpoint_note"), (rep.get("adaptation") or {}).get("note")]
     except (OSError, ValueError, AttributeError):
         return ""
     return "; ".join(str(n) for n in notes if n)

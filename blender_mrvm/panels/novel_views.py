@@ -127,8 +127,10 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
                 from ..models.pretrained import FIGURES
 
                 col.prop(p, "shipped_model")
-                ck = shipped_or_none(p.shipped_model)
-                if ck is not None:
+                ck = shipped_or_none(None if p.shipped_model == "auto" else p.shipped_model)
+                if ck is not None and p.shipped_model == "auto":
+                    col.label(text=FIGURES["auto"], icon="INFO")
+                elif ck is not None:
                     col.label(text=f"{ck.stem}: {FIGURES.get(p.shipped_model, 'not measured')}", icon="INFO")
                 else:
                     col.label(text="Not in this copy: choose a checkpoint or the other model", icon="ERROR")

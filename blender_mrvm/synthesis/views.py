@@ -62,7 +62,8 @@ class SynthesisConfig:
     views: tuple[int, ...] = ()
     """Reference view indices; empty = every view of the folder (at most ``MAX_POOL``)."""
     checkpoint: Path | None = None
-    """Model checkpoint (file, checkpoint folder or run folder); None = the shipped model."""
+    """Model checkpoint (file, checkpoint folder or run folder, or ``shipped:<name>``); None = ``shipped:auto``,
+    the shipped object model that fits the cameras (``models.pretrained.auto_model``)."""
     device: str = "auto"
     """auto (CUDA when available), cpu or cuda[:N]."""
     depth: bool | None = None
@@ -255,6 +256,11 @@ def parse_bbox(values: Sequence[float]) -> tuple:
     if np.any(hi <= lo):
         raise InputError(f"box max {hi.tolist()} must exceed its min {lo.tolist()} on every axis")
     return lo, hi
+
+
+FRAMING_BOXES = ("meta.json bbox", "meta.json bound_radius", "given")
+"""The reference boxes (:func:`object_box`'s sources) that bound the object itself, so that a camera's framing
+of it means something (``pretrained.auto_model``); the others are guessed from the cameras."""
 
 
 def object_box(meta: dict, c2w: Sequence[np.ndarray]) -> tuple[tuple, str]:
@@ -518,6 +524,8 @@ class SynthesisSummary:
     """What the references show and what the model rendered on (``models/background.py``)."""
     viewpoint_note: str = ""
     """The default model asked about cameras off its training turntable (``pretrained.viewpoint_note``)."""
+    model_choice: str = ""
+    """``shipped:auto``'s choice and why (``pretrained.auto_model``); '' for a named checkpoint."""
     reference_colours: dict | None = None
     """The references' colours laid over the views (``models/reproject.py``): the mode, settings and how many
     references were rendered for their depth; None when off."""
@@ -548,7 +556,10 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     _check_out(out, cfg)
     targets, depth_wanted = read_targets(Path(cfg.targets))
     depth = depth_wanted if cfg.depth is None else bool(cfg.depth)
-    size, max_size = reference_sizes(cfg.ref_size, cfg.checkpoint)
+    from ..models.pretrained import auto_model, default_checkpoint, is_auto, viewpoint_note
+
+    auto = cfg.checkpoint is None or is_auto(cfg.checkpoint)  # its candidates share the default's training size
+    size, max_size = reference_sizes(cfg.ref_size, default_checkpoint() if auto else cfg.checkpoint)
     refs = load_references(Path(cfg.references), tuple(cfg.views), size, cfg.bbox, max_size)
     side = max(refs.intrinsics[0].width, refs.intrinsics[0].height)
     if cfg.ref_size == 0 and max_size and side < max_size:
@@ -556,7 +567,14 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                          f"the {max_size} px this model was trained on; pass --ref-size {max_size} to upsample them "
                          "or --ref-size -1 to use them as they are")
     device = resolve_device(cfg.device)
-    model, mcfg, meta, ck_path = load_checkpoint(cfg.checkpoint, device)
+    cams = ([*refs.c2w, *[t.c2w_opencv for t in targets]], [*refs.intrinsics, *[t.intrinsics for t in targets]],
+            refs.bbox, refs.bbox_source in FRAMING_BOXES)
+    checkpoint, model_note = cfg.checkpoint, ""
+    if auto:
+        name, model_note = auto_model(*cams)
+        checkpoint = f"shipped:{name}"
+        print(f"note: {model_note}", file=sys.stderr)
+    model, mcfg, meta, ck_path = load_checkpoint(checkpoint, device)
     from ..models.background import SCENE, for_rendering
     from ..models.config import merge
     from ..models.registry import quality_overrides
@@ -565,10 +583,8 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     bg_note = for_rendering(model, refs.background)  # the data decides; a mismatch is said, never silent
     if bg_note:
         print(f"note: {bg_note}", file=sys.stderr)
-    from ..models.pretrained import viewpoint_note
-
     centre = 0.5 * (np.asarray(refs.bbox[0], np.float64) + np.asarray(refs.bbox[1], np.float64))
-    view_note = viewpoint_note(ck_path, [*refs.c2w, *[t.c2w_opencv for t in targets]], centre)
+    view_note = "" if auto else viewpoint_note(ck_path, *cams)
     if view_note:
         print(f"note: {view_note}", file=sys.stderr)
     per_view = references_per_target(model, len(refs.views), cfg.nearest)
@@ -594,7 +610,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
                                reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height],
                                background={"data": refs.background, "white_background": model.white_background,
-                                           "note": bg_note}, viewpoint_note=view_note,
+                                           "note": bg_note}, viewpoint_note=view_note, model_choice=model_note,
                                adaptation=None if adapt_seconds is None else {
                                    **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
 
@@ -750,7 +766,7 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
             "adaptation": s.adaptation,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
             "bbox": s.bbox, "bbox_source": s.bbox_source, "seconds": s.seconds, "targets": s.targets,
-            "background": s.background, "viewpoint_note": s.viewpoint_note,
+            "background": s.background, "viewpoint_note": s.viewpoint_note, "model_choice": s.model_choice,
             "rgb": ("RGBA PNG, opaque: the whole scene" if s.background.get("data") == "scene" else
                     "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)"),
             "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}"}
