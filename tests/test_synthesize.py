@@ -403,8 +403,9 @@ def test_turntable_offsets_measure_elevation_field_of_view_framing_and_azimuth()
 
 
 def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
-    """shipped:auto (synthesize's default): the default model when every camera, reference or target, sits near
-    its turntable; the any-view model when one is off in height, field of view or (with a real box) framing;
+    """shipped:auto (synthesize's default): the default model when every camera, reference or target, sits on
+    its turntable; when one is off in height, field of view, azimuth or (with a real box) framing, the any-view
+    model on the CPU and the quality model on a GPU;
     each run says which and why, in one line and in synthesis.json. Naming the default model off its turntable
     gives the note that names the others."""
     from blender_mrvm.models import pretrained as P
@@ -414,7 +415,7 @@ def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
     el_tol, fov_tol, frame_tol, az_tol = P.TURNTABLE_TOLERANCE
     near = _turntable_cameras([30, 30 + 0.9 * el_tol, 30 - 0.9 * el_tol])
     assert P.auto_model(*near) == ("nerformer_mrvm", P.auto_model(*near)[1])
-    assert "all 3 cameras near" in P.auto_model(*near)[1]
+    assert "all 3 cameras on the 30-degree turntable" in P.auto_model(*near)[1]
     assert P.auto_model(*_turntable_cameras([30, 30], az=15.0 + 0.9 * az_tol))[0] == "nerformer_mrvm"
     for cams, what in [(_turntable_cameras([30, 30 + 1.2 * el_tol + 1]), "elevations"),
                        (_turntable_cameras([30, 30], fov=40 + 1.2 * fov_tol + 1), "fields of view"),
@@ -422,13 +423,19 @@ def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
                        (_turntable_cameras([30, 30], az=15.0 + 1.2 * az_tol + 0.5), "azimuths between")]:
         name, why = P.auto_model(*cams)
         assert name == "mrvm_anyview" and what in why and why.startswith("auto: the any-view model")
+    off = _turntable_cameras([30, 30 + 1.2 * el_tol + 1])
+    if P.shipped_or_none("mrvm_quality") is not None:  # on a GPU the quality model, whose speed is fine there
+        name, why = P.auto_model(*off, gpu=True)
+        assert name == "mrvm_quality" and why.startswith("auto: the quality model") and "elevations" in why
+    assert P.auto_model(*near, gpu=True)[0] == "nerformer_mrvm"  # on the turntable the default, on any device
     far = _turntable_cameras([30, 30], framing=1.05 * np.exp(1.5 * frame_tol + 0.02))
     assert P.auto_model(*far, framing_known=False)[0] == "nerformer_mrvm"  # a guessed box says nothing of framing
     assert P.is_auto("shipped:auto") and P.is_auto(" Shipped:AUTO ") and not P.is_auto("shipped")
     from blender_mrvm.synthesis.views import trained_size
 
     # synthesize sizes the references by the default model before auto picks: every candidate shares its size
-    assert trained_size(P.default_checkpoint()) == trained_size(P.shipped_or_none("mrvm_anyview")) > 0
+    sizes = {trained_size(P.shipped_or_none(n)) for n in (None, "mrvm_anyview", "mrvm_quality") if P.shipped_or_none(n)}
+    assert len(sizes) == 1 and sizes.pop() > 0
     with pytest.raises(InputError, match="picks a model from the cameras"):
         P.resolve_checkpoint("shipped:auto")  # eval and the rest name a model
     # The explicit default model's note uses the same rule.

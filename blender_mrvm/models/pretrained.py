@@ -34,8 +34,9 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 FIGURES = {
     "auto": "the default model on its training turntable (2 views 21.9 dB / LPIPS 0.166), else the any-view model "
-            "(5-25 degrees off the turntable 18.2 / 0.273 against the default's 14.4 / 0.375; sphere rig 18.9 / 0.244 "
-            "against 15.0 / 0.343); ~1.0 s per 128 px view on 2 CPU cores",
+            "on the CPU (5-25 degrees off the turntable 18.2 / 0.273 against the default's 14.4 / 0.375; sphere rig "
+            "18.9 / 0.244 against 15.0 / 0.343; ~1.0 s per 128 px view on 2 CPU cores) and the quality model on a "
+            "GPU (+1.1 to +1.9 dB over the any-view model there)",
     "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234), on "
                       "its training turntable's cameras only (a few degrees off them the any-view model is better); "
                       "~1.0 s per 128 px view on 2 CPU cores",
@@ -78,7 +79,8 @@ turntable's validation objects); where every camera was within 5 degrees of them
 inside), the any-view model was already ahead (+0.7 dB, 53 views), at 5-25 degrees by +1 to +5 dB. The
 crossover lies between, so the bound is set below it."""
 AUTO = "auto"
-"""``shipped:auto``: the shipped object model that fits the cameras (:func:`auto_model`); synthesis's default."""
+"""``shipped:auto``: the shipped object model that fits the cameras and the device (:func:`auto_model`);
+synthesis's default."""
 
 
 def turntable_offsets(c2ws, intrinsics, bbox):
@@ -135,21 +137,24 @@ def _off_turntable(c2ws, intrinsics, bbox, framing_known: bool) -> tuple[int, in
     return n, len(off), "; ".join(what)
 
 
-def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True) -> tuple[str, str]:
+def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = False) -> tuple[str, str]:
     """``shipped:auto``: (the shipped object model for these cameras, one line saying why). The default model
     when every camera (references and targets) sits within :data:`TURNTABLE_TOLERANCE` of its training
-    turntable, else the any-view model (``mrvm_anyview``, as fast; the default when this copy lacks it).
+    turntable; otherwise, on a GPU (``gpu``), the quality model (``mrvm_quality``: 1.1-1.9 dB better than the
+    any-view model off the turntable, many times slower on a CPU), else the any-view model (``mrvm_anyview``, as
+    fast as the default). A model this copy lacks falls back to the next (the default last).
     ``framing_known`` False (a box guessed from the cameras) leaves the framing out of the choice."""
     n, total, what = _off_turntable(c2ws, intrinsics, bbox, framing_known)
     if n == 0:
-        return "nerformer_mrvm", (f"auto: the default model (all {total} cameras near the {DEFAULT_ELEVATION_DEG:.0f}"
+        return "nerformer_mrvm", (f"auto: the default model (all {total} cameras on the {DEFAULT_ELEVATION_DEG:.0f}"
                                   "-degree turntable it was trained on)")
+    off = f"{n} of {total} cameras are off the default model's turntable ({what})"
+    if gpu and shipped_or_none("mrvm_quality") is not None:
+        return "mrvm_quality", f"auto: the quality model (shipped:mrvm_quality, on the GPU): {off}"
     if shipped_or_none("mrvm_anyview") is None:
-        return "nerformer_mrvm", (f"auto: the default model, though {n} of {total} cameras are off its turntable "
-                                  f"({what}): this copy ships no any-view model")
-    return "mrvm_anyview", (f"auto: the any-view model (shipped:mrvm_anyview): {n} of {total} cameras are off the "
-                            f"default model's turntable ({what}); shipped:mrvm_quality is sharper there, many times "
-                            "slower on a CPU")
+        return "nerformer_mrvm", f"auto: the default model, though {off}: this copy ships no any-view model"
+    return "mrvm_anyview", (f"auto: the any-view model (shipped:mrvm_anyview): {off}; shipped:mrvm_quality is "
+                            "sharper there (+1.1 to +1.9 dB), many times slower on a CPU")
 
 
 def is_auto(checkpoint) -> bool:
