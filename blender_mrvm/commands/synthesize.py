@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--orbit-radius", type=float, default=None, help="orbit radius (default: the references' distance)")
     p.add_argument("--orbit-size", type=int, default=0, help="orbit images' longer side in pixels (default: the references')")
     p.add_argument("--checkpoint", type=Path, default=None,
-                   help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: shipped:auto, the shipped NeRFormer+MRVM model that fits the cameras: the default model near its 30-degree turntable, else the any-view model)")
+                   help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: shipped:auto, the shipped NeRFormer+MRVM model that fits the cameras: the default model on its 30-degree training turntable, else the any-view model on a CPU and the quality model on a GPU; synthesis.json's model_choice says which)")
     p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda (default auto)")
     p.add_argument("--compile", action="store_true",
                    help="torch.compile the model's networks first (experimental: on an H100 not yet faster through "

@@ -6,8 +6,9 @@ runs that command in the worker process). :func:`synthesize_views` is a progress
 1. checks everything before writing anything: the targets file (``datasets/novel_views.py``), the
    reference folder (our dataset format: a rendered object, a recovered capture, or scene cameras
    exported by the add-on; every chosen view needs an image and a pose), the checkpoint (it must
-   load, be a ``blender_mrvm`` model of a format version this code reads, and match its config),
-   and the device;
+   load, be a ``blender_mrvm`` model of a format version this code reads, and match its config;
+   none given, or ``shipped:auto``: the shipped model that fits the cameras and the device,
+   ``models.pretrained.auto_model``), and the device;
 2. encodes the references once and renders every target in chunks of rays (one progress event per
    chunk, so a cancel lands within a chunk), rays that miss the object's box are background and
    are not evaluated;
