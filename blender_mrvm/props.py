@@ -22,8 +22,9 @@ MODEL_KINDS = [
 SHIPPED_MODELS = [
     ("auto", "Auto: by the cameras", "NeRFormer + MRVM: the default model when every camera sits on the 30-degree "
                                      "turntable it was trained on (height, field of view, framing, azimuth), else "
-                                     "the any-viewpoint model on the CPU and the quality model on a GPU; the note "
-                                     "after a run says which"),
+                                     "the any-viewpoint model on the CPU and the quality model on a GPU; GPNR for "
+                                     "rooms when the references are a capture of a whole scene; the note after a "
+                                     "run says which"),
 ] + MODEL_KINDS + [
     ("gpnr_captures", "GPNR for rooms and captures", "GPNR trained on capture-like rooms: for scenes and photo "
                                                      "captures (Recover Poses), not objects on white"),

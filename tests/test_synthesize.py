@@ -405,7 +405,7 @@ def test_turntable_offsets_measure_elevation_field_of_view_framing_and_azimuth()
 def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
     """shipped:auto (synthesize's default): the default model when every camera, reference or target, sits on
     its turntable; when one is off in height, field of view, azimuth or (with a real box) framing, the any-view
-    model on the CPU and the quality model on a GPU;
+    model on the CPU and the quality model on a GPU; references of a whole scene get the capture model;
     each run says which and why, in one line and in synthesis.json. Naming the default model off its turntable
     gives the note that names the others."""
     from blender_mrvm.models import pretrained as P
@@ -428,13 +428,17 @@ def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
         name, why = P.auto_model(*off, gpu=True)
         assert name == "mrvm_quality" and why.startswith("auto: the quality model") and "elevations" in why
     assert P.auto_model(*near, gpu=True)[0] == "nerformer_mrvm"  # on the turntable the default, on any device
+    if P.shipped_or_none("gpnr_captures") is not None:  # references of a whole scene: the capture model
+        name, why = P.auto_model(*near, background="scene")
+        assert name == "gpnr_captures" and "whole scene" in why
     far = _turntable_cameras([30, 30], framing=1.05 * np.exp(1.5 * frame_tol + 0.02))
     assert P.auto_model(*far, framing_known=False)[0] == "nerformer_mrvm"  # a guessed box says nothing of framing
     assert P.is_auto("shipped:auto") and P.is_auto(" Shipped:AUTO ") and not P.is_auto("shipped")
     from blender_mrvm.synthesis.views import trained_size
 
     # synthesize sizes the references by the default model before auto picks: every candidate shares its size
-    sizes = {trained_size(P.shipped_or_none(n)) for n in (None, "mrvm_anyview", "mrvm_quality") if P.shipped_or_none(n)}
+    sizes = {trained_size(P.shipped_or_none(n)) for n in (None, "mrvm_anyview", "mrvm_quality", "gpnr_captures")
+             if P.shipped_or_none(n)}
     assert len(sizes) == 1 and sizes.pop() > 0
     with pytest.raises(InputError, match="picks a model from the cameras"):
         P.resolve_checkpoint("shipped:auto")  # eval and the rest name a model
@@ -459,6 +463,15 @@ def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
     assert rep["model_choice"].startswith("auto: the any-view model") and rep["viewpoint_note"] == ""
     assert Path(rep["checkpoint"]).resolve() == P.shipped_or_none("mrvm_anyview").resolve()
     assert f"note: {rep['model_choice']}" in capsys.readouterr().err
+    if P.shipped_or_none("gpnr_captures") is not None:  # the same views declared a whole scene: the capture model
+        meta = json.loads((obj / "meta.json").read_text())
+        (obj / "meta.json").write_text(json.dumps({**meta, "background": "scene"}))
+        assert main([*run, "--out", str(tmp_path / "scene")]) == 0
+        (obj / "meta.json").write_text(json.dumps(meta))
+        rep = json.loads((tmp_path / "scene" / "synthesis.json").read_text())
+        assert rep["model_choice"].startswith("auto: GPNR for rooms and captures") and rep["model_kind"] == "gpnr"
+        assert Path(rep["checkpoint"]).resolve() == P.shipped_or_none("gpnr_captures").resolve()
+        capsys.readouterr()
     assert main([*run, "--out", str(tmp_path / "default"), "--checkpoint", "shipped"]) == 0
     rep = json.loads((tmp_path / "default" / "synthesis.json").read_text())
     assert "shipped:mrvm_anyview" in rep["viewpoint_note"] and rep["model_choice"] == ""

@@ -137,13 +137,20 @@ def _off_turntable(c2ws, intrinsics, bbox, framing_known: bool) -> tuple[int, in
     return n, len(off), "; ".join(what)
 
 
-def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = False) -> tuple[str, str]:
-    """``shipped:auto``: (the shipped object model for these cameras, one line saying why). The default model
-    when every camera (references and targets) sits within :data:`TURNTABLE_TOLERANCE` of its training
-    turntable; otherwise, on a GPU (``gpu``), the quality model (``mrvm_quality``: 1.1-1.9 dB better than the
-    any-view model off the turntable, many times slower on a CPU), else the any-view model (``mrvm_anyview``, as
-    fast as the default). A model this copy lacks falls back to the next (the default last).
-    ``framing_known`` False (a box guessed from the cameras) leaves the framing out of the choice."""
+def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = False,
+               background: str = "white") -> tuple[str, str]:
+    """``shipped:auto``: (the shipped model for these references and cameras, one line saying why). References
+    that show a whole scene (``background`` 'scene': a recovered or rendered capture) get GPNR for rooms and
+    captures (``gpnr_captures``: +6.1 dB over the objects-on-white model on held-out rooms, README). Objects on
+    white get the default model when every camera (references and targets) sits within
+    :data:`TURNTABLE_TOLERANCE` of its training turntable; otherwise, on a GPU (``gpu``), the quality model
+    (``mrvm_quality``: 1.1-1.9 dB better than the any-view model off the turntable, many times slower on a
+    CPU), else the any-view model (``mrvm_anyview``, as fast as the default). A model this copy lacks falls back
+    to the next (the default last). ``framing_known`` False (a box guessed from the cameras) leaves the framing
+    out of the choice."""
+    if background == "scene" and shipped_or_none("gpnr_captures") is not None:
+        return "gpnr_captures", ("auto: GPNR for rooms and captures (shipped:gpnr_captures): the references show a "
+                                 "whole scene (meta.json background: scene), not an object on white")
     n, total, what = _off_turntable(c2ws, intrinsics, bbox, framing_known)
     if n == 0:
         return "nerformer_mrvm", (f"auto: the default model (all {total} cameras on the {DEFAULT_ELEVATION_DEG:.0f}"

@@ -572,7 +572,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
             refs.bbox, refs.bbox_source in FRAMING_BOXES)
     checkpoint, model_note = cfg.checkpoint, ""
     if auto:
-        name, model_note = auto_model(*cams, gpu=device.type == "cuda")
+        name, model_note = auto_model(*cams, gpu=device.type == "cuda", background=refs.background)
         checkpoint = f"shipped:{name}"
         print(f"note: {model_note}", file=sys.stderr)
     model, mcfg, meta, ck_path = load_checkpoint(checkpoint, device)
