@@ -36,7 +36,7 @@ FIGURES = {
     "auto": "the default model on its training turntable (2 views 21.9 dB / LPIPS 0.166), else the any-view model "
             "on the CPU (5-25 degrees off the turntable 18.2 / 0.273 against the default's 14.4 / 0.375; sphere rig "
             "18.9 / 0.244 against 15.0 / 0.343; ~1.0 s per 128 px view on 2 CPU cores) and the quality model on a "
-            "GPU (+1.1 to +1.9 dB over the any-view model there)",
+            "GPU (+1.1 to +1.9 dB over the any-view model there); captures of a whole scene: GPNR for rooms",
     "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234), on "
                       "its training turntable's cameras only (a few degrees off them the any-view model is better); "
                       "~1.0 s per 128 px view on 2 CPU cores",
