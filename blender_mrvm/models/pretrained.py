@@ -75,12 +75,28 @@ TURNTABLE_TOLERANCE = (2.0, 2.0, 0.01, 2.0)
 columns (elevation, field of view and azimuth in degrees, framing in log-distance), for the default model to be
 picked over the any-view model. Measured on held-out objects (RECIPE.md "Which model for which cameras",
 ``scripts/viewpoint_rule.py``): the default model wins only on its own training cameras (by 2.3 dB on the
-turntable's validation objects); where every camera was within 5 degrees of them in height, field of view and azimuth (framing
-inside), the any-view model was already ahead (+0.7 dB, 53 views), at 5-25 degrees by +1 to +5 dB. The
-crossover lies between, so the bound is set below it."""
+turntable's validation objects); where every camera was within 5 degrees of them in height, field of view and
+azimuth (framing inside), the any-view model was already ahead (+0.7 dB, 53 views), at 5-25 degrees by +1 to
++5 dB. The crossover lies between, so the bound is set below it."""
 AUTO = "auto"
 """``shipped:auto``: the shipped object model that fits the cameras and the device (:func:`auto_model`);
 synthesis's default."""
+
+
+def _camera_geometry(c2ws, intrinsics, bbox):
+    """Per camera, seen from the centre of the object's box (world z up): elevation and azimuth (degrees), the
+    narrower field of view (degrees) and the framing (:data:`TURNTABLE_FRAMING`'s measure), as four arrays."""
+    import numpy as np
+
+    lo, hi = (np.asarray(b, np.float64) for b in bbox)
+    centre, half = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    d = np.stack([np.asarray(c, np.float64)[:3, 3] for c in c2ws]).reshape(-1, 3) - centre[None]
+    dist = np.linalg.norm(d, axis=1)
+    el = np.where(dist > 0, np.degrees(np.arcsin(np.clip(d[:, 2] / np.maximum(dist, 1e-300), -1.0, 1.0))), 90.0)
+    az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    fov = np.array([min(i.fov_x, i.fov_y) for i in intrinsics], np.float64).reshape(-1)
+    framing = dist * np.sin(fov / 2.0) / half if half > 0 else np.ones_like(dist)
+    return el, az, np.degrees(fov), framing
 
 
 def turntable_offsets(c2ws, intrinsics, bbox):
@@ -92,21 +108,15 @@ def turntable_offsets(c2ws, intrinsics, bbox):
     camera (``fov_x`` / ``fov_y`` in radians); ``bbox``: (min, max) corners of the object's box."""
     import numpy as np
 
-    lo, hi = (np.asarray(b, np.float64) for b in bbox)
-    centre, half = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    if not len(c2ws):
+        return np.zeros((0, 4))
+    el, az, fov, framing = _camera_geometry(c2ws, intrinsics, bbox)
     step = TURNTABLE_AZIMUTH_STEP_DEG
-    out = []
-    for c2w, intr in zip(c2ws, intrinsics):
-        d = np.asarray(c2w, np.float64)[:3, 3] - centre
-        dist = float(np.linalg.norm(d))
-        el = float(np.degrees(np.arcsin(np.clip(d[2] / dist, -1.0, 1.0)))) if dist > 0 else 90.0
-        az = float(np.degrees(np.arctan2(d[1], d[0])))
-        fov = min(intr.fov_x, intr.fov_y)
-        framing = dist * np.sin(fov / 2.0) / half if half > 0 else 1.0
-        out.append((abs(el - DEFAULT_ELEVATION_DEG), abs(np.degrees(fov) - TURNTABLE_FOV_DEG),
-                    max(0.0, np.log(TURNTABLE_FRAMING[0] / max(framing, 1e-9)), np.log(framing / TURNTABLE_FRAMING[1])),
-                    abs((az + step / 2.0) % step - step / 2.0)))
-    return np.asarray(out, np.float64).reshape(-1, 4)
+    lo, hi = TURNTABLE_FRAMING
+    f = np.maximum(framing, 1e-9)
+    outside = np.maximum(0.0, np.maximum(np.log(lo / f), np.log(f / hi)))
+    return np.stack([np.abs(el - DEFAULT_ELEVATION_DEG), np.abs(fov - TURNTABLE_FOV_DEG), outside,
+                     np.abs((az + step / 2.0) % step - step / 2.0)], axis=1)
 
 
 def _off_turntable(c2ws, intrinsics, bbox, framing_known: bool) -> tuple[int, int, str]:
@@ -120,16 +130,12 @@ def _off_turntable(c2ws, intrinsics, bbox, framing_known: bool) -> tuple[int, in
     n = int(bad.any(axis=1).sum())
     if n == 0:
         return 0, len(off), ""
-    lo, hi = (np.asarray(b, np.float64) for b in bbox)
-    centre = 0.5 * (lo + hi)
-    el = [float(np.degrees(np.arcsin(np.clip((np.asarray(c)[2, 3] - centre[2]) / max(np.linalg.norm(
-        np.asarray(c)[:3, 3] - centre), 1e-12), -1.0, 1.0)))) for c in c2ws]
-    fov = [float(np.degrees(min(i.fov_x, i.fov_y))) for i in intrinsics]
+    el, _, fov, _ = _camera_geometry(c2ws, intrinsics, bbox)
     what = []
     if bad[:, 0].any():
-        what.append(f"elevations {min(el):.0f} to {max(el):.0f} degrees against {DEFAULT_ELEVATION_DEG:.0f}")
+        what.append(f"elevations {el.min():.0f} to {el.max():.0f} degrees against {DEFAULT_ELEVATION_DEG:.0f}")
     if bad[:, 1].any():
-        what.append(f"fields of view {min(fov):.0f} to {max(fov):.0f} degrees against {TURNTABLE_FOV_DEG:.0f}")
+        what.append(f"fields of view {fov.min():.0f} to {fov.max():.0f} degrees against {TURNTABLE_FOV_DEG:.0f}")
     if bad[:, 2].any():
         what.append("the object framed nearer or farther than on the turntable")
     if bad[:, 3].any():
