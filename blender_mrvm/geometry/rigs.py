@@ -101,6 +101,16 @@ bounding sphere just fills that view's narrower field of view (below 1 crops a l
 rarely of the object, which is smaller than its sphere)."""
 
 
+def check_elevation_range(rig: str, elevation_range_deg: tuple[float, float]) -> None:
+    """InputError unless ``elevation_range_deg`` is a band within [-90, 90] degrees that ``rig`` can have (the
+    hemisphere none below the horizon). The one owner of the rule (render configs check through it)."""
+    e0, e1 = elevation_range_deg
+    if not -90.0 <= e0 <= e1 <= 90.0:
+        raise InputError(f"elevation range must lie within [-90, 90] degrees, got {e0:g},{e1:g}")
+    if rig == "hemisphere" and e0 < 0.0:
+        raise InputError(f"the hemisphere rig has no cameras below the horizon; elevation range {e0:g},{e1:g}")
+
+
 def varied_cameras(rig: str, n: int, bound_radius: float, width: int, height: int,
                    fov_range_deg: tuple[float, float] = FOV_RANGE_DEG,
                    distance_range: tuple[float, float] = DISTANCE_RANGE,
@@ -133,11 +143,7 @@ def varied_cameras(rig: str, n: int, bound_radius: float, width: int, height: in
     if not 0.0 < d0 <= d1:
         raise InputError(f"distance range must be positive multiples, got {d0:g}..{d1:g}")
     if elevation_range_deg is not None:
-        e0, e1 = elevation_range_deg
-        if not -90.0 <= e0 <= e1 <= 90.0:
-            raise InputError(f"elevation range must lie within [-90, 90] degrees, got {e0:g}..{e1:g}")
-        if rig == "hemisphere" and e0 < 0.0:
-            raise InputError(f"the hemisphere rig has no cameras below the horizon; elevation range {e0:g}..{e1:g}")
+        check_elevation_range(rig, elevation_range_deg)
     rng = np.random.default_rng([int(seed), 7])
     if elevation_range_deg is None:
         dirs = rng.normal(size=(n, 3))

@@ -110,7 +110,13 @@ def turntable_offsets(c2ws, intrinsics, bbox):
 
     if not len(c2ws):
         return np.zeros((0, 4))
-    el, az, fov, framing = _camera_geometry(c2ws, intrinsics, bbox)
+    return _offsets(*_camera_geometry(c2ws, intrinsics, bbox))
+
+
+def _offsets(el, az, fov, framing):
+    """:func:`turntable_offsets` from :func:`_camera_geometry`'s arrays."""
+    import numpy as np
+
     step = TURNTABLE_AZIMUTH_STEP_DEG
     lo, hi = TURNTABLE_FRAMING
     f = np.maximum(framing, 1e-9)
@@ -123,14 +129,16 @@ def _off_turntable(c2ws, intrinsics, bbox, framing_known: bool) -> tuple[int, in
     """(cameras off the default model's training cameras, cameras, what is off: '' when none is)."""
     import numpy as np
 
-    off = turntable_offsets(c2ws, intrinsics, bbox)
+    if not len(c2ws):
+        return 0, 0, ""
+    el, az, fov, framing = _camera_geometry(c2ws, intrinsics, bbox)
+    off = _offsets(el, az, fov, framing)
     if not framing_known:
         off[:, 2] = 0.0  # a box guessed from the cameras says nothing of the framing
     bad = off > np.asarray(TURNTABLE_TOLERANCE)[None]
     n = int(bad.any(axis=1).sum())
     if n == 0:
         return 0, len(off), ""
-    el, _, fov, _ = _camera_geometry(c2ws, intrinsics, bbox)
     what = []
     if bad[:, 0].any():
         what.append(f"elevations {el.min():.0f} to {el.max():.0f} degrees against {DEFAULT_ELEVATION_DEG:.0f}")

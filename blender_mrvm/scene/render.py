@@ -128,11 +128,7 @@ class RenderConfig:
             raise InputError("an elevation range needs varied cameras (a field of view range and a distance range)")
         if self.fov_range_deg is not None:
             if self.elevation_range_deg is not None:
-                e0, e1 = self.elevation_range_deg
-                if not -90.0 <= e0 <= e1 <= 90.0:
-                    raise InputError(f"elevation range must lie within [-90, 90] degrees, got {e0:g},{e1:g}")
-                if self.rig == "hemisphere" and e0 < 0.0:
-                    raise InputError(f"the hemisphere rig has no cameras below the horizon; elevation range {e0:g},{e1:g}")
+                rigs.check_elevation_range(self.rig, self.elevation_range_deg)
             if self.rig not in rigs.VARIED_RIGS:
                 raise InputError(f"varied field of view and distance need the sphere or hemisphere rig, got {self.rig!r}")
             f0, f1 = self.fov_range_deg
