@@ -14,6 +14,7 @@
 #   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
 #                                                      and without empty-space skipping (SYNTH_VARIANTS; also
 #                                                      nofoot: skipping without the footprint), seconds a view
+#   scripts/gpu_session.sh score CHECKPOINT ...        held-out scores on the GPU (SCORE_SETS; gpu_eval_pack.sh)
 #   scripts/gpu_session.sh mrvm_scale                  MRVM against none at a GPU budget, both arms side by side
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
@@ -163,6 +164,41 @@ for f in runs:
     print(f"{f.stem}: {len(s)} views of {d['targets'][0]['width']} px, first {s[0]:.3f} s, "
           f"median of the rest {statistics.median(s[1:]):.4f} s ({1 / statistics.median(s[1:]):.1f} FPS), total {d['seconds']:.1f} s")
 EOF2
+    ;;
+  score)
+    # CHECKPOINT ...: each checkpoint scored on each SCORE_SETS entry ("SET:SPLIT:TARGETS[:PER_CATEGORY]", sets
+    # under gpu_eval/data from scripts/gpu_eval_pack.sh, carried as ["gpu_eval"]), SCORE_JOBS evaluations at a
+    # time on the one GPU, 2 references, LPIPS with the carried fp16 VGG16. Back: score.tgz (every eval.json and
+    # log; SCORE_S bounds them all, so it is written before the call's limit); pair them here
+    # (training.evaluate.compare_reports). Session 31: two `quality` files on 7 sets, ~2 000 views.
+    [ -d gpu_eval/data ] || tar -xzf gpu_eval/eval.tgz -C gpu_eval || exit 1
+    export MRVM_WEIGHTS_DIR=$PWD/gpu_eval/weights
+    tmp=${SCORE_TMP:-/tmp/score}; rm -rf "$tmp"; mkdir -p "$tmp/logs"
+    jobs_=()
+    for spec in ${SCORE_SETS:?name the sets}; do
+      IFS=: read -r set split tg k <<< "$spec"
+      for ck in "$@"; do
+        jobs_+=("$ck|$set|$split|$tg|$k")
+      done
+    done
+    deadline=$((SECONDS + ${SCORE_S:-240}))  # every evaluation ends by then, so score.tgz is always written
+    run_one() {
+      IFS='|' read -r ck set split tg k <<< "$1"
+      local tag; tag=$(basename "${ck%.safetensors}")__${set}_$split
+      timeout $((deadline - SECONDS)) $PY -m blender_mrvm eval --checkpoint "$ck" --data "gpu_eval/data/$set" --split "$split" \
+        --n-inputs 2 --max-targets "$tg" ${k:+--max-objects-per-category $k} --device ${DEVICE:-cuda} --threads 2 --force \
+        --out "$tmp/$tag" > "$tmp/logs/$tag.log" 2>&1
+      local rc=$?; echo "$tag: rc $rc"; [ $rc = 0 ] || tail -n 2 "$tmp/logs/$tag.log"
+    }
+    for j in "${jobs_[@]}"; do
+      while [ "$(jobs -rp | wc -l)" -ge "${SCORE_JOBS:-6}" ]; do sleep 1; done
+      [ $((deadline - SECONDS)) -gt 5 ] || { echo "score: out of time before ${j%%|*} on ${j#*|}"; continue; }
+      run_one "$j" &
+    done
+    wait
+    (cd "$tmp" && find . -name eval.json -o -name '*.log' | tar -czf "$OUT/score.tgz" -T -)
+    n=$(ls "$tmp"/*/eval.json 2>/dev/null | wc -l)
+    echo "score: $n of ${#jobs_[@]} evaluations finished"; [ "$n" = ${#jobs_[@]} ]
     ;;
   train)
     # runs carried back from an earlier session (gpu_pack/runs/<name>.run.tgz) resume where they stopped

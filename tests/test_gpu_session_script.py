@@ -193,3 +193,49 @@ def test_synth_variants_time_the_shipped_model_and_nofoot_changes_no_pixel(tmp_p
     ev = json.loads((out / "nerformer_mrvm_eager.json").read_text())
     nf = json.loads((out / "nerformer_mrvm_nofoot.json").read_text())
     assert [t["evaluated_rays"] for t in ev["targets"]] == [t["evaluated_rays"] for t in nf["targets"]]  # same rays
+
+
+@pytest.mark.slow
+def test_score_evaluates_carried_models_on_the_packed_sets(tmp_path):
+    """`gpu_eval_pack.sh` carries the first K objects of a category of each named split (without depth) with the
+    LPIPS weights in fp16 and the models named, and `gpu_session.sh score` evaluates every checkpoint on every set
+    (here on the CPU): the shipped model and a carried copy of its file score the same views identically, LPIPS
+    included, so the pairing done afterwards compares like with like."""
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    for s in ("gpu_session.sh", "gpu_eval_pack.sh"):
+        shutil.copy(REPO / "scripts" / s, root / "scripts")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    (root / ".git" / "info").mkdir(parents=True)
+    data = tmp_path / "data" / "set"
+    for i, cat in enumerate(("a", "b")):
+        make_sphere_dataset(data, n_objects=3, n_views=4, resolution=16, category=cat, seed=i, data_passes=False)
+    (data / "splits" / "test.lst").write_text("".join(f"{c}/obj00{j}\n" for c in "ab" for j in range(3)))
+    (data / "splits" / "eval_views.json").write_text(json.dumps({"input_views_2": [0, 1]}))
+    model = REPO / "blender_mrvm" / "assets" / "checkpoints" / "mrvm_shapenet13_all.safetensors"
+    env = {**os.environ, "PY": sys.executable, "OMP_NUM_THREADS": "1"}
+    pack = subprocess.run(["bash", "scripts/gpu_eval_pack.sh", f"{data}:test:2", "--", str(model)], cwd=root,
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert pack.returncode == 0, pack.stdout + pack.stderr
+    assert "/gpu_eval/" in (root / ".git" / "info" / "exclude").read_text()
+    with tarfile.open(root / "gpu_eval" / "eval.tgz") as t:
+        names = t.getnames()
+        assert t.extractfile("data/set/splits/test.lst").read().decode().split() == \
+            ["a/obj000", "a/obj001", "b/obj000", "b/obj001"]
+    assert not any("obj002" in n or "/depth" in n for n in names)
+    assert "weights/vgg16_imagenet_features.safetensors" in names and "models/mrvm_shapenet13_all.safetensors" in names
+    out = tmp_path / "out"
+    out.mkdir()
+    env = {**env, "OUT": str(out), "DEVICE": "cpu", "SCORE_SETS": "set:test:2", "SCORE_JOBS": "2", "SCORE_S": "240",
+           "SCORE_TMP": str(tmp_path / "score")}
+    r = subprocess.run(["bash", "scripts/gpu_session.sh", "score", "shipped",
+                        "gpu_eval/models/mrvm_shapenet13_all.safetensors"], cwd=root, env=env, capture_output=True,
+                       text=True, timeout=400)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "shipped__set_test: rc 0" in r.stdout and "mrvm_shapenet13_all__set_test: rc 0" in r.stdout, r.stdout
+    with tarfile.open(out / "score.tgz") as t:
+        a, b = (json.load(t.extractfile(f"./{n}__set_test/eval.json")) for n in ("shipped", "mrvm_shapenet13_all"))
+    key = lambda v: (v["object"], v["view"])  # noqa: E731
+    assert sorted(map(key, a["views"])) == sorted(map(key, b["views"])) and len(a["views"]) == 4 * 2
+    assert a["overall"]["psnr"] == pytest.approx(b["overall"]["psnr"], abs=1e-6)
+    assert a["overall"]["lpips"] == pytest.approx(b["overall"]["lpips"], abs=1e-6) and a["overall"]["lpips"] > 0
