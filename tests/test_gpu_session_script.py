@@ -239,3 +239,8 @@ def test_score_evaluates_carried_models_on_the_packed_sets(tmp_path):
     assert sorted(map(key, a["views"])) == sorted(map(key, b["views"])) and len(a["views"]) == 4 * 2
     assert a["overall"]["psnr"] == pytest.approx(b["overall"]["psnr"], abs=1e-6)
     assert a["overall"]["lpips"] == pytest.approx(b["overall"]["lpips"], abs=1e-6) and a["overall"]["lpips"] > 0
+    table = subprocess.run([sys.executable, str(REPO / "scripts" / "score_table.py"), str(out / "score.tgz"), "shipped"],
+                           capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert table.returncode == 0, table.stderr
+    row = next(line for line in table.stdout.splitlines() if "| mrvm_shapenet13_all |" in line)
+    assert "| set_test | mrvm_shapenet13_all | 8 |" in row and "+0.000 (0.000), 0 of 4" in row, table.stdout
