@@ -337,6 +337,8 @@ SYNTH = [
     _s("--adapt-rays must be between 1", ["--adapt-steps", "3", "--adapt-rays", "0"]),
     _s("needs at least 2 references", ["--views", "0", "--adapt-steps", "3"]),
     _s("invalid choice: 'yes'", ["--reproject", "yes"]),
+    _s("--precision fp16 needs a GPU", ["--precision", "fp16"], skip="a GPU is here" if CUDA else ""),
+    _s("invalid choice: 'fp8'", ["--precision", "fp8"]),
 ]
 
 _EV = ["eval", "--data", "{w}/ds", "--checkpoint", "{w}/ck", "--no-lpips", "--threads", "1", "--input-views", "0"]

@@ -373,6 +373,27 @@ def test_quality_preview_renders_half_the_samples_of_either_kind(setup, tmp_path
         registry.quality_overrides(g, "draft")
 
 
+def test_precision_bf16_renders_close_to_fp32_and_fp16_asks_for_a_gpu(setup, tmp_path, capsys):
+    """--precision (models/precision.py, one owner with the benches): bf16 autocast reaches the model's forward
+    passes (the image changes, a little) and is recorded, with a note that it pays on a GPU only; fp16 on the CPU
+    is a one-line error before anything is written."""
+    root, obj, ck, tg = setup
+    outs = {}
+    for p in ("fp32", "bf16"):
+        outs[p] = tmp_path / p
+        assert main(_args(root, obj, ck, outs[p], "--precision", p)) == 0
+        assert json.loads((outs[p] / "synthesis.json").read_text())["precision"] == p
+        err = capsys.readouterr().err
+        assert ("note: bf16 on the CPU is no faster" in err) == (p == "bf16")
+    for i in range(len(tg)):
+        a, b = (F.read_png(outs[p] / tg[i].rgb_path(i)).astype(np.float64) / 255 for p in ("fp32", "bf16"))
+        assert a.shape == b.shape
+        mse = float(((a - b) ** 2).mean())
+        assert 0 < mse < 1e-3, (i, mse)  # bf16 keeps ~3 significant digits: changed, but within ~30 dB
+    out = tmp_path / "fp16"
+    _fails(_args(root, obj, ck, out, "--precision", "fp16"), "--precision fp16 needs a GPU", capsys, out)
+
+
 def _turntable_cameras(els, fov=40.0, framing=0.99, az=0.0):
     """Cameras around a box of half-diagonal 0.5 at the origin: elevations ``els`` (degrees) at azimuth ``az``,
     square views of ``fov`` degrees, at ``framing`` (pretrained.turntable_offsets' measure; the turntable's are

@@ -128,9 +128,9 @@ def run(args) -> int:
 def _time_renders(args, model, refs, ref_poses, rintr, bbox, target, intr, prec, device, sync):
     """One warm-up render, then ``args.repeats`` timed ones: (wall seconds, process CPU seconds, peak extra MiB,
     the last render's result)."""
-    from .tradeoff import _autocast
+    from ..models.precision import autocast
 
-    with _autocast(prec, device):
+    with autocast(prec, device):
         model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None,
                          workers=args.workers)  # warm-up
         sync()
@@ -157,12 +157,12 @@ def _profile_render(args, model, refs, ref_poses, rintr, bbox, target, intr, pre
     import torch
 
     from .train import profile_counts, profile_table
-    from .tradeoff import _autocast
+    from ..models.precision import autocast
 
     acts = [torch.profiler.ProfilerActivity.CPU]
     if device.startswith("cuda"):
         acts.append(torch.profiler.ProfilerActivity.CUDA)
-    with _autocast(prec, device), torch.profiler.profile(activities=acts) as prof:
+    with autocast(prec, device), torch.profiler.profile(activities=acts) as prof:
         model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None, workers=args.workers)
         sync()
     events = prof.key_averages()

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from ..models.precision import autocast
 from . import PeakMemory, write_csv
 
 AXES = ("base", "samples", "gate", "stop", "filter", "refs", "nearest", "ref_size", "precision", "skip", "chunk")
@@ -158,22 +159,11 @@ def speed_refs(scene, pt: Point) -> list[int]:
     return nearest_of(scene, list(range(1, len(scene))), 0, pt.nearest)
 
 
-def _autocast(precision: str, device: str):
-    import contextlib
-
-    import torch
-
-    if precision == "fp32":
-        return contextlib.nullcontext()
-    dtype = {"bf16": torch.bfloat16, "fp16": torch.float16}[precision]
-    return torch.autocast("cuda" if device.startswith("cuda") else "cpu", dtype=dtype)
-
-
 def _timed(render, precision: str, repeats: int, device: str) -> tuple[Any, dict]:
     """(the last result, median wall / CPU seconds and peak extra MiB) of ``render()`` after one warm-up call."""
     import torch
 
-    with _autocast(precision, device):
+    with autocast(precision, device):
         render()  # warm-up
         walls, cpus, peaks = [], [], []
         for _ in range(repeats):
@@ -216,7 +206,7 @@ def measure_quality(model, scenes, pt: Point, targets: int, lpips, device: str, 
     gen = evaluate(model, scenes, ref_views(len(scenes[0]), pt.refs), lpips,
                    max_targets=targets, chunk=pt.chunk or None, ref_size=pt.ref_size, skip=pt.skip, workers=workers,
                    nearest=pt.nearest)
-    with _autocast(pt.precision, device):
+    with autocast(pt.precision, device):
         rep = run_to_end(gen)
     o = rep["overall"]
     return {k: round(float(o[k]), 4) for k in ("psnr", "ssim", "lpips") if o.get(k) is not None}
@@ -293,7 +283,7 @@ def measure_sem2nerf_quality(model, objects, pt: Point, targets: int, lpips, dev
 
     labels = torch.as_tensor(model.cfg.labels)
     rows = []
-    with _autocast(pt.precision, device):
+    with autocast(pt.precision, device):
         for ob in objects:
             code = _sem2nerf_code(model, ob, device)
             for v in sem2nerf_targets(len(ob.images), targets):

@@ -1,0 +1,35 @@
+"""Inference precision: fp32, or bf16 / fp16 autocast around a model's forward passes (fp16 on a GPU only).
+
+One owner for the benches (``bench model``, ``bench tradeoff``) and synthesis (``synthesize --precision``).
+Measured (RECIPE.md "Session 31", ``bench tradeoff --device cuda``, an H100, 128 px views): `quality` renders 1.21x
+faster in bf16 and 1.23x in fp16 at the same PSNR and LPIPS (19.88 dB / 0.237 on 13 held-out objects). On the CPU
+bf16 is no faster and cost the default model 0.07 SSIM (docs/bench_tradeoff), so fp32 stays the default."""
+
+from __future__ import annotations
+
+import contextlib
+
+from ..errors import InputError
+
+PRECISIONS = ("fp32", "bf16", "fp16")
+
+CPU_BF16_NOTE = ("bf16 on the CPU is no faster than fp32 and cost the default model 0.07 SSIM (bench tradeoff); "
+                 "it pays on a GPU")
+
+
+def check_precision(option: str, precision: str, device: str) -> None:
+    """One-line :class:`InputError` for a precision that is unknown or, fp16, asked of the CPU."""
+    if precision not in PRECISIONS:
+        raise InputError(f"{option} must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "fp16" and not str(device).startswith("cuda"):
+        raise InputError(f"{option} fp16 needs a GPU (--device cuda); on the CPU use fp32 or bf16")
+
+
+def autocast(precision: str, device: str):
+    """The context a forward pass runs in at ``precision`` on ``device`` (a no-op for fp32)."""
+    if precision == "fp32":
+        return contextlib.nullcontext()
+    import torch
+
+    dtype = {"bf16": torch.bfloat16, "fp16": torch.float16}[precision]
+    return torch.autocast("cuda" if str(device).startswith("cuda") else "cpu", dtype=dtype)
