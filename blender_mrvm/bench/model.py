@@ -71,7 +71,9 @@ def run(args) -> int:
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     device = str(resolve_device(args.device))
     precisions = [s.strip() for s in args.precisions.split(",") if s.strip()]
-    bad = [s for s in precisions if s not in ("fp32", "bf16", "fp16") or (s == "fp16" and device == "cpu")]
+    from ..models.precision import PRECISIONS
+
+    bad = [s for s in precisions if s not in PRECISIONS or (s == "fp16" and device == "cpu")]
     if bad or not precisions:
         raise InputError(f"--precisions: {bad or precisions} not among fp32, bf16 (and fp16 on a GPU)")
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
