@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # What a GPU session carries to the device machine (docs/gpu_session.md): the device has no bpy and no network,
-# and a call carries at most 64 MiB with the repository (~8 MB) and its .git (~12 MB); many small files count
-# for more than their bytes (session 18: 42 MB of PNGs was refused, the same gzipped into one file, 32 MB, went).
+# and a call carries at most 64 MiB with the tracked tree (~14 MB; .git does not travel, session 31); many small
+# files count for more than their bytes (session 18: 42 MB of PNGs was refused, the same gzipped into one file, 32 MB, went).
 # Builds gpu_carry/ and packs it into gpu_pack/carry.tgz (both git-ignored): carry ["gpu_pack"] and unpack there
 # (scripts/gpu_session.sh does, when gpu_carry/ is absent). gpu_carry/ holds:
 #   gpu_carry/data/<set>/    a rendered dataset without depth/ and normal/ (training and eval read rgb, mask, pose,
@@ -45,19 +45,8 @@ for s in "${SETS[@]}"; do
     tar -C "$(dirname "$s")" "${EXCL[@]}" -cf - "$name" | tar -C gpu_carry/data -xf -
   fi
 done
-HALF=${HALF:-0} FULL_VGG=${FULL_VGG:-0} $PY - <<'EOF'
-import os
-from safetensors.torch import load_file, save_file
-from blender_mrvm.models import vgg
-src = vgg.weights_dir()
-full = load_file(str(src / vgg.VGG_FILE))
-keep = full if os.environ["FULL_VGG"] == "1" else {k: v for k, v in full.items() if int(k.split(".")[0]) < 16}  # conv1_1 .. relu3_3
-if os.environ["HALF"] == "1":
-    keep = {k: v.half() for k, v in keep.items()}
-save_file(keep, "gpu_carry/weights/" + vgg.VGG_FILE)
-save_file(load_file(str(src / vgg.LPIPS_FILE)), "gpu_carry/weights/" + vgg.LPIPS_FILE)
-EOF
+$PY scripts/carry_weights.py gpu_carry/weights $([ "${FULL_VGG:-0}" = 1 ] && echo --full) $([ "${HALF:-0}" = 1 ] && echo --half)
 grep -qx '/gpu_pack/' .git/info/exclude || echo '/gpu_pack/' >> .git/info/exclude
 mkdir -p gpu_pack && tar -C gpu_carry -cf - data weights | gzip -6 > gpu_pack/carry.tgz
 du -sb gpu_carry | awk '{printf "gpu_carry: %.1f MiB\n", $1 / 1048576}'
-du -sb gpu_pack/carry.tgz | awk '{printf "gpu_pack/carry.tgz: %.1f MiB (with the repository and its .git, ~20 MB, a call carries 64 MiB)\n", $1 / 1048576}'
+du -sb gpu_pack/carry.tgz | awk '{printf "gpu_pack/carry.tgz: %.1f MiB (with the tracked tree, ~14 MB, a call carries 64 MiB; .git does not travel)\n", $1 / 1048576}'

@@ -34,14 +34,7 @@ for spec in "${specs[@]}"; do
   tar -C "$set" --exclude=depth --exclude=normal -cf - $list | tar -C "$stage/data/$name" -xf -
 done
 for m in "${models[@]}"; do cp "$m" "$stage/models/"; done
-$PY - "$stage/weights" <<'PYEOF'
-import sys
-from safetensors.torch import load_file, save_file
-from blender_mrvm.models import vgg
-src = vgg.weights_dir()
-save_file({k: v.half() for k, v in load_file(str(src / vgg.VGG_FILE)).items()}, f"{sys.argv[1]}/{vgg.VGG_FILE}")
-save_file(load_file(str(src / vgg.LPIPS_FILE)), f"{sys.argv[1]}/{vgg.LPIPS_FILE}")
-PYEOF
+$PY scripts/carry_weights.py "$stage/weights" --full --half
 grep -qx '/gpu_eval/' .git/info/exclude || echo '/gpu_eval/' >> .git/info/exclude
 mkdir -p gpu_eval && tar -C "$stage" -cf - data weights models | gzip -6 > gpu_eval/eval.tgz
 du -sb gpu_eval/eval.tgz | awk '{printf "gpu_eval/eval.tgz: %.1f MiB (the tracked tree is ~14 MB; a call carries 64 MiB)\n", $1 / 1048576}'

@@ -89,7 +89,8 @@ def test_gpu_carry_keeps_k_objects_a_category_and_the_loader_takes_them(tmp_path
 
     root = tmp_path / "repo"
     (root / "scripts").mkdir(parents=True)
-    shutil.copy(REPO / "scripts" / "gpu_carry.sh", root / "scripts")
+    for s in ("gpu_carry.sh", "carry_weights.py"):
+        shutil.copy(REPO / "scripts" / s, root / "scripts")
     (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
     (root / ".git").mkdir()
     data = tmp_path / "data" / "set"
@@ -203,7 +204,7 @@ def test_score_evaluates_carried_models_on_the_packed_sets(tmp_path):
     included, so the pairing done afterwards compares like with like."""
     root = tmp_path / "repo"
     (root / "scripts").mkdir(parents=True)
-    for s in ("gpu_session.sh", "gpu_eval_pack.sh"):
+    for s in ("gpu_session.sh", "gpu_eval_pack.sh", "carry_weights.py"):
         shutil.copy(REPO / "scripts" / s, root / "scripts")
     (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
     (root / ".git" / "info").mkdir(parents=True)

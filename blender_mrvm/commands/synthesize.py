@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 
 from ..errors import InputError
+from ..models.precision import PRECISIONS
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -58,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", choices=("full", "preview"), default="full",
                    help="full (default: as the model was trained) or preview (half the samples per ray: about 1.6x "
                    "faster for a few tenths of a dB, docs/bench_tradeoff)")
-    p.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default="fp32",
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="fp32 (default), or bf16 / fp16 autocast: on a GPU the quality model renders 1.21x faster in "
                    "bf16 at the same PSNR and LPIPS (RECIPE.md, session 31); fp16 needs a GPU; no faster on the CPU")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
@@ -93,8 +94,9 @@ def run(args) -> int:
     cfg = SynthesisConfig(references=args.references, targets=args.targets or args.out / "targets.json",
                           out=args.out, views=views, checkpoint=args.checkpoint, device=args.device, depth=args.depth,
                           chunk_rays=args.chunk, ref_size=args.ref_size, bbox=bbox, threads=args.threads,
-                          quality=args.quality, precision=args.precision, skip_empty=args.skip_empty, force=args.force, nearest=args.nearest,
-                          adapt=adapt_from_args(args), reproject=args.reproject, compile=args.compile)
+                          quality=args.quality, precision=args.precision, skip_empty=args.skip_empty, force=args.force,
+                          nearest=args.nearest, adapt=adapt_from_args(args), reproject=args.reproject,
+                          compile=args.compile)
     if args.orbit_size:
         V.check_image_side("--orbit-size", args.orbit_size)
     if args.orbit is not None:

@@ -17,11 +17,12 @@ CPU_BF16_NOTE = ("bf16 on the CPU is no faster than fp32 and cost the default mo
                  "it pays on a GPU")
 
 
-def check_precision(option: str, precision: str, device: str) -> None:
-    """One-line :class:`InputError` for a precision that is unknown or, fp16, asked of the CPU."""
+def check_precision(option: str, precision: str, device: str | None = None) -> None:
+    """One-line :class:`InputError` for a precision that is unknown or, fp16, asked of the CPU (``device`` None:
+    the device is not known yet, only the name is checked)."""
     if precision not in PRECISIONS:
         raise InputError(f"{option} must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    if precision == "fp16" and not str(device).startswith("cuda"):
+    if device is not None and precision == "fp16" and not str(device).startswith("cuda"):
         raise InputError(f"{option} fp16 needs a GPU (--device cuda); on the CPU use fp32 or bf16")
 
 

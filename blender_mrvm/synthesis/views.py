@@ -132,10 +132,9 @@ def _validate_config(c: SynthesisConfig) -> None:
     if any(v < 0 for v in c.views):
         raise InputError(f"reference views must be view numbers >= 0, got {list(c.views)}")
     V.check_device_name("synthesis.device", c.device)
-    from ..models.precision import PRECISIONS
+    from ..models.precision import check_precision
 
-    if c.precision not in PRECISIONS:
-        raise InputError(f"precision must be one of {', '.join(PRECISIONS)}, got {c.precision!r}")
+    check_precision("--precision (synthesis.precision)", c.precision)
     if c.ref_size not in (0, -1):
         V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
     V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
@@ -777,7 +776,8 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
-            "quality": cfg.quality, "precision": cfg.precision, "skip_empty": cfg.skip_empty, "nearest": cfg.nearest, "compiled": cfg.compile,
+            "quality": cfg.quality, "precision": cfg.precision, "skip_empty": cfg.skip_empty, "nearest": cfg.nearest,
+            "compiled": cfg.compile,
             "reference_colours": s.reference_colours,
             "adaptation": s.adaptation,
             "references": {"folder": s.references[0], "views": s.references[1], "size": s.reference_size},
