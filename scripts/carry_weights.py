@@ -6,7 +6,10 @@ convolutions, fp16).
 
 --full   all 13 convolutions (the LPIPS loss and score need them: 57 MB, 29 MB with --half); default conv1_1 ..
          relu3_3 (the `accurate` / `paper` encoder)
---half   store them in fp16 (they load into fp32 layers: half the bytes, ~1e-3 relative rounding)"""
+--half   store them in fp16 (they load into fp32 layers: half the bytes, ~1e-3 relative rounding)
+--int8   convolution kernels in int8 with a scale per output channel (a quarter of the bytes: 15 MB with --full);
+         for the LPIPS *loss* of a training call whose data leaves no room for the fp16 file (LPIPS within 1 %,
+         models.vgg.quantize_int8); never for scoring"""
 
 from __future__ import annotations
 
@@ -26,11 +29,14 @@ def main(argv=None) -> int:
     p.add_argument("out", type=Path)
     p.add_argument("--full", action="store_true")
     p.add_argument("--half", action="store_true")
+    p.add_argument("--int8", action="store_true")
     a = p.parse_args(argv)
     src = vgg.weights_dir()
     full = load_file(str(src / vgg.VGG_FILE))
     keep = full if a.full else {k: v for k, v in full.items() if int(k.split(".")[0]) < 16}  # conv1_1 .. relu3_3
-    if a.half:
+    if a.int8:
+        keep = vgg.quantize_int8(keep)
+    elif a.half:
         keep = {k: v.half() for k, v in keep.items()}
     a.out.mkdir(parents=True, exist_ok=True)
     save_file(keep, str(a.out / vgg.VGG_FILE))

@@ -11,7 +11,7 @@
 #                            loader then silently gave every view the first one's; it now refuses)
 #   gpu_carry/weights/       ImageNet VGG16 blocks 1-3 (the `accurate`/`paper` encoder, 6.9 MB) and the LPIPS
 #                            linear heads; the full VGG16 (57 MB, for the LPIPS loss) does not fit beside the data
-# Usage: [SPLITS="train"] [MAX_OBJECTS=N] [PER_CATEGORY=K] [DEPTH=1] [HALF=1] [FULL_VGG=1] scripts/gpu_carry.sh [DATASET ...]
+# Usage: [SPLITS="train"] [MAX_OBJECTS=N] [PER_CATEGORY=K] [DEPTH=1] [HALF=1] [FULL_VGG=1] [INT8=1] scripts/gpu_carry.sh [DATASET ...]
 #   (default data/shapenet13_all); then carry ["gpu_carry"] and run with
 #   MRVM_WEIGHTS_DIR=gpu_carry/weights PYTHONPATH=$PWD python3 -m blender_mrvm ... --data gpu_carry/data/<set>
 #   SPLITS   keep only the objects these splits list (space-separated, e.g. "train" or "train test"); default all
@@ -23,6 +23,8 @@
 #   DEPTH=1  keep depth/ (the depth loss needs it: about 60 kB an object)
 #   HALF=1   store the weights in fp16 (they load into fp32 layers: half the bytes, ~1e-3 relative rounding)
 #   FULL_VGG=1  all 13 VGG16 convolutions (the LPIPS loss needs them: 57 MB, 29 MB with HALF=1)
+#   INT8=1   kernels in int8 with a scale per channel (15 MB with FULL_VGG=1; the LPIPS loss moves under 1 %, session
+#            32): room for both training sets beside the LPIPS loss. Never for scoring (gpu_eval_pack.sh stays fp16)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
@@ -45,7 +47,7 @@ for s in "${SETS[@]}"; do
     tar -C "$(dirname "$s")" "${EXCL[@]}" -cf - "$name" | tar -C gpu_carry/data -xf -
   fi
 done
-$PY scripts/carry_weights.py gpu_carry/weights $([ "${FULL_VGG:-0}" = 1 ] && echo --full) $([ "${HALF:-0}" = 1 ] && echo --half)
+$PY scripts/carry_weights.py gpu_carry/weights $([ "${FULL_VGG:-0}" = 1 ] && echo --full) $([ "${HALF:-0}" = 1 ] && echo --half) $([ "${INT8:-0}" = 1 ] && echo --int8)
 grep -qx '/gpu_pack/' .git/info/exclude || echo '/gpu_pack/' >> .git/info/exclude
 mkdir -p gpu_pack && tar -C gpu_carry -cf - data weights | gzip -6 > gpu_pack/carry.tgz
 du -sb gpu_carry | awk '{printf "gpu_carry: %.1f MiB\n", $1 / 1048576}'

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 import numpy as np
@@ -204,3 +205,43 @@ def test_vgg16_encoder_uses_pretrained_weights():
     ref = vgg.load_vgg16_features(4)
     assert torch.equal(enc.vgg[0].weight, ref[0].weight)
     assert enc(torch.rand(2, 3, 24, 20)).shape == (2, 16, 12, 10)
+
+
+@needs_weights
+def test_int8_carried_vgg_keeps_lpips_and_its_gradient(tmp_path, monkeypatch):
+    """`carry_weights.py --full --int8` (a training call's LPIPS loss beside its data: 15 MB instead of 29) loads
+    back through the same loader: per image LPIPS within 2 % of the fp32 weights' and the loss's input gradient
+    pointing the same way (cosine > 0.97); a truncated file (an int8 kernel without its scale) is refused."""
+    import subprocess
+    import sys
+
+    from safetensors.torch import load_file, save_file
+
+    torch.manual_seed(0)
+    x = torch.nn.functional.avg_pool2d(torch.rand(6, 3, 32, 32), 5, 1, 2)
+    y = (x + 0.1 * torch.randn_like(x)).clamp(0, 1)
+    ref = LPIPS()
+    yy = y.clone().requires_grad_(True)
+    d_ref = ref.distance(yy, x)
+    d_ref.sum().backward()
+    g_ref = yy.grad.clone()
+
+    out = tmp_path / "w"
+    run = subprocess.run([sys.executable, str(Path(__file__).resolve().parents[1] / "scripts" / "carry_weights.py"),
+                          str(out), "--full", "--int8"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    sd = load_file(str(out / vgg.VGG_FILE))
+    assert sd["28.weight"].dtype == torch.int8 and (out / vgg.VGG_FILE).stat().st_size < 16e6
+    monkeypatch.setenv("MRVM_WEIGHTS_DIR", str(out))
+    q = LPIPS()
+    yy = y.clone().requires_grad_(True)
+    d_q = q.distance(yy, x)
+    d_q.sum().backward()
+    assert ((d_q - d_ref).abs() / d_ref).max() < 0.02
+    assert torch.nn.functional.cosine_similarity(yy.grad.flatten(), g_ref.flatten(), dim=0) > 0.97
+    assert not torch.equal(d_q, d_ref)  # the int8 file was the one loaded
+
+    del sd["28.weight" + vgg.INT8_SCALE]
+    save_file(sd, str(out / vgg.VGG_FILE))
+    with pytest.raises(InputError, match="no 28.weight.scale"):
+        LPIPS()
