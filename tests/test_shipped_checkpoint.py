@@ -279,12 +279,14 @@ def test_half_copy_gives_the_same_bytes_in_every_process(tmp_path):
 
 def test_shipped_quality_model_is_the_gpu_trained_paper_arch_and_beats_the_anyview_model(tmp_path):
     """'shipped:mrvm_quality' (the panel's "NeRFormer + MRVM, quality"): the `accurate` preset (the paper's
-    per-view token streams, ImageNet VGG16 encoder), at most 25 MB, trained in ten recorded stages (MRVM
+    per-view token streams, ImageNet VGG16 encoder), at most 25 MB, trained in twelve recorded stages (MRVM
     pretraining and a restarted finetuning run on a GPU, two runs of the LPIPS patch loss on the CPU, two GPU
     slices on both rigs (session 24), a third LPIPS run, one more GPU slice (session 26), a fourth LPIPS run, a
-    fifth with the depth loss (session 27), each from the file before), the bytes its sidecar names, and it does what it is for: two references from a sphere rig of the analytic scene,
-    where it renders the view 2.5 dB above the nearer reference and above the any-view model (17.1 / 14.3 / 14.6 dB
-    since session 27; 17.3 / 14.3 / 14.6 in session 26; 16.7 / 14.3 / 14.6 in session 24; 16.8 / 14.3 / 15.9 when first shipped)."""
+    fifth with the depth loss (session 27), a GPU slice (session 31) and a GPU slice with the LPIPS loss inside it
+    (session 32), each from the file before), the bytes its sidecar names, and it does what it is for: two
+    references from a sphere rig of the analytic scene, where it renders the view 2.5 dB above the nearer reference
+    and above the any-view model (18.8 / 14.3 / 14.6 dB since session 32; 17.1 / 14.3 / 14.6 in session 27; 17.3 /
+    14.3 / 14.6 in session 26; 16.7 / 14.3 / 14.6 in session 24; 16.8 / 14.3 / 15.9 when first shipped)."""
     import hashlib
 
     from blender_mrvm.models.pretrained import resolve_checkpoint
@@ -292,17 +294,25 @@ def test_shipped_quality_model_is_the_gpu_trained_paper_arch_and_beats_the_anyvi
     model, cfg, side, (s1, s2, *_) = _named_model("mrvm_quality", "quality")
     assert cfg.nerformer.arch == "nerformer" and cfg.encoder.backbone == "vgg16" and cfg.name == "accurate"
     assert s1["device"] == s2["device"] == "cuda" and s1["pretrain_frac"] == 1.0 and s2["pretrain_frac"] == 0.0
-    s3, s4, s5, s6, s7, s8, s9 = (json.loads((ASSET_DIR / f"mrvm_shapenet13_quality_stage{i}.json").read_text())["train"]
-                                  for i in range(3, 10))
-    assert s3["device"] == s4["device"] == s7["device"] == s9["device"] == side["train"]["device"] == "cpu"
-    assert s3["lpips_weight"] > 0 and s7["lpips_weight"] > 0 and s9["lpips_weight"] > 0
-    assert side["train"]["depth_weight"] > 0 and s9["depth_weight"] == 0  # stage 10 adds the depth loss
-    # each stage starts from the file before it: stage 10 names the shipped path, so its sidecar names its bytes
-    s9_side = json.loads((ASSET_DIR / "mrvm_shapenet13_quality_stage9.json").read_text())
-    assert side["init_sha256"] == s9_side["sha256_fp16"] != side["sha256"]
-    assert s5["device"] == s6["device"] == s8["device"] == "cuda" and s5["amp"] == s8["amp"] == "bf16"
-    assert s5["lpips_weight"] == s8["lpips_weight"] == 0
-    assert all(any(d.endswith("sphere64_train") for d in t["data"]) for t in (s4, s5, s6, s7, s8, s9, side["train"]))
+    s3, s4, s5, s6, s7, s8, s9, s10, s11 = (
+        json.loads((ASSET_DIR / f"mrvm_shapenet13_quality_stage{i}.json").read_text())["train"] for i in range(3, 12))
+    assert s3["device"] == s4["device"] == s7["device"] == s9["device"] == s10["device"] == "cpu"
+    assert s3["lpips_weight"] > 0 and s7["lpips_weight"] > 0 and s9["lpips_weight"] > 0 and s10["lpips_weight"] > 0
+    assert s10["depth_weight"] > 0 and s9["depth_weight"] == 0  # stage 10 added the depth loss
+    # stage 12: the LPIPS loss inside a GPU slice (large patches, many objects a step) instead of a CPU stage after it
+    t = side["train"]
+    assert t["device"] == "cuda" and t["amp"] == "bf16" and t["lpips_weight"] > 0 and t["patch_size"] >= 32
+    assert t["objects_per_step"] >= 16
+    # each stage starts from the file before it, by its bytes
+    sides = {i: json.loads((ASSET_DIR / f"mrvm_shapenet13_quality_stage{i}.json").read_text()) for i in (9, 10, 11)}
+    assert sides[10]["sha256_fp16"] != sides[9]["sha256_fp16"]
+    assert s11["init_checkpoint"].endswith("mrvm_shapenet13_quality.safetensors")  # stage 10's file, then shipped
+    assert side["init_sha256"] == sides[11]["sha256_fp16"] != side["sha256"]
+    assert s5["device"] == s6["device"] == s8["device"] == s11["device"] == "cuda"
+    assert s5["amp"] == s8["amp"] == s11["amp"] == "bf16"
+    assert s5["lpips_weight"] == s8["lpips_weight"] == s11["lpips_weight"] == 0
+    assert all(any(d.endswith("sphere64_train") for d in t["data"])
+               for t in (s4, s5, s6, s7, s8, s9, s10, s11, side["train"]))
     shipped = ASSET_DIR / "mrvm_shapenet13_quality.safetensors"
     assert hashlib.sha256(shipped.read_bytes()).hexdigest() == side["sha256"]
     assert s2["init_checkpoint"] and side["train"]["init_checkpoint"] and side["train"]["lpips_weight"] > 0

@@ -26,8 +26,9 @@ white; ``mrvm_anyview``, the default NeRFormer+MRVM model fine-tuned on turntabl
 (directions anywhere, field of view 30-60 degrees, varied distance) for cameras off the turntable;
 ``mrvm_quality``, the `accurate` preset (the paper's NeRFormer arch, ImageNet VGG16 encoder, 32 + 16 samples)
 pretrained with MRVM and fine-tuned on a GPU on turntable and sphere-rig renders, then fine-tuned with the LPIPS
-patch loss on the CPU (after session 18's, 24's and 26's GPU slices; session 27's also with the depth loss): the
-best model for cameras anywhere, about ten times slower than the others on a CPU."""
+patch loss on the CPU (after session 18's, 24's and 26's GPU slices; session 27's also with the depth loss), and
+since session 32 with the LPIPS loss inside a GPU slice: the best model for cameras anywhere, about ten times
+slower than the others on a CPU."""
 SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 """Stem of the shipped Sem2NeRF checkpoint (not a novel-view kind of the registry: ``shipped:sem2nerf``)."""
 
@@ -48,8 +49,8 @@ FIGURES = {
                     "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 3.1 dB below the default "
                     "(19.8 against 22.9 dB on held-out turntable objects); "
                     "~1.0 s per 128 px view on 2 CPU cores",
-    "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 20.1 dB / LPIPS 0.235 (any-view model "
-                    "18.6 / 0.252, nearest view 15.2 / 0.259); on the turntable 21.3 / 0.217 (default 22.9 / 0.164); "
+    "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 20.4 dB / LPIPS 0.218 (any-view model "
+                    "18.6 / 0.252, nearest view 15.2 / 0.259); on the turntable 21.6 / 0.189 (default 22.9 / 0.164); "
                     "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); on an H100 6 FPS "
                     "at 128 px, 1.9 at 256 px through synthesize",
 }
