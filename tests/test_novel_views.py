@@ -521,18 +521,25 @@ def test_operator_writes_the_job_for_the_worker(ready, tmp_path):
     assert args == ["--references", str(tmp_path / "job" / "references"), "--views", "0", "1",
                     "--targets", str(tmp_path / "job" / "targets.json"), "--checkpoint", p.checkpoint,
                     "--device", "auto", "--ref-size", "0", "--quality", "full", "--adapt-steps", "0",
-                    "--nearest", "0", "--reproject", "auto", "--out", str(tmp_path / "job" / "out")]
+                    "--nearest", "0", "--reproject", "auto", "--precision", "auto",
+                    "--out", str(tmp_path / "job" / "out")]
     p.quality = "PREVIEW"  # the panel's Quality reaches the worker
-    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-9]
+    assert "preview" == S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_q")[-11]
     p.quality = "FULL"
     p.adapt_steps = 40  # and its Adapt steps
-    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_a")[-7] == "40"
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_a")[-9] == "40"
     p.nearest = 3  # and its references per view
-    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_n")[-5] == "3"
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_n")[-7] == "3"
     p.nearest = 0
     p.photo_colours = "OFF"  # and its Photo colours
-    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_p")[-3] == "off"
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_p")[-5] == "off"
     p.photo_colours = "AUTO"
+    p.precision = "BF16"  # and its Precision, with the command's own choices (models.precision.SYNTH_PRECISIONS)
+    assert S.write_job(bpy.context, S.plan_from_props(bpy.context), tmp_path / "job_b")[-3] == "bf16"
+    p.precision = "AUTO"
+    from blender_mrvm.models.precision import SYNTH_PRECISIONS
+
+    assert [i.identifier.lower() for i in p.bl_rna.properties["precision"].enum_items] == list(SYNTH_PRECISIONS)
     p.reference_source, p.reference_views = "DATASET", "all"  # every view of the folder: --views all
     job = S.plan_from_props(bpy.context)
     assert job.views == () and S.write_job(bpy.context, job, tmp_path / "job_all")[2:4] == ["--views", "all"]

@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 
 from ..errors import InputError
-from ..models.precision import PRECISIONS
+from ..models.precision import SYNTH_PRECISIONS
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,9 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", choices=("full", "preview"), default="full",
                    help="full (default: as the model was trained) or preview (half the samples per ray: about 1.6x "
                    "faster for a few tenths of a dB, docs/bench_tradeoff)")
-    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
-                   help="fp32 (default), or bf16 / fp16 autocast: on a GPU the quality model renders 1.21x faster in "
-                   "bf16 at the same PSNR and LPIPS (RECIPE.md, session 31); fp16 needs a GPU; no faster on the CPU")
+    p.add_argument("--precision", choices=SYNTH_PRECISIONS, default="auto",
+                   help="auto (default: bf16 on a GPU, where every shipped model scores the same and renders "
+                   "1.04-1.21x faster, fp32 on the CPU), fp32, bf16 or fp16 (a GPU only); synthesis.json records "
+                   "the one used (models/precision.py)")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
                    help="empty-space skipping inside the object's box when the references have masks: cull "
                    "(default; rays missing the references' visual hull are background, same images to < 1/255), "

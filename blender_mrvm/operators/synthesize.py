@@ -65,6 +65,8 @@ class SynthesisJob:
     """The synthesize command's --nearest: references per view, its nearest (0 = all, up to the model's most)."""
     reproject: str = "auto"
     """The synthesize command's --reproject: the references' own colours over the views (auto, on, off)."""
+    precision: str = "auto"
+    """The synthesize command's --precision: auto (bf16 on a GPU, fp32 on the CPU), fp32, bf16 or fp16."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:
@@ -156,7 +158,7 @@ def plan_from_props(context) -> SynthesisJob:
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
                         p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps), int(p.nearest),
-                        p.photo_colours.lower())
+                        p.photo_colours.lower(), p.precision.lower())
 
 
 def prepare(context, job: SynthesisJob):
@@ -187,7 +189,7 @@ def write_job(context, job: SynthesisJob, job_dir: Path) -> list[str]:
             "--targets", str(job_dir / "targets.json"),
             "--checkpoint", str(job.checkpoint), "--device", job.device, "--ref-size", str(job.ref_size),
             "--quality", job.quality, "--adapt-steps", str(job.adapt_steps), "--nearest", str(job.nearest),
-            "--reproject", job.reproject, "--out", str(job_dir / "out")]
+            "--reproject", job.reproject, "--precision", job.precision, "--out", str(job_dir / "out")]
 
 
 @dataclass

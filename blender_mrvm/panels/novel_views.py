@@ -136,6 +136,7 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
                     col.label(text="Not in this copy: choose a checkpoint or the other model", icon="ERROR")
         col.prop(p, "device")
         col.prop(p, "quality")
+        col.prop(p, "precision")
         col.prop(p, "reference_sizing")
         if p.reference_sizing == "CUSTOM":
             col.prop(p, "reference_size")

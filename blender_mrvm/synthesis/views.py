@@ -33,7 +33,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -82,10 +82,11 @@ class SynthesisConfig:
     quality: str = "full"
     """Speed/quality level (``registry.quality_overrides``): ``full`` renders as the model was trained,
     ``preview`` with half the samples per ray (~1.6x faster, a few tenths of a dB less)."""
-    precision: str = "fp32"
-    """fp32, or ``bf16`` / ``fp16`` autocast for the model's forward passes (``models/precision.py``): on an H100
-    `quality` renders 1.21x faster in bf16 at the same PSNR and LPIPS; fp16 needs a GPU; on the CPU bf16 is no
-    faster (a note says so)."""
+    precision: str = "auto"
+    """``auto`` (bf16 on a GPU, fp32 on the CPU), fp32, or ``bf16`` / ``fp16`` autocast for the model's forward
+    passes (``models/precision.py``): on an H100 every shipped model scores the same in bf16 and `quality` renders
+    1.21x faster; fp16 needs a GPU; on the CPU bf16 is no faster (a note says so). synthesis.json records the
+    precision it ran at."""
     skip_empty: str = "cull"
     """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
     masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
@@ -134,7 +135,7 @@ def _validate_config(c: SynthesisConfig) -> None:
     V.check_device_name("synthesis.device", c.device)
     from ..models.precision import check_precision
 
-    check_precision("--precision (synthesis.precision)", c.precision)
+    check_precision("--precision (synthesis.precision)", c.precision, auto=True)
     if c.ref_size not in (0, -1):
         V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
     V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
@@ -575,9 +576,10 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                          f"the {max_size} px this model was trained on; pass --ref-size {max_size} to upsample them "
                          "or --ref-size -1 to use them as they are")
     device = resolve_device(cfg.device)
-    from ..models.precision import CPU_BF16_NOTE, autocast, check_precision
+    from ..models.precision import CPU_BF16_NOTE, autocast, check_precision, resolve_precision
 
-    check_precision("--precision", cfg.precision, device.type)
+    check_precision("--precision", cfg.precision, device.type, auto=True)
+    cfg = replace(cfg, precision=resolve_precision(cfg.precision, device.type))
     if cfg.precision == "bf16" and device.type == "cpu":
         print(f"note: {CPU_BF16_NOTE}", file=sys.stderr)
     cams = ([*refs.c2w, *[t.c2w_opencv for t in targets]], [*refs.intrinsics, *[t.intrinsics for t in targets]],
