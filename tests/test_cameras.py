@@ -132,3 +132,20 @@ def test_scaled_intrinsics_keep_pixel_centre_convention():
     k = C.Intrinsics(100, 100, 64, 48, 128, 96)
     k2 = k.scaled(0.5)
     assert (k2.cx, k2.cy, k2.width, k2.height) == (32, 24, 64, 48)
+
+
+def test_inverse_3x3_is_the_inverse_without_lapack():
+    """``cameras.inverse_3x3`` (the pose inverse's 3x3 part by its adjugate; ``np.linalg.inv`` cost ~1.5 ms a call
+    on a busy machine): the same as LAPACK's inverse for rotations, similarities and general matrices, the pose
+    inverse undoes the pose, and a singular matrix is refused by name."""
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        q, _r = np.linalg.qr(rng.normal(size=(3, 3)))
+        for a in (q, q * rng.uniform(1e-3, 1e3), rng.normal(size=(3, 3))):
+            inv = np.linalg.inv(a)
+            np.testing.assert_allclose(C.inverse_3x3(a), inv, rtol=1e-8, atol=1e-10 * np.abs(inv).max())
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = q * 2.5, rng.normal(size=3)
+    np.testing.assert_allclose(C.invert_pose(pose) @ pose, np.eye(4), atol=1e-12)
+    with pytest.raises(C.CameraConventionError, match="singular"):
+        C.inverse_3x3(np.array([[1.0, 2, 3], [2, 4, 6], [0, 0, 1]]))
