@@ -20,7 +20,9 @@
 #   PER_CATEGORY  with SPLITS: only the first K objects of each category (the lists run category by category, so
 #            MAX_OBJECTS alone would keep the first categories): both training sets fit one call this way
 #            (SPLITS=train PER_CATEGORY=12 HALF=1 for data/shapenet13_all and data/sphere64_train)
-#   DEPTH=1  keep depth/ (the depth loss needs it: about 60 kB an object)
+#   DEPTH=1  keep depth/ (the depth loss needs it: about 60 kB an object), and the OpenEXR wheel for the device's
+#            Python 3.12 in gpu_carry/whl/ (1.7 MB; the device has no OpenEXR, session 32's depth run failed at its
+#            first step): `pip download` from the package registry here, at set-up time; gpu_session.sh installs it
 #   HALF=1   store the weights in fp16 (they load into fp32 layers: half the bytes, ~1e-3 relative rounding)
 #   FULL_VGG=1  all 13 VGG16 convolutions (the LPIPS loss needs them: 57 MB, 29 MB with HALF=1)
 #   INT8=1   kernels in int8 with a scale per channel (15 MB with FULL_VGG=1; the LPIPS loss moves under 1 %, session
@@ -49,6 +51,14 @@ for s in "${SETS[@]}"; do
 done
 $PY scripts/carry_weights.py gpu_carry/weights $([ "${FULL_VGG:-0}" = 1 ] && echo --full) $([ "${HALF:-0}" = 1 ] && echo --half) $([ "${INT8:-0}" = 1 ] && echo --int8)
 grep -qx '/gpu_pack/' .git/info/exclude || echo '/gpu_pack/' >> .git/info/exclude
-mkdir -p gpu_pack && tar -C gpu_carry -cf - data weights | gzip -6 > gpu_pack/carry.tgz
+parts=(data weights)
+if [ "${DEPTH:-0}" = 1 ]; then
+  exr=$($PY -c "import OpenEXR; print(OpenEXR.__version__)")
+  $PY -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 -d gpu_carry/whl "OpenEXR==$exr" \
+    || { echo "error: could not fetch the OpenEXR $exr wheel for the device (a depth loss there needs it)" >&2; exit 2; }
+  parts+=(whl)
+fi
+mkdir -p gpu_pack && tar -C gpu_carry -cf - "${parts[@]}" | gzip -6 > gpu_pack/carry.tgz
 du -sb gpu_carry | awk '{printf "gpu_carry: %.1f MiB\n", $1 / 1048576}'
 du -sb gpu_pack/carry.tgz | awk '{printf "gpu_pack/carry.tgz: %.1f MiB (with the tracked tree, ~14 MB, a call carries 64 MiB; .git does not travel)\n", $1 / 1048576}'

@@ -29,9 +29,14 @@ export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weigh
 OUT=${OUT:-gpu_out}
 mkdir -p "$OUT"
 if [ ! -d gpu_carry ] && [ -f gpu_pack/carry.tgz ]; then mkdir -p gpu_carry && tar -xzf gpu_pack/carry.tgz -C gpu_carry; fi
+PY=${PY:-python3}
+# wheels the device lacks (gpu_carry.sh DEPTH=1: OpenEXR, for the depth maps the depth loss reads)
+if ls gpu_carry/whl/*.whl > /dev/null 2>&1; then
+  $PY -m pip install -q --no-index --no-deps --no-compile --target /tmp/site gpu_carry/whl/*.whl \
+    && export PYTHONPATH=$PYTHONPATH:/tmp/site || echo "gpu_session: could not install gpu_carry/whl/*.whl" >&2
+fi
 # TF32 matrix products for fp32 runs (the training calls of session 18 ran with it; the benches without)
 export TORCH_ALLOW_TF32_CUBLAS_OVERRIDE=${TORCH_ALLOW_TF32_CUBLAS_OVERRIDE:-1}
-PY=${PY:-python3}
 
 wait_logging_gpu() {  # wait for these processes while nvidia-smi logs utilisation and memory every 15 s
   nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader -l 15 > "$OUT/gpu_util.log" 2>&1 &
