@@ -14,6 +14,7 @@ from blender_mrvm import threads
 from blender_mrvm.bench import PeakMemory
 from blender_mrvm.bench import profile as prof
 from blender_mrvm.bench import tradeoff as tr
+from blender_mrvm.errors import InputError
 from blender_mrvm.models import registry
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,6 +52,16 @@ def test_front_names_the_model_of_each_point(tmp_path):
     assert "| fast (fast) | as trained | 0.800 |" in text and "| balanced (balanced) | as trained | 2.000 |" in text
     assert tr.point_name(rows[0], rows) == "fast (fast): as trained"
     assert tr.point_name(rows[0], rows[:1]) == "as trained"
+
+
+def test_axes_always_measure_the_model_as_trained():
+    """`bench tradeoff --axes precision` also measures the base point (fp32, as trained), so a sweep of one knob
+    comes back with what to read it against; unknown knobs are a one-line error."""
+    assert tr.parse_axes("precision") == ["base", "precision"]
+    assert tr.parse_axes("samples, base,gate") == ["base", "samples", "gate"]
+    assert tr.parse_axes(",".join(tr.AXES)) == list(tr.AXES)
+    with pytest.raises(InputError, match="unknown knob"):
+        tr.parse_axes("precision,fp8")
 
 
 def test_sweep_moves_one_knob_at_a_time():
@@ -131,6 +142,7 @@ from pathlib import Path
 
 import numpy as np
 from blender_mrvm import threads
+from blender_mrvm.errors import InputError
 policy = threads.apply_malloc_defaults()
 def chunk():  # a chunk's forward pass: several blocks of a few MiB alive at once, then all freed
     live = [np.ones(n << 18, np.float32) for n in (8, 4, 8, 2, 8, 4)]

@@ -66,7 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoints", default="shipped:nerformer_mrvm,shipped:gpnr,shipped:sem2nerf",
                    help="comma-separated checkpoints (files, run folders or shipped:<kind>, shipped:sem2nerf); "
                         "each is swept")
-    p.add_argument("--axes", default=",".join(AXES), help=f"comma-separated knobs to sweep ({', '.join(AXES)})")
+    p.add_argument("--axes", default=",".join(AXES), help=f"comma-separated knobs to sweep ({', '.join(AXES)}); "
+                   "the model as trained (base) is always measured too: each point is read against it")
     p.add_argument("--objects", type=int, default=13, help="held-out objects scored (one per category first)")
     p.add_argument("--targets", type=int, default=3, help="target views scored per object")
     p.add_argument("--size", type=int, default=128, help="timed view's side in pixels (default 128)")
@@ -95,6 +96,18 @@ class Point:
     chunk: int = 0
     quality: bool = True
     """False: numbers are the base point's by construction (chunking), only speed is measured."""
+
+
+def parse_axes(text: str) -> list[str]:
+    """``--axes``: the knobs named, with ``base`` always first (session 32's `--axes precision` on a GPU came back
+    without an fp32 point to read bf16 against, and the device time to rerun it was gone)."""
+    from ..errors import InputError
+
+    axes = [a.strip() for a in text.split(",") if a.strip()]
+    bad = [a for a in axes if a not in AXES]
+    if bad:
+        raise InputError(f"--axes: unknown knob(s) {bad}; choose from {', '.join(AXES)}")
+    return ["base", *[a for a in axes if a != "base"]]
 
 
 def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
@@ -320,10 +333,7 @@ def run(args) -> int:
     from ..models.pretrained import resolve_checkpoint
 
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
-    axes = [a.strip() for a in args.axes.split(",") if a.strip()]
-    bad = [a for a in axes if a not in AXES]
-    if bad:
-        raise InputError(f"--axes: unknown knob(s) {bad}; choose from {', '.join(AXES)}")
+    axes = parse_axes(args.axes)
     lpips = None
     if not args.no_lpips:
         from ..models.metrics import LPIPS
