@@ -12,6 +12,7 @@ import sys
 import tarfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from blender_mrvm.training.synthetic import make_sphere_dataset
@@ -245,3 +246,35 @@ def test_score_evaluates_carried_models_on_the_packed_sets(tmp_path):
     assert table.returncode == 0, table.stderr
     row = next(line for line in table.stdout.splitlines() if "| mrvm_shapenet13_all |" in line)
     assert "| set_test | mrvm_shapenet13_all | 8 |" in row and "+0.000 (0.000), 0 of 4" in row, table.stdout
+
+
+def test_score_table_pools_sets_into_one_paired_row(tmp_path):
+    """`score_table.py --pool NAME=A,B` reads two sets as one (a rule's "both halves pooled"): the paired
+    difference is the mean over all their objects with the SE over all of them, objects of one name in two sets
+    stay two objects; an unknown set in a pool is a one-line error."""
+    import io
+
+    def ev(objs, psnr):  # one eval.json: objects x 2 views, PSNR by object
+        views = [{"category": "c", "object": o, "view": v, "psnr": psnr[o] + v * 0.1, "ssim": 0.5, "lpips": 0.2}
+                 for o in objs for v in range(2)]
+        return {"views": views, "overall": {"n": len(views), "psnr": float(np.mean([x["psnr"] for x in views])),
+                                            "ssim": 0.5, "lpips": 0.2}}
+
+    base_a, base_b = ev(["o1", "o2"], {"o1": 20, "o2": 21}), ev(["o1", "o3"], {"o1": 18, "o3": 19})
+    cand_a, cand_b = ev(["o1", "o2"], {"o1": 21, "o2": 21}), ev(["o1", "o3"], {"o1": 18, "o3": 22})
+    tgz = tmp_path / "score.tgz"
+    with tarfile.open(tgz, "w:gz") as t:
+        for name, rep in (("base__a", base_a), ("base__b", base_b), ("cand__a", cand_a), ("cand__b", cand_b)):
+            data = json.dumps(rep).encode()
+            info = tarfile.TarInfo(f"./{name}/eval.json")
+            info.size = len(data)
+            t.addfile(info, io.BytesIO(data))
+    run = lambda *a: subprocess.run([sys.executable, str(REPO / "scripts" / "score_table.py"), str(tgz), *a],  # noqa: E731
+                                    capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO)})
+    r = run("base", "cand", "--pool", "ab=a,b")
+    assert r.returncode == 0, r.stderr
+    row = next(line for line in r.stdout.splitlines() if line.startswith("| ab | cand |"))
+    d = np.array([1.0, 0.0, 0.0, 3.0])  # o1 in a, o2, o1 in b, o3: four objects
+    assert "| 8 |" in row and f"{d.mean():+.3f} ({d.std(ddof=1) / 2:.3f}), 2 of 4" in row, row
+    bad = run("base", "--pool", "ab=a,zz")
+    assert bad.returncode == 2 and "no set 'zz'" in bad.stderr
