@@ -56,8 +56,8 @@ def as_pose(m) -> np.ndarray:
 
 
 def inverse_3x3(r: np.ndarray) -> np.ndarray:
-    """Inverse of a 3x3 matrix by its adjugate (no LAPACK call: ``np.linalg.inv`` took ~1.5 ms a call, 100x this,
-    while other processes kept the cores busy, a fifth of a GPU training step's host time for 32 objects;
+    """Inverse of a 3x3 matrix by its adjugate (no LAPACK call: ``np.linalg.inv`` took ~1.5 ms a call while other
+    processes kept the cores busy, most of the 130 ms of drawing a 32-object training step, 31 ms with this;
     session 32). A singular matrix raises :class:`CameraConventionError`."""
     a = np.asarray(r, np.float64)
     adj = np.cross(a[[1, 2, 0]], a[[2, 0, 1]]).T  # columns: cross products of row pairs = adjugate

@@ -54,7 +54,7 @@ def quantize_int8(sd: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
 
     Only for carrying the LPIPS *loss* to a device call that cannot fit the fp16 file beside its training data
     (``scripts/carry_weights.py --int8``: 15 MB instead of 29): LPIPS moves by under 1 % and its input gradient
-    keeps a cosine of 0.99 with the fp32 one (tests/test_vgg_int8.py). Never for scoring."""
+    keeps a cosine of 0.99 with the fp32 one (tests/test_metrics.py). Never for scoring."""
     out: dict[str, torch.Tensor] = {}
     for k, v in sd.items():
         if v.dim() == 4:
