@@ -381,3 +381,26 @@ def test_mrvm_budgets_table_pairs_the_arms_and_names_a_gpu_budget_batch(tmp_path
     # RAYS=1024 runs of scripts/mrvm_budgets.sh: their own rows (the checkpoint is gone, so the name gives the rays)
     assert rows[1].startswith("| all, 1024 rays per object a step | 2 | 1000 + 333 = 1333 | 1 | 4 |") and "| +1.000" in rows[1]
     assert rows[2].startswith("| all, GPU 16 x 4096 rays a step | 0 | 240 + 80 = 320 | 2 | 4 |") and "| +0.750 [" in rows[2]
+
+
+def test_bench_train_sweeps_object_batches(tmp_path):
+    """`bench train --object-batches 1,8`: a row each; 8 objects a step rendered in shared forward passes (grouped by
+    reference count) call far fewer operators per step than one pass per object, the lever for a GPU that waits on
+    launches; a bad list is one error before any work."""
+    import csv
+
+    from blender_mrvm.bench import train as bt
+    from blender_mrvm.cli import main
+
+    assert bt.parse_object_batches("1, 8") == [1, 8]
+    for bad in ("0", "a", "", "2,-1"):
+        with pytest.raises(Exception, match="--object-batches"):
+            bt.parse_object_batches(bad)
+    out = tmp_path / "b"
+    assert main(["bench", "train", "--presets", "fast", "--batches", "8x32", "--object-batches", "1,8", "--steps", "1",
+                 "--warmup", "1", "--profile", "1", "--resolution", "16", "--out", str(out)]) == 0
+    one, many = list(csv.DictReader(open(out / "bench_train.csv")))
+    assert (one["object_batch"], many["object_batch"]) == ("1", "8")
+    assert float(many["aten_ops_per_step"]) < 0.6 * float(one["aten_ops_per_step"])
+    assert main(["bench", "train", "--presets", "fast", "--object-batches", "0", "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "c").exists()

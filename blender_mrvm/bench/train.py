@@ -51,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batches", default="2x256,2x1024,8x256",
                    help="comma-separated OBJECTSxRAYS: objects per step x target rays per object")
     p.add_argument("--precisions", default="fp32", help="comma-separated fp32, bf16, fp16 (fp16 on a GPU only)")
+    p.add_argument("--object-batches", default="1",
+                   help="comma-separated train.object_batch values: objects rendered in one forward pass (1 = one "
+                   "at a time; model kinds that cannot batch objects train one at a time whatever this says)")
     p.add_argument("--device", default="cpu", help="cpu or cuda[:N]")
     p.add_argument("--steps", type=int, default=20, help="timed steps per configuration")
     p.add_argument("--warmup", type=int, default=3, help="untimed steps first (allocator, autotuning; at least 1)")
@@ -199,15 +202,26 @@ def patch_side(rays: int) -> int:
     return side
 
 
+def parse_object_batches(text: str) -> list[int]:
+    """``"1,8"`` -> [1, 8]; InputError for anything but positive integers."""
+    from ..errors import InputError
+
+    parts = [s.strip() for s in str(text).split(",") if s.strip()]
+    if not parts or not all(p.isdigit() and int(p) >= 1 for p in parts):
+        raise InputError(f"--object-batches: {text!r} is not a comma-separated list of integers >= 1")
+    return [int(p) for p in parts]
+
+
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
-            threads: int, run_dir: Path, profile: int = 0, compile: bool = False, lpips_weight: float = 0.0) -> dict:
+            threads: int, run_dir: Path, profile: int = 0, compile: bool = False, lpips_weight: float = 0.0,
+            object_batch: int = 1) -> dict:
     """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir`` at the bench's
     batch shape and precision (:func:`measure_config`)."""
     from ..training.config import TrainConfig
 
     tcfg = TrainConfig(objects_per_step=objects, rays_per_object=rays, amp=PRECISIONS[precision], device=device,
                        threads=threads, seed=0, compile=compile, lpips_weight=lpips_weight,
-                       patch_size=patch_side(rays) if lpips_weight > 0 else 16)
+                       patch_size=patch_side(rays) if lpips_weight > 0 else 16, object_batch=object_batch)
     return measure_config(model_cfg, tcfg, scenes, steps, warmup, run_dir, profile)
 
 
@@ -304,6 +318,7 @@ def run(args) -> int:
         for _, rays in batches:
             patch_side(rays)
     precisions = parse_precisions(args.precisions, device)
+    object_batches = parse_object_batches(args.object_batches)
     presets = []
     for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
         kind, _, name = preset.rpartition(":")
@@ -325,40 +340,43 @@ def run(args) -> int:
         scenes = load_dataset(data, "train")
         gpu = torch.cuda.get_device_name(torch.device(device)) if device.startswith("cuda") else ""
         for name, cfg in presets:
-            params = sum(p.numel() for p in registry.build_model(cfg).parameters())
-            for objects, rays in batches:
-                for prec in precisions:
-                    try:
-                        r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
-                                    tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}", args.profile,
-                                    args.compile, args.lpips_weight)
-                    except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
-                        torch.cuda.empty_cache()
-                        print(f"{name:9s} {objects}x{rays} {prec} {device}: out of memory, skipped", flush=True)
-                        continue
-                    sps = args.steps / r["seconds"]
-                    rows.append({
-                        "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
-                        "precision": prec, "compiled": bool(args.compile), "objects_per_step": objects, "rays_per_object": rays,
-                        "rays_per_step": objects * rays, "lpips_weight": args.lpips_weight, "steps": args.steps, "seconds": round(r["seconds"], 3),
-                        "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
-                        "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),
-                        "draw_share": round(r["draw_share"], 3),
-                        "peak_extra_mib": round(r["peak_extra_mib"], 1),
-                        "gpu_util_pct": "" if r["gpu_util_pct"] is None else round(r["gpu_util_pct"], 1),
-                        **{k: r.get(k, "") for k in PROFILE_COLUMNS if args.profile},
-                        "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
-                        "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__})
-                    if args.profile:
-                        out.mkdir(parents=True, exist_ok=True)
-                        with open(out / "bench_train_profile.txt", "w" if len(rows) == 1 else "a") as f:
-                            f.write(f"== {name} {objects}x{rays} {prec} {device}: {args.profile} step(s) profiled; per "
-                                    f"step: " + ", ".join(f"{k} {r.get(k, '')}" for k in PROFILE_COLUMNS) + "\n"
-                                    + r.get("profile_table", "") + "\n")
-                    util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
-                    print(f"{name:9s} {objects}x{rays} {prec} {device}: {sps:.2f} steps/s, "
-                          f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
-                    write_csv(out / "bench_train.csv", rows, quiet=True)  # a run cut short keeps its rows
+            probe = registry.build_model(cfg)
+            params, batches_objects = sum(p.numel() for p in probe.parameters()), probe.supports_object_batch
+            for (objects, rays), prec, ob in [(b, p, o) for b in batches for p in precisions for o in object_batches]:
+                tag = f"{objects}x{rays} {prec}" + (f" batch {ob}" if len(object_batches) > 1 or ob > 1 else "")
+                try:
+                    r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
+                                tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}_b{ob}", args.profile,
+                                args.compile, args.lpips_weight, ob)
+                except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
+                    torch.cuda.empty_cache()
+                    print(f"{name:9s} {tag} {device}: out of memory, skipped", flush=True)
+                    continue
+                sps = args.steps / r["seconds"]
+                rows.append({
+                    "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
+                    "precision": prec, "compiled": bool(args.compile), "objects_per_step": objects,
+                    "object_batch": ob if batches_objects else 1,
+                    "rays_per_object": rays,
+                    "rays_per_step": objects * rays, "lpips_weight": args.lpips_weight, "steps": args.steps, "seconds": round(r["seconds"], 3),
+                    "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
+                    "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),
+                    "draw_share": round(r["draw_share"], 3),
+                    "peak_extra_mib": round(r["peak_extra_mib"], 1),
+                    "gpu_util_pct": "" if r["gpu_util_pct"] is None else round(r["gpu_util_pct"], 1),
+                    **{k: r.get(k, "") for k in PROFILE_COLUMNS if args.profile},
+                    "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
+                    "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__})
+                if args.profile:
+                    out.mkdir(parents=True, exist_ok=True)
+                    with open(out / "bench_train_profile.txt", "w" if len(rows) == 1 else "a") as f:
+                        f.write(f"== {name} {tag} {device}: {args.profile} step(s) profiled; per "
+                                f"step: " + ", ".join(f"{k} {r.get(k, '')}" for k in PROFILE_COLUMNS) + "\n"
+                                + r.get("profile_table", "") + "\n")
+                util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
+                print(f"{name:9s} {tag} {device}: {sps:.2f} steps/s, "
+                      f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
+                write_csv(out / "bench_train.csv", rows, quiet=True)  # a run cut short keeps its rows
     if not rows:
         raise InputError("bench train: no configuration could run (out of memory for every one)")
     write_csv(out / "bench_train.csv", rows)

@@ -142,6 +142,17 @@ class RayModel(nn.Module):
                     **phase) -> dict:
         raise NotImplementedError
 
+    supports_object_batch = False
+    """Whether training may render several objects' rays in one pass (``encode_batch`` and ``render_rays_batch``,
+    ``train.object_batch``); kinds without it train one object at a time whatever that says."""
+
+    def encode_batch(self, images: list[torch.Tensor], cams: list[RefCameras]):
+        raise NotImplementedError
+
+    def render_rays_batch(self, ctx, rays: RayBundle, counts: list[int], train: bool = False,
+                          generator: torch.Generator | None = None, **phase) -> dict:
+        raise NotImplementedError
+
     def train_phase(self, step: int, train_cfg) -> TrainPhase:
         return TrainPhase()
 

@@ -16,7 +16,7 @@ Two architectures of the branches (``nerformer.arch``): 'nerformer', the paper's
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -27,21 +27,36 @@ from .base import NormalizedScene, RayModel, TrainPhase, normalized_scene, ref_c
 from .mrvm import MRVMHead, coarse_positions, lambda_at, make_mask
 from .nerformer import NeRFormerBranch, activate_density, harmonic
 from .nerformer_streams import StreamBranch, relative_direction
-from .projection import RefCameras, project_samples, rays_in_cameras, sample_maps
+from .projection import ObjectBatch, RefCameras, camera_to_world, project_samples, rays_in_cameras, sample_maps
 from .rays import RayBundle
 from .renderer import volume_render
 
 
 @dataclass
 class Context:
-    """Encoded reference views (normalised frame)."""
+    """Encoded reference views (normalised frame): one object's V views, or B objects' V views each
+    (:meth:`GeneralizableNeRF.encode_batch`: rows b*V .. b*V+V-1 are object b's)."""
 
     feats: torch.Tensor
-    """(V, C, h, w) pixel-aligned features."""
+    """(V, C, h, w) pixel-aligned features ((B * V, ...) for a batch)."""
     images: torch.Tensor
     """(V, 3, H, W) reference colours in [0, 1]."""
     cams: RefCameras
     """Reference cameras."""
+    groups: int = 1
+    """Objects whose views these are (B; :meth:`GeneralizableNeRF.encode_batch`)."""
+    batch: ObjectBatch | None = None
+    """Which object each rendered ray belongs to, for several objects in one pass (set by
+    :meth:`GeneralizableNeRF.render_rays_batch`); None for one object."""
+
+    @property
+    def views(self) -> int:
+        """Reference views per object."""
+        return len(self.cams) // self.groups
+
+    def rays_of(self, idx) -> "ObjectBatch | None":
+        """The object layout of the subset ``idx`` of the rays (None for one object)."""
+        return None if self.batch is None else self.batch.select(idx)
 
 
 class GeneralizableNeRF(RayModel):
@@ -98,16 +113,52 @@ class GeneralizableNeRF(RayModel):
             raise ValueError(f"reference images {tuple(images.shape[-2:])} do not match cameras {(cams.height, cams.width)}")
         return Context(self.encoder(images), images, cams)
 
+    supports_object_batch = True
+    """Training may render several objects' rays in one pass (:meth:`encode_batch`, :meth:`render_rays_batch`)."""
+
+    def encode_batch(self, images: list[torch.Tensor], cams: list[RefCameras]) -> Context:
+        """B objects' reference views, each (V, 3, H, W) with the same V and image size, encoded in one pass."""
+        V, (H, W) = len(cams[0]), (cams[0].height, cams[0].width)
+        if any(len(c) != V or (c.height, c.width) != (H, W) for c in cams):
+            raise ValueError("objects batched in one pass need the same number of reference views and image size")
+        merged = RefCameras(torch.cat([c.w2c for c in cams]), torch.cat([c.K for c in cams]), W, H)
+        return replace(self.encode(torch.cat(images), merged), groups=len(cams))
+
+    def render_rays_batch(self, ctx: Context, rays: RayBundle, counts: list[int], train: bool = False,
+                          mask_views: bool = False, generator: torch.Generator | None = None) -> dict:
+        """:meth:`render_rays` of B objects at once: ``ctx`` from :meth:`encode_batch`, ``rays`` object after object,
+        ``counts[b]`` of object b (all hit the box). Per-ray outputs are laid out as ``rays``; the MRVM loss is the mean
+        of the objects' own means (each object weighs as in a pass of its own)."""
+        if len(counts) != ctx.groups or sum(counts) != len(rays):
+            raise ValueError(f"{len(counts)} objects with {sum(counts)} rays do not match the context's {ctx.groups} "
+                             f"objects and {len(rays)} rays")
+        batch = ObjectBatch.from_counts(counts, ctx.views, device=rays.origins.device)
+        return self.render_rays(replace(ctx, batch=batch), rays, train, mask_views, generator)
+
+    def _mrvm_loss(self, ctx: Context, fine_rows: torch.Tensor, target_rows: torch.Tensor,
+                   ray_of_row: torch.Tensor) -> torch.Tensor:
+        """MRVM's loss over the given rows (points) of the fine and target features: their mean, or for a batch of
+        objects the mean of each object's mean. ``ray_of_row`` (n,) is each row's ray."""
+        if ctx.batch is None or fine_rows.shape[0] == 0:
+            return self.mrvm.loss(fine_rows, target_rows)
+        per_row = self.mrvm.loss(fine_rows, target_rows, reduce=False)
+        obj = ctx.batch.obj[ray_of_row]
+        B = ctx.batch.groups
+        sums = per_row.new_zeros(B).index_add(0, obj, per_row)
+        n = torch.bincount(obj, minlength=B)
+        has = n > 0
+        return (sums[has] / n[has].to(sums.dtype)).mean()
+
     # -- points ------------------------------------------------------------------------------------
 
-    def _gather(self, ctx: Context, o_c, d_c, dirs, t):
-        """Per (ray, sample, view): token inputs (R, S, V, F), validity (R, S, V), colours (R, S, V, 3)."""
-        uv, valid, p = project_samples(ctx.cams, o_c, d_c, t)
-        f = sample_maps(ctx.feats.float(), uv.float())
-        c = sample_maps(ctx.images.float(), uv.float())
-        Rw = ctx.cams.w2c[:, :3, :3].float()
+    def _gather(self, ctx: Context, o_c, d_c, dirs, t, batch: ObjectBatch | None = None):
+        """Per (ray, sample, view): token inputs (R, S, V, F), validity (R, S, V), colours (R, S, V, 3); ``batch``
+        the rays' object layout (``ctx.batch`` or a subset of it)."""
+        uv, valid, p = project_samples(ctx.cams, o_c, d_c, t, batch=batch)
+        f = sample_maps(ctx.feats.float(), uv.float(), batch=batch)
+        c = sample_maps(ctx.images.float(), uv.float(), batch=batch)
         pn = p / p.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        dref = torch.einsum("vji,vrsj->vrsi", Rw, pn)  # camera -> world direction (R^T)
+        dref = camera_to_world(ctx.cams, pn, batch)  # camera -> world direction (R^T)
         dt = dirs[None, :, None, :].expand_as(dref)
         enc = torch.cat([harmonic(dt - dref, self.cfg.nerformer.dir_freqs), (dt * dref).sum(-1, keepdim=True)], -1)
         inputs = torch.cat([f, c, enc], -1) * valid[..., None]
@@ -127,25 +178,25 @@ class GeneralizableNeRF(RayModel):
         R = len(rays)
         far = rays.far.float()
         dirs = rays.dirs.float()
-        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
+        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs, ctx.batch)
         t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
-        coarse = self._branch(self.coarse, self._gather(ctx, o_c, d_c, dirs, t_c), t_c, far)
+        coarse = self._branch(self.coarse, self._gather(ctx, o_c, d_c, dirs, t_c, ctx.batch), t_c, far)
         out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0, "samples": R * t_c.shape[1]}
         sel = self._fine_rays(coarse, train)
         if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
 
             def fields(rows, t):
                 idx = sel[rows]
-                inputs, valid, rgb = self._gather(ctx, o_c[:, idx], d_c[:, idx], dirs[idx], t)
+                inputs, valid, rgb = self._gather(ctx, o_c[:, idx], d_c[:, idx], dirs[idx], t, ctx.rays_of(idx))
                 return self.fine(inputs, valid, rgb, t)
 
             self._fine_at_inference(out, t_c, far, sel, fields)
         elif sc.n_fine > 0:
             t_all, _ = self._fine_samples(coarse["weights"], t_c, far, train, generator)
-            g = self._gather(ctx, o_c, d_c, dirs, t_all)
+            g = self._gather(ctx, o_c, d_c, dirs, t_all, ctx.batch)
             point_mask = view_mask = None
             if mask_views:
-                point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), self.cfg.mrvm, generator,
+                point_mask, view_mask = make_mask(R, t_all.shape[1], ctx.views, self.cfg.mrvm, generator,
                                                       device=t_all.device)
             fine = self._branch(self.fine, g, t_all, far, view_mask)
             out["fine"] = fine
@@ -153,7 +204,8 @@ class GeneralizableNeRF(RayModel):
             if mask_views:
                 with torch.no_grad():
                     target = self.coarse(g[0], g[1], g[2], t_all)["latent"]
-                out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
+                ray_of_row = torch.nonzero(point_mask)[:, 0]
+                out["mrvm_loss"] = self._mrvm_loss(ctx, fine["latent"][point_mask], target[point_mask], ray_of_row)
                 out["n_masked"] = int(point_mask.sum())
         return self._finish(out, rays)
 
@@ -240,14 +292,14 @@ class GeneralizableNeRF(RayModel):
 
     # -- the paper's arch ------------------------------------------------------------------------------
 
-    def _gather_streams(self, ctx: Context, o_c, d_c, t, origins, dirs):
-        """Per (ray, sample, view) inputs of a :class:`StreamBranch` for samples at distances ``t`` (R, S)."""
-        uv, valid, p = project_samples(ctx.cams, o_c, d_c, t)
-        f = sample_maps(ctx.feats.float(), uv.float())
-        c = sample_maps(ctx.images.float(), uv.float())
-        Rw = ctx.cams.w2c[:, :3, :3].float()
+    def _gather_streams(self, ctx: Context, o_c, d_c, t, origins, dirs, batch: ObjectBatch | None = None):
+        """Per (ray, sample, view) inputs of a :class:`StreamBranch` for samples at distances ``t`` (R, S); ``batch``
+        the rays' object layout (``ctx.batch`` or a subset of it)."""
+        uv, valid, p = project_samples(ctx.cams, o_c, d_c, t, batch=batch)
+        f = sample_maps(ctx.feats.float(), uv.float(), batch=batch)
+        c = sample_maps(ctx.images.float(), uv.float(), batch=batch)
         pn = p / p.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        dref = torch.einsum("vji,vrsj->vrsi", Rw, pn)  # reference ray direction, world frame (R^T)
+        dref = camera_to_world(ctx.cams, pn, batch)  # reference ray direction, world frame (R^T)
         rel = relative_direction(dirs[None, :, None, :].expand_as(dref), dref)
         vf = valid[..., None].to(f.dtype)
         points = origins[:, None, :] + t[..., None] * dirs[:, None, :]
@@ -269,24 +321,26 @@ class GeneralizableNeRF(RayModel):
         far = rays.far.float()
         dirs = rays.dirs.float()
         origins = rays.origins.float()
-        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
+        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs, ctx.batch)
         t_c = samplers.stratified(far, sc.n_coarse, perturb=train and sc.perturb, generator=generator)
-        coarse = self._branch_streams(self.coarse, self._gather_streams(ctx, o_c, d_c, t_c, origins, dirs), t_c, far)
+        coarse = self._branch_streams(self.coarse, self._gather_streams(ctx, o_c, d_c, t_c, origins, dirs, ctx.batch),
+                                      t_c, far)
         out = {"coarse": coarse, "fine": coarse, "mrvm_loss": None, "n_masked": 0, "samples": R * t_c.shape[1]}
         sel = self._fine_rays(coarse, train)
         if sel is not None:  # inference: the fine pass only where the coarse pass saw something (if anywhere)
 
             def fields(rows, t):
                 idx = sel[rows]
-                return self.fine(**self._gather_streams(ctx, o_c[:, idx], d_c[:, idx], t, origins[idx], dirs[idx]))
+                return self.fine(**self._gather_streams(ctx, o_c[:, idx], d_c[:, idx], t, origins[idx], dirs[idx],
+                                                        ctx.rays_of(idx)))
 
             self._fine_at_inference(out, t_c, far, sel, fields)
         elif sc.n_fine > 0:
             t_all, order = self._fine_samples(coarse["weights"], t_c, far, train, generator)
-            g = self._gather_streams(ctx, o_c, d_c, t_all, origins, dirs)
+            g = self._gather_streams(ctx, o_c, d_c, t_all, origins, dirs, ctx.batch)
             point_mask = view_mask = None
             if mask_views:
-                point_mask, view_mask = make_mask(R, t_all.shape[1], len(ctx.cams), mc, generator, device=t_all.device)
+                point_mask, view_mask = make_mask(R, t_all.shape[1], ctx.views, mc, generator, device=t_all.device)
             fine = self._branch_streams(self.fine, g, t_all, far, view_mask)
             out["fine"] = fine
             out["samples"] += t_all.numel()
@@ -294,13 +348,16 @@ class GeneralizableNeRF(RayModel):
                 if mc.target == "coarse":  # validated: the fine pass holds the coarse samples
                     pos = coarse_positions(order, sc.n_coarse)  # (R, n_coarse) index of each coarse sample in t_all
                     online = torch.gather(fine["latent"], 1, pos[..., None].expand(-1, -1, fine["latent"].shape[-1]))
-                    out["mrvm_loss"] = self.mrvm.loss(online.reshape(-1, online.shape[-1]),
-                                                      coarse["latent"].detach().reshape(-1, online.shape[-1]))
+                    ray_of_row = torch.arange(R, device=pos.device).repeat_interleave(pos.shape[1])
+                    out["mrvm_loss"] = self._mrvm_loss(ctx, online.reshape(-1, online.shape[-1]),
+                                                       coarse["latent"].detach().reshape(-1, online.shape[-1]),
+                                                       ray_of_row)
                     out["mrvm_positions"] = pos
                 else:
                     with torch.no_grad():
                         target = self.coarse(**g)["latent"]
-                    out["mrvm_loss"] = self.mrvm.loss(fine["latent"][point_mask], target[point_mask])
+                    out["mrvm_loss"] = self._mrvm_loss(ctx, fine["latent"][point_mask], target[point_mask],
+                                                       torch.nonzero(point_mask)[:, 0])
                 out["n_masked"] = int(point_mask.sum())
                 out["point_mask"] = point_mask
         return self._finish(out, rays)

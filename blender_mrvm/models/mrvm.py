@@ -97,11 +97,13 @@ class MRVMHead(nn.Module):
         for pt, po in zip(self.target_projector.parameters(), self.projector.parameters()):
             pt.mul_(m).add_(po.detach(), alpha=1.0 - m)
 
-    def loss(self, fine_latent: torch.Tensor, coarse_latent: torch.Tensor) -> torch.Tensor:
-        """Mean 2 - 2cos over the given (masked) points; both (N, D). 0 (with grad) when N == 0."""
+    def loss(self, fine_latent: torch.Tensor, coarse_latent: torch.Tensor, reduce: bool = True) -> torch.Tensor:
+        """Mean 2 - 2cos over the given (masked) points; both (N, D). 0 (with grad) when N == 0. ``reduce`` False:
+        the (N,) values of the points."""
         if fine_latent.shape[0] == 0:
-            return fine_latent.sum() * 0.0
+            return fine_latent.sum() * 0.0 if reduce else fine_latent.sum(-1) * 0.0
         pred = self.predictor(self.projector(fine_latent))
         with torch.no_grad():
             target = self.target_projector(coarse_latent.detach())
-        return normalized_l2(pred, target.detach()).mean()
+        per_point = normalized_l2(pred, target.detach())
+        return per_point.mean() if reduce else per_point

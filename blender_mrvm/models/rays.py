@@ -98,6 +98,13 @@ class RayBundle:
         return RayBundle(self.origins[idx], self.dirs[idx], self.far[idx], self.hit[idx], self.depth_offset[idx],
                          None if self.up is None else self.up[idx])
 
+    @staticmethod
+    def cat(bundles: "list[RayBundle]") -> "RayBundle":
+        """Several bundles' rays, one after the other."""
+        up = None if any(b.up is None for b in bundles) else torch.cat([b.up for b in bundles])
+        return RayBundle(*(torch.cat([getattr(b, k) for b in bundles]) for k in
+                           ("origins", "dirs", "far", "hit", "depth_offset")), up)
+
     def to(self, device) -> "RayBundle":
         """The same rays on ``device``."""
         return RayBundle(self.origins.to(device), self.dirs.to(device), self.far.to(device), self.hit.to(device),

@@ -54,6 +54,11 @@ class TrainConfig:
     changed name their own value (0.8)."""
     objects_per_step: int = 2
     """Objects per step per process (each with its own reference set)."""
+    object_batch: int = 1
+    """Objects of a step rendered in one forward pass, at most (those with the same number of reference views and
+    image size go together; each object's loss is as in a pass of its own). 1 renders them one at a time, as every
+    recipe before this field. Larger fills a GPU that one object leaves waiting on kernel launches; model kinds
+    without it (``RayModel.supports_object_batch``) train one object at a time."""
     rays_per_object: int = 256
     """Target rays sampled per object per step."""
     min_ref_views: int = 1
@@ -293,8 +298,8 @@ def validate(c: TrainConfig) -> None:
         raise InputError("pretrain_frac and bbox_sampling_frac must be in [0, 1]")
     if not c.opacity_weight >= 0.0:
         raise InputError(f"opacity_weight must be >= 0, got {c.opacity_weight}")
-    if c.rays_per_object < 1 or c.objects_per_step < 1:
-        raise InputError("rays_per_object and objects_per_step must be >= 1")
+    if c.rays_per_object < 1 or c.objects_per_step < 1 or c.object_batch < 1:
+        raise InputError("rays_per_object, objects_per_step and object_batch must be >= 1")
     if not c.distortion_weight >= 0.0:
         raise InputError(f"distortion_weight must be >= 0, got {c.distortion_weight}")
     if not c.depth_weight >= 0.0:

@@ -37,7 +37,7 @@ from ..errors import InputError
 from ..geometry.cameras import axis_cosines
 from ..models import registry
 from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
-from ..models.rays import make_rays
+from ..models.rays import RayBundle, make_rays
 from ..progress import Progress
 from .patches import bilinear, lpips_loss, sample_patch
 from ..synthesis import nearest_views
@@ -293,6 +293,10 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
         (run_dir / "config.json").write_text(json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
     image_size = train_image_size(scenes)
     bbox_steps = int(round(cfg.bbox_sampling_frac * cfg.iterations))
+    object_batch = cfg.object_batch if model.supports_object_batch else 1
+    if cfg.object_batch > 1 and object_batch == 1 and dd.main:
+        print(f"note: a {model.kind} model trains one object at a time; train.object_batch "
+              f"({cfg.object_batch}) is not used", file=sys.stderr)
     log = open(run_dir / "metrics.jsonl", "a", encoding="utf-8") if dd.main else None
     last: dict[str, float] = {}
     saved = None
@@ -328,12 +332,12 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                     (scaler.scale(total) if scaler else total).backward()
                     held.clear()
 
-            for _ in range(cfg.objects_per_step):
-                b = batcher.draw(step < bbox_steps)
+            for group in object_groups(batcher, step < bbox_steps, cfg.objects_per_step, object_batch):
                 with _autocast(cfg, device):
-                    loss, parts = object_loss(model, b, cfg, phase, gen, device, lp, patches)
-                for k, v in parts.items():
-                    tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
+                    loss, group_parts = batch_loss(model, group, cfg, phase, gen, device, lp, patches)
+                for parts in group_parts:
+                    for k, v in parts.items():
+                        tot[k] = tot.get(k, 0.0) + v / cfg.objects_per_step
                 loss = loss / cfg.objects_per_step
                 tot["loss"] += float(loss.detach())
                 if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
@@ -386,6 +390,23 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
 
 
+def object_groups(batcher: RayBatcher, bbox_phase: bool, n: int, size: int):
+    """A step's ``n`` objects, drawn in the order one pass per object draws them (the same draws), in groups of at
+    most ``size`` that can share a forward pass: the same number of reference views and reference image size, in
+    the order each kind first appears. ``size`` 1 yields each object as it is drawn."""
+    if size <= 1:
+        for _ in range(n):
+            yield [batcher.draw(bbox_phase)]
+        return
+    kinds: dict[tuple, list] = {}
+    for _ in range(n):
+        b = batcher.draw(bbox_phase)
+        kinds.setdefault((b["n_refs"], tuple(b["images"].shape[-2:])), []).append(b)
+    for same in kinds.values():
+        for i in range(0, len(same), size):
+            yield same[i:i + size]
+
+
 def load_training_sets(cfg: TrainConfig) -> list[list[ObjectScene]]:
     """The training objects of each dataset ``train.data`` names, in the order given (each read with
     ``data_format`` and ``split``, at most ``max_objects`` from each); every root is loaded, and so
@@ -424,6 +445,61 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
 
     With a ``patches`` list the LPIPS term is left to the caller: the (predicted, true) (1, 3, P, P) patch
     pair is appended to it instead (:func:`patch_lpips` scores a step's patches as one VGG batch)."""
+    cams = _cams_to(b["cams"], device)
+    ctx = model.encode(b["images"].to(device), cams)
+    if not bool(b["rays"].hit.any()):
+        return _object_terms(model, b, None, cfg, phase, device, lp, patches)
+    sel = torch.nonzero(b["rays"].hit).flatten()
+    out = model.render_rays(ctx, rays_to(b["rays"].select(sel), device), train=True, generator=gen, **phase.kwargs)
+    return _object_terms(model, b, out, cfg, phase, device, lp, patches)
+
+
+def batch_loss(model: RayModel, bs: list[dict[str, Any]], cfg: TrainConfig, phase: TrainPhase,
+               gen: torch.Generator, device, lp=None,
+               patches: list | None = None) -> tuple[torch.Tensor, list[dict[str, float]]]:
+    """The summed loss of several objects' batches and each one's parts (:func:`object_loss`'s), their rays rendered
+    in one forward pass (``model.render_rays_batch``): the objects need the same number of reference views and
+    image size. Each object's terms are those of a pass of its own; the model's auxiliary losses (MRVM's) are the
+    batch's mean of each object's own (so their sum over the objects is the same). The random draws of sampling
+    and masking differ from one pass per object, so the two are equal in distribution, not bit for bit."""
+    if len(bs) == 1:
+        loss, parts = object_loss(model, bs[0], cfg, phase, gen, device, lp, patches)
+        return loss, [parts]
+    ctx = model.encode_batch([b["images"].to(device) for b in bs], [_cams_to(b["cams"], device) for b in bs])
+    sels = [torch.nonzero(b["rays"].hit).flatten() for b in bs]
+    counts = [len(x) for x in sels]
+    out = None
+    if sum(counts):
+        rays = RayBundle.cat([b["rays"].select(x) for b, x in zip(bs, sels)])
+        out = model.render_rays_batch(ctx, rays_to(rays, device), counts, train=True, generator=gen, **phase.kwargs)
+    total, all_parts, start = None, [], 0
+    for b, n in zip(bs, counts):
+        part = _slice_rays(out, start, start + n, sum(counts)) if n else None
+        start += n
+        loss, parts = _object_terms(model, b, part, cfg, phase, device, lp, patches)
+        total = loss if total is None else total + loss
+        all_parts.append(parts)
+    return total, all_parts
+
+
+def _cams_to(cams, device):
+    cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)
+    return cams
+
+
+def _slice_rays(out: Any, a: int, b: int, n: int) -> Any:
+    """Rays a..b of a batched render's outputs: every tensor whose first axis is the ``n`` rays is cut (recursively
+    through dicts); anything else (scalars, the batch's auxiliary losses) is kept as it is."""
+    if isinstance(out, dict):
+        return {k: _slice_rays(v, a, b, n) for k, v in out.items()}
+    if isinstance(out, torch.Tensor) and out.ndim >= 1 and out.shape[0] == n:
+        return out[a:b]
+    return out
+
+
+def _object_terms(model: RayModel, b: dict[str, Any], out: dict | None, cfg: TrainConfig, phase: TrainPhase,
+                  device, lp=None, patches: list | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+    """One object's loss and parts from ``out``, the render of its rays that hit the box (None: none do)."""
     rays, gt = b["rays"], b["gt"].to(device)
     hit = rays.hit.to(device)
     n = gt.shape[0]
@@ -434,14 +510,10 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
     else:
         miss_err = ((bg - gt[~hit]) ** 2).sum()
     parts = {"hit": float(hit.float().mean())}
-    cams = b["cams"]
-    cams.w2c, cams.K = cams.w2c.to(device), cams.K.to(device)
-    ctx = model.encode(b["images"].to(device), cams)
-    if not bool(hit.any()):
+    if out is None:
         parts["mse_fine"] = float(miss_err / (3 * n))
         return torch.zeros((), device=device), parts
     sel = torch.nonzero(rays.hit).flatten()
-    out = model.render_rays(ctx, rays_to(rays.select(sel), device), train=True, generator=gen, **phase.kwargs)
     g_hit = gt[hit]
     mse = ((out["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
     loss = mse
