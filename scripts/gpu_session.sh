@@ -11,6 +11,8 @@
 #   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: every preset and kind
 #                                                      eager; `fast` with the written-out attention, eager and
 #                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
+#   scripts/gpu_session.sh objbatch                    a step's objects in shared forward passes (train.object_batch)
+#                                                      against one pass an object: steps/s, utilisation, launches
 #   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
 #                                                      and without empty-space skipping (SYNTH_VARIANTS; also
 #                                                      nofoot: skipping without the footprint), seconds a view
@@ -124,6 +126,15 @@ case "$what" in
         --checkpoints shipped:sem2nerf --axes ${S2N_AXES:-base,samples,precision} --objects 2 --targets 2 --size 256 \
         --repeats 5 --no-lpips --out $G/sem2nerf; keep
     fi
+    ;;
+  objbatch)
+    # issue 11: train.object_batch (objects of a step with the same reference count in one forward pass) against one
+    # pass per object, with the LPIPS patch loss as the recipes train (needs all of VGG16: gpu_carry.sh FULL_VGG=1)
+    nvidia-smi -L
+    timeout ${BENCH_TRAIN_S:-300} $PY -m blender_mrvm bench train --device cuda --presets ${TRAIN_PRESETS:-fast,accurate} \
+      --batches ${BATCHES:-32x256,32x1024} --object-batches ${OBJECT_BATCHES:-1,16} --precisions ${PRECISIONS:-bf16} \
+      --lpips-weight ${LPIPS_WEIGHT:-0.5} --steps ${STEPS:-6} --warmup 2 --profile 1 \
+      --data ${BENCH_DATA:-gpu_carry/data/shapenet13_all} --out "$OUT/objbatch"
     ;;
   synth)
     # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped

@@ -39,7 +39,7 @@ from ..models import registry
 from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
 from ..models.rays import RayBundle, make_rays
 from ..progress import Progress
-from .patches import bilinear, lpips_loss, sample_patch
+from .patches import bilinear, sample_patch
 from ..synthesis import nearest_views
 from . import checkpoint as ckpt
 from .config import TrainConfig, data_roots, run_config_dict
@@ -342,7 +342,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 tot["loss"] += float(loss.detach())
                 if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
                     held.append(loss)
-                if patches is None or len(patches) >= LPIPS_GROUP:
+                if patches is None or sum(len(a) for a, _ in patches) >= LPIPS_GROUP:
                     backward_held()
             backward_held()
             if dd.world > 1:
@@ -447,11 +447,12 @@ def object_loss(model: RayModel, b: dict[str, Any], cfg: TrainConfig, phase: Tra
     pair is appended to it instead (:func:`patch_lpips` scores a step's patches as one VGG batch)."""
     cams = _cams_to(b["cams"], device)
     ctx = model.encode(b["images"].to(device), cams)
-    if not bool(b["rays"].hit.any()):
-        return _object_terms(model, b, None, cfg, phase, device, lp, patches)
-    sel = torch.nonzero(b["rays"].hit).flatten()
-    out = model.render_rays(ctx, rays_to(b["rays"].select(sel), device), train=True, generator=gen, **phase.kwargs)
-    return _object_terms(model, b, out, cfg, phase, device, lp, patches)
+    out = None
+    if bool(b["rays"].hit.any()):
+        sel = torch.nonzero(b["rays"].hit).flatten()
+        out = model.render_rays(ctx, rays_to(b["rays"].select(sel), device), train=True, generator=gen, **phase.kwargs)
+    loss, (parts,) = _group_terms(model, [b], out, cfg, phase, device, lp, patches)
+    return loss, parts
 
 
 def batch_loss(model: RayModel, bs: list[dict[str, Any]], cfg: TrainConfig, phase: TrainPhase,
@@ -472,14 +473,7 @@ def batch_loss(model: RayModel, bs: list[dict[str, Any]], cfg: TrainConfig, phas
     if sum(counts):
         rays = RayBundle.cat([b["rays"].select(x) for b, x in zip(bs, sels)])
         out = model.render_rays_batch(ctx, rays_to(rays, device), counts, train=True, generator=gen, **phase.kwargs)
-    total, all_parts, start = None, [], 0
-    for b, n in zip(bs, counts):
-        part = _slice_rays(out, start, start + n, sum(counts)) if n else None
-        start += n
-        loss, parts = _object_terms(model, b, part, cfg, phase, device, lp, patches)
-        total = loss if total is None else total + loss
-        all_parts.append(parts)
-    return total, all_parts
+    return _group_terms(model, bs, out, cfg, phase, device, lp, patches)
 
 
 def _cams_to(cams, device):
@@ -487,80 +481,122 @@ def _cams_to(cams, device):
     return cams
 
 
-def _slice_rays(out: Any, a: int, b: int, n: int) -> Any:
-    """Rays a..b of a batched render's outputs: every tensor whose first axis is the ``n`` rays is cut (recursively
-    through dicts); anything else (scalars, the batch's auxiliary losses) is kept as it is."""
-    if isinstance(out, dict):
-        return {k: _slice_rays(v, a, b, n) for k, v in out.items()}
-    if isinstance(out, torch.Tensor) and out.ndim >= 1 and out.shape[0] == n:
-        return out[a:b]
-    return out
+def _group_terms(model: RayModel, bs: list[dict[str, Any]], out: dict | None, cfg: TrainConfig, phase: TrainPhase,
+                 device, lp=None, patches: list | None = None) -> tuple[torch.Tensor, list[dict[str, float]]]:
+    """The summed loss of objects ``bs`` and each one's parts, from ``out``: the render of their rays that hit the box,
+    object after object (None: none does). Every term is computed for all the objects at once (sums per object over
+    their rays), so a group costs the kernels of one object, and the parts reach the host in one transfer.
 
-
-def _object_terms(model: RayModel, b: dict[str, Any], out: dict | None, cfg: TrainConfig, phase: TrainPhase,
-                  device, lp=None, patches: list | None = None) -> tuple[torch.Tensor, dict[str, float]]:
-    """One object's loss and parts from ``out``, the render of its rays that hit the box (None: none do)."""
-    rays, gt = b["rays"], b["gt"].to(device)
-    hit = rays.hit.to(device)
-    n = gt.shape[0]
+    Per object, as :func:`object_loss` documents: the photometric MSE over all its drawn rays (a ray that misses the
+    box shows the background; in a scene, the photo itself, and only the hits count), the same for each auxiliary head
+    (``coarse_weight``), the opacity BCE, distortion, depth and LPIPS terms, and the model's auxiliary losses (the
+    batch's own value, added for each object with rays to render). An object none of whose rays hit the box adds
+    nothing but its logged MSE."""
+    B = len(bs)
+    sizes = [len(b["gt"]) for b in bs]
+    hit_cpu = torch.cat([b["rays"].hit for b in bs])
+    nhit = [int(b["rays"].hit.sum()) for b in bs]
+    scene = [bool(b.get("scene")) for b in bs]
+    n = torch.tensor([max(1, h) if sc else sz for h, sc, sz in zip(nhit, scene, sizes)], dtype=torch.float32,
+                     device=device)
+    gt = torch.cat([b["gt"] for b in bs]).to(device).float()
+    obj_cpu = torch.repeat_interleave(torch.arange(B), torch.tensor(sizes))
+    obj, hit = obj_cpu.to(device), hit_cpu.to(device)
+    hit_idx = torch.nonzero(hit_cpu).flatten().to(device)
+    obj_hit = obj_cpu[hit_cpu].to(device)
     bg = 1.0 if model.white_background else 0.0
-    if b.get("scene"):  # a whole scene: what lies outside the box is not the model's to say (background.py)
-        n = max(1, int(hit.sum()))
-        miss_err = gt.new_zeros(())
-    else:
-        miss_err = ((bg - gt[~hit]) ** 2).sum()
-    parts = {"hit": float(hit.float().mean())}
+    shown = gt.clone() if all(scene) else torch.full_like(gt, bg)  # what a ray that misses the box shows
+    if any(scene) and not all(scene):
+        shown = torch.where(torch.tensor([scene[k] for k in obj_cpu.tolist()], device=device)[:, None], gt, shown)
+
+    def per_object(v: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        return v.new_zeros(B).index_add(0, idx, v)
+
+    def mse(color: torch.Tensor | None) -> torch.Tensor:
+        full = shown if color is None else shown.index_put((hit_idx,), color.float())
+        return per_object(((full - gt) ** 2).sum(-1), obj) / (3 * n), full
+
+    vals: dict[str, torch.Tensor] = {}
+    mse_fine, full = mse(None if out is None else out["color"])
+    vals["mse_fine"] = mse_fine
+    has = torch.tensor([h > 0 for h in nhit], device=device)
+    parts = [{"hit": h / max(1, sz)} for h, sz in zip(nhit, sizes)]
     if out is None:
-        parts["mse_fine"] = float(miss_err / (3 * n))
-        return torch.zeros((), device=device), parts
-    sel = torch.nonzero(rays.hit).flatten()
-    g_hit = gt[hit]
-    mse = ((out["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
-    loss = mse
-    parts["mse_fine"] = float(mse.detach())
-    m = b["mask"].to(device) if b.get("mask") is not None else None
-    opa = opacity_loss(out["acc"], m, hit) if cfg.opacity_weight > 0 else None
-    for name, head in out.get("aux_heads", {}).items():
-        mse_h = ((head["color"].float() - g_hit) ** 2).sum().add(miss_err) / (3 * n)
-        loss = loss + cfg.coarse_weight * mse_h
-        parts[f"mse_{name}"] = float(mse_h.detach())
-        if opa is not None:
-            opa = opa + cfg.coarse_weight * opacity_loss(head["acc"], m, hit)
-    if opa is not None:
+        return torch.zeros((), device=device), _with_values(parts, vals, has=None)
+    loss = mse_fine
+    heads = out.get("aux_heads", {})
+    for name, head in heads.items():
+        vals[f"mse_{name}"] = mse(head["color"])[0]
+        loss = loss + cfg.coarse_weight * vals[f"mse_{name}"]
+    if cfg.opacity_weight > 0:
+        mask = torch.cat([b["mask"] for b in bs]).to(device).float()
+        size = torch.tensor(sizes, dtype=torch.float32, device=device)
+
+        def opacity(acc: torch.Tensor) -> torch.Tensor:
+            return per_object(opacity_per_ray(torch.zeros_like(mask).index_put((hit_idx,), acc.float()), mask, hit),
+                              obj) / size
+
+        opa = opacity(out["acc"])
+        for head in heads.values():
+            opa = opa + cfg.coarse_weight * opacity(head["acc"])
+        vals["opacity"] = opa
         loss = loss + cfg.opacity_weight * opa
-        parts["opacity"] = float(opa.detach())
+    far = None
+    if cfg.distortion_weight > 0 or cfg.depth_weight > 0:
+        far = torch.cat([b["rays"].far[b["rays"].hit] for b in bs]).to(device)
+        hits = torch.tensor(nhit, dtype=torch.float32, device=device).clamp_min(1)
     if cfg.distortion_weight > 0:
         fine = out["fine"]
-        dist = distortion_loss(fine["weights"], fine["t"], rays.far[sel].to(device))
-        loss = loss + cfg.distortion_weight * dist
-        parts["distortion"] = float(dist.detach())
-    if cfg.depth_weight > 0 and b.get("surface") is not None:
-        t_star = b["surface"].to(device)[sel]
-        ok = torch.isfinite(t_star)
-        if bool(ok.any()):
-            far = rays.far[sel].to(device)
-            heads = [out["fine"], *out.get("aux_heads", {}).values()]
-            dl = sum((1.0 if h is out["fine"] else cfg.coarse_weight)
-                     * surface_loss(h["weights"][ok], h["t"][ok], far[ok], t_star[ok]) for h in heads)
-            loss = loss + cfg.depth_weight * dl * (int(ok.sum()) / n)
-            parts["depth"] = float(dl.detach())
-    if lp is not None and b.get("patch"):
-        # the whole patch: rays that miss the box show the background (or, in a scene, the photo itself)
-        full = gt.clone() if b.get("scene") else torch.full_like(gt, bg)
-        full = full.index_put((hit.nonzero().flatten(),), out["color"].float())
-        p = b["patch"]
-        pair = full.T.reshape(1, 3, p, p), gt.T.reshape(1, 3, p, p)
+        vals["distortion"] = per_object(distortion_per_ray(fine["weights"], fine["t"], far), obj_hit) / hits
+        loss = loss + cfg.distortion_weight * vals["distortion"]
+    depth_objects = None
+    if cfg.depth_weight > 0 and any(b.get("surface") is not None for b in bs):
+        t_star = torch.cat([b["surface"][b["rays"].hit] if b.get("surface") is not None
+                            else torch.full((h,), float("nan")) for b, h in zip(bs, nhit)])
+        ok_cpu = torch.isfinite(t_star)
+        ok_count = [int(x) for x in torch.zeros(B, dtype=torch.int64).index_add(0, obj_cpu[hit_cpu], ok_cpu.long())]
+        depth_objects = [c > 0 for c in ok_count]
+        if any(depth_objects):
+            ok = torch.nonzero(ok_cpu).flatten().to(device)
+            ts, fk, ob = t_star.to(device)[ok], far[ok], obj_hit[ok]
+            per_ray = sum((1.0 if h is out["fine"] else cfg.coarse_weight)
+                          * surface_per_ray(h["weights"][ok], h["t"][ok], fk, ts) for h in [out["fine"], *heads.values()])
+            sums = per_object(per_ray, ob)
+            vals["depth"] = sums / torch.tensor(ok_count, dtype=torch.float32, device=device).clamp_min(1)
+            loss = loss + cfg.depth_weight * sums / n  # the mean over its ok rays x their share of the object's rays
+    if lp is not None and any(b.get("patch") for b in bs) and any(nhit):
+        keep = [k for k in range(B) if nhit[k] and bs[k].get("patch")]
+        p = bs[keep[0]]["patch"]
+        if any(bs[k]["patch"] != p or sizes[k] != p * p for k in keep):
+            raise ValueError("objects scored together by LPIPS need patches of one size")
+        start = torch.cumsum(torch.tensor([0] + sizes[:-1]), 0)
+        rows = (start[keep][:, None] + torch.arange(p * p)[None]).to(device)  # (k, P*P) each patch's rays
+        pair = full[rows].transpose(1, 2).reshape(-1, 3, p, p), gt[rows].transpose(1, 2).reshape(-1, 3, p, p)
         if patches is not None:
             patches.append(pair)
         else:
-            lpv = lpips_loss(lp, *pair)
-            loss = loss + cfg.lpips_weight * lpv
-            parts["lpips"] = float(lpv.detach())
-    for name, value in out.get("aux_losses", {}).items():
-        if value is not None:
-            loss = loss + phase.loss_weights.get(name, 0.0) * value
-            parts[name] = float(value.detach())
-    return loss, parts
+            lpv = lp.distance(*pair)
+            vals["lpips"] = torch.zeros(B, device=device).index_put((torch.tensor(keep, device=device),), lpv.float())
+            loss = loss + cfg.lpips_weight * vals["lpips"]
+    aux = {name: v for name, v in out.get("aux_losses", {}).items() if v is not None}
+    for name, value in aux.items():
+        loss = loss + phase.loss_weights.get(name, 0.0) * value
+        vals[name] = value.expand(B)
+    total = torch.where(has, loss, torch.zeros_like(loss)).sum() if B > 1 else loss[0]
+    return total, _with_values(parts, vals, has=nhit, depth_objects=depth_objects)
+
+
+def _with_values(parts: list[dict[str, float]], vals: dict[str, torch.Tensor], has: list[int] | None,
+                 depth_objects: list[bool] | None = None) -> list[dict[str, float]]:
+    """Each object's parts with the (B,) values ``vals`` (one transfer to the host): an object without rays to
+    render (``has[k]`` 0) logs only its MSE; 'depth' only where the object had depth to compare with."""
+    names = list(vals)
+    table = torch.stack([vals[k].detach().float() for k in names]).cpu().tolist() if names else []
+    for k, part in enumerate(parts):
+        for name, row in zip(names, table):
+            if name == "mse_fine" or (has is not None and has[k] and (name != "depth" or depth_objects[k])):
+                part[name] = row[k]
+    return parts
 
 
 LPIPS_GROUP = 8
@@ -588,11 +624,16 @@ def distortion_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor) -
     far), as the renderer's steps do. Distances are shares of the ray's length, so the loss does not depend
     on the box's size. sum_ij w_i w_j |m_i - m_j| (m the interval midpoints) + 1/3 sum_i w_i^2 len_i: 0 for
     an empty ray, smallest when the weight sits in one short interval."""
+    return distortion_per_ray(weights, t, far).mean()
+
+
+def distortion_per_ray(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
+    """(R,) :func:`distortion_loss` of each ray."""
     w = weights.float()
     length, mid = interval_shares(t, far)
     inter = (w[:, :, None] * w[:, None, :] * (mid[:, :, None] - mid[:, None, :]).abs()).sum((-1, -2))
     intra = (w * w * length).sum(-1) / 3.0
-    return (inter + intra).mean()
+    return inter + intra
 
 
 def surface_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor, t_star: torch.Tensor) -> torch.Tensor:
@@ -602,23 +643,34 @@ def surface_loss(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor, t_st
     the light no sample stops (1 - sum of the weights) leaves at the far end. 0 only when all the light stops
     at the surface; a translucent ghost spread along the ray, or a surface too far in front or behind, costs
     its distance. Unlike a loss on the expected depth, two layers whose mean sits on the surface still cost."""
+    return surface_per_ray(weights, t, far, t_star).mean()
+
+
+def surface_per_ray(weights: torch.Tensor, t: torch.Tensor, far: torch.Tensor, t_star: torch.Tensor) -> torch.Tensor:
+    """(R,) :func:`surface_loss` of each ray."""
     w = weights.float()
     _, mid = interval_shares(t, far)
     ss = (t_star.float() / far.float().clamp_min(1e-8))[:, None]
     leave = (1.0 - w.sum(-1)).clamp_min(0.0) * (1.0 - ss[:, 0]).abs()
-    return ((w * (mid - ss).abs()).sum(-1) + leave).mean()
+    return (w * (mid - ss).abs()).sum(-1) + leave
 
 
 def opacity_loss(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
     """Binary cross-entropy of the accumulated opacity of the rays that hit the box (``acc``, one per
     True in ``hit``) against the object mask of all rays (``mask``); averaged over all rays, since a ray
     that misses the box has opacity 0 and no loss when the mask agrees (else the constant log(eps))."""
+    acc_all = torch.zeros_like(mask, dtype=acc.dtype).index_put((torch.nonzero(hit).flatten(),), acc)
+    return opacity_per_ray(acc_all, mask, hit).sum() / mask.numel()
+
+
+def opacity_per_ray(acc: torch.Tensor, mask: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
+    """(R,) :func:`opacity_loss` of each drawn ray before the mean: ``acc`` (R,) is read where ``hit``; a ray that
+    misses the box costs the constant -log(eps) where the mask says object (box too small), else nothing."""
     eps = 1e-4
     a = acc.float().clamp(eps, 1 - eps)
-    m = mask[hit]
-    bce = -(m * torch.log(a) + (1 - m) * torch.log1p(-a)).sum()
-    missed_fg = mask[~hit].sum() * -math.log(eps)  # constant: object pixels outside the box (box too small)
-    return (bce + missed_fg) / mask.numel()
+    m = mask.float()
+    bce = -(m * torch.log(a) + (1 - m) * torch.log1p(-a))
+    return torch.where(hit, bce, m * -math.log(eps))
 
 
 def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str) -> tuple[Path, list[str]]:
