@@ -11,8 +11,9 @@
 #   scripts/gpu_session.sh fps                         FPS at 256 px (issue 13), profiled: every preset and kind
 #                                                      eager; `fast` with the written-out attention, eager and
 #                                                      compiled; CUDA graphs; Sem2NeRF (with a masked set)
-#   scripts/gpu_session.sh objbatch                    a step's objects in shared forward passes (train.object_batch)
-#                                                      against one pass an object: steps/s, utilisation, launches
+#   scripts/gpu_session.sh objbatch                    a step's objects in shared forward passes (train.object_batch,
+#                                                      ref_views_per) against one pass an object: steps/s,
+#                                                      utilisation, launches
 #   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
 #                                                      and without empty-space skipping (SYNTH_VARIANTS; also
 #                                                      nofoot: skipping without the footprint), seconds a view
@@ -128,13 +129,16 @@ case "$what" in
     fi
     ;;
   objbatch)
-    # issue 11: train.object_batch (objects of a step with the same reference count in one forward pass) against one
-    # pass per object, with the LPIPS patch loss as the recipes train (needs all of VGG16: gpu_carry.sh FULL_VGG=1)
+    # issue 11: train.object_batch (objects of a step with the same reference count in one forward pass; with
+    # train.ref_views_per "step" one count a step, so one pass) against one pass per object, with the LPIPS patch loss
+    # as the recipes train (needs all of VGG16: gpu_carry.sh FULL_VGG=1); `fast` and `accurate`, one CSV each
     nvidia-smi -L
-    timeout ${BENCH_TRAIN_S:-300} $PY -m blender_mrvm bench train --device cuda --presets ${TRAIN_PRESETS:-fast,accurate} \
-      --batches ${BATCHES:-32x256,32x1024} --object-batches ${OBJECT_BATCHES:-1,16} --precisions ${PRECISIONS:-bf16} \
-      --lpips-weight ${LPIPS_WEIGHT:-0.5} --steps ${STEPS:-6} --warmup 2 --profile 1 \
-      --data ${BENCH_DATA:-gpu_carry/data/shapenet13_all} --out "$OUT/objbatch"
+    for pb in ${OBJBATCH_RUNS:-fast:32x256 accurate:32x1024}; do
+      timeout ${BENCH_TRAIN_S:-170} $PY -m blender_mrvm bench train --device ${BENCH_DEVICE:-cuda} --presets "${pb%%:*}" \
+        --batches "${pb#*:}" --object-batches ${OBJECT_BATCHES:-1,16} --ref-views-per ${REF_VIEWS_PER:-object,step} \
+        --precisions ${PRECISIONS:-bf16} --lpips-weight ${LPIPS_WEIGHT:-0.5} --steps ${STEPS:-6} --warmup 2 --profile 1 \
+        --data ${BENCH_DATA:-gpu_carry/data/shapenet13_all} --out "$OUT/objbatch_${pb%%:*}"
+    done
     ;;
   synth)
     # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped

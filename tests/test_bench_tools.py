@@ -398,9 +398,14 @@ def test_bench_train_sweeps_object_batches(tmp_path):
             bt.parse_object_batches(bad)
     out = tmp_path / "b"
     assert main(["bench", "train", "--presets", "fast", "--batches", "8x32", "--object-batches", "1,8", "--steps", "1",
-                 "--warmup", "1", "--profile", "1", "--resolution", "16", "--out", str(out)]) == 0
-    one, many = list(csv.DictReader(open(out / "bench_train.csv")))
-    assert (one["object_batch"], many["object_batch"]) == ("1", "8")
+                 "--warmup", "1", "--profile", "1", "--resolution", "16", "--ref-views-per", "object,step",
+                 "--out", str(out)]) == 0
+    one, one_step, many, many_step = list(csv.DictReader(open(out / "bench_train.csv")))
+    assert [(r["object_batch"], r["ref_views_per"]) for r in (one, one_step, many, many_step)] == [
+        ("1", "object"), ("1", "step"), ("8", "object"), ("8", "step")]
     assert float(many["aten_ops_per_step"]) < 0.6 * float(one["aten_ops_per_step"])
-    assert main(["bench", "train", "--presets", "fast", "--object-batches", "0", "--out", str(tmp_path / "c")]) == 2
+    # one reference count a step: one forward pass, fewer operators again
+    assert float(many_step["aten_ops_per_step"]) < 0.8 * float(many["aten_ops_per_step"])
+    for bad in (["--object-batches", "0"], ["--ref-views-per", "batch"]):
+        assert main(["bench", "train", "--presets", "fast", *bad, "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "c").exists()

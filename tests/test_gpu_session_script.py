@@ -278,3 +278,23 @@ def test_score_table_pools_sets_into_one_paired_row(tmp_path):
     assert "| 8 |" in row and f"{d.mean():+.3f} ({d.std(ddof=1) / 2:.3f}), 2 of 4" in row, row
     bad = run("base", "--pool", "ab=a,zz")
     assert bad.returncode == 2 and "no set 'zz'" in bad.stderr
+
+
+@pytest.mark.slow
+def test_objbatch_call_writes_a_row_per_configuration(tmp_path):
+    """The `objbatch` call (the first of the next GPU session) runs on the CPU with its device named: per preset a CSV
+    whose rows cross object_batch with ref_views_per, under the LPIPS patch loss."""
+    import csv
+
+    from blender_mrvm.models.vgg import weights_dir
+
+    data = make_sphere_dataset(tmp_path / "data", n_objects=3, n_views=5, resolution=16, data_passes=False)
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "PY": sys.executable, "OMP_NUM_THREADS": "1",
+           "MRVM_WEIGHTS_DIR": str(weights_dir()), "BENCH_DEVICE": "cpu", "OBJBATCH_RUNS": "fast:4x256",
+           "BENCH_DATA": str(data), "STEPS": "1", "PRECISIONS": "fp32", "OBJECT_BATCHES": "1,4"}
+    r = subprocess.run(["bash", "scripts/gpu_session.sh", "objbatch"], cwd=REPO, env=env, capture_output=True,
+                       text=True, timeout=600)
+    rows = list(csv.DictReader(open(tmp_path / "out" / "objbatch_fast" / "bench_train.csv")))
+    assert [(x["object_batch"], x["ref_views_per"]) for x in rows] == [
+        ("1", "object"), ("1", "step"), ("4", "object"), ("4", "step")], r.stdout + r.stderr
+    assert all(float(x["steps_per_s"]) > 0 and x["lpips_weight"] == "0.5" for x in rows)

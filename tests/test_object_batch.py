@@ -290,3 +290,21 @@ def test_object_loss_is_the_documented_sum_of_terms(tmp_path, data):
     assert parts["depth"] == pytest.approx(float(depth), rel=1e-5)
     assert parts["mse_fine"] == pytest.approx(float(mse(out["color"])), rel=1e-5)
     assert parts["hit"] == pytest.approx(float(hit.float().mean()))
+
+
+def test_one_reference_count_a_step(data):
+    """``ref_views_per`` 'step': every object of a step takes the step's count (so a batched step is one pass), the
+    counts still cover min..max over steps, and anything but 'object' or 'step' is refused."""
+    root, scenes = data
+    tcfg = _tcfg(root, "unused", min_ref_views=1, max_ref_views=3, ref_views_per="step")
+    batcher = RayBatcher(scenes, tcfg, 0.05, seed=11)
+    seen = set()
+    for _ in range(12):
+        groups = list(object_groups(batcher, False, 6, 8))
+        assert len(groups) == 1 and len(groups[0]) == 6
+        counts = {b["n_refs"] for b in groups[0]}
+        assert len(counts) == 1 and all(len(b["ref_views"]) == b["n_refs"] for b in groups[0])
+        seen |= counts
+    assert seen == {1, 2, 3}
+    with pytest.raises(InputError, match="ref_views_per"):
+        _tcfg(root, "unused", ref_views_per="batch")

@@ -54,6 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--object-batches", default="1",
                    help="comma-separated train.object_batch values: objects rendered in one forward pass (1 = one "
                    "at a time; model kinds that cannot batch objects train one at a time whatever this says)")
+    p.add_argument("--ref-views-per", default="object",
+                   help="comma-separated train.ref_views_per values: 'object' (each object draws its reference count) "
+                   "or 'step' (one count a step: with --object-batches a step is one forward pass)")
     p.add_argument("--device", default="cpu", help="cpu or cuda[:N]")
     p.add_argument("--steps", type=int, default=20, help="timed steps per configuration")
     p.add_argument("--warmup", type=int, default=3, help="untimed steps first (allocator, autotuning; at least 1)")
@@ -214,14 +217,15 @@ def parse_object_batches(text: str) -> list[int]:
 
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
             threads: int, run_dir: Path, profile: int = 0, compile: bool = False, lpips_weight: float = 0.0,
-            object_batch: int = 1) -> dict:
+            object_batch: int = 1, ref_views_per: str = "object") -> dict:
     """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir`` at the bench's
     batch shape and precision (:func:`measure_config`)."""
     from ..training.config import TrainConfig
 
     tcfg = TrainConfig(objects_per_step=objects, rays_per_object=rays, amp=PRECISIONS[precision], device=device,
                        threads=threads, seed=0, compile=compile, lpips_weight=lpips_weight,
-                       patch_size=patch_side(rays) if lpips_weight > 0 else 16, object_batch=object_batch)
+                       patch_size=patch_side(rays) if lpips_weight > 0 else 16, object_batch=object_batch,
+                       ref_views_per=ref_views_per)
     return measure_config(model_cfg, tcfg, scenes, steps, warmup, run_dir, profile)
 
 
@@ -319,6 +323,9 @@ def run(args) -> int:
             patch_side(rays)
     precisions = parse_precisions(args.precisions, device)
     object_batches = parse_object_batches(args.object_batches)
+    ref_pers = [s.strip() for s in str(args.ref_views_per).split(",") if s.strip()]
+    if not ref_pers or any(r not in ("object", "step") for r in ref_pers):
+        raise InputError(f"--ref-views-per: {args.ref_views_per!r} is not a comma-separated list of object, step")
     presets = []
     for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
         kind, _, name = preset.rpartition(":")
@@ -342,12 +349,14 @@ def run(args) -> int:
         for name, cfg in presets:
             probe = registry.build_model(cfg)
             params, batches_objects = sum(p.numel() for p in probe.parameters()), probe.supports_object_batch
-            for (objects, rays), prec, ob in [(b, p, o) for b in batches for p in precisions for o in object_batches]:
-                tag = f"{objects}x{rays} {prec}" + (f" batch {ob}" if len(object_batches) > 1 or ob > 1 else "")
+            for (objects, rays), prec, ob, rp in [(b, p, o, r) for b in batches for p in precisions
+                                                  for o in object_batches for r in ref_pers]:
+                tag = (f"{objects}x{rays} {prec}" + (f" batch {ob}" if len(object_batches) > 1 or ob > 1 else "")
+                       + (f" refs per {rp}" if len(ref_pers) > 1 or rp != "object" else ""))
                 try:
                     r = measure(cfg, scenes, objects, rays, prec, device, args.steps, args.warmup, args.threads,
-                                tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}_b{ob}", args.profile,
-                                args.compile, args.lpips_weight, ob)
+                                tmp / f"run_{len(rows)}_{name}_{objects}x{rays}_{prec}_b{ob}_{rp}", args.profile,
+                                args.compile, args.lpips_weight, ob, rp)
                 except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
                     torch.cuda.empty_cache()
                     print(f"{name:9s} {tag} {device}: out of memory, skipped", flush=True)
@@ -356,7 +365,7 @@ def run(args) -> int:
                 rows.append({
                     "kind": registry.kind_of(cfg), "preset": name, "params": params, "device": device,
                     "precision": prec, "compiled": bool(args.compile), "objects_per_step": objects,
-                    "object_batch": ob if batches_objects else 1,
+                    "object_batch": ob if batches_objects else 1, "ref_views_per": rp,
                     "rays_per_object": rays,
                     "rays_per_step": objects * rays, "lpips_weight": args.lpips_weight, "steps": args.steps, "seconds": round(r["seconds"], 3),
                     "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),

@@ -65,6 +65,11 @@ class TrainConfig:
     """Fewest reference views drawn per object."""
     max_ref_views: int = 3
     """Most reference views drawn per object (random 1..K)."""
+    ref_views_per: str = "object"
+    """Who draws the reference count: 'object' (each object its own, every recipe before this field) or 'step' (one
+    count a step for all its objects, as pixelNeRF draws it per batch; an object with fewer views takes what it has):
+    with ``object_batch`` the step is then one forward pass instead of one per count. Each object's count has the
+    same distribution either way."""
     bbox_sampling_frac: float = 0.75
     """Share of early iterations drawing target rays only inside the object's 2D box (pixelNeRF; the official
     MRVM pretraining: 300k of 400k steps; finetuning: none)."""
@@ -292,6 +297,8 @@ def validate(c: TrainConfig) -> None:
         raise InputError(f"iterations must be >= 1, got {c.iterations}")
     if not 1 <= c.min_ref_views <= c.max_ref_views:
         raise InputError("need 1 <= min_ref_views <= max_ref_views")
+    if c.ref_views_per not in ("object", "step"):
+        raise InputError(f"train.ref_views_per must be 'object' or 'step', got {c.ref_views_per!r}")
     if c.amp not in ("none", "bf16", "fp16"):
         raise InputError(f"amp must be none, bf16 or fp16, got {c.amp!r}")
     if not 0.0 <= c.pretrain_frac <= 1.0 or not 0.0 <= c.bbox_sampling_frac <= 1.0:

@@ -128,11 +128,16 @@ class RayBatcher:
                 raise InputError(f"{weight} needs {what}, and {len(bare)} training object(s) have none (e.g. "
                                  f"{bare[0]}); our rendered datasets have them{files}, or set {weight} to 0")
 
-    def draw(self, bbox_phase: bool) -> dict[str, Any]:
+    def draw(self, bbox_phase: bool, n_refs: int | None = None) -> dict[str, Any]:
+        """One object's batch; ``n_refs`` the step's reference count (``train.ref_views_per`` 'step'; at most the
+        object's views but one), else the object draws its own."""
         c, rng = self.cfg, self.rng
         j = int(rng.integers(len(self.scenes))) if self.weights is None else int(rng.choice(len(self.scenes), p=self.weights))
         s = self.scenes[j]
-        k = int(rng.integers(c.min_ref_views, min(c.max_ref_views, len(s) - 1) + 1))
+        if n_refs is None:
+            k = int(rng.integers(c.min_ref_views, min(c.max_ref_views, len(s) - 1) + 1))
+        else:
+            k = min(int(n_refs), len(s) - 1)
         perm = rng.permutation(len(s))
         refs, tgt = perm[:k], int(perm[k])
         if s.background == "scene" or self.nearest:
@@ -393,14 +398,17 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
 def object_groups(batcher: RayBatcher, bbox_phase: bool, n: int, size: int):
     """A step's ``n`` objects, drawn in the order one pass per object draws them (the same draws), in groups of at
     most ``size`` that can share a forward pass: the same number of reference views and reference image size, in
-    the order each kind first appears. ``size`` 1 yields each object as it is drawn."""
+    the order each kind first appears. ``size`` 1 yields each object as it is drawn. With ``train.ref_views_per``
+    'step' the step's reference count is drawn first, for all its objects."""
+    c = batcher.cfg
+    k = int(batcher.rng.integers(c.min_ref_views, c.max_ref_views + 1)) if c.ref_views_per == "step" else None
     if size <= 1:
         for _ in range(n):
-            yield [batcher.draw(bbox_phase)]
+            yield [batcher.draw(bbox_phase, k)]
         return
     kinds: dict[tuple, list] = {}
     for _ in range(n):
-        b = batcher.draw(bbox_phase)
+        b = batcher.draw(bbox_phase, k)
         kinds.setdefault((b["n_refs"], tuple(b["images"].shape[-2:])), []).append(b)
     for same in kinds.values():
         for i in range(0, len(same), size):
