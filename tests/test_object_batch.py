@@ -36,6 +36,7 @@ LEGACY = {"encoder": {"widths": [8, 8, 8], "out_dim": 8},
           "nerformer": {"arch": "legacy", "d_model": 8, "n_heads": 2, "n_layers": 1, "pos_freqs": 2},
           "sampler": {"n_coarse": 6, "n_fine": 4, "fine_includes_coarse": False, "perturb": False},
           "mrvm": {"proj_dim": 8, "target": "rerun", "view_masking": "prob"}}
+GPNR_TINY = {"d_model": 16, "n_heads": 2, "n_blocks": 1, "patch_dim": 8, "n_samples": 6}
 RAYS = (20, 7, 13)  # an object's rays: unequal, so the padded layout is exercised
 
 
@@ -122,6 +123,24 @@ def test_render_rays_batch_is_each_object_on_its_own(arch, monkeypatch):
             assert out["n_masked"] == sum(s["n_masked"] for s in seq)
         else:
             assert out["mrvm_loss"] is None
+
+
+@pytest.mark.parametrize("over", [{}, {"canonicalize_rays": False, "canonicalize_coords": False,
+                                       "colour_from": "features"}])
+def test_gpnr_render_rays_batch_is_each_object_on_its_own(over):
+    """GPNR's colour, opacity and depth of three objects in one pass equal three passes: each ray's Plücker, position
+    and camera codes are taken against its own object's reference cameras (canonical frames or not)."""
+    torch.manual_seed(0)
+    m = registry.build_model(registry.build_config("gpnr", "fast", {**GPNR_TINY, "perturb": False, **over}))
+    objs = _objects()
+    counts = [len(r) for *_, r in objs]
+    for train_mode in (True, False):
+        m.train(train_mode)
+        seq = [m.render_rays(m.encode(i, c), r, train=train_mode) for i, c, r in objs]
+        ctx = m.encode_batch([i for i, _, _ in objs], [c for _, c, _ in objs])
+        out = m.render_rays_batch(ctx, RayBundle.cat([r for *_, r in objs]), counts, train=train_mode)
+        for k in ("color", "acc", "depth", "beta"):
+            assert torch.allclose(out[k], torch.cat([s[k] for s in seq]), atol=2e-6), k
 
 
 def test_render_rays_batch_refuses_mismatched_inputs():
@@ -226,9 +245,9 @@ def test_object_groups_keep_the_draws_and_group_by_reference_count(data):
     assert len({b["n_refs"] for b in one}) > 1  # the step mixes counts, so grouping did something
 
 
-def test_training_with_object_batch(tmp_path, data, capsys):
-    """A run with ``object_batch`` trains (MRVM masking on, mixed reference counts), records it in config.json, and
-    resumes; 0 is refused; a model kind that cannot batch objects says so and trains one at a time."""
+def test_training_with_object_batch(tmp_path, data, capsys, monkeypatch):
+    """A run with ``object_batch`` trains (MRVM masking on, mixed reference counts) and records it in config.json; 0 is
+    refused; GPNR trains batched too; a model kind that cannot batch objects says so and trains one at a time."""
     root, scenes = data
     mcfg = C.model_config("fast", json.loads(json.dumps(PAPER)))
     tcfg = _tcfg(root, tmp_path / "run", object_batch=3, min_ref_views=1, max_ref_views=2, pretrain_frac=1.0,
@@ -238,9 +257,15 @@ def test_training_with_object_batch(tmp_path, data, capsys):
     assert json.loads((tmp_path / "run" / "config.json").read_text())["train"]["object_batch"] == 3
     with pytest.raises(InputError, match="object_batch"):
         _tcfg(root, tmp_path / "bad", object_batch=0)
-    gcfg = registry.build_config("gpnr", "fast")
+    from blender_mrvm.models.gpnr.model import GPNR
+
+    gcfg = registry.build_config("gpnr", "fast", GPNR_TINY)
     capsys.readouterr()
     s = run_to_end(train(gcfg, _tcfg(root, tmp_path / "gpnr", object_batch=2, iterations=1, ckpt_every=1,
+                                     rays_per_object=16), scenes=scenes))
+    assert np.isfinite(s["last"]["loss"]) and "one object at a time" not in capsys.readouterr().err
+    monkeypatch.setattr(GPNR, "supports_object_batch", False)
+    s = run_to_end(train(gcfg, _tcfg(root, tmp_path / "gpnr1", object_batch=2, iterations=1, ckpt_every=1,
                                      rays_per_object=16), scenes=scenes))
     assert np.isfinite(s["last"]["loss"])
     assert "trains one object at a time" in capsys.readouterr().err

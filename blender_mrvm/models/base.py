@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import islice
 from typing import Any, Sequence
 
@@ -24,7 +24,7 @@ import torch
 from torch import nn
 
 from ..geometry import cameras
-from .projection import RefCameras
+from .projection import ObjectBatch, ObjectRefs, RefCameras  # noqa: F401 (ObjectRefs re-exported)
 from .rays import RayBundle, make_rays, normalization, normalize_pose, pixel_rows
 
 
@@ -143,15 +143,29 @@ class RayModel(nn.Module):
         raise NotImplementedError
 
     supports_object_batch = False
-    """Whether training may render several objects' rays in one pass (``encode_batch`` and ``render_rays_batch``,
-    ``train.object_batch``); kinds without it train one object at a time whatever that says."""
+    """Whether training may render several objects' rays in one pass (:meth:`encode_batch`, :meth:`render_rays_batch`,
+    ``train.object_batch``): a kind whose context is an :class:`ObjectRefs` and whose ``render_rays`` reads each ray's
+    object from ``ctx.batch`` (projection.py's functions take it). Kinds without it train one object at a time."""
 
     def encode_batch(self, images: list[torch.Tensor], cams: list[RefCameras]):
-        raise NotImplementedError
+        """B objects' reference views, each (V, 3, H, W) with the same V and image size, encoded in one pass: the
+        context's rows b*V .. b*V+V-1 are object b's (``ctx.groups`` B)."""
+        V, (H, W) = len(cams[0]), (cams[0].height, cams[0].width)
+        if any(len(c) != V or (c.height, c.width) != (H, W) for c in cams):
+            raise ValueError("objects batched in one pass need the same number of reference views and image size")
+        merged = RefCameras(torch.cat([c.w2c for c in cams]), torch.cat([c.K for c in cams]), W, H)
+        return replace(self.encode(torch.cat(images), merged), groups=len(cams))
 
     def render_rays_batch(self, ctx, rays: RayBundle, counts: list[int], train: bool = False,
                           generator: torch.Generator | None = None, **phase) -> dict:
-        raise NotImplementedError
+        """:meth:`render_rays` of B objects at once: ``ctx`` from :meth:`encode_batch`, ``rays`` object after object,
+        ``counts[b]`` of object b (all hit the box). Per-ray outputs are laid out as ``rays``; a kind's auxiliary
+        losses weigh each object as in a pass of its own (MRVM's: the mean of the objects' own means)."""
+        if len(counts) != ctx.groups or sum(counts) != len(rays):
+            raise ValueError(f"{len(counts)} objects with {sum(counts)} rays do not match the context's {ctx.groups} "
+                             f"objects and {len(rays)} rays")
+        batch = ObjectBatch.from_counts(counts, ctx.views, device=rays.origins.device)
+        return self.render_rays(replace(ctx, batch=batch), rays, train=train, generator=generator, **phase)
 
     def train_phase(self, step: int, train_cfg) -> TrainPhase:
         return TrainPhase()

@@ -16,7 +16,7 @@ Two architectures of the branches (``nerformer.arch``): 'nerformer', the paper's
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import torch
 
@@ -27,15 +27,15 @@ from .base import NormalizedScene, RayModel, TrainPhase, normalized_scene, ref_c
 from .mrvm import MRVMHead, coarse_positions, lambda_at, make_mask
 from .nerformer import NeRFormerBranch, activate_density, harmonic
 from .nerformer_streams import StreamBranch, relative_direction
-from .projection import ObjectBatch, RefCameras, camera_to_world, project_samples, rays_in_cameras, sample_maps
+from .projection import ObjectBatch, ObjectRefs, RefCameras, camera_to_world, project_samples, rays_in_cameras, sample_maps
 from .rays import RayBundle
 from .renderer import volume_render
 
 
 @dataclass
-class Context:
+class Context(ObjectRefs):
     """Encoded reference views (normalised frame): one object's V views, or B objects' V views each
-    (:meth:`GeneralizableNeRF.encode_batch`: rows b*V .. b*V+V-1 are object b's)."""
+    (:meth:`RayModel.encode_batch`: rows b*V .. b*V+V-1 are object b's)."""
 
     feats: torch.Tensor
     """(V, C, h, w) pixel-aligned features ((B * V, ...) for a batch)."""
@@ -43,20 +43,6 @@ class Context:
     """(V, 3, H, W) reference colours in [0, 1]."""
     cams: RefCameras
     """Reference cameras."""
-    groups: int = 1
-    """Objects whose views these are (B; :meth:`GeneralizableNeRF.encode_batch`)."""
-    batch: ObjectBatch | None = None
-    """Which object each rendered ray belongs to, for several objects in one pass (set by
-    :meth:`GeneralizableNeRF.render_rays_batch`); None for one object."""
-
-    @property
-    def views(self) -> int:
-        """Reference views per object."""
-        return len(self.cams) // self.groups
-
-    def rays_of(self, idx) -> "ObjectBatch | None":
-        """The object layout of the subset ``idx`` of the rays (None for one object)."""
-        return None if self.batch is None else self.batch.select(idx)
 
 
 class GeneralizableNeRF(RayModel):
@@ -114,26 +100,6 @@ class GeneralizableNeRF(RayModel):
         return Context(self.encoder(images), images, cams)
 
     supports_object_batch = True
-    """Training may render several objects' rays in one pass (:meth:`encode_batch`, :meth:`render_rays_batch`)."""
-
-    def encode_batch(self, images: list[torch.Tensor], cams: list[RefCameras]) -> Context:
-        """B objects' reference views, each (V, 3, H, W) with the same V and image size, encoded in one pass."""
-        V, (H, W) = len(cams[0]), (cams[0].height, cams[0].width)
-        if any(len(c) != V or (c.height, c.width) != (H, W) for c in cams):
-            raise ValueError("objects batched in one pass need the same number of reference views and image size")
-        merged = RefCameras(torch.cat([c.w2c for c in cams]), torch.cat([c.K for c in cams]), W, H)
-        return replace(self.encode(torch.cat(images), merged), groups=len(cams))
-
-    def render_rays_batch(self, ctx: Context, rays: RayBundle, counts: list[int], train: bool = False,
-                          mask_views: bool = False, generator: torch.Generator | None = None) -> dict:
-        """:meth:`render_rays` of B objects at once: ``ctx`` from :meth:`encode_batch`, ``rays`` object after object,
-        ``counts[b]`` of object b (all hit the box). Per-ray outputs are laid out as ``rays``; the MRVM loss is the mean
-        of the objects' own means (each object weighs as in a pass of its own)."""
-        if len(counts) != ctx.groups or sum(counts) != len(rays):
-            raise ValueError(f"{len(counts)} objects with {sum(counts)} rays do not match the context's {ctx.groups} "
-                             f"objects and {len(rays)} rays")
-        batch = ObjectBatch.from_counts(counts, ctx.views, device=rays.origins.device)
-        return self.render_rays(replace(ctx, batch=batch), rays, train, mask_views, generator)
 
     def _mrvm_loss(self, ctx: Context, fine_rows: torch.Tensor, target_rows: torch.Tensor,
                    ray_of_row: torch.Tensor) -> torch.Tensor:

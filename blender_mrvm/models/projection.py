@@ -78,6 +78,26 @@ class ObjectBatch:
         return x.reshape(self.groups, self.views, *x.shape[1:])[self.obj].transpose(0, 1)
 
 
+@dataclass(kw_only=True)
+class ObjectRefs:
+    """What an encoded context (every model kind's) knows of the objects its reference views belong to: its rows are
+    ``groups`` objects' views in turn, and ``batch`` (set for a render) says which object each ray belongs to."""
+
+    groups: int = 1
+    """Objects whose views these are (B; ``RayModel.encode_batch``)."""
+    batch: ObjectBatch | None = None
+    """Which object each rendered ray belongs to (``RayModel.render_rays_batch``); None for one object."""
+
+    @property
+    def views(self) -> int:
+        """Reference views per object."""
+        return len(self.cams) // self.groups
+
+    def rays_of(self, idx) -> ObjectBatch | None:
+        """The object layout of the subset ``idx`` of the rays (None for one object)."""
+        return None if self.batch is None else self.batch.select(idx)
+
+
 def rays_in_cameras(cams: RefCameras, origins: torch.Tensor, dirs: torch.Tensor, batch: ObjectBatch | None = None):
     """Per view: ray origins and directions in camera coordinates, (V, R, 3) float32 each."""
     if batch is not None:

@@ -41,14 +41,14 @@ from .. import samplers
 from ..base import RayModel
 from ..encoder import IMAGENET_MEAN, IMAGENET_STD
 from ..nerformer import Block, harmonic, harmonic_dim
-from ..projection import RefCameras, project_samples, rays_in_cameras, sample_maps
+from ..projection import ObjectRefs, RefCameras, project_samples, rays_in_cameras, sample_maps
 from ..rays import RayBundle
 from .config import GPNRConfig
 
 
 @dataclass
-class GPNRContext:
-    """Encoded reference views (normalised frame)."""
+class GPNRContext(ObjectRefs):
+    """Encoded reference views (normalised frame); B objects' in turn for a batch (``RayModel.encode_batch``)."""
 
     patches: torch.Tensor
     """(V, patch_dim, H, W) linear patch embedding at every pixel."""
@@ -91,6 +91,7 @@ class GPNR(RayModel):
     """The light-field transformer; see the module doc."""
 
     kind = "gpnr"
+    supports_object_batch = True
     blends_references = True
     """Colour is a blend of reference pixels: the background only fills rays no reference sees
     (``models/background.py``)."""
@@ -167,14 +168,14 @@ class GPNR(RayModel):
         """Rays that hit the box -> colour (R, 3) on the background, acc (R,), depth (R,) from the box entry,
         and the attention weights alpha (R, V, M), beta (R, V) and the colour weights (R, V, M)."""
         cfg = self.cfg
-        R, V = len(rays), len(ctx.cams)
+        R, V, batch = len(rays), ctx.views, ctx.batch
         t = self.sample_depths(rays, train, generator)  # (R, M)
         M = t.shape[1]
-        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs)
-        uv, valid, _ = project_samples(ctx.cams, o_c, d_c, t)  # (V, R, M, 2), (V, R, M)
+        o_c, d_c = rays_in_cameras(ctx.cams, rays.origins, rays.dirs, batch)
+        uv, valid, _ = project_samples(ctx.cams, o_c, d_c, t, batch=batch)  # (V, R, M, 2), (V, R, M)
         uvf = uv.float()
-        patch = sample_maps(ctx.patches.float(), uvf).permute(1, 2, 0, 3)  # (R, M, V, P)
-        rgb = sample_maps(ctx.images.float(), uvf, cfg.colour_filter).permute(1, 2, 0, 3)  # (R, M, V, 3)
+        patch = sample_maps(ctx.patches.float(), uvf, batch=batch).permute(1, 2, 0, 3)  # (R, M, V, P)
+        rgb = sample_maps(ctx.images.float(), uvf, cfg.colour_filter, batch).permute(1, 2, 0, 3)  # (R, M, V, 3)
         if cfg.colour_filter != "bilinear":
             rgb = rgb.clamp(0.0, 1.0)  # bicubic overshoots at edges; the colour stays a blend of [0, 1] values
         valid = valid.permute(1, 2, 0)  # (R, M, V)
@@ -183,8 +184,10 @@ class GPNR(RayModel):
         cam_o = (rays.origins.double() - rays.depth_offset.double()[:, None] * rays.dirs.double())  # camera centres
         t_cam = t.double() + rays.depth_offset.double()[:, None]  # depth from the target camera
         pts = cam_o[:, None, :] + t_cam[..., None] * rays.dirs.double()[:, None, :]  # (R, M, 3)
-        Cw = ctx.cams.centres.double()  # (V, 3)
+        Cw = ctx.cams.centres.double()  # (V, 3), each ray's own object's (R, V, 3) for a batch
         Rc2w = ctx.cams.w2c[:, :3, :3].double().transpose(1, 2)  # (V, 3, 3) reference camera-to-world rotations
+        Cw = Cw[None] if batch is None else batch.per_ray(Cw).transpose(0, 1)
+        Rc2w = Rc2w[None] if batch is None else batch.per_ray(Rc2w).transpose(0, 1)  # (1 or R, V, 3, 3)
         frame = canonical_frames(rays.origins.double(), rays.dirs.double(), rays.up.double() if rays.up is not None else None)
         eye = torch.eye(3, dtype=torch.float64, device=frame.device).expand(R, 3, 3)
         rot_r = frame if cfg.canonicalize_rays else eye
@@ -193,7 +196,7 @@ class GPNR(RayModel):
         org_c = cam_o if cfg.canonicalize_coords else torch.zeros_like(cam_o)
 
         # 1. ray code: Plücker coordinates of the reference ray through each sample.
-        C_r = torch.einsum("rij,rvj->rvi", rot_r, Cw[None] - org_r[:, None])  # (R, V, 3)
+        C_r = torch.einsum("rij,rvj->rvi", rot_r, Cw - org_r[:, None])  # (R, V, 3)
         P_r = torch.einsum("rij,rmj->rmi", rot_r, pts - org_r[:, None])  # (R, M, 3)
         dref = P_r[:, :, None, :] - C_r[:, None, :, :]  # (R, M, V, 3)
         dref = dref / dref.norm(dim=-1, keepdim=True).clamp_min(1e-12)
@@ -206,8 +209,9 @@ class GPNR(RayModel):
             pos = pts.float()
         pos_code = harmonic(pos, cfg.depth_freqs)[:, :, None, :].expand(R, M, V, self.pos_dim)
         # 3. camera code: the reference camera's pose in the chosen frame.
-        C_c = torch.einsum("rij,rvj->rvi", rot_c, Cw[None] - org_c[:, None])  # (R, V, 3)
-        R_c = torch.einsum("rij,vjk->rvik", rot_c, Rc2w).reshape(R, V, 9)
+        C_c = torch.einsum("rij,rvj->rvi", rot_c, Cw - org_c[:, None])  # (R, V, 3)
+        R_c = (torch.einsum("rij,vjk->rvik", rot_c, Rc2w[0]) if batch is None
+               else torch.einsum("rij,rvjk->rvik", rot_c, Rc2w)).reshape(R, V, 9)
         cam_code = torch.cat([R_c.float(), harmonic(C_c.float(), cfg.camera_freqs)], -1)[:, None].expand(R, M, V, self.cam_dim)
 
         vmask = valid[..., None].float()
