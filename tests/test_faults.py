@@ -191,8 +191,8 @@ def test_nan_loss_stops_naming_the_step(data, tmp_path, capsys, monkeypatch):
     real = trainer.RayBatcher.draw
     calls = {"n": 0}
 
-    def draw(self, bbox_phase):
-        b = real(self, bbox_phase)
+    def draw(self, bbox_phase, n_refs=None):
+        b = real(self, bbox_phase, n_refs)
         calls["n"] += 1
         if calls["n"] > 6:  # steps 1-3 are fine (2 objects per step), step 4 sees NaN images
             b["gt"] = torch.full_like(b["gt"], float("nan"))

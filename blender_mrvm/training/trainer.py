@@ -319,7 +319,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                    **{k: 0.0 for k in phase.loss_weights}}
             # Each object's loss is backpropagated on its own (only one object's graph is held), except with the
             # LPIPS patch loss: then up to LPIPS_GROUP objects' patches are scored as one VGG batch
-            # (``patch_lpips``) and their graphs go back together (patches are small: P x P rays each).
+            # (``patch_lpips``) and their graphs go back together (patches are small: P x P rays each). With
+            # ``object_batch`` each group of objects rendered together goes back together (its patches one VGG batch).
             patches: list | None = [] if lp is not None else None
             held: list[torch.Tensor] = []
 
@@ -347,7 +348,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 tot["loss"] += float(loss.detach())
                 if loss.requires_grad:  # (a batch whose rays all miss the box has nothing to learn)
                     held.append(loss)
-                if patches is None or sum(len(a) for a, _ in patches) >= LPIPS_GROUP:
+                # (batched, a group's graphs go back together: at most ``object_batch`` objects' are held at once)
+                if patches is None or object_batch > 1 or sum(len(a) for a, _ in patches) >= LPIPS_GROUP:
                     backward_held()
             backward_held()
             if dd.world > 1:
