@@ -133,6 +133,8 @@ case "$what" in
     # train.ref_views_per "step" one count a step, so one pass) against one pass per object, with the LPIPS patch loss
     # as the recipes train (needs all of VGG16: gpu_carry.sh FULL_VGG=1); `fast` and `accurate`, one CSV each
     nvidia-smi -L
+    # first whether the batched path is right on this device: losses and gradients against one pass per object
+    $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 2>&1 | tee "$OUT/objbatch_check.txt"
     for pb in ${OBJBATCH_RUNS:-fast:32x256 accurate:32x1024}; do
       timeout ${BENCH_TRAIN_S:-170} $PY -m blender_mrvm bench train --device ${BENCH_DEVICE:-cuda} --presets "${pb%%:*}" \
         --batches "${pb#*:}" --object-batches ${OBJECT_BATCHES:-1,16} --ref-views-per ${REF_VIEWS_PER:-object,step} \

@@ -298,3 +298,6 @@ def test_objbatch_call_writes_a_row_per_configuration(tmp_path):
     assert [(x["object_batch"], x["ref_views_per"]) for x in rows] == [
         ("1", "object"), ("1", "step"), ("4", "object"), ("4", "step")], r.stdout + r.stderr
     assert all(float(x["steps_per_s"]) > 0 and x["lpips_weight"] == "0.5" for x in rows)
+    check = (tmp_path / "out" / "objbatch_check.txt").read_text()  # the batched path checked first, on the device
+    assert [line.split()[0] for line in check.splitlines() if "relative differences" in line] == [
+        "nerformer", "legacy", "gpnr"] and "OVER" not in check, check
