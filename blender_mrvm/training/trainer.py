@@ -511,7 +511,7 @@ def _group_terms(model: RayModel, bs: list[dict[str, Any]], out: dict | None, cf
                      device=device)
     gt = torch.cat([b["gt"] for b in bs]).to(device).float()
     obj_cpu = torch.repeat_interleave(torch.arange(B), torch.tensor(sizes))
-    obj, hit = obj_cpu.to(device), hit_cpu.to(device)
+    obj = obj_cpu.to(device)
     hit_idx = torch.nonzero(hit_cpu).flatten().to(device)
     obj_hit = obj_cpu[hit_cpu].to(device)
     bg = 1.0 if model.white_background else 0.0
@@ -522,14 +522,13 @@ def _group_terms(model: RayModel, bs: list[dict[str, Any]], out: dict | None, cf
     def per_object(v: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         return v.new_zeros(B).index_add(0, idx, v)
 
-    def mse(color: torch.Tensor | None) -> torch.Tensor:
+    def mse(color: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:  # (B,) per object, and every ray's colour
         full = shown if color is None else shown.index_put((hit_idx,), color.float())
         return per_object(((full - gt) ** 2).sum(-1), obj) / (3 * n), full
 
     vals: dict[str, torch.Tensor] = {}
     mse_fine, full = mse(None if out is None else out["color"])
     vals["mse_fine"] = mse_fine
-    has = torch.tensor([h > 0 for h in nhit], device=device)
     parts = [{"hit": h / max(1, sz)} for h, sz in zip(nhit, sizes)]
     if out is None:
         return torch.zeros((), device=device), _with_values(parts, vals, has=None)
@@ -539,7 +538,7 @@ def _group_terms(model: RayModel, bs: list[dict[str, Any]], out: dict | None, cf
         vals[f"mse_{name}"] = mse(head["color"])[0]
         loss = loss + cfg.coarse_weight * vals[f"mse_{name}"]
     if cfg.opacity_weight > 0:
-        mask = torch.cat([b["mask"] for b in bs]).to(device).float()
+        mask, hit = torch.cat([b["mask"] for b in bs]).to(device).float(), hit_cpu.to(device)
         size = torch.tensor(sizes, dtype=torch.float32, device=device)
 
         def opacity(acc: torch.Tensor) -> torch.Tensor:
@@ -592,7 +591,10 @@ def _group_terms(model: RayModel, bs: list[dict[str, Any]], out: dict | None, cf
     for name, value in aux.items():
         loss = loss + phase.loss_weights.get(name, 0.0) * value
         vals[name] = value.expand(B)
-    total = torch.where(has, loss, torch.zeros_like(loss)).sum() if B > 1 else loss[0]
+    if B == 1:
+        return loss[0], _with_values(parts, vals, has=nhit, depth_objects=depth_objects)
+    has = torch.tensor([h > 0 for h in nhit], device=device)  # an object with no rays to render adds no loss
+    total = torch.where(has, loss, torch.zeros_like(loss)).sum()
     return total, _with_values(parts, vals, has=nhit, depth_objects=depth_objects)
 
 
