@@ -14,6 +14,10 @@
 #   scripts/gpu_session.sh objbatch                    a step's objects in shared forward passes (train.object_batch,
 #                                                      ref_views_per) against one pass an object: steps/s,
 #                                                      utilisation, launches
+#   scripts/gpu_session.sh slice CONFIG FALLBACK BUDGET
+#                                                      objbatch's check, a short objbatch timing at CONFIG's
+#                                                      object_batch, then `train CONFIG` for what is left of
+#                                                      BUDGET seconds (FALLBACK instead if the check fails)
 #   scripts/gpu_session.sh synth                       `synthesize` on an orbit, eager, --compile (recompiles logged)
 #                                                      and without empty-space skipping (SYNTH_VARIANTS; also
 #                                                      nofoot: skipping without the footprint), seconds a view
@@ -134,13 +138,35 @@ case "$what" in
     # as the recipes train (needs all of VGG16: gpu_carry.sh FULL_VGG=1); `fast` and `accurate`, one CSV each
     nvidia-smi -L
     # first whether the batched path is right on this device: losses and gradients against one pass per object
-    $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 2>&1 | tee "$OUT/objbatch_check.txt"
+    # (OBJBATCH_CHECK=0: already checked, by `slice`)
+    [ "${OBJBATCH_CHECK:-1}" = 0 ] || \
+      $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 2>&1 | tee "$OUT/objbatch_check.txt"
     for pb in ${OBJBATCH_RUNS:-fast:32x256 accurate:32x1024}; do
       timeout ${BENCH_TRAIN_S:-170} $PY -m blender_mrvm bench train --device ${BENCH_DEVICE:-cuda} --presets "${pb%%:*}" \
         --batches "${pb#*:}" --object-batches ${OBJECT_BATCHES:-1,16} --ref-views-per ${REF_VIEWS_PER:-object,step} \
         --precisions ${PRECISIONS:-bf16} --lpips-weight ${LPIPS_WEIGHT:-0.5} --steps ${STEPS:-6} --warmup 2 --profile 1 \
         --data ${BENCH_DATA:-gpu_carry/data/shapenet13_all} --out "$OUT/objbatch_${pb%%:*}"
     done
+    ;;
+  slice)
+    # the next GPU session's training call in one (session 34: a start, this call and a scoring call fit 15 minutes,
+    # where objbatch + train + score did not): the batched path checked on the device; if right, timed against one
+    # pass an object on the same machine (SLICE_BENCH_RUNS, a few steps each) and CONFIG trained for what is left of
+    # BUDGET seconds; if the check fails, FALLBACK (the same slice one object at a time) trains instead
+    [ $# -eq 3 ] || { echo "usage: $0 slice CONFIG FALLBACK BUDGET_SECONDS" >&2; exit 2; }
+    cfg=$1; fallback=$2; budget=$3; t0=$SECONDS
+    if $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 > "$OUT/objbatch_check.txt" 2>&1; then
+      use=$cfg
+      ob=$($PY -c "import json, sys; print(json.load(open(sys.argv[1]))['train'].get('object_batch', 1))" "$cfg")
+      [ "$ob" -gt 1 ] && OBJBATCH_CHECK=0 OBJECT_BATCHES=1,$ob REF_VIEWS_PER=object STEPS=${SLICE_BENCH_STEPS:-3} \
+        BENCH_TRAIN_S=${SLICE_BENCH_S:-150} OBJBATCH_RUNS="${SLICE_BENCH_RUNS:-accurate:32x1024}" bash "$0" objbatch
+    else
+      use=$fallback
+    fi
+    left=$((budget - (SECONDS - t0))); [ $left -ge ${SLICE_MIN_S:-60} ] || left=${SLICE_MIN_S:-60}
+    echo "slice: training $use for ${left} s (check $([ "$use" = "$cfg" ] && echo passed || echo FAILED))" \
+      | tee -a "$OUT/objbatch_check.txt"
+    bash "$0" train "$use" $left
     ;;
   synth)
     # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped
@@ -317,5 +343,5 @@ if steps:
 EOF
     done
     ;;
-  *) echo "usage: $0 bench | profile | fps | synth | mrvm_scale | train CONFIG SECONDS [...]" >&2; exit 2 ;;
+  *) echo "usage: $0 bench | profile | fps | objbatch | slice CONFIG FALLBACK BUDGET | synth | score ... | mrvm_scale | train CONFIG SECONDS [...]" >&2; exit 2 ;;
 esac

@@ -301,3 +301,55 @@ def test_objbatch_call_writes_a_row_per_configuration(tmp_path):
     check = (tmp_path / "out" / "objbatch_check.txt").read_text()  # the batched path checked first, on the device
     assert [line.split()[0] for line in check.splitlines() if "relative differences" in line] == [
         "nerformer", "legacy", "gpnr"] and "OVER" not in check, check
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("check_passes", [True, False])
+def test_slice_checks_times_then_trains_the_batched_config_or_its_fallback(tmp_path, check_passes):
+    """`gpu_session.sh slice CONFIG FALLBACK BUDGET` (the next GPU session's training call, session 34) on the CPU:
+    the batched path is checked first; if right, timed at CONFIG's object_batch against one pass an object and CONFIG
+    trained; if the check fails, FALLBACK trains instead and nothing is timed. Either way the run comes back."""
+    import csv
+
+    from blender_mrvm.models.vgg import weights_dir
+
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "gpu_session.sh", root / "scripts")
+    if check_passes:
+        shutil.copy(REPO / "scripts" / "check_object_batch.py", root / "scripts")
+    else:  # a device on which the batched losses or gradients are off: the check exits 1
+        (root / "scripts" / "check_object_batch.py").write_text("import sys\nprint('nerformer OVER')\nsys.exit(1)\n")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    data = make_sphere_dataset(tmp_path / "data", n_objects=3, n_views=5, resolution=16, data_passes=False)
+    train = {"data": str(data), "split": "train", "iterations": 1_000_000, "objects_per_step": 2,
+             "rays_per_object": 16, "ckpt_every": 1_000_000, "log_every": 1, "threads": 1, "device": "cpu",
+             "pretrain_frac": 0.0, "lpips_weight": 0.0, "opacity_weight": 0.0}
+    for name, extra in (("batched", {"object_batch": 2}), ("single", {})):
+        (root / f"{name}.json").write_text(json.dumps({"model": {"kind": "nerformer_mrvm", "config": {"name": "fast"}},
+                                                       "train": {**train, **extra}}))
+    out = tmp_path / "out"
+    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1",
+           "MRVM_WEIGHTS_DIR": str(weights_dir()), "BENCH_DEVICE": "cpu", "SLICE_BENCH_RUNS": "fast:2x256",
+           "SLICE_BENCH_STEPS": "1", "BENCH_DATA": str(data), "PRECISIONS": "fp32", "SLICE_MIN_S": "8"}
+    r = subprocess.run(["bash", "scripts/gpu_session.sh", "slice", "batched.json", "single.json", "1"], cwd=root,
+                       env=env, capture_output=True, text=True, timeout=900)
+    log = r.stdout + r.stderr
+    assert r.returncode == 0, log
+    check = (out / "objbatch_check.txt").read_text()
+    use = "batched" if check_passes else "single"
+    assert f"slice: training {use}.json for 8 s (check {'passed' if check_passes else 'FAILED'})" in check, log
+    assert (out / f"{use}.safetensors").is_file() and not (out / f"{'single' if check_passes else 'batched'}.safetensors").exists()
+    _, steps, _ = _steps(out / f"{use}.run.tgz")
+    assert steps and steps[-1] >= 1
+    bench = out / "objbatch_fast" / "bench_train.csv"
+    if check_passes:
+        rows = list(csv.DictReader(open(bench)))
+        assert [(x["object_batch"], x["ref_views_per"]) for x in rows] == [("1", "object"), ("2", "object")], log
+        assert "relative differences" in check  # the real check's report, written once
+        assert len(list(out.rglob("*"))) - 1 <= 8  # at most 8 files come back (the bench's folder is not one)
+    else:
+        assert not bench.exists()
+    usage = subprocess.run(["bash", "scripts/gpu_session.sh", "slice", "batched.json"], cwd=root, env=env,
+                           capture_output=True, text=True, timeout=60)
+    assert usage.returncode == 2 and "usage:" in usage.stderr
