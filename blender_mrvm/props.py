@@ -53,7 +53,7 @@ PRECISION_CHOICES = [
     ("AUTO", "Auto", "bf16 on a GPU (every shipped model scores the same there and renders 1.04-1.21x faster), "
                      "fp32 on the CPU"),
     ("FP32", "fp32", "Full precision"),
-    ("BF16", "bf16", "bfloat16 autocast: faster on a GPU, no faster on a CPU"),
+    ("BF16", "bf16", "bfloat16 autocast: faster on a GPU; on a CPU the same images, no faster"),
     ("FP16", "fp16", "float16 autocast: a GPU only"),
 ]
 """Inference precision (``models.precision.SYNTH_PRECISIONS``), synthesize's ``--precision``."""

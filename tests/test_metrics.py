@@ -133,6 +133,11 @@ def test_scores_against_batches_lpips_with_the_same_numbers():
         assert sc[k]["psnr"] == pytest.approx(float(psnr(img, gt)[0]), rel=1e-6)
     assert sc["model"]["lpips"] < sc["baseline_nearest"]["lpips"]
     assert "lpips" not in scores_against(gt, cands, None)["model"]
+    # scored in float32 under a caller's autocast: `bench tradeoff` renders its bf16 point inside
+    # torch.autocast, and on the CPU that once ran SSIM's filters and VGG in bf16 (SSIM 0.11 low at equal PSNR)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        under = scores_against(gt.numpy(), cands, lp)
+    assert under == sc
 
 
 @needs_weights

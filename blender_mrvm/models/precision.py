@@ -6,8 +6,10 @@ faster in bf16 and 1.23x in fp16 at the same PSNR and LPIPS (19.88 dB / 0.237 on
 scored the default, any-view and GPNR models in bf16 on an H100 within 0.004 dB and 0.0004 LPIPS of their fp32
 scores (Sem2NeRF 0.016 dB; 13 held-out objects x 4 views, fp32 scored on the CPU, which matched the GPU's fp32 per
 view in session 31; docs/bench_gpu/session32), and session 23 timed them 1.04-1.10x faster in bf16 at 256 px. On the
-CPU bf16 is no faster and cost the default model 0.07 SSIM (docs/bench_tradeoff). So synthesis's default, ``auto``,
-is bf16 on a GPU and fp32 on the CPU (:func:`resolve_precision`)."""
+CPU bf16 scores as fp32 does but is no faster for NeRFormer (session 34, a Zen 4 box with AVX-512 BF16,
+docs/bench_quality_cpu: the default 0.82 -> 1.02 s a 128 px view at 19.20 / 0.787 / 0.207 against 19.21 / 0.787 /
+0.206; an SSIM loss of 0.07-0.14 recorded before was the benchmark scoring in bf16 too). So synthesis's default,
+``auto``, is bf16 on a GPU and fp32 on the CPU (:func:`resolve_precision`)."""
 
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ PRECISIONS = ("fp32", "bf16", "fp16")
 SYNTH_PRECISIONS = ("auto", *PRECISIONS)
 """What synthesis takes (``synthesize --precision``, the panel): ``auto`` resolves by the device."""
 
-CPU_BF16_NOTE = ("bf16 on the CPU is no faster than fp32 and cost the default model 0.07 SSIM (bench tradeoff); "
+CPU_BF16_NOTE = ("bf16 on the CPU renders the same views as fp32 but no faster (docs/bench_quality_cpu); "
                  "it pays on a GPU")
 
 

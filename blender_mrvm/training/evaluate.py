@@ -178,15 +178,18 @@ def scores_against(gt, candidates: dict[str, Any], lpips) -> dict[str, dict[str,
     """PSNR, SSIM (pixelNeRF's and the Gaussian one) and, with ``lpips`` (:class:`models.metrics.LPIPS`), LPIPS of
     each named (H, W, 3) image in [0, 1] (tensor or array) against ``gt``. The LPIPS of all of them goes through VGG
     in one batch with ``gt`` (a view's model image and its baselines at 64 px: 136 ms against 376 ms one pair at a
-    time on one core)."""
+    time on one core). Scored in float32 whatever autocast the caller renders under: the benches render a
+    precision point inside ``torch.autocast``, and on the CPU that ran SSIM's filters and LPIPS's VGG in bf16 too
+    (SSIM 0.11-0.14 low at the same PSNR, session 34: the "speckle" recorded since session 21 was the metric's)."""
     g = torch.as_tensor(np.ascontiguousarray(gt), dtype=torch.float32)
     imgs = {k: torch.as_tensor(np.ascontiguousarray(v), dtype=torch.float32) for k, v in candidates.items()}
-    out = {k: {"psnr": float(psnr(p, g)[0]), "ssim": float(ssim(p, g)[0]), "ssim_gauss": float(ssim_gauss(p, g)[0])}
-           for k, p in imgs.items()}
+    with torch.autocast("cpu", enabled=False):
+        out = {k: {"psnr": float(psnr(p, g)[0]), "ssim": float(ssim(p, g)[0]),
+                   "ssim_gauss": float(ssim_gauss(p, g)[0])} for k, p in imgs.items()}
     if lpips is not None and imgs:
         dev = lpips.shift.device
         batch = torch.stack(list(imgs.values())).permute(0, 3, 1, 2)
-        with torch.no_grad():
+        with torch.no_grad(), torch.autocast(dev.type, enabled=False):
             d = lpips.distance(batch.to(dev), g.permute(2, 0, 1)[None].to(dev))
         for k, v in zip(imgs, d.tolist()):
             out[k]["lpips"] = float(v)
