@@ -158,8 +158,9 @@ case "$what" in
     if $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 > "$OUT/objbatch_check.txt" 2>&1; then
       use=$cfg
       ob=$($PY -c "import json, sys; print(json.load(open(sys.argv[1]))['train'].get('object_batch', 1))" "$cfg")
-      [ "$ob" -gt 1 ] && OBJBATCH_CHECK=0 OBJECT_BATCHES=1,$ob REF_VIEWS_PER=object STEPS=${SLICE_BENCH_STEPS:-3} \
-        BENCH_TRAIN_S=${SLICE_BENCH_S:-150} OBJBATCH_RUNS="${SLICE_BENCH_RUNS:-accurate:32x1024}" bash "$0" objbatch
+      [ "$ob" -gt 1 ] && OBJBATCH_CHECK=0 OBJECT_BATCHES=1,$ob REF_VIEWS_PER=${SLICE_REF_VIEWS_PER:-object,step} \
+        STEPS=${SLICE_BENCH_STEPS:-3} BENCH_TRAIN_S=${SLICE_BENCH_S:-180} OBJBATCH_RUNS="${SLICE_BENCH_RUNS:-accurate:32x1024}" \
+        bash "$0" objbatch
     else
       use=$fallback
     fi

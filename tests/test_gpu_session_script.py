@@ -345,7 +345,8 @@ def test_slice_checks_times_then_trains_the_batched_config_or_its_fallback(tmp_p
     bench = out / "objbatch_fast" / "bench_train.csv"
     if check_passes:
         rows = list(csv.DictReader(open(bench)))
-        assert [(x["object_batch"], x["ref_views_per"]) for x in rows] == [("1", "object"), ("2", "object")], log
+        assert [(x["object_batch"], x["ref_views_per"]) for x in rows] == [
+            ("1", "object"), ("1", "step"), ("2", "object"), ("2", "step")], log
         assert "relative differences" in check  # the real check's report, written once
         assert len(list(out.rglob("*"))) - 1 <= 8  # at most 8 files come back (the bench's folder is not one)
     else:
