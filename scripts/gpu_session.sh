@@ -32,7 +32,7 @@
 #                                                      in gpu_pack/runs/ here and the next call resumes it
 #                                                      exactly (GPU sessions are 15 minutes; a run spans several)
 set -uo pipefail
-export PYTHONPATH=$PWD MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
+export PYTHONPATH=${MRVM_CODE:-$PWD} MRVM_WEIGHTS_DIR=${MRVM_WEIGHTS_DIR:-$PWD/gpu_carry/weights} PYTHONUNBUFFERED=1
 OUT=${OUT:-gpu_out}
 mkdir -p "$OUT"
 if [ ! -d gpu_carry ] && [ -f gpu_pack/carry.tgz ]; then mkdir -p gpu_carry && tar -xzf gpu_pack/carry.tgz -C gpu_carry; fi
@@ -165,9 +165,14 @@ case "$what" in
       use=$fallback
     fi
     left=$((budget - (SECONDS - t0))); [ $left -ge ${SLICE_MIN_S:-60} ] || left=${SLICE_MIN_S:-60}
-    echo "slice: training $use for ${left} s (check $([ "$use" = "$cfg" ] && echo passed || echo FAILED))" \
+    # a failed check may be a fault of the code every object's loss now goes through (training/trainer._group_terms),
+    # so the fallback trains with the tree before it when one came along (gpu_old/, the last code that trained on a
+    # GPU: docs/gpu_session.md); python -P keeps the working directory's tree off sys.path
+    old=; [ "$use" = "$fallback" ] && [ -d gpu_old/blender_mrvm ] && old=" with the code in gpu_old/"
+    echo "slice: training $use$old for ${left} s (check $([ "$use" = "$cfg" ] && echo passed || echo FAILED))" \
       | tee -a "$OUT/objbatch_check.txt"
-    bash "$0" train "$use" $left
+    if [ -n "$old" ]; then MRVM_CODE=$PWD/gpu_old PY="$PY -P" bash "$0" train "$use" $left
+    else bash "$0" train "$use" $left; fi
     ;;
   synth)
     # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped

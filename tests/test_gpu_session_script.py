@@ -321,6 +321,11 @@ def test_slice_checks_times_then_trains_the_batched_config_or_its_fallback(tmp_p
     else:  # a device on which the batched losses or gradients are off: the check exits 1
         (root / "scripts" / "check_object_batch.py").write_text("import sys\nprint('nerformer OVER')\nsys.exit(1)\n")
     (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    if not check_passes:  # the tree before the batched loss came along (gpu_old/): the fallback trains with it
+        shutil.copytree(REPO / "blender_mrvm", root / "gpu_old" / "blender_mrvm",
+                        ignore=shutil.ignore_patterns("*.safetensors", "__pycache__"))
+        main = root / "gpu_old" / "blender_mrvm" / "__main__.py"
+        main.write_text("import sys\nprint('GPU_OLD_CODE', file=sys.stderr)\n" + main.read_text())
     data = make_sphere_dataset(tmp_path / "data", n_objects=3, n_views=5, resolution=16, data_passes=False)
     train = {"data": str(data), "split": "train", "iterations": 1_000_000, "objects_per_step": 2,
              "rays_per_object": 16, "ckpt_every": 1_000_000, "log_every": 1, "threads": 1, "device": "cpu",
@@ -338,7 +343,9 @@ def test_slice_checks_times_then_trains_the_batched_config_or_its_fallback(tmp_p
     assert r.returncode == 0, log
     check = (out / "objbatch_check.txt").read_text()
     use = "batched" if check_passes else "single"
-    assert f"slice: training {use}.json for 8 s (check {'passed' if check_passes else 'FAILED'})" in check, log
+    old = "" if check_passes else " with the code in gpu_old/"
+    assert f"slice: training {use}.json{old} for 8 s (check {'passed' if check_passes else 'FAILED'})" in check, log
+    assert ("GPU_OLD_CODE" in (out / f"{use}.log").read_text()) == (not check_passes)
     assert (out / f"{use}.safetensors").is_file() and not (out / f"{'single' if check_passes else 'batched'}.safetensors").exists()
     _, steps, _ = _steps(out / f"{use}.run.tgz")
     assert steps and steps[-1] >= 1
