@@ -225,6 +225,8 @@ EOF2
     # time on the one GPU, 2 references, LPIPS with the carried fp16 VGG16. Back: score.tgz (every eval.json and
     # log; SCORE_S bounds them all, so it is written before the call's limit); pair them here
     # (training.evaluate.compare_reports). Session 31: two `quality` files on 7 sets, ~2 000 views.
+    # On the CPU here (no device time left): DEVICE=cpu SCORE_JOBS=2 SCORE_THREADS=1 and a SCORE_S of hours
+    # (two 1-thread jobs on the 2 cores; 2 threads each would oversubscribe them)
     [ -d gpu_eval/data ] || tar -xzf gpu_eval/eval.tgz -C gpu_eval || exit 1
     export MRVM_WEIGHTS_DIR=$PWD/gpu_eval/weights
     tmp=${SCORE_TMP:-/tmp/score}; rm -rf "$tmp"; mkdir -p "$tmp/logs"
@@ -240,7 +242,7 @@ EOF2
       IFS='|' read -r ck set split tg k <<< "$1"
       local tag; tag=$(basename "${ck%.safetensors}")__${set}_$split
       timeout $((deadline - SECONDS)) $PY -m blender_mrvm eval --checkpoint "$ck" --data "gpu_eval/data/$set" --split "$split" \
-        --n-inputs 2 --max-targets "$tg" ${k:+--max-objects-per-category $k} --device ${DEVICE:-cuda} --threads 2 --force \
+        --n-inputs 2 --max-targets "$tg" ${k:+--max-objects-per-category $k} --device ${DEVICE:-cuda} --threads ${SCORE_THREADS:-2} --force \
         --out "$tmp/$tag" > "$tmp/logs/$tag.log" 2>&1
       local rc=$?; echo "$tag: rc $rc"; [ $rc = 0 ] || tail -n 2 "$tmp/logs/$tag.log"
     }
