@@ -173,6 +173,15 @@ case "$what" in
       | tee -a "$OUT/objbatch_check.txt"
     if [ -n "$old" ]; then MRVM_CODE=$PWD/gpu_old PY="$PY -P" bash "$0" train "$use" $left
     else bash "$0" train "$use" $left; fi
+    # a batched slice that saved no step (out of memory at its first step, say) leaves the rest of the budget to
+    # the fallback, one object at a time
+    left=$((budget - (SECONDS - t0)))
+    if [ "$use" = "$cfg" ] && ! ls -d "runs/$(basename "$cfg" .json)"/checkpoints/step_* > /dev/null 2>&1 \
+       && [ $left -ge ${SLICE_MIN_S:-60} ]; then
+      echo "slice: $cfg saved no step ($(basename "$cfg" .json).log); training $fallback for ${left} s" \
+        | tee -a "$OUT/objbatch_check.txt"
+      bash "$0" train "$fallback" $left
+    fi
     ;;
   synth)
     # `synthesize` itself on an orbit (issue 13: `--compile` was timed only through `bench model`): each shipped

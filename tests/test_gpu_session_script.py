@@ -361,3 +361,34 @@ def test_slice_checks_times_then_trains_the_batched_config_or_its_fallback(tmp_p
     usage = subprocess.run(["bash", "scripts/gpu_session.sh", "slice", "batched.json"], cwd=root, env=env,
                            capture_output=True, text=True, timeout=60)
     assert usage.returncode == 2 and "usage:" in usage.stderr
+
+
+@pytest.mark.slow
+def test_slice_gives_the_rest_of_its_budget_to_the_fallback_when_the_batched_run_saves_nothing(tmp_path):
+    """A batched slice that fails at once (on the device: out of memory at its first step) saved no step: `slice`
+    trains the fallback for what is left of the budget instead of returning with the device time unused."""
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "gpu_session.sh", root / "scripts")
+    (root / "scripts" / "check_object_batch.py").write_text("print('nerformer relative differences ok')\n")
+    (root / "blender_mrvm").symlink_to(REPO / "blender_mrvm")
+    data = make_sphere_dataset(tmp_path / "data", n_objects=3, n_views=5, resolution=16, data_passes=False)
+    train = {"data": str(data), "split": "train", "iterations": 1_000_000, "objects_per_step": 2,
+             "rays_per_object": 16, "ckpt_every": 1_000_000, "log_every": 1, "threads": 1, "device": "cpu",
+             "pretrain_frac": 0.0, "lpips_weight": 0.0, "opacity_weight": 0.0}
+    model = {"kind": "nerformer_mrvm", "config": {"name": "fast"}}
+    (root / "batched.json").write_text(json.dumps({"model": model, "train": {**train, "object_batch": 2,
+                                                                              "data": str(tmp_path / "gone")}}))
+    (root / "single.json").write_text(json.dumps({"model": model, "train": train}))
+    out = tmp_path / "out"
+    env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1", "BENCH_DEVICE": "cpu",
+           "SLICE_BENCH_RUNS": "fast:2x16", "SLICE_BENCH_STEPS": "1", "BENCH_DATA": str(data), "PRECISIONS": "fp32",
+           "LPIPS_WEIGHT": "0", "SLICE_MIN_S": "8"}
+    r = subprocess.run(["bash", "scripts/gpu_session.sh", "slice", "batched.json", "single.json", "50"], cwd=root,
+                       env=env, capture_output=True, text=True, timeout=900)
+    log = r.stdout + r.stderr
+    check = (out / "objbatch_check.txt").read_text()
+    assert "slice: training batched.json for" in check and "slice: batched.json saved no step" in check, log
+    assert (out / "single.safetensors").is_file() and not (out / "batched.safetensors").exists(), log
+    _, steps, _ = _steps(out / "single.run.tgz")
+    assert steps and steps[-1] >= 1
