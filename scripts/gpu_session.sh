@@ -155,32 +155,31 @@ case "$what" in
     # BUDGET seconds; if the check fails, FALLBACK (the same slice one object at a time) trains instead
     [ $# -eq 3 ] || { echo "usage: $0 slice CONFIG FALLBACK BUDGET_SECONDS" >&2; exit 2; }
     cfg=$1; fallback=$2; budget=$3; t0=$SECONDS
+    # train CONFIG for SECONDS (WHY noted), with the tree in gpu_old/ if CODE is "old" and it came along: a fallback
+    # may be needed for a fault in the code every object's loss now goes through (training/trainer._group_terms), so
+    # it trains with the last tree that trained on a GPU (docs/gpu_session.md); python -P keeps the working
+    # directory's tree off sys.path
+    slice_train() {  # CONFIG SECONDS CODE WHY
+      local how=""; [ "$3" = old ] && [ -d gpu_old/blender_mrvm ] && how=" with the code in gpu_old/"
+      echo "slice: training $1$how for $2 s ($4)" | tee -a "$OUT/objbatch_check.txt"
+      if [ -n "$how" ]; then MRVM_CODE=$PWD/gpu_old PY="$PY -P" bash "$0" train "$1" "$2"
+      else bash "$0" train "$1" "$2"; fi
+    }
+    remaining() { local left=$((budget - (SECONDS - t0))); echo $((left > ${SLICE_MIN_S:-60} ? left : ${SLICE_MIN_S:-60})); }
     if $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 > "$OUT/objbatch_check.txt" 2>&1; then
-      use=$cfg
       ob=$($PY -c "import json, sys; print(json.load(open(sys.argv[1]))['train'].get('object_batch', 1))" "$cfg")
       [ "$ob" -gt 1 ] && OBJBATCH_CHECK=0 OBJECT_BATCHES=1,$ob REF_VIEWS_PER=${SLICE_REF_VIEWS_PER:-object,step} \
         STEPS=${SLICE_BENCH_STEPS:-3} BENCH_TRAIN_S=${SLICE_BENCH_S:-180} OBJBATCH_RUNS="${SLICE_BENCH_RUNS:-accurate:32x1024}" \
         bash "$0" objbatch
+      slice_train "$cfg" "$(remaining)" new "check passed"
+      # a batched slice that saved no step (out of memory at its first step, say) leaves the rest of the budget to
+      # the fallback
+      if ! ls -d "runs/$(basename "$cfg" .json)"/checkpoints/step_* > /dev/null 2>&1 \
+         && [ $((budget - (SECONDS - t0))) -ge ${SLICE_MIN_S:-60} ]; then
+        slice_train "$fallback" "$(remaining)" old "$cfg saved no step: $(basename "$cfg" .json).log"
+      fi
     else
-      use=$fallback
-    fi
-    left=$((budget - (SECONDS - t0))); [ $left -ge ${SLICE_MIN_S:-60} ] || left=${SLICE_MIN_S:-60}
-    # a failed check may be a fault of the code every object's loss now goes through (training/trainer._group_terms),
-    # so the fallback trains with the tree before it when one came along (gpu_old/, the last code that trained on a
-    # GPU: docs/gpu_session.md); python -P keeps the working directory's tree off sys.path
-    old=; [ "$use" = "$fallback" ] && [ -d gpu_old/blender_mrvm ] && old=" with the code in gpu_old/"
-    echo "slice: training $use$old for ${left} s (check $([ "$use" = "$cfg" ] && echo passed || echo FAILED))" \
-      | tee -a "$OUT/objbatch_check.txt"
-    if [ -n "$old" ]; then MRVM_CODE=$PWD/gpu_old PY="$PY -P" bash "$0" train "$use" $left
-    else bash "$0" train "$use" $left; fi
-    # a batched slice that saved no step (out of memory at its first step, say) leaves the rest of the budget to
-    # the fallback, one object at a time
-    left=$((budget - (SECONDS - t0)))
-    if [ "$use" = "$cfg" ] && ! ls -d "runs/$(basename "$cfg" .json)"/checkpoints/step_* > /dev/null 2>&1 \
-       && [ $left -ge ${SLICE_MIN_S:-60} ]; then
-      echo "slice: $cfg saved no step ($(basename "$cfg" .json).log); training $fallback for ${left} s" \
-        | tee -a "$OUT/objbatch_check.txt"
-      bash "$0" train "$fallback" $left
+      slice_train "$fallback" "$(remaining)" old "check FAILED"
     fi
     ;;
   synth)

@@ -388,7 +388,7 @@ def test_slice_gives_the_rest_of_its_budget_to_the_fallback_when_the_batched_run
                        env=env, capture_output=True, text=True, timeout=900)
     log = r.stdout + r.stderr
     check = (out / "objbatch_check.txt").read_text()
-    assert "slice: training batched.json for" in check and "slice: batched.json saved no step" in check, log
+    assert "slice: training batched.json for" in check and "(batched.json saved no step: batched.log)" in check, log
     assert (out / "single.safetensors").is_file() and not (out / "batched.safetensors").exists(), log
     _, steps, _ = _steps(out / "single.run.tgz")
     assert steps and steps[-1] >= 1
