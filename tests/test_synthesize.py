@@ -490,6 +490,15 @@ def test_auto_picks_the_model_that_fits_the_cameras(tmp_path, capsys):
     assert "shipped:auto" in note and "shipped:mrvm_anyview" in note
     assert P.viewpoint_note(tmp_path / "other.safetensors", *_turntable_cameras([75])) == ""
     assert P.viewpoint_note(P.shipped_or_none("mrvm_anyview"), *_turntable_cameras([75])) == ""
+    # The converse: the any-view or quality model named for cameras on the default's turntable, where it is better.
+    for name, model in (("mrvm_anyview", "any-view model"), ("mrvm_quality", "quality model")):
+        if P.shipped_or_none(name) is None:
+            continue
+        note = P.viewpoint_note(P.shipped_or_none(name), *near)
+        assert note.startswith(f"all {len(near[0])} cameras are on the 30-degree turntable") and model in note
+        (p0, l0), (p1, l1) = P.TURNTABLE_HELD_OUT["nerformer_mrvm"], P.TURNTABLE_HELD_OUT[name]
+        assert p0 > p1 and l0 < l1 and f"{p0:.1f} dB" in note and "shipped:auto" in note
+        assert P.viewpoint_note(P.shipped_or_none(name), *_turntable_cameras([30, 75])) == ""  # one camera off
     # Through the CLI: an analytic sphere-rig object, no --checkpoint (= shipped:auto), then the default named.
     data = make_sphere_dataset(tmp_path / "data", n_objects=1, n_views=6, resolution=16, seed=5, rig="sphere")
     obj = data / "spheres" / "obj000"

@@ -185,15 +185,34 @@ def is_auto(checkpoint) -> bool:
     return raw == f"shipped:{AUTO}"
 
 
+TURNTABLE_HELD_OUT = {"nerformer_mrvm": (22.9, 0.164), "mrvm_quality": (21.6, 0.189), "mrvm_anyview": (19.8, 0.233)}
+"""PSNR (dB) and LPIPS of the shipped NeRFormer+MRVM models on held-out objects seen from the default model's
+training turntable (``data/turntable64_heldout``, 13 objects x 10 views, 2 references; RECIPE.md: stage 7,
+"Session 32", "Any-view stage 3"). The nearest reference view scores 17.4 / 0.223 there."""
+
+
+def _is_shipped(checkpoint, name: str | None) -> bool:
+    p = shipped_or_none(name)
+    return p is not None and checkpoint is not None and Path(checkpoint).resolve() == p.resolve()
+
+
 def viewpoint_note(checkpoint, c2ws, intrinsics, bbox, framing_known: bool = True) -> str:
-    """A one-line hint when the default model, named explicitly, is asked about cameras beyond
-    :data:`TURNTABLE_TOLERANCE` of its training turntable (the cameras as for :func:`turntable_offsets`);
-    '' for any other checkpoint or when every camera is near the turntable."""
-    default = shipped_or_none(None)
-    if default is None or checkpoint is None or Path(checkpoint).resolve() != default.resolve():
-        return ""
+    """A one-line hint when a shipped NeRFormer+MRVM model, named explicitly, does not fit the cameras (the
+    cameras as for :func:`turntable_offsets`): the default model asked about cameras beyond
+    :data:`TURNTABLE_TOLERANCE` of its training turntable, or the any-view or quality model asked about cameras
+    that all sit on it, where the default model renders better (:data:`TURNTABLE_HELD_OUT`) and faster on a CPU.
+    '' for any other checkpoint, or when the model fits the cameras."""
     n, total, what = _off_turntable(c2ws, intrinsics, bbox, framing_known)
-    if n == 0:
+    for name in ("mrvm_quality", "mrvm_anyview"):
+        if total and n == 0 and _is_shipped(checkpoint, name) and shipped_or_none(None) is not None:
+            (p0, l0), (p1, l1) = TURNTABLE_HELD_OUT["nerformer_mrvm"], TURNTABLE_HELD_OUT[name]
+            model = "quality model" if name == "mrvm_quality" else "any-view model"
+            faster = "many times faster on a CPU" if name == "mrvm_quality" else "as fast"
+            return (f"all {total} cameras are on the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model "
+                    f"was trained on, where it renders better than the {model} (held-out objects: {p0:.1f} dB / "
+                    f"LPIPS {l0:.3f} against {p1:.1f} / {l1:.3f}) and {faster}; for such views use shipped:auto "
+                    "or shipped (the panel's 'Auto' or its default model)")
+    if n == 0 or not _is_shipped(checkpoint, None):
         return ""
     return (f"{n} of {total} cameras are off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model was "
             f"trained on ({what}); for such views use shipped:auto or shipped:mrvm_anyview (the panel's 'Auto' or "

@@ -532,7 +532,8 @@ class SynthesisSummary:
     background: dict = field(default_factory=dict)
     """What the references show and what the model rendered on (``models/background.py``)."""
     viewpoint_note: str = ""
-    """The default model asked about cameras off its training turntable (``pretrained.viewpoint_note``)."""
+    """A shipped model named for cameras it does not fit: the default off its training turntable, the any-view or
+    quality model on it (``pretrained.viewpoint_note``)."""
     model_choice: str = ""
     """``shipped:auto``'s choice and why (``pretrained.auto_model``); '' for a named checkpoint."""
     reference_colours: dict | None = None
