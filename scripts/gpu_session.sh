@@ -165,7 +165,9 @@ case "$what" in
       if [ -n "$how" ]; then MRVM_CODE=$PWD/gpu_old PY="$PY -P" bash "$0" train "$1" "$2"
       else bash "$0" train "$1" "$2"; fi
     }
-    remaining() { local left=$((budget - (SECONDS - t0))); echo $((left > ${SLICE_MIN_S:-60} ? left : ${SLICE_MIN_S:-60})); }
+    min_s=${SLICE_MIN_S:-60}
+    left() { echo $((budget - (SECONDS - t0))); }
+    remaining() { local l; l=$(left); echo $((l > min_s ? l : min_s)); }
     if $PY scripts/check_object_batch.py --device ${BENCH_DEVICE:-cuda} --amp bf16 > "$OUT/objbatch_check.txt" 2>&1; then
       ob=$($PY -c "import json, sys; print(json.load(open(sys.argv[1]))['train'].get('object_batch', 1))" "$cfg")
       [ "$ob" -gt 1 ] && OBJBATCH_CHECK=0 OBJECT_BATCHES=1,$ob REF_VIEWS_PER=${SLICE_REF_VIEWS_PER:-object,step} \
@@ -175,7 +177,7 @@ case "$what" in
       # a batched slice that saved no step (out of memory at its first step, say) leaves the rest of the budget to
       # the fallback
       if ! ls -d "runs/$(basename "$cfg" .json)"/checkpoints/step_* > /dev/null 2>&1 \
-         && [ $((budget - (SECONDS - t0))) -ge ${SLICE_MIN_S:-60} ]; then
+         && [ "$(left)" -ge "$min_s" ]; then
         slice_train "$fallback" "$(remaining)" old "$cfg saved no step: $(basename "$cfg" .json).log"
       fi
     else

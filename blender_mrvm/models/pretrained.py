@@ -202,17 +202,24 @@ def viewpoint_note(checkpoint, c2ws, intrinsics, bbox, framing_known: bool = Tru
     :data:`TURNTABLE_TOLERANCE` of its training turntable, or the any-view or quality model asked about cameras
     that all sit on it, where the default model renders better (:data:`TURNTABLE_HELD_OUT`) and faster on a CPU.
     '' for any other checkpoint, or when the model fits the cameras."""
+    if shipped_or_none(None) is None:
+        return ""
+    name = next((k for k in ("nerformer_mrvm", "mrvm_quality", "mrvm_anyview")
+                 if _is_shipped(checkpoint, None if k == "nerformer_mrvm" else k)), None)
+    if name is None:
+        return ""
     n, total, what = _off_turntable(c2ws, intrinsics, bbox, framing_known)
-    for name in ("mrvm_quality", "mrvm_anyview"):
-        if total and n == 0 and _is_shipped(checkpoint, name) and shipped_or_none(None) is not None:
-            (p0, l0), (p1, l1) = TURNTABLE_HELD_OUT["nerformer_mrvm"], TURNTABLE_HELD_OUT[name]
-            model = "quality model" if name == "mrvm_quality" else "any-view model"
-            faster = "many times faster on a CPU" if name == "mrvm_quality" else "as fast"
-            return (f"all {total} cameras are on the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model "
-                    f"was trained on, where it renders better than the {model} (held-out objects: {p0:.1f} dB / "
-                    f"LPIPS {l0:.3f} against {p1:.1f} / {l1:.3f}) and {faster}; for such views use shipped:auto "
-                    "or shipped (the panel's 'Auto' or its default model)")
-    if n == 0 or not _is_shipped(checkpoint, None):
+    if name != "nerformer_mrvm":
+        if not total or n:
+            return ""
+        (p0, l0), (p1, l1) = TURNTABLE_HELD_OUT["nerformer_mrvm"], TURNTABLE_HELD_OUT[name]
+        model, faster = (("quality model", "many times faster on a CPU") if name == "mrvm_quality"
+                         else ("any-view model", "as fast"))
+        return (f"all {total} cameras are on the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model "
+                f"was trained on, where it renders better than the {model} (held-out objects: {p0:.1f} dB / "
+                f"LPIPS {l0:.3f} against {p1:.1f} / {l1:.3f}) and {faster}; for such views use shipped:auto "
+                "or shipped (the panel's 'Auto' or its default model)")
+    if n == 0:
         return ""
     return (f"{n} of {total} cameras are off the {DEFAULT_ELEVATION_DEG:.0f}-degree turntable the default model was "
             f"trained on ({what}); for such views use shipped:auto or shipped:mrvm_anyview (the panel's 'Auto' or "
