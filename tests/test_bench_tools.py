@@ -72,7 +72,9 @@ def test_sweep_moves_one_knob_at_a_time():
         moved = [f for f in ("overrides", "refs", "nearest", "ref_size", "precision", "skip", "chunk")
                  if getattr(p, f) != getattr(base, f)]
         assert len(moved) == 1, (p.label, moved)
-    assert not any(p.precision == "fp16" for p in pts)  # fp16 only on a GPU
+    assert [p.precision for p in pts if p.axis == "precision"] == ["bf16", "int8"]  # fp16 only on a GPU, int8 on a CPU
+    gpu = tr.sweep("nerformer_mrvm", cfg, ["precision"], "cuda")
+    assert [p.precision for p in gpu if p.axis == "precision"] == ["bf16", "fp16"]
     gates = [p.overrides["render"]["fine_min_acc"] for p in pts if p.axis == "gate"]
     g = cfg.render.fine_min_acc
     assert sorted(gates) == [0.0, g / 10, 10 * g]  # off, a tenth of the default and 10x it
@@ -313,6 +315,11 @@ def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request
     row = next(csv.DictReader(open(out / "bench_model.csv")))
     assert row["compiled"] == "True" and row["compile_mode"] == "reduce-overhead"
     assert seen and all(kw == {"dynamic": True, "mode": "reduce-overhead"} for _, kw in seen)
+    monkeypatch.undo()
+    assert main([*args[:5], "2", *args[6:], "--precisions", "fp32,int8"]) == 0  # int8 linear layers (CPU only)
+    assert [r["precision"] for r in csv.DictReader(open(out / "bench_model.csv"))] == ["fp32", "int8"]
+    assert main([*args[:5], "2", *args[6:], "--precisions", "int8", "--compile"]) == 2
+    assert main([*args[:5], "2", *args[6:], "--precisions", "fp16"]) == 2  # a GPU setting
 
 
 def test_compiling_keeps_the_state_dict_and_the_outputs():

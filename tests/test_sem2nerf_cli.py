@@ -250,7 +250,7 @@ def test_bench_tradeoff_sweeps_a_sem2nerf_checkpoint(tmp_path, trained):
     rows = list(csv.DictReader(open(out / "bench_tradeoff.csv")))
     assert {r["kind"] for r in rows} == {"sem2nerf"}
     pts = {r["point"]: r for r in rows}
-    assert set(pts) == {"as trained", "4+1 samples", "6+0 samples", "12+4 samples", "cone culling", "bf16",
+    assert set(pts) == {"as trained", "4+1 samples", "6+0 samples", "12+4 samples", "cone culling", "bf16", "int8",
                         "chunk 256", "chunk 4096"}  # TINY: 6 + 2 samples; the half point is --quality preview's (at least 4 coarse)
     assert [int(pts[p]["samples_per_ray"]) for p in ("as trained", "4+1 samples", "6+0 samples", "12+4 samples")] \
         == [8, 5, 6, 16]

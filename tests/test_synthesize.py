@@ -394,20 +394,83 @@ def test_precision_bf16_renders_close_to_fp32_and_fp16_asks_for_a_gpu(setup, tmp
         assert 0 < mse < 1e-3, (i, mse)  # bf16 keeps ~3 significant digits: changed, but within ~30 dB
     out = tmp_path / "fp16"
     _fails(_args(root, obj, ck, out, "--precision", "fp16"), "--precision fp16 needs a GPU", capsys, out)
+    out = tmp_path / "int8c"
+    _fails(_args(root, obj, ck, out, "--precision", "int8", "--compile"), "--precision int8 and --compile do not "
+           "combine", capsys, out)
 
 
-def test_auto_precision_is_bf16_on_a_gpu_and_fp32_on_the_cpu():
+def test_int8_is_auto_on_the_cpu_for_a_wide_model_and_renders_close_to_fp32(setup, tmp_path, capsys):
+    """--precision int8 (models.precision.for_precision): the linear layers get int8 weights, so the views change a
+    little (within ~30 dB here; a shipped `quality` view stays within ~57 dB of fp32) and it is recorded. ``auto``
+    picks it on the CPU for a model whose linear layers are wide enough to repay quantizing their inputs (the
+    setup's 8-wide model stays fp32, the test above); a compiled run stays fp32."""
+    from blender_mrvm.models.precision import INT8_MIN_WIDTH, linear_width
+    from blender_mrvm.synthesis import load_checkpoint
+
+    root, obj, _, tg = setup
+    wide = tiny_checkpoint(tmp_path / "wide", {"nerformer": {"d_model": 64}})
+    model = load_checkpoint(str(wide), "cpu")[0]
+    assert linear_width(model) >= INT8_MIN_WIDTH > linear_width(load_checkpoint(str(setup[2]), "cpu")[0])
+    outs = {}
+    for p in ("fp32", "int8", "auto"):
+        outs[p] = tmp_path / p
+        assert main(_args(root, obj, wide, outs[p], "--precision", p)) == 0
+        assert json.loads((outs[p] / "synthesis.json").read_text())["precision"] == ("int8" if p == "auto" else p)
+    capsys.readouterr()
+    changed = 0
+    for i in range(len(tg)):
+        a, b, c = (F.read_png(outs[p] / tg[i].rgb_path(i)).astype(np.float64) / 255 for p in ("fp32", "int8", "auto"))
+        assert np.array_equal(b, c)
+        mse = float(((a - b) ** 2).mean())
+        assert mse < 1e-3, (i, mse)
+        changed += mse > 0
+    assert changed, "int8 reached the model's layers"
+
+
+def test_int8_model_is_a_quantized_copy_and_refuses_a_gpu():
+    """for_precision: int8 swaps every linear layer for a dynamically quantized one, on a copy unless inplace; float
+    precisions return the model itself (autocast does their work); int8 is refused for a GPU by name."""
+    from torch.ao.nn.quantized.dynamic import Linear as QLinear
+
+    from blender_mrvm.models.config import model_config
+    from blender_mrvm.models.model import GeneralizableNeRF
+    from blender_mrvm.models.precision import check_precision, for_precision
+
+    m = GeneralizableNeRF(model_config("fast", TINY))
+    n_lin = sum(isinstance(x, torch.nn.Linear) for x in m.modules())
+    for p in ("fp32", "bf16"):
+        assert for_precision(m, p) is m
+    q = for_precision(m, "int8")
+    assert q is not m and sum(isinstance(x, torch.nn.Linear) for x in m.modules()) == n_lin
+    assert sum(isinstance(x, QLinear) for x in q.modules()) == n_lin
+    assert not any(type(x) is torch.nn.Linear for x in q.modules())
+    with pytest.raises(InputError, match="int8 runs on the CPU only"):
+        check_precision("--precision", "int8", "cuda:0")
+
+
+def test_auto_precision_is_bf16_on_a_gpu_and_fp32_or_int8_on_the_cpu():
     """synthesize's default precision, ``auto``: bf16 on a GPU (every shipped model scored the same there in
-    session 32 and renders faster), fp32 on the CPU (bf16 is no faster there); a named one stays as named."""
+    session 32 and renders faster); on the CPU int8 for models wide enough for it to pay, else fp32 (bf16 is no
+    faster there); a named one stays as named."""
     import argparse
 
     from blender_mrvm.commands.synthesize import add_arguments
     from blender_mrvm.models.precision import resolve_precision
     from blender_mrvm.synthesis.views import SynthesisConfig
 
+    from blender_mrvm.models import registry
+
     assert resolve_precision("auto", "cuda") == resolve_precision("auto", "cuda:0") == "bf16"
     assert resolve_precision("auto", "cpu") == "fp32"
     assert [resolve_precision(p, "cuda") for p in ("fp32", "bf16", "fp16")] == ["fp32", "bf16", "fp16"]
+    # On the CPU int8 where the bench found it pays and leaves the views as they are (docs/bench_int8): the wide
+    # NeRFormer presets; not the narrow ones, nor GPNR, whose views it moves a little (named, it still runs)
+    for kind, preset, want in (("nerformer_mrvm", "fast", "fp32"), ("nerformer_mrvm", "balanced", "fp32"),
+                               ("nerformer_mrvm", "accurate", "int8"), ("gpnr", "accurate", "fp32")):
+        model = registry.build_model(registry.build_config(kind, preset), load_pretrained=False)
+        assert resolve_precision("auto", "cpu", model) == want, (kind, preset)
+        assert resolve_precision("auto", "cpu", model, compiled=True) == "fp32"
+        assert resolve_precision("auto", "cuda", model) == "bf16"
     assert SynthesisConfig.precision == "auto"
     p = argparse.ArgumentParser()
     add_arguments(p)

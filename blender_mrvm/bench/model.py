@@ -10,6 +10,7 @@ the peak extra resident memory of a render (``bench.PeakMemory``: bounded by ``r
 by the image size). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
 The issue's target: ``balanced``, 128 x 128, 2 reference views, about 1 s on 2 CPU cores.
 
+``--precisions`` compares fp32 with bf16 autocast and, on the CPU, int8 linear layers (``models/precision.py``).
 On a GPU (``--device cuda``) each row also has frames per second and ``--precisions`` compares fp32 with
 bf16 / fp16 autocast (the issue's GPU target: 30 FPS for ``fast`` at 256 x 256)::
 
@@ -41,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ray chunks rendered side by side on threads (threads.render_workers; torch threads then 1)")
     p.add_argument("--device", default="cpu", help="cpu or cuda[:N] (GPU timings synchronise before reading the clock)")
     p.add_argument("--chunk", type=int, default=0, help="rays per forward pass (0 = the model's; a GPU wants 16384+)")
-    p.add_argument("--precisions", default="fp32", help="comma-separated fp32, bf16, fp16 (fp16 on a GPU only)")
+    p.add_argument("--precisions", default="fp32",
+                   help="comma-separated fp32, bf16, fp16 (a GPU only), int8 (linear layers; the CPU only)")
     p.add_argument("--compile", action="store_true",
                    help="torch.compile the model's networks first (every submodule but the image encoder, dynamic "
                    "shapes; the warm-up render pays the compilation): a GPU experiment for the FPS target, minutes "
@@ -71,11 +73,14 @@ def run(args) -> int:
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     device = str(resolve_device(args.device))
     precisions = [s.strip() for s in args.precisions.split(",") if s.strip()]
-    from ..models.precision import PRECISIONS
+    from ..models.precision import PRECISIONS, check_precision, for_precision
 
-    bad = [s for s in precisions if s not in PRECISIONS or (s == "fp16" and device == "cpu")]
-    if bad or not precisions:
-        raise InputError(f"--precisions: {bad or precisions} not among fp32, bf16 (and fp16 on a GPU)")
+    if not precisions:
+        raise InputError(f"--precisions: none given; choose from {', '.join(PRECISIONS)}")
+    for prec in precisions:
+        check_precision("--precisions", prec, device)
+    if "int8" in precisions and compile_mode(args):
+        raise InputError("--precisions int8 and --compile do not combine (torch.compile takes float layers)")
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -101,8 +106,9 @@ def run(args) -> int:
                 ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
                 for prec in precisions:
+                    net = for_precision(model, prec)  # int8: a copy with int8 linear layers
                     try:
-                        times, cpus, peaks, res = _time_renders(args, model, refs, ref_poses, rintr, bbox, target,
+                        times, cpus, peaks, res = _time_renders(args, net, refs, ref_poses, rintr, bbox, target,
                                                                 intr, prec, device, sync)
                     except torch.cuda.OutOfMemoryError:  # one configuration too large: the others still run
                         torch.cuda.empty_cache()
@@ -111,7 +117,7 @@ def run(args) -> int:
                     rows.append(_row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, peaks, res,
                                      model.inference_chunk(args.chunk or None)))
                     if args.profile:
-                        counts, table = _profile_render(args, model, refs, ref_poses, rintr, bbox, target, intr, prec,
+                        counts, table = _profile_render(args, net, refs, ref_poses, rintr, bbox, target, intr, prec,
                                                         device, sync)
                         rows[-1].update(counts)
                         with open(out / "bench_model_profile.txt", "w" if len(rows) == 1 else "a") as f:

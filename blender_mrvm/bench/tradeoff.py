@@ -8,7 +8,7 @@ own setting one knob at a time, at inference (the weights stay; every point is a
 - ``nearest``: a dense capture: each target rendered from its K nearest other views (2, 3, 5, 10;
   ``synthesize --nearest``), timed on view 0 from its K nearest;
 - ``ref_size``: reference resolution (the references resized before encoding);
-- ``precision``: fp32, bf16 autocast (and fp16 on a GPU);
+- ``precision``: fp32, bf16 autocast (and fp16 on a GPU; int8 linear layers on the CPU);
 - ``gate``: NeRFormer's fine pass skipped on rays whose coarse opacity is below ``render.fine_min_acc``
   (off, a tenth of the default and 10x it);
 - ``stop``: NeRFormer's early ray termination (``render.stop_transmittance`` 1e-3, 1e-2, 0.1): the fine pass
@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from ..models.precision import autocast
+from ..models.precision import autocast, for_precision
 from . import PeakMemory, write_csv
 
 AXES = ("base", "samples", "gate", "stop", "filter", "refs", "nearest", "ref_size", "precision", "skip", "chunk")
@@ -147,9 +147,7 @@ def sweep(kind: str, cfg, axes: list[str], device: str) -> list[Point]:
     if "ref_size" in axes:
         pts.append(Point("ref_size", "refs at 32 px", ref_size=32))
     if "precision" in axes:
-        pts.append(Point("precision", "bf16", precision="bf16"))
-        if device.startswith("cuda"):
-            pts.append(Point("precision", "fp16", precision="fp16"))
+        pts += [Point("precision", p, precision=p) for p in precision_points(device)]
     if "skip" in axes:
         pts += [Point("skip", "box only", skip="off"), Point("skip", "hull tighten", skip="tighten")]
     if "chunk" in axes:
@@ -235,6 +233,12 @@ def sem2nerf_file(spec: str):
     return f if meta.get("model_kind") == MODEL_KIND else None
 
 
+def precision_points(device: str) -> tuple[str, ...]:
+    """The precision axis's points beside fp32 (the base): bf16 and fp16 autocast on a GPU; bf16 and int8 weights
+    on the CPU (``models/precision.py``)."""
+    return ("bf16", "fp16") if device.startswith("cuda") else ("bf16", "int8")
+
+
 def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
     """A Sem2NeRF checkpoint's points: its own setting, then each of its knobs moved alone."""
     pts = [Point("base", "as trained", refs=1)] if "base" in axes else []
@@ -250,8 +254,7 @@ def sem2nerf_sweep(cfg, axes: list[str], device: str) -> list[Point]:
         on = not cfg.cull_cone
         pts.append(Point("skip", "cone culling" if on else "no cone culling", {"cull_cone": on}, refs=1))
     if "precision" in axes:
-        pts += [Point("precision", p, precision=p, refs=1)
-                for p in (("bf16", "fp16") if device.startswith("cuda") else ("bf16",))]
+        pts += [Point("precision", p, precision=p, refs=1) for p in precision_points(device)]
     if "chunk" in axes:
         sizes = (256, 4096, 16384, 65536) if device.startswith("cuda") else (256, 4096)  # a GPU wants large ones
         pts += [Point("chunk", f"chunk {c}", chunk=c, refs=1, quality=False) for c in sizes]
@@ -388,9 +391,10 @@ def run(args) -> int:
             n_params = sum(p.numel() for p in model.parameters())
             for pt in sem2nerf_sweep(cfg0, axes, args.device):
                 model.cfg = replace(cfg0, **pt.overrides)
+                m = for_precision(model, pt.precision)  # int8: a copy with int8 linear layers
                 t0 = time.perf_counter()
-                speed = measure_sem2nerf_speed(model, masked[0], pt, args.size, args.repeats, args.device)
-                quality = (measure_sem2nerf_quality(model, masked, pt, args.targets, lpips, args.device)
+                speed = measure_sem2nerf_speed(m, masked[0], pt, args.size, args.repeats, args.device)
+                quality = (measure_sem2nerf_quality(m, masked, pt, args.targets, lpips, args.device)
                            if pt.quality else {})
                 add("sem2nerf", spec, cfg0, n_params, pt, speed, quality, len(masked), t0)
             model.cfg = cfg0
@@ -401,10 +405,11 @@ def run(args) -> int:
         n_params = sum(p.numel() for p in model.parameters())
         for pt in sweep(kind, cfg0, axes, args.device):
             model.cfg = merge(cfg0, pt.overrides) if pt.overrides else cfg0
+            m = for_precision(model, pt.precision)  # int8: a copy with int8 linear layers
             t0 = time.perf_counter()
-            speed = measure_speed(model, scenes[0], speed_refs(scenes[0], pt), pt, args.size, args.repeats,
+            speed = measure_speed(m, scenes[0], speed_refs(scenes[0], pt), pt, args.size, args.repeats,
                                   args.device, args.workers)
-            quality = (measure_quality(model, scenes, pt, args.targets, lpips, args.device, args.workers)
+            quality = (measure_quality(m, scenes, pt, args.targets, lpips, args.device, args.workers)
                        if pt.quality else {})
             add(kind, spec, cfg0, n_params, pt, speed, quality, len(scenes), t0)
         model.cfg = cfg0

@@ -142,6 +142,11 @@ class RayModel(nn.Module):
                     **phase) -> dict:
         raise NotImplementedError
 
+    int8_auto = False
+    """Whether ``--precision auto`` may give this kind int8 linear layers on the CPU when they are wide enough
+    (``models.precision.resolve_precision``): only kinds whose views int8 leaves as they are. Named, int8 runs for
+    any kind."""
+
     supports_object_batch = False
     """Whether training may render several objects' rays in one pass (:meth:`encode_batch`, :meth:`render_rays_batch`,
     ``train.object_batch``): a kind whose context is an :class:`ObjectRefs` and whose ``render_rays`` reads each ray's

@@ -51,7 +51,8 @@ FIGURES = {
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 20.4 dB / LPIPS 0.218 (any-view model "
                     "18.6 / 0.252, nearest view 15.2 / 0.259); on the turntable 21.6 / 0.189 (default 22.9 / 0.164); "
-                    "~13 s per 128 px view on 2 CPU cores (the default: 0.6 s in the same run); on an H100 6 FPS "
+                    "~9.5 s per 128 px view on 2 CPU cores in int8, Auto's precision there (12.3 s in fp32; the "
+                    "default: 0.6 s); on an H100 6 FPS "
                     "at 128 px, 1.9 at 256 px through synthesize",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the

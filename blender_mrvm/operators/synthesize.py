@@ -66,7 +66,8 @@ class SynthesisJob:
     reproject: str = "auto"
     """The synthesize command's --reproject: the references' own colours over the views (auto, on, off)."""
     precision: str = "auto"
-    """The synthesize command's --precision: auto (bf16 on a GPU, fp32 on the CPU), fp32, bf16 or fp16."""
+    """The synthesize command's --precision: auto (bf16 on a GPU; on the CPU int8 where it pays, else fp32), fp32,
+    bf16, fp16 or int8."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:

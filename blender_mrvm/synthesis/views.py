@@ -83,10 +83,10 @@ class SynthesisConfig:
     """Speed/quality level (``registry.quality_overrides``): ``full`` renders as the model was trained,
     ``preview`` with half the samples per ray (~1.6x faster, a few tenths of a dB less)."""
     precision: str = "auto"
-    """``auto`` (bf16 on a GPU, fp32 on the CPU), fp32, or ``bf16`` / ``fp16`` autocast for the model's forward
-    passes (``models/precision.py``): on an H100 every shipped model scores the same in bf16 and `quality` renders
-    1.21x faster; fp16 needs a GPU; on the CPU bf16 is no faster (a note says so). synthesis.json records the
-    precision it ran at."""
+    """``auto`` (bf16 on a GPU; on the CPU int8 for models wide enough for it to pay, else fp32), fp32, ``bf16`` / ``fp16`` autocast for the model's forward
+    passes, or ``int8`` linear layers (the CPU only; ``models/precision.py``): on an H100 every shipped model scores
+    the same in bf16 and `quality` renders 1.21x faster; fp16 needs a GPU; on the CPU bf16 is no faster (a note says
+    so) and int8 scores as fp32 does, `quality` 1.5x faster. synthesis.json records the precision it ran at."""
     skip_empty: str = "cull"
     """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
     masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
@@ -136,6 +136,9 @@ def _validate_config(c: SynthesisConfig) -> None:
     from ..models.precision import check_precision
 
     check_precision("--precision (synthesis.precision)", c.precision, auto=True)
+    if c.precision == "int8" and c.compile:
+        raise InputError("--precision int8 and --compile do not combine (torch.compile takes float layers); "
+                         "leave one out")
     if c.ref_size not in (0, -1):
         V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
     V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
@@ -580,9 +583,6 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
     from ..models.precision import CPU_BF16_NOTE, autocast, check_precision, resolve_precision
 
     check_precision("--precision", cfg.precision, device.type, auto=True)
-    cfg = replace(cfg, precision=resolve_precision(cfg.precision, device.type))
-    if cfg.precision == "bf16" and device.type == "cpu":
-        print(f"note: {CPU_BF16_NOTE}", file=sys.stderr)
     cams = ([*refs.c2w, *[t.c2w_opencv for t in targets]], [*refs.intrinsics, *[t.intrinsics for t in targets]],
             refs.bbox, refs.bbox_source in FRAMING_BOXES)
     checkpoint, model_note = cfg.checkpoint, ""
@@ -591,6 +591,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         checkpoint = f"shipped:{name}"
         print(f"note: {model_note}", file=sys.stderr)
     model, mcfg, meta, ck_path = load_checkpoint(checkpoint, device)
+    cfg = replace(cfg, precision=resolve_precision(cfg.precision, device.type, model, compiled=cfg.compile))
+    if cfg.precision == "bf16" and device.type == "cpu":
+        print(f"note: {CPU_BF16_NOTE}", file=sys.stderr)
     from ..models.background import SCENE, for_rendering
     from ..models.config import merge
     from ..models.registry import quality_overrides
@@ -615,6 +618,9 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         ta = time.perf_counter()
         model = yield from adapt_to_references(model, refs, cfg.adapt, total, per_view)
         adapt_seconds = time.perf_counter() - ta
+    from ..models.precision import for_precision
+
+    model = for_precision(model, cfg.precision, inplace=True)  # int8: after adaptation, which trains float weights
     if cfg.compile:
         from ..models.registry import compile_networks
 
