@@ -341,6 +341,7 @@ SYNTH = [
     _s("invalid choice: 'yes'", ["--reproject", "yes"]),
     _s("--precision fp16 needs a GPU", ["--precision", "fp16"], skip="a GPU is here" if CUDA else ""),
     _s("invalid choice: 'fp8'", ["--precision", "fp8"]),
+    _s("--precision int8 and --compile do not combine", ["--precision", "int8", "--compile"]),
 ]
 
 _EV = ["eval", "--data", "{w}/ds", "--checkpoint", "{w}/ck", "--no-lpips", "--threads", "1", "--input-views", "0"]
@@ -355,6 +356,8 @@ def _e(needle, argv=(), cls="tracebacks", base=None, **kw):
 EVAL = [
     _e("has no split 'tset'", ["--split", "tset"], cls="silent-garbage"),
     _e("needs at least 2 references", ["--adapt-steps", "3"]),
+    _e("--precision int8 and --adapt-steps do not combine", ["--precision", "int8", "--adapt-steps", "3"]),
+    _e("--precision fp16 needs a GPU", ["--precision", "fp16", "--device", "cpu"]),
     _e("--adapt-lpips must be a number between 0 and 100", ["--adapt-steps", "3", "--adapt-lpips", "-1"]),
     _e("reprojection tolerance (--reproject-tau) must be a number >= 0", ["--reproject", "model", "--reproject-tau", "-0.1"],
        cls="silent-garbage"),
@@ -497,8 +500,9 @@ USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2
 ]
 
 BENCH = [
-    Case("tracebacks", ["bench", "model", "--precisions", "fp16", "--out", "{new}"], "fp16 on a GPU"),
-    Case("tracebacks", ["bench", "model", "--precisions", "int4", "--out", "{new}"], "not among fp32"),
+    Case("tracebacks", ["bench", "model", "--precisions", "fp16", "--out", "{new}"], "fp16 needs a GPU"),
+    Case("tracebacks", ["bench", "model", "--precisions", "int4", "--out", "{new}"], "must be one of fp32"),
+    Case("tracebacks", ["bench", "model", "--precisions", "int8", "--compile", "--out", "{new}"], "do not combine"),
 ] + ([] if CUDA else [Case("tracebacks", ["bench", "model", "--device", "cuda", "--out", "{new}"], "no CUDA GPU")]) + [
     # --out naming a file: refused before measuring (it had raised FileExistsError after the whole bench)
     Case("tracebacks", ["bench", name, "--out", "{w}/a_file"], "bench output folder")

@@ -130,6 +130,30 @@ def test_eval_command_uses_dataset_protocol(two_category_set, checkpoint, tmp_pa
     assert {v["object"] for v in rep1["views"]} == {"obj001"} and set(rep1["per_category"]) == {"red", "blue"}
 
 
+def test_eval_precision_is_recorded_and_moves_the_scores_a_little(two_category_set, checkpoint, tmp_path, capsys):
+    """--precision: fp32 by default (the protocol's), recorded in eval.json; int8 (the CPU) and bf16 score the same
+    views to within a fraction of a dB (the metrics stay float32); fp16 on the CPU and int8 with adaptation are
+    one-line errors before anything is written."""
+    base = ["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--no-lpips", "--threads",
+            "1", "--device", "cpu"]
+    reps = {}
+    for p in ("default", "int8", "bf16"):
+        out = tmp_path / p
+        assert main([*base, "--out", str(out), *([] if p == "default" else ["--precision", p])]) == 0
+        reps[p] = json.loads((out / "eval.json").read_text())
+    assert [reps[p]["precision"] for p in reps] == ["fp32", "int8", "bf16"]
+    for p in ("int8", "bf16"):
+        diffs = [abs(a["psnr"] - b["psnr"]) for a, b in zip(reps["default"]["views"], reps[p]["views"])]
+        assert len(diffs) == 9 and max(diffs) < 0.5, (p, diffs)
+    capsys.readouterr()
+    for extra, msg in ((["--precision", "fp16"], "fp16 needs a GPU"),
+                       (["--precision", "int8", "--adapt-steps", "2"], "do not combine")):
+        out = tmp_path / "bad"
+        assert main([*base, "--out", str(out), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and msg in err[0] and not out.exists(), err
+
+
 def test_eval_bad_protocol_request(two_category_set, checkpoint, tmp_path, capsys):
     assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--n-inputs", "5",
                  "--no-lpips", "--out", str(tmp_path / "e")]) == 2

@@ -19,6 +19,8 @@ from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..models.precision import SYNTH_PRECISIONS
+
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="run folder, checkpoint folder or .safetensors file of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: the shipped NeRFormer+MRVM model)")
     p.add_argument("--data", type=Path, required=True, help="dataset root (ours, SRN, NMR/DVR, NeRF-synthetic)")
@@ -71,6 +73,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reproject-refs", type=int, default=rp.max_refs,
                    help=f"with --reproject: the view's nearest this many references lend their colours (default "
                    f"{rp.max_refs}, as synthesis)")
+    p.add_argument("--precision", default="fp32", choices=SYNTH_PRECISIONS,
+                   help="the model's precision (models/precision.py): fp32 (default, the protocol's), bf16 or fp16 "
+                   "autocast (fp16 on a GPU), int8 linear layers (the CPU), or auto (what synthesize uses: bf16 on a "
+                   "GPU, int8 on the CPU where it pays); the metrics are float32 whatever it is; eval.json records it")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
@@ -94,7 +100,14 @@ def check_args(args) -> None:
         V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
     from ..training.adapt import from_args as adapt_from_args
 
-    adapt_from_args(args)  # checked here, before anything is read
+    from ..errors import InputError
+    from ..models.precision import check_precision
+
+    adapt = adapt_from_args(args)  # checked here, before anything is read
+    check_precision("--precision", args.precision, auto=True)
+    if args.precision == "int8" and adapt.on:
+        raise InputError("--precision int8 and --adapt-steps do not combine (adapting trains float weights); "
+                         "leave one out")
     reproject_from_args(args)
     # an earlier evaluation (eval.json) is kept unless --force: the default folder is shared by every run, and a
     # second checkpoint's scores had replaced the first's without a word (session 29); the rest is derived from it
@@ -171,7 +184,14 @@ def run(args) -> int:
     from ..synthesis import resolve_device
 
     device = resolve_device(args.device)
+    from ..models.precision import autocast, check_precision, for_precision, resolve_precision
+
+    check_precision("--precision", args.precision, device.type, auto=True)
     model, _, meta = load_model(args.checkpoint, str(device))
+    precision = resolve_precision(args.precision, device.type, model)
+    if precision == "int8" and adapt_from_args(args).on:  # auto picked it: adapting needs the float weights
+        precision = "fp32"
+    model = for_precision(model, precision, inplace=True)
     from ..synthesis import reference_sizes
 
     ref_size, max_ref_size = reference_sizes(args.ref_size, args.checkpoint)
@@ -197,17 +217,18 @@ def run(args) -> int:
     if bg_note:
         print(f"note: {bg_note}", file=sys.stderr)
     extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None},
-             "device": str(device),
+             "device": str(device), "precision": precision,
              "background": {"data": data_bg, "white_background": model.white_background, "note": bg_note},
              "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
                       "max_objects_per_category": args.max_objects_per_category}}
-    report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
-                                    extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
-                                    skip=args.skip_empty, target_inputs=per_target, workers=workers,
-                                    adapt=adapt_from_args(args), nearest=args.nearest,
-                                    pool=views if args.nearest and source == "--input-views" else None,
-                                    reproject=reproject, reproject_cfg=reproject_from_args(args)),
-                           desc="eval", unit="view")
+    with autocast(precision, device.type):
+        report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
+                                        extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
+                                        skip=args.skip_empty, target_inputs=per_target, workers=workers,
+                                        adapt=adapt_from_args(args), nearest=args.nearest,
+                                        pool=views if args.nearest and source == "--input-views" else None,
+                                        reproject=reproject, reproject_cfg=reproject_from_args(args)),
+                               desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
     if other is not None:
         from ..datasets.format import atomic_write_json
