@@ -12,7 +12,6 @@ process sets the CLI's glibc malloc thresholds first (``threads.apply_malloc_def
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import platform
 import statistics
@@ -33,6 +32,7 @@ def main() -> int:
     args = ap.parse_args()
 
     from blender_mrvm import threads
+    from blender_mrvm.bench import write_csv
 
     policy = threads.apply_malloc_defaults()
     import torch
@@ -75,10 +75,7 @@ def main() -> int:
                          "load_1min": round(os.getloadavg()[0], 2), "malloc": policy,
                          "cpu": platform.processor() or platform.machine(), "torch": torch.__version__})
             print(r, p, s["seconds_per_view"], s["cpu_seconds_per_view"], flush=True)
-    with open(args.out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.out, rows)
     med = {p: statistics.median(x["seconds"] for x in rows if x["precision"] == p) for p in precs}
     print("median s/view", med, "fp32/int8", round(med["fp32"] / med["int8"], 3) if "int8" in med else "")
     return 0

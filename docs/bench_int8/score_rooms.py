@@ -11,7 +11,6 @@ nearest other views (the bench's ``nearest`` point) at each precision, and write
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 
 
@@ -22,6 +21,7 @@ def main() -> int:
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     from blender_mrvm import threads
+    from blender_mrvm.bench import write_csv
 
     threads.apply_malloc_defaults()
     import torch
@@ -45,10 +45,7 @@ def main() -> int:
                      "targets_per_room": args.targets, "references": "2 nearest", "precision": prec, **q,
                      "torch": torch.__version__})
         print(rows[-1], flush=True)
-    with open(args.out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(args.out, rows)
     return 0
 
 
