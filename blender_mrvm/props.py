@@ -51,12 +51,13 @@ QUALITY_LEVELS = [
 """Inference speed/quality levels (``models.registry.quality_overrides``), the commands' ``--quality``."""
 PRECISION_CHOICES = [
     ("AUTO", "Auto", "bf16 on a GPU (every shipped model scores the same there and renders 1.04-1.21x faster); "
-                     "on the CPU int8 for wide models (the quality model 1.5x faster, the same images), else fp32"),
+                     "on the CPU int8 for the wide NeRFormer models (the quality model 1.3x faster, the same "
+                     "images), else fp32"),
     ("FP32", "fp32", "Full precision"),
     ("BF16", "bf16", "bfloat16 autocast: faster on a GPU; on a CPU the same images, no faster"),
     ("FP16", "fp16", "float16 autocast: a GPU only"),
-    ("INT8", "int8", "int8 linear layers: the CPU only; pays for wide models (the quality model, GPNR), not the "
-                     "default"),
+    ("INT8", "int8", "int8 linear layers, the CPU only: the quality model 1.3x faster at the same images, the room "
+                     "GPNR 1.2x for a little quality; the narrow default models no faster"),
 ]
 """Inference precision (``models.precision.SYNTH_PRECISIONS``), synthesize's ``--precision``."""
 IMAGE_OUTPUTS = [

@@ -61,8 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "faster for a few tenths of a dB, docs/bench_tradeoff)")
     p.add_argument("--precision", choices=SYNTH_PRECISIONS, default="auto",
                    help="auto (default: bf16 on a GPU, where every shipped model scores the same and renders "
-                   "1.04-1.21x faster; on the CPU int8 for models with wide enough layers, the quality model 1.5x "
-                   "faster at the same scores, else fp32), fp32, bf16, fp16 (a GPU only) or int8 (linear layers; "
+                   "1.04-1.21x faster; on the CPU int8 for NeRFormer models with wide enough layers, the quality model "
+                   "1.3x faster at the same scores, else fp32), fp32, bf16, fp16 (a GPU only) or int8 (linear layers; "
                    "the CPU only); synthesis.json records the one used (models/precision.py)")
     p.add_argument("--skip-empty", choices=("cull", "tighten", "off"), default="cull",
                    help="empty-space skipping inside the object's box when the references have masks: cull "

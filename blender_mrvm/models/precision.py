@@ -15,7 +15,7 @@ docs/bench_quality_cpu: the default 0.82 -> 1.02 s a 128 px view at 19.20 / 0.78
 
 On the CPU int8 pays instead where the linear layers are wide (session 36, docs/bench_int8, the 2-core box, a
 128 px view with synthesize's 2 chunk workers, fp32 and int8 alternated): the shipped `quality` (layers 64-256 wide)
-12.28 -> 9.45 s (1.30x; 1.35x on one core), the room GPNR 8.61 -> 7.25 s (1.19x); for the 32-48-wide default,
+12.28 -> 9.45 s (1.30x; 1.29-1.35x on one core), the room GPNR 8.61 -> 7.25 s (1.19x); for the 32-48-wide default,
 any-view and object GPNR models 0.93-1.08x, i.e. nothing. `quality` scores the same in int8 (13 held-out sphere-rig
 objects: 20.09 dB / LPIPS 0.214 both; a view within 53 dB of its fp32 render); the room GPNR loses a little
 (-0.04 dB, LPIPS +0.0007 on 6 held-out rooms; 30 dB from fp32). So ``auto`` is int8 on the CPU for a wide enough

@@ -83,10 +83,11 @@ class SynthesisConfig:
     """Speed/quality level (``registry.quality_overrides``): ``full`` renders as the model was trained,
     ``preview`` with half the samples per ray (~1.6x faster, a few tenths of a dB less)."""
     precision: str = "auto"
-    """``auto`` (bf16 on a GPU; on the CPU int8 for models wide enough for it to pay, else fp32), fp32, ``bf16`` / ``fp16`` autocast for the model's forward
-    passes, or ``int8`` linear layers (the CPU only; ``models/precision.py``): on an H100 every shipped model scores
-    the same in bf16 and `quality` renders 1.21x faster; fp16 needs a GPU; on the CPU bf16 is no faster (a note says
-    so) and int8 scores as fp32 does, `quality` 1.5x faster. synthesis.json records the precision it ran at."""
+    """``auto`` (bf16 on a GPU; on the CPU int8 for models wide enough for it to pay, else fp32), fp32, ``bf16`` /
+    ``fp16`` autocast for the model's forward passes, or ``int8`` linear layers (the CPU only;
+    ``models/precision.py``): on an H100 every shipped model scores the same in bf16 and `quality` renders 1.21x
+    faster; fp16 needs a GPU; on the CPU bf16 is no faster (a note says so) and int8 renders `quality` 1.3x faster
+    at the same scores. synthesis.json records the precision it ran at."""
     skip_empty: str = "cull"
     """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
     masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
