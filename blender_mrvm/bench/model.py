@@ -97,6 +97,7 @@ def run(args) -> int:
         mode = compile_mode(args)
         if mode:
             registry.compile_networks(model, None if mode == "default" else mode)
+        nets = {prec: for_precision(model, prec) for prec in precisions}  # int8: one copy with int8 linear layers
         for size in [int(s) for s in args.sizes.split(",")]:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
             for nv in [int(v) for v in args.views.split(",")]:
@@ -106,7 +107,7 @@ def run(args) -> int:
                 ref_poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, nv)]
                 target = cameras.look_at_opencv(eyes[0])
                 for prec in precisions:
-                    net = for_precision(model, prec)  # int8: a copy with int8 linear layers
+                    net = nets[prec]
                     try:
                         times, cpus, peaks, res = _time_renders(args, net, refs, ref_poses, rintr, bbox, target,
                                                                 intr, prec, device, sync)

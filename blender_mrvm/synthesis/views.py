@@ -581,7 +581,7 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
                          f"the {max_size} px this model was trained on; pass --ref-size {max_size} to upsample them "
                          "or --ref-size -1 to use them as they are")
     device = resolve_device(cfg.device)
-    from ..models.precision import CPU_BF16_NOTE, autocast, check_precision, resolve_precision
+    from ..models.precision import CPU_BF16_NOTE, autocast, check_precision, for_precision, resolve_precision
 
     check_precision("--precision", cfg.precision, device.type, auto=True)
     cams = ([*refs.c2w, *[t.c2w_opencv for t in targets]], [*refs.intrinsics, *[t.intrinsics for t in targets]],
@@ -619,8 +619,6 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         ta = time.perf_counter()
         model = yield from adapt_to_references(model, refs, cfg.adapt, total, per_view)
         adapt_seconds = time.perf_counter() - ta
-    from ..models.precision import for_precision
-
     model = for_precision(model, cfg.precision, inplace=True)  # int8: after adaptation, which trains float weights
     if cfg.compile:
         from ..models.registry import compile_networks
