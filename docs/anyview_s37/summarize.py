@@ -1,0 +1,84 @@
+"""Session 37: apply rule.md to the candidates' paired scores (data/eval/s37/*/compare.json) and print the table.
+
+    python docs/anyview_s37/summarize.py NAME... [--test]
+"""
+import json
+import math
+import sys
+from pathlib import Path
+
+E = Path(__file__).resolve().parents[2] / "data" / "eval" / "s37"
+
+
+def paired(set_name, name, metric):
+    """(mean difference, SE over objects, objects, absolute mean) of one set, against stage 3."""
+    c = json.loads((E / f"{set_name}_{name}" / "compare.json").read_text())["overall"][metric]
+    ev = json.loads((E / f"{set_name}_{name}" / "eval.json").read_text())
+    return c["diff"], c["se_objects"], c["objects"], ev["overall"][metric]
+
+
+def pooled_halves(name, metric, halves):
+    """Two halves of one set pooled, weighted by objects (SE: the halves independent)."""
+    parts = [paired(h, name, metric) for h in halves]
+    n = sum(p[2] for p in parts)
+    diff = sum(p[0] * p[2] for p in parts) / n
+    se = math.sqrt(sum((p[1] * p[2] / n) ** 2 for p in parts))
+    return diff, se, n, sum(p[3] * p[2] for p in parts) / n
+
+
+def main(argv):
+    test = "--test" in argv
+    names = [a for a in argv if not a.startswith("--")]
+    if test:
+        sets = {"sphere held-out": ["t_sphere"], "near test": ["t_near"], "fine test": ["t_fine"]}
+        guards = {"turntable held-out": ["t_turn"], "all test": ["t_all"]}
+    else:
+        sets = {"V1 sphere val": ["sphval_a", "sphval_b"], "V2 near": ["near"], "V3 fine": ["fine"]}
+        guards = {"G turntable val": ["ttval"]}
+    rows = []
+    for name in names:
+        row = {"name": name}
+        for metric in ("psnr", "lpips"):
+            ds, ses = [], []
+            for label, halves in {**sets, **guards}.items():
+                d, se, n, v = pooled_halves(name, metric, halves)
+                row[(label, metric)] = (d, se, v)
+                if label in sets:
+                    ds.append(d)
+                    ses.append(se)
+            row[("off", metric)] = (sum(ds) / len(ds), math.sqrt(sum(s * s for s in ses)) / len(ses), None)
+        rows.append(row)
+    labels = [*sets, *guards]
+    print("| candidate | " + " | ".join(f"{l}: PSNR / LPIPS, d PSNR (SE), d LPIPS (SE)" for l in labels)
+          + " | off-turntable mean d PSNR (SE), d LPIPS (SE) |")
+    print("|---" * (len(labels) + 2) + "|")
+    for r in rows:
+        cells = []
+        for l in labels:
+            (dp, sp, vp), (dl, sl, vl) = r[(l, "psnr")], r[(l, "lpips")]
+            cells.append(f"{vp:.2f} / {vl:.4f}, {dp:+.2f} ({sp:.2f}), {dl:+.4f} ({sl:.4f})")
+        (dp, sp, _), (dl, sl, _) = r[("off", "psnr")], r[("off", "lpips")]
+        print(f"| {r['name']} | " + " | ".join(cells) + f" | {dp:+.3f} ({sp:.3f}), {dl:+.4f} ({sl:.4f}) |")
+    if test:
+        for r in rows:
+            dp, dl = r[("off", "psnr")][0], r[("off", "lpips")][0]
+            veto = dp < 0 or dl > 0.002
+            print(f"{r['name']}: off-turntable test mean d PSNR {dp:+.3f}, d LPIPS {dl:+.4f}: "
+                  + ("VETO (not shipped)" if veto else "no veto"))
+        return 0
+    elig = [r for r in rows if r[("off", "lpips")][0] <= 0
+            and all(r[(l, "lpips")][0] <= 0.003 for l in sets) and r[("G turntable val", "psnr")][0] >= -0.30]
+    print("eligible:", [r["name"] for r in elig])
+    if not elig:
+        print("pick: none; nothing shipped")
+        return 0
+    best = max(elig, key=lambda r: r[("off", "psnr")][0])
+    dp, sp, _ = best[("off", "psnr")]
+    ship = dp >= 0.10 and dp >= 2 * sp
+    print(f"pick: {best['name']} (off-turntable d PSNR {dp:+.3f}, SE {sp:.3f}): "
+          + ("SHIP (then the test sets, once)" if ship else "not shipped (below +0.10 dB or 2 SE)"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
