@@ -1,6 +1,9 @@
 """Session 37: apply rule.md to the candidates' paired scores (data/eval/s37/*/compare.json) and print the table.
 
     python docs/anyview_s37/summarize.py NAME... [--test]
+
+The scores it read (eval.json without the per-view list, and compare.json) are in evals.tgz beside it:
+`tar -xzf docs/anyview_s37/evals.tgz -C data/eval`. Its output: validation.md and test.md.
 """
 import json
 import math
