@@ -46,7 +46,7 @@ FIGURES = {
     "gpnr_captures": "15 held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.124 (nearest photo "
                      "24.2 / 0.160, mean of the two 27.7 / 0.160); ~6 s per 128 px view on 2 CPU cores",
     "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.9 dB / LPIPS 0.251 (default model "
-                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 2.6 dB below the default "
+                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 2.7 dB below the default "
                     "(20.3 against 22.9 dB on held-out turntable objects); "
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 20.4 dB / LPIPS 0.218 (any-view model "
