@@ -1,12 +1,14 @@
 #!/bin/bash
 # Session 37: score a checkpoint ($1) as $2 on the validation sets of rule.md, paired against stage 3's scores
 # (made first with name "shipped"). ./score.sh CKPT NAME [test]: "test" scores the test sets instead.
+# BASE=a9k pairs against that candidate's scores instead of stage 3's (the near-turntable probe).
 set -e
 cd "$(dirname "$0")/../.."
 ck=$1; name=$2; what=${3:-val}
 E="env OMP_NUM_THREADS=1 nice .venv/bin/python -m blender_mrvm eval --threads 1 --device cpu --force"
 O=data/eval/s37
-cmp() { [ "$name" = shipped ] || echo "--compare-to $O/$1_shipped/eval.json"; }
+base=${BASE:-shipped}
+cmp() { [ "$name" = shipped ] || echo "--compare-to $O/$1_$base/eval.json"; }
 run() { local set=$1; shift; $E --checkpoint $ck --out $O/${set}_$name $(cmp $set) "$@" > /dev/null; }
 if [ "$what" = val ]; then
   run sphval_a --data data/sphere64_val --split train --n-inputs 2 --max-targets 10
