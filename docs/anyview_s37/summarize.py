@@ -1,6 +1,8 @@
 """Session 37: apply rule.md to the candidates' paired scores (data/eval/s37/*/compare.json) and print the table.
 
-    python docs/anyview_s37/summarize.py NAME... [--test]
+    python docs/anyview_s37/summarize.py NAME... [--test] [--dir s38]
+
+`--dir s38` reads data/eval/s38 (session 38's stage 5, paired against stage 4).
 
 The scores it read (eval.json without the per-view list, and compare.json) are in evals.tgz beside it:
 `tar -xzf docs/anyview_s37/evals.tgz -C data/eval`. Its output: validation.md and test.md.
@@ -10,11 +12,12 @@ import math
 import sys
 from pathlib import Path
 
-E = Path(__file__).resolve().parents[2] / "data" / "eval" / "s37"
+EVAL = Path(__file__).resolve().parents[2] / "data" / "eval"
+E = EVAL / "s37"
 
 
 def paired(set_name, name, metric):
-    """(mean difference, SE over objects, objects, absolute mean) of one set, against stage 3."""
+    """(mean difference, SE over objects, objects, absolute mean) of one set, against the base."""
     c = json.loads((E / f"{set_name}_{name}" / "compare.json").read_text())["overall"][metric]
     ev = json.loads((E / f"{set_name}_{name}" / "eval.json").read_text())
     return c["diff"], c["se_objects"], c["objects"], ev["overall"][metric]
@@ -30,6 +33,11 @@ def pooled_halves(name, metric, halves):
 
 
 def main(argv):
+    global E
+    if "--dir" in argv:
+        i = argv.index("--dir")
+        E = EVAL / argv[i + 1]
+        argv = argv[:i] + argv[i + 2:]
     test = "--test" in argv
     names = [a for a in argv if not a.startswith("--")]
     if test:
