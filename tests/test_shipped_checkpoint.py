@@ -199,21 +199,24 @@ def test_shipped_anyview_model_is_the_default_fine_tuned_for_cameras_anywhere(tm
     fine-tuned from the default file on turntable and sphere-rig renders, and it does what it is for: two
     references from a sphere rig of the analytic scene (cameras well above and below the turntable), where
     the default model renders a near-empty view (7.9 dB, the mean colour 9.3), it renders the object
-    (15.7 dB since stage 4, 14.6 at stage 3, 15.9 before; nearest reference 14.3; over 8 such objects stage 3
-    scores 16.1 against 15.9)."""
-    model, cfg, side, (s1, s2, s3, s4) = _named_model("mrvm_anyview", "any-view")
+    (16.1 dB since stage 5, 15.7 at stage 4, 14.6 at stage 3, 15.9 before; nearest reference 14.3; over 8 such
+    objects stage 3 scores 16.1 against 15.9)."""
+    model, cfg, side, (s1, s2, s3, s4, s5) = _named_model("mrvm_anyview", "any-view")
     default_model, default_cfg, _ = ckpt.load_model(default_checkpoint())
     assert cfg == default_cfg  # a fine-tune: the same network
-    # four fine-tuning runs: the first from the default file, the next two each from the one before's run folder
-    # (the third ran from the same bytes as the file then shipped), the fourth from the shipped stage-3 file
-    # (`shipped:mrvm_anyview`; the sidecar's commands name its sha256); stages 3 and 4 each picked among their
-    # run's checkpoints on validation sets by a rule fixed before scoring
+    # five fine-tuning runs: the first from the default file, the next two each from the one before's run folder
+    # (the third ran from the same bytes as the file then shipped), the fourth and fifth each from the file
+    # shipped before them (`shipped:mrvm_anyview`; the sidecar's commands name their sha256); stages 3-5 each
+    # picked among their run's checkpoints on validation sets by a rule fixed before scoring
     assert s1["init_checkpoint"].endswith(default_checkpoint().name) and s2["init_checkpoint"] == s1["out_dir"]
-    assert s3["init_checkpoint"] == s2["out_dir"] and s4["init_checkpoint"] == "shipped:mrvm_anyview"
-    assert side["train"] == s4 and any("stage 3's file" in c and "3095a56f" in c for c in side["commands"])
-    assert side["step"] == 9000 < s4["iterations"] and sum("picked on" in c for c in side["commands"]) >= 2
-    for t in (s1, s2, s3, s4):
+    assert s3["init_checkpoint"] == s2["out_dir"]
+    assert s4["init_checkpoint"] == s5["init_checkpoint"] == "shipped:mrvm_anyview" and side["train"] == s5
+    assert any("stage 3's file" in c and "3095a56f" in c for c in side["commands"])
+    assert any("stage 4's file" in c and "d3068ea5" in c for c in side["commands"])
+    assert side["step"] == s5["iterations"] == 12000 and sum("picked on" in c for c in side["commands"]) >= 3
+    for t in (s1, s2, s3, s4, s5):
         assert any(d.endswith("sphere64_train") for d in t["data"]) and any(d.endswith("shapenet13_all") for d in t["data"])
+    assert any(d.endswith("near64_train") for d in s5["data"])  # stage 5: near-turntable training cameras too
     p, p_mean, _ = _sphere_rig_scores(tmp_path, {"anyview": model, "default": default_model})
     assert p["anyview"] > p_mean + 4.0 and p["anyview"] > p["default"] + 4.0, (p, p_mean)
 

@@ -35,9 +35,9 @@ SEM2NERF_NAME = "sem2nerf_shapenet13_all"
 
 FIGURES = {
     "auto": "the default model on its training turntable (2 views 21.9 dB / LPIPS 0.166), else the any-view model "
-            "on the CPU (5-25 degrees off the turntable 18.4 / 0.271 against the default's 14.4 / 0.375; sphere rig "
-            "19.1 / 0.243 against 15.0 / 0.343; ~1.0 s per 128 px view on 2 CPU cores) and the quality model on a "
-            "GPU (+0.9 to +1.8 dB over the any-view model there); captures of a whole scene: GPNR for rooms",
+            "on the CPU (5-25 degrees off the turntable 19.0 / 0.258 against the default's 14.4 / 0.375; sphere rig "
+            "19.2 / 0.238 against 15.0 / 0.343; ~1.0 s per 128 px view on 2 CPU cores) and the quality model on a "
+            "GPU (+0.5 to +1.3 dB over the any-view model there); captures of a whole scene: GPNR for rooms",
     "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234), on "
                       "its training turntable's cameras only (a few degrees off them the any-view model is better); "
                       "~1.0 s per 128 px view on 2 CPU cores",
@@ -45,12 +45,12 @@ FIGURES = {
             "on 2 CPU cores; best with many nearby views",
     "gpnr_captures": "15 held-out capture-like rooms, 2 neighbouring photos: 31.6 dB / LPIPS 0.124 (nearest photo "
                      "24.2 / 0.160, mean of the two 27.7 / 0.160); ~6 s per 128 px view on 2 CPU cores",
-    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 18.9 dB / LPIPS 0.251 (default model "
-                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 2.7 dB below the default "
+    "mrvm_anyview": "cameras anywhere (held-out objects, sphere rig, 2 views): 19.1 dB / LPIPS 0.246 (default model "
+                    "15.7 / 0.334, nearest view 15.2 / 0.259); on the 30-degree turntable 2.6 dB below the default "
                     "(20.3 against 22.9 dB on held-out turntable objects); "
                     "~1.0 s per 128 px view on 2 CPU cores",
     "mrvm_quality": "cameras anywhere (held-out objects, sphere rig, 2 views): 20.4 dB / LPIPS 0.218 (any-view model "
-                    "18.9 / 0.251, nearest view 15.2 / 0.259); on the turntable 21.6 / 0.189 (default 22.9 / 0.164); "
+                    "19.1 / 0.246, nearest view 15.2 / 0.259); on the turntable 21.6 / 0.189 (default 22.9 / 0.164); "
                     "~9.5 s per 128 px view on 2 CPU cores in int8, Auto's precision there (12.3 s in fp32; the "
                     "default: 0.6 s); on an H100 6 FPS "
                     "at 128 px, 1.9 at 256 px through synthesize",
@@ -160,7 +160,7 @@ def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = F
     captures (``gpnr_captures``: +6.1 dB over the objects-on-white model on held-out rooms, README). Objects on
     white get the default model when every camera (references and targets) sits within
     :data:`TURNTABLE_TOLERANCE` of its training turntable; otherwise, on a GPU (``gpu``), the quality model
-    (``mrvm_quality``: 0.9-1.8 dB better than the any-view model off the turntable, many times slower on a
+    (``mrvm_quality``: 0.5-1.3 dB better than the any-view model off the turntable, many times slower on a
     CPU), else the any-view model (``mrvm_anyview``, as fast as the default). A model this copy lacks falls back
     to the next (the default last). ``framing_known`` False (a box guessed from the cameras) leaves the framing
     out of the choice."""
@@ -177,7 +177,7 @@ def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = F
     if shipped_or_none("mrvm_anyview") is None:
         return "nerformer_mrvm", f"auto: the default model, though {off}: this copy ships no any-view model"
     return "mrvm_anyview", (f"auto: the any-view model (shipped:mrvm_anyview): {off}; shipped:mrvm_quality is "
-                            "sharper there (+0.9 to +1.8 dB), many times slower on a CPU")
+                            "sharper there (+0.5 to +1.3 dB), many times slower on a CPU")
 
 
 def is_auto(checkpoint) -> bool:
