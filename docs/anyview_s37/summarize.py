@@ -13,19 +13,18 @@ import sys
 from pathlib import Path
 
 EVAL = Path(__file__).resolve().parents[2] / "data" / "eval"
-E = EVAL / "s37"
 
 
-def paired(set_name, name, metric):
+def paired(root, set_name, name, metric):
     """(mean difference, SE over objects, objects, absolute mean) of one set, against the base."""
-    c = json.loads((E / f"{set_name}_{name}" / "compare.json").read_text())["overall"][metric]
-    ev = json.loads((E / f"{set_name}_{name}" / "eval.json").read_text())
+    c = json.loads((root / f"{set_name}_{name}" / "compare.json").read_text())["overall"][metric]
+    ev = json.loads((root / f"{set_name}_{name}" / "eval.json").read_text())
     return c["diff"], c["se_objects"], c["objects"], ev["overall"][metric]
 
 
-def pooled_halves(name, metric, halves):
+def pooled_halves(root, name, metric, halves):
     """Two halves of one set pooled, weighted by objects (SE: the halves independent)."""
-    parts = [paired(h, name, metric) for h in halves]
+    parts = [paired(root, h, name, metric) for h in halves]
     n = sum(p[2] for p in parts)
     diff = sum(p[0] * p[2] for p in parts) / n
     se = math.sqrt(sum((p[1] * p[2] / n) ** 2 for p in parts))
@@ -33,10 +32,10 @@ def pooled_halves(name, metric, halves):
 
 
 def main(argv):
-    global E
+    root = EVAL / "s37"
     if "--dir" in argv:
         i = argv.index("--dir")
-        E = EVAL / argv[i + 1]
+        root = EVAL / argv[i + 1]
         argv = argv[:i] + argv[i + 2:]
     test = "--test" in argv
     names = [a for a in argv if not a.startswith("--")]
@@ -52,7 +51,7 @@ def main(argv):
         for metric in ("psnr", "lpips"):
             ds, ses = [], []
             for label, halves in {**sets, **guards}.items():
-                d, se, n, v = pooled_halves(name, metric, halves)
+                d, se, n, v = pooled_halves(root, name, metric, halves)
                 row[(label, metric)] = (d, se, v)
                 if label in sets:
                     ds.append(d)
