@@ -4,6 +4,10 @@
 
 `--dir s38` reads data/eval/s38 (session 38's stage 5, paired against stage 4).
 
+After the rule's table it prints, for information, the off-turntable mean's SE with objects shared between sets
+counted once (`sphere64_val` and `near_turntable64` share seeds 3000-3001; the rule's SE treats the sets as
+independent). It needs the per-view lists of each candidate's and the base's `eval.json` (not in evals.tgz).
+
 The scores it read (eval.json without the per-view list, and compare.json) are in evals.tgz beside it:
 `tar -xzf docs/anyview_s37/evals.tgz -C data/eval`. Its output: validation.md and test.md.
 """
@@ -29,6 +33,40 @@ def pooled_halves(root, name, metric, halves):
     diff = sum(p[0] * p[2] for p in parts) / n
     se = math.sqrt(sum((p[1] * p[2] / n) ** 2 for p in parts))
     return diff, se, n, sum(p[3] * p[2] for p in parts) / n
+
+
+def object_diffs(root, set_name, name, metric, base="shipped"):
+    """{object: mean paired difference over its views} of one set, from the per-view lists (None if absent)."""
+    views = {}
+    for who in (name, base):
+        ev = json.loads((root / f"{set_name}_{who}" / "eval.json").read_text())
+        if not ev.get("views"):
+            return None
+        views[who] = {(v["object"], v["view"]): v[metric] for v in ev["views"]}
+    per = {}
+    for key, x in views[name].items():
+        per.setdefault(key[0], []).append(x - views[base][key])
+    return {o: sum(d) / len(d) for o, d in per.items()}
+
+
+def clustered_off_se(root, name, metric, sets):
+    """SE of the mean over sets of each set's mean object difference, objects in several sets as one cluster:
+    each object's contribution is the sum over the sets it is in of its residual / (number of sets x objects in
+    that set); the variance is the sum of their squares (x n/(n-1)). Equals the rule's SE when no object is
+    shared, up to the n/(n-1) factors."""
+    contrib = {}
+    for halves in sets.values():
+        diffs = {}
+        for h in halves:
+            d = object_diffs(root, h, name, metric)
+            if d is None:
+                return None
+            diffs.update(d)
+        mean = sum(diffs.values()) / len(diffs)
+        for o, d in diffs.items():
+            contrib[o] = contrib.get(o, 0.0) + (d - mean) / (len(sets) * len(diffs))
+    n = len(contrib)
+    return math.sqrt(n / (n - 1) * sum(c * c for c in contrib.values()))
 
 
 def main(argv):
@@ -69,6 +107,11 @@ def main(argv):
             cells.append(f"{vp:.2f} / {vl:.4f}, {dp:+.2f} ({sp:.2f}), {dl:+.4f} ({sl:.4f})")
         (dp, sp, _), (dl, sl, _) = r[("off", "psnr")], r[("off", "lpips")]
         print(f"| {r['name']} | " + " | ".join(cells) + f" | {dp:+.3f} ({sp:.3f}), {dl:+.4f} ({sl:.4f}) |")
+    for r in rows:
+        se = [clustered_off_se(root, r["name"], m, sets) for m in ("psnr", "lpips")]
+        if se[0] is not None:
+            print(f"{r['name']}: off-turntable SE with shared objects counted once: PSNR {se[0]:.3f} (rule's "
+                  f"{r[('off', 'psnr')][1]:.3f}), LPIPS {se[1]:.4f} (rule's {r[('off', 'lpips')][1]:.4f})")
     if test:
         for r in rows:
             dp, dl = r[("off", "psnr")][0], r[("off", "lpips")][0]
