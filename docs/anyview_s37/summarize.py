@@ -52,8 +52,8 @@ def object_diffs(root, set_name, name, metric, base="shipped"):
 def clustered_off_se(root, name, metric, sets):
     """SE of the mean over sets of each set's mean object difference, objects in several sets as one cluster:
     each object's contribution is the sum over the sets it is in of its residual / (number of sets x objects in
-    that set); the variance is the sum of their squares (x n/(n-1)). Equals the rule's SE when no object is
-    shared, up to the n/(n-1) factors."""
+    that set); the variance is the sum of their squares (x n/(n-1)). Close to the rule's SE when no object is
+    shared (it differs by the n/(n-1) factors and by taking V1's two halves' residuals about their pooled mean)."""
     contrib = {}
     for halves in sets.values():
         diffs = {}
