@@ -1,12 +1,13 @@
 """Session 37: apply rule.md to the candidates' paired scores (data/eval/s37/*/compare.json) and print the table.
 
-    python docs/anyview_s37/summarize.py NAME... [--test] [--dir s38]
+    python docs/anyview_s37/summarize.py NAME... [--test] [--dir s38] [--base shipped]
 
 `--dir s38` reads data/eval/s38 (session 38's stage 5, paired against stage 4).
 
 After the rule's table it prints, for information, the off-turntable mean's SE with objects shared between sets
 counted once (`sphere64_val` and `near_turntable64` share seeds 3000-3001; the rule's SE treats the sets as
-independent). It needs the per-view lists of each candidate's and the base's `eval.json` (not in evals.tgz).
+independent). `--base` names the scores the candidates were paired against (score.sh's BASE; default
+`shipped`). It needs the per-view lists of each candidate's and the base's `eval.json` (not in evals.tgz).
 
 The scores it read (eval.json without the per-view list, and compare.json) are in evals.tgz beside it:
 `tar -xzf docs/anyview_s37/evals.tgz -C data/eval`. Its output: validation.md and test.md.
@@ -35,38 +36,51 @@ def pooled_halves(root, name, metric, halves):
     return diff, se, n, sum(p[3] * p[2] for p in parts) / n
 
 
-def object_diffs(root, set_name, name, metric, base="shipped"):
-    """{object: mean paired difference over its views} of one set, from the per-view lists (None if absent)."""
+def object_diffs(root, set_name, name, base):
+    """{metric: {object: mean paired difference over its views}} of one set (PSNR and LPIPS), from the per-view
+    lists of NAME's and BASE's eval.json (None if absent)."""
     views = {}
     for who in (name, base):
         ev = json.loads((root / f"{set_name}_{who}" / "eval.json").read_text())
         if not ev.get("views"):
             return None
-        views[who] = {(v["object"], v["view"]): v[metric] for v in ev["views"]}
-    per = {}
-    for key, x in views[name].items():
-        per.setdefault(key[0], []).append(x - views[base][key])
-    return {o: sum(d) / len(d) for o, d in per.items()}
+        views[who] = {(v["object"], v["view"]): v for v in ev["views"]}
+    out = {}
+    for metric in ("psnr", "lpips"):
+        per = {}
+        for key, v in views[name].items():
+            per.setdefault(key[0], []).append(v[metric] - views[base][key][metric])
+        out[metric] = {o: sum(d) / len(d) for o, d in per.items()}
+    return out
 
 
-def clustered_off_se(root, name, metric, sets):
-    """SE of the mean over sets of each set's mean object difference, objects in several sets as one cluster:
-    each object's contribution is the sum over the sets it is in of its residual / (number of sets x objects in
-    that set); the variance is the sum of their squares (x n/(n-1)). Close to the rule's SE when no object is
-    shared (it differs by the n/(n-1) factors and by taking V1's two halves' residuals about their pooled mean)."""
-    contrib = {}
+def clustered_off_se(root, name, sets, base):
+    """{metric: SE} of the mean over sets of each set's mean object difference, objects in several sets as one
+    cluster: each object's contribution is the sum over the sets it is in of its residual / (number of sets x
+    objects in that set); the variance is the sum of their squares (x n/(n-1)). Close to the rule's SE when no
+    object is shared (it differs by the n/(n-1) factors and by taking V1's two halves' residuals about their
+    pooled mean). None without per-view lists."""
+    per_set = []
     for halves in sets.values():
-        diffs = {}
+        merged = {"psnr": {}, "lpips": {}}
         for h in halves:
-            d = object_diffs(root, h, name, metric)
+            d = object_diffs(root, h, name, base)
             if d is None:
                 return None
-            diffs.update(d)
-        mean = sum(diffs.values()) / len(diffs)
-        for o, d in diffs.items():
-            contrib[o] = contrib.get(o, 0.0) + (d - mean) / (len(sets) * len(diffs))
-    n = len(contrib)
-    return math.sqrt(n / (n - 1) * sum(c * c for c in contrib.values()))
+            for metric in merged:
+                merged[metric].update(d[metric])
+        per_set.append(merged)
+    se = {}
+    for metric in ("psnr", "lpips"):
+        contrib = {}
+        for merged in per_set:
+            diffs = merged[metric]
+            mean = sum(diffs.values()) / len(diffs)
+            for o, d in diffs.items():
+                contrib[o] = contrib.get(o, 0.0) + (d - mean) / (len(sets) * len(diffs))
+        n = len(contrib)
+        se[metric] = math.sqrt(n / (n - 1) * sum(c * c for c in contrib.values()))
+    return se
 
 
 def main(argv):
@@ -74,6 +88,11 @@ def main(argv):
     if "--dir" in argv:
         i = argv.index("--dir")
         root = EVAL / argv[i + 1]
+        argv = argv[:i] + argv[i + 2:]
+    base = "shipped"
+    if "--base" in argv:
+        i = argv.index("--base")
+        base = argv[i + 1]
         argv = argv[:i] + argv[i + 2:]
     test = "--test" in argv
     names = [a for a in argv if not a.startswith("--")]
@@ -108,10 +127,10 @@ def main(argv):
         (dp, sp, _), (dl, sl, _) = r[("off", "psnr")], r[("off", "lpips")]
         print(f"| {r['name']} | " + " | ".join(cells) + f" | {dp:+.3f} ({sp:.3f}), {dl:+.4f} ({sl:.4f}) |")
     for r in rows:
-        se = [clustered_off_se(root, r["name"], m, sets) for m in ("psnr", "lpips")]
-        if se[0] is not None:
-            print(f"{r['name']}: off-turntable SE with shared objects counted once: PSNR {se[0]:.3f} (rule's "
-                  f"{r[('off', 'psnr')][1]:.3f}), LPIPS {se[1]:.4f} (rule's {r[('off', 'lpips')][1]:.4f})")
+        se = clustered_off_se(root, r["name"], sets, base)
+        if se is not None:
+            print(f"{r['name']}: off-turntable SE with shared objects counted once: PSNR {se['psnr']:.3f} (rule's "
+                  f"{r[('off', 'psnr')][1]:.3f}), LPIPS {se['lpips']:.4f} (rule's {r[('off', 'lpips')][1]:.4f})")
     if test:
         for r in rows:
             dp, dl = r[("off", "psnr")][0], r[("off", "lpips")][0]
