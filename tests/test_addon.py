@@ -144,6 +144,24 @@ def test_operator_reports_errors_and_leaves_scene(empty_scene, tmp_path):
     assert (len(bpy.data.objects), len(bpy.data.scenes)) == n and not (tmp_path / "ds").exists()
 
 
+@pytest.mark.slow
+def test_operator_warns_of_a_missing_texture(empty_scene, tmp_path):
+    """The panel says what the CLI's warning line says: a mesh's texture that is not there was dropped."""
+    import shutil
+
+    import bpy
+
+    pybullet_data = pytest.importorskip("pybullet_data")
+    for f in ("duck.obj", "duck.mtl"):  # without duckCM.png
+        shutil.copy(Path(pybullet_data.getDataPath()) / f, tmp_path / f)
+    props = empty_scene.mrvm_dataset
+    props.source, props.source_path = "PATH", str(tmp_path / "duck.obj")
+    props.output_dir = str(tmp_path / "ds")
+    props.views, props.resolution, props.samples = 1, 16, 1
+    assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}
+    assert "1 views rendered" in props.status and "warning:" in props.status and "duckCM.png" in props.status
+
+
 class _RecordingLayout:
     """Stands in for bpy's UILayout (headless Blender draws no UI): records what a panel draws."""
 

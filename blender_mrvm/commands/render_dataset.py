@@ -10,6 +10,7 @@ Finished views are skipped when a run is repeated (resume); files are written at
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..errors import InputError
 
@@ -105,4 +106,6 @@ def run(args) -> int:
     summary = run_with_tqdm(render_dataset(cfg), desc="render", unit="view")
     print(f"{len(summary.objects)} objects, {summary.views_rendered} views rendered, "
           f"{summary.views_skipped} already done, {summary.seconds:.1f} s -> {summary.out}")
+    for w in summary.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     return 0

@@ -262,15 +262,50 @@ def _import_with_trimesh(path: Path) -> None:
     bpy.context.scene.collection.objects.link(obj)
 
 
+def _image_missing(img) -> bool:
+    """Whether an image datablock names a file that is not there (Blender renders it magenta)."""
+    if img is None or img.packed_file is not None or img.source not in ("FILE", "SEQUENCE", "MOVIE"):
+        return False
+    return not os.path.isfile(bpy.path.abspath(img.filepath, library=img.library))
+
+
+def drop_missing_textures(objs: list[bpy.types.Object]) -> list[str]:
+    """Unlink every image texture of these (imported) objects' materials whose file is missing, so the surface
+    takes its material's own colour (an OBJ's ``Kd``) instead of Blender's missing-texture magenta; return the
+    missing files' names (sorted, once each). Only for imported files: materials of the user's own objects are
+    never touched."""
+    missing: set[str] = set()
+    done: set[int] = set()
+    for o in objs:
+        if o.type != "MESH":
+            continue
+        for m in o.data.materials:
+            if m is None or m.node_tree is None or m.as_pointer() in done:
+                continue
+            done.add(m.as_pointer())
+            tree = m.node_tree
+            for n in [n for n in tree.nodes if n.type == "TEX_IMAGE" and _image_missing(n.image)]:
+                missing.add(Path(bpy.path.abspath(n.image.filepath)).name or n.image.name)
+                for link in [lk for lk in tree.links if lk.from_node == n]:
+                    tree.links.remove(link)
+    return sorted(missing)
+
+
 def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
     ids = {o.as_pointer() for o in objs}
     return [o for o in objs if o.parent is None or o.parent.as_pointer() not in ids]
 
 
-def load_into(spec: ObjectSpec, collection: bpy.types.Collection) -> list[bpy.types.Object]:
-    """Load a dataset object into ``collection`` (objects only live there); return its objects."""
+def load_into(spec: ObjectSpec, collection: bpy.types.Collection,
+              missing_textures: list[str] | None = None) -> list[bpy.types.Object]:
+    """Load a dataset object into ``collection`` (objects only live there); return its objects. A mesh file's
+    textures that are missing are dropped (:func:`drop_missing_textures`) and their names appended to
+    ``missing_textures`` when given."""
     if spec.kind == "file":
         new = _import_file(Path(spec.path))
+        lost = drop_missing_textures(new)
+        if missing_textures is not None:
+            missing_textures.extend(lost)
         default = None
         for o in new:
             for c in list(o.users_collection):

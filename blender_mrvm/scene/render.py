@@ -163,6 +163,8 @@ class RenderSummary:
     views_rendered: int = 0
     views_skipped: int = 0
     seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+    """One line each, for the end of the run: what was rendered other than the source asked (missing textures)."""
 
     @property
     def views_per_second(self) -> float:
@@ -636,7 +638,13 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     session = RenderSession(cfg, tmpdir)
     writer = _Writer()
     try:
-        objs = O.load_into(spec, session.coll)
+        missing_tex: list[str] = []
+        objs = O.load_into(spec, session.coll, missing_tex)
+        if missing_tex:
+            summary.warnings.append(
+                f"{spec.key}: {len(missing_tex)} texture file(s) not found ({', '.join(missing_tex[:3])}"
+                f"{', ...' if len(missing_tex) > 3 else ''}), rendered with the material's own colour instead; "
+                "put the files where the mesh's materials name them and render again with --force")
         vl = session.view_layer
         O.check_vertices(O.mesh_vertices_world(objs, vl), spec.describe())
         norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl))
@@ -711,6 +719,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         }
         if cam_names:
             meta["scene_cameras"] = cam_names
+        if missing_tex:
+            meta["missing_textures"] = missing_tex  # rendered with their material's own colour
         if cfg.fov_range_deg is not None:
             meta["render"].update({"fov_range_deg": list(cfg.fov_range_deg), "distance_range": list(cfg.distance_range),
                                    "camera_seed": object_camera_seed(cfg, spec.key)})
