@@ -114,6 +114,9 @@ class MRVM_PG_dataset(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=0, min=0, description="Seed of random rigs and splits")
     force: BoolProperty(name="Overwrite", default=False,
                         description="Overwrite an output folder that holds another dataset")
+    skip_bad_meshes: BoolProperty(name="Skip bad meshes", default=False,
+                                  description="Skip a mesh file that cannot be read or is refused (no faces, NaN "
+                                              "coordinates) and go on with the others, naming each at the end")
     # Status of a running job (drawn by the panel).
     running: BoolProperty(default=False, options={"SKIP_SAVE"})
     progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})

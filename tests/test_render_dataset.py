@@ -355,3 +355,30 @@ def test_views_have_a_limit(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "views" in err[0] and "10000" in err[0], err
     assert not (tmp_path / "d").exists()
+
+
+def test_skip_bad_meshes_goes_on_past_a_refused_mesh(tmp_path, bpy_empty, capsys):
+    """A folder of meshes with one bad file (NaN vertices, an empty file): by default the run stops at it (exit 2);
+    with --skip-bad-meshes the others are rendered and each bad one is named in a warning line."""
+    import trimesh
+
+    from blender_mrvm.cli import main
+    from tests.helpers import asymmetric_mesh
+
+    src = tmp_path / "meshes"
+    m = asymmetric_mesh()
+    v = m.vertices.copy()
+    v[5, 0] = float("nan")
+    write_mesh(src / "a_bad.obj", trimesh.Trimesh(v, m.faces, process=False))
+    (src / "b_empty.ply").write_bytes(b"")
+    write_mesh(src / "c_good.obj")
+    args = ["render-dataset", "--source", str(src), "--views", "2", "--resolution", "16", "--samples", "1"]
+    assert main(args + ["--out", str(tmp_path / "strict")]) == 2
+    assert "a_bad.obj" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "d"), "--skip-bad-meshes"]) == 0
+    err = capsys.readouterr().err
+    warn = [ln for ln in err.splitlines() if ln.startswith("warning: ")]
+    assert len(warn) == 2 and "a_bad" in warn[0] and "b_empty" in warn[1], err
+    assert [p.parent.name for p in (tmp_path / "d").glob("*/*/meta.json")] == ["c_good"]
+    assert F.read_split(tmp_path / "d", "train") + F.read_split(tmp_path / "d", "val") + \
+        F.read_split(tmp_path / "d", "test") == ["custom/c_good"]

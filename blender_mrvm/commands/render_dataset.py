@@ -65,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shard", default="0/1", help="i/n: render only this shard of the objects (default 0/1)")
     p.add_argument("--blend", default=None, help="open this .blend first (for 'selected' and the scene rig)")
     p.add_argument("--force", action="store_true", help="overwrite an output folder that holds another dataset")
+    p.add_argument("--skip-bad-meshes", action="store_true",
+                   help="skip a mesh file that cannot be read or is refused (no faces, NaN coordinates) and go on, "
+                        "naming each at the end, instead of stopping at the first (for folders of many meshes)")
 
 
 def config_from_args(args):
@@ -86,6 +89,7 @@ def config_from_args(args):
                         resolution=parse_resolution(args.resolution), engine=args.engine, samples=args.samples,
                         rgba=args.rgba, fov_deg=args.fov, elevation_deg=args.elevation, seed=args.seed,
                         category=args.category, shard=parse_shard(args.shard), force=args.force, split=args.split,
+                        skip_bad_meshes=args.skip_bad_meshes,
                         fov_range_deg=fov_range, distance_range=dist_range, elevation_range_deg=el_range)
 
 

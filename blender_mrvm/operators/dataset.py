@@ -40,7 +40,7 @@ def config_from_props(context) -> "RenderConfig":  # noqa: F821
     return RenderConfig(out=Path(bpy.path.abspath(out)), sources=sources, rig=p.rig, views=p.views,
                         resolution=(p.resolution, p.resolution), engine=p.engine, samples=p.samples,
                         rgba=p.rgba, fov_deg=math.degrees(p.fov), elevation_deg=math.degrees(p.elevation),
-                        seed=p.seed, force=p.force)
+                        seed=p.seed, force=p.force, skip_bad_meshes=p.source == "PATH" and p.skip_bad_meshes)
 
 
 class MRVM_OT_render_dataset(ProgressOperator, bpy.types.Operator):

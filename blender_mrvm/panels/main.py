@@ -92,6 +92,8 @@ class MRVM_PT_dataset(MRVMPanel, bpy.types.Panel):
         col.prop(p, "seed")
         col.prop(p, "output_dir")
         col.prop(p, "force")
+        if p.source == "PATH":
+            col.prop(p, "skip_bad_meshes")
         draw_job(layout, p, "mrvm.render_dataset", "RENDER_STILL", "Rendering...")
 
 

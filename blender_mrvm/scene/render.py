@@ -98,6 +98,10 @@ class RenderConfig:
     """With ``fov_range_deg``: camera distance as multiples of the framing distance at the view's field of view."""
     elevation_range_deg: tuple[float, float] | None = None
     """With ``fov_range_deg``: keep the directions to this band of elevations (degrees); None = the whole rig."""
+    skip_bad_meshes: bool = False
+    """Skip a mesh file that cannot be read or is refused (no faces, NaN coordinates, ...) and go on with the next,
+    naming it in the summary's warnings, instead of stopping at it (a folder of thousands of meshes). Not a
+    dataset setting: it changes no render."""
 
     def validate(self) -> None:
         w, h = self.resolution
@@ -588,6 +592,7 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
         with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
             for spec in specs:
                 views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
+                started = done
                 try:
                     for event in views:
                         done += 1
@@ -595,6 +600,13 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
                         yield Progress(done, total, event, skipped=summary.views_skipped)
                         if interrupted:
                             raise KeyboardInterrupt  # between views: every reported view is on disk
+                except InputError as e:  # the mesh itself is unusable, before any of its views was written
+                    if not (cfg.skip_bad_meshes and spec.kind == "file" and done == started):
+                        raise
+                    summary.warnings.append(f"{spec.key} skipped: {e}")
+                    done += n_views
+                    yield Progress(done, total, f"{spec.key}: skipped ({e})", skipped=summary.views_skipped)
+                    continue
                 finally:
                     views.close()
                 summary.objects.append(spec.key)
