@@ -37,7 +37,8 @@ FIGURES = {
     "auto": "the default model on its training turntable (2 views 21.9 dB / LPIPS 0.166), else the any-view model "
             "on the CPU (5-25 degrees off the turntable 19.0 / 0.258 against the default's 14.4 / 0.375; sphere rig "
             "19.2 / 0.238 against 15.0 / 0.343; ~1.0 s per 128 px view on 2 CPU cores) and the quality model on a "
-            "GPU (+0.5 to +1.3 dB over the any-view model there); captures of a whole scene: GPNR for rooms",
+            "GPU (+0.5 to +1.3 dB over the any-view model there on library objects, level on real meshes); captures of a "
+            "whole scene: GPNR for rooms",
     "nerformer_mrvm": "2 views 21.9 dB / LPIPS 0.166 (held-out 64 px objects; nearest view 15.4 dB / 0.234), on "
                       "its training turntable's cameras only (a few degrees off them the any-view model is better); "
                       "~1.0 s per 128 px view on 2 CPU cores",
@@ -160,8 +161,8 @@ def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = F
     captures (``gpnr_captures``: +6.1 dB over the objects-on-white model on held-out rooms, README). Objects on
     white get the default model when every camera (references and targets) sits within
     :data:`TURNTABLE_TOLERANCE` of its training turntable; otherwise, on a GPU (``gpu``), the quality model
-    (``mrvm_quality``: 0.5-1.3 dB better than the any-view model off the turntable, many times slower on a
-    CPU), else the any-view model (``mrvm_anyview``, as fast as the default). A model this copy lacks falls back
+    (``mrvm_quality``: 0.5-1.3 dB better than the any-view model off the turntable on the library's objects, level
+    with it on real meshes (docs/real_meshes/), many times slower on a CPU), else the any-view model (``mrvm_anyview``, as fast as the default). A model this copy lacks falls back
     to the next (the default last). ``framing_known`` False (a box guessed from the cameras) leaves the framing
     out of the choice."""
     if background == "scene" and shipped_or_none("gpnr_captures") is not None:
@@ -177,7 +178,8 @@ def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = F
     if shipped_or_none("mrvm_anyview") is None:
         return "nerformer_mrvm", f"auto: the default model, though {off}: this copy ships no any-view model"
     return "mrvm_anyview", (f"auto: the any-view model (shipped:mrvm_anyview): {off}; shipped:mrvm_quality is "
-                            "sharper there (+0.5 to +1.3 dB), many times slower on a CPU")
+                            "sharper there on library-like objects (+0.5 to +1.3 dB; level on real meshes), many "
+                            "times slower on a CPU")
 
 
 def is_auto(checkpoint) -> bool:
