@@ -168,7 +168,8 @@ class RenderSummary:
     views_skipped: int = 0
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
-    """One line each, for the end of the run: what was rendered other than the source asked (missing textures)."""
+    """One line each, for the end of the run: what was rendered other than the sources asked (missing textures) or
+    not at all (meshes skipped by ``skip_bad_meshes``)."""
 
     @property
     def views_per_second(self) -> float:
