@@ -62,8 +62,10 @@ class MRVM_OT_render_dataset(ProgressOperator, bpy.types.Operator):
     def on_result(self, context, s) -> str:
         for w in s.warnings:  # e.g. a mesh's missing textures: in the Info log, one line each
             self.report({"WARNING"}, w)
-        warned = f"; warning: {s.warnings[0]}" + (f" (and {len(s.warnings) - 1} more)" if len(s.warnings) > 1 else "") \
-            if s.warnings else ""
+        warned = ""
+        if s.warnings:
+            more = f" (and {len(s.warnings) - 1} more)" if len(s.warnings) > 1 else ""
+            warned = f"; warning: {s.warnings[0]}{more}"
         return (f"Dataset written to {s.out}: {s.views_rendered} views rendered, "
                 f"{s.views_skipped} already done ({s.seconds:.1f} s){warned}")
 

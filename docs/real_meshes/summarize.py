@@ -73,11 +73,11 @@ def main() -> None:
         have = [m for m in MODELS if f"{real}_{m}" in evs and m != "auto"]
         if not have:
             continue
-        objs = sorted(per_object(evs[f"{real}_{have[0]}"]))
         print(f"\nReal meshes one by one, {rig} (PSNR / LPIPS per model; the nearest reference view last):\n")
         print("| object | " + " | ".join(NAMES[m] for m in have) + " | nearest view |")
         print("|---|" + "---|" * (len(have) + 1))
         po = {m: per_object(evs[f"{real}_{m}"]) for m in have}
+        objs = sorted(po[have[0]])
         for ob in objs:
             cells = [f"{po[m][ob]['psnr']:.2f} / {po[m][ob]['lpips']:.3f}" for m in have]
             n = po[have[0]][ob]
