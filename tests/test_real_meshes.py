@@ -80,3 +80,61 @@ def test_missing_texture_renders_the_material_colour_and_says_so(tmp_path, bpy_e
     assert json.loads((out / "custom" / "duck" / "meta.json").read_text())["missing_textures"] == ["duckCM.png"]
     r, g, b = np.median(_foreground(out, "duck"), axis=0)
     assert abs(r - g) < 0.05 and abs(r - b) < 0.05 and g > 0.4, (r, g, b)  # grey, not magenta (g 0)
+
+
+def test_linked_files_of_an_obj_and_a_gltf(tmp_path):
+    """The files a mesh names beside its own bytes: an MTL's textures after their options (names with spaces, a
+    Windows path found by its base name), a glTF's external buffers and images (URL-encoded), data URIs skipped;
+    a named file that is absent is listed as missing."""
+    from blender_mrvm.scene.objects import linked_files
+
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\n")
+    (tmp_path / "m.mtl").write_text("newmtl a\nKd 1 1 1\nmap_Kd -s 1 1 1 -o 0.5 -bm 0.2 my wood.png\n"
+                                    "bump -bm 1.5 C:\\textures\\n.png\nmap_d alpha.png\n")
+    (tmp_path / "my wood.png").write_bytes(b"x")
+    (tmp_path / "n.png").write_bytes(b"y")
+    got = linked_files(tmp_path / "m.obj")
+    assert got == [("my wood.png", tmp_path / "my wood.png"), ("C:/textures/n.png", tmp_path / "n.png"),
+                   ("alpha.png", None)]
+    (tmp_path / "s.gltf").write_text(json.dumps({
+        "buffers": [{"uri": "s%20data.bin"}, {"uri": "data:application/octet-stream;base64,AAAA"}],
+        "images": [{"uri": "tex.png"}, {"bufferView": 0}]}))
+    (tmp_path / "s data.bin").write_bytes(b"z")
+    assert linked_files(tmp_path / "s.gltf") == [("s%20data.bin", tmp_path / "s data.bin"), ("tex.png", None)]
+    (tmp_path / "bad.gltf").write_text("{not json")
+    assert linked_files(tmp_path / "bad.gltf") == [] and linked_files(tmp_path / "nothing.stl") == []
+
+
+def test_resume_notices_a_texture_that_changed_or_appeared(tmp_path, bpy_empty):
+    """A texture is part of what a view was rendered from: the duck rendered without its PNG, then with it, must
+    not resume on the grey views (nor on yellow ones after the PNG changes); --force renders it again."""
+    import shutil
+
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+
+    for f in ("duck.obj", "duck.mtl"):
+        shutil.copy(DATA / f, tmp_path / f)
+    out = tmp_path / "d"
+    cfg = dict(out=out, sources=(str(tmp_path / "duck.obj"),), views=2, rig="turntable", resolution=(24, 24),
+               samples=1)
+    run_to_end(render_dataset(RenderConfig(**cfg)))
+    meta_path = out / "custom" / "duck" / "meta.json"
+    first = json.loads(meta_path.read_text())
+    assert first["linked_files_hash"].startswith("sha256:")
+    assert run_to_end(render_dataset(RenderConfig(**cfg))).views_skipped == 2, "nothing changed: resumed"
+    shutil.copy(DATA / "duckCM.png", tmp_path / "duckCM.png")  # the texture appears
+    with pytest.raises(OutputError, match="texture"):
+        run_to_end(render_dataset(RenderConfig(**cfg)))
+    s = run_to_end(render_dataset(RenderConfig(**cfg, force=True)))
+    assert s.views_rendered == 2 and not s.warnings
+    second = json.loads(meta_path.read_text())
+    assert second["source_hash"] == first["source_hash"] and second["linked_files_hash"] != first["linked_files_hash"]
+    assert "missing_textures" not in second
+    (tmp_path / "duckCM.png").write_bytes((tmp_path / "duckCM.png").read_bytes()[:-1] + b"\0")  # changed bytes
+    with pytest.raises(OutputError, match="changed"):
+        run_to_end(render_dataset(RenderConfig(**cfg)))
+    # a dataset rendered before the linked files' hash was kept still resumes
+    del second["linked_files_hash"]
+    meta_path.write_text(json.dumps(second))
+    assert run_to_end(render_dataset(RenderConfig(**cfg))).views_skipped == 2

@@ -530,6 +530,97 @@ def source_fingerprint(spec: ObjectSpec) -> str:
     return "sha256:" + h.hexdigest()
 
 
+def linked_files_fingerprint(spec: ObjectSpec) -> str | None:
+    """The files a mesh file names (:func:`linked_files`), as a hash: ``None`` for sources that are not files.
+
+    Kept beside :func:`source_fingerprint`, not inside it, so datasets rendered before it was kept still resume.
+    A named file that is missing counts as missing (by name), so its appearance later changes the hash too."""
+    import hashlib
+
+    if spec.kind != "file":
+        return None
+    h = hashlib.sha256()
+    for name, f in linked_files(Path(spec.path)):
+        h.update(name.encode() + b"\0")
+        if f is None:
+            h.update(b"missing\0")
+            continue
+        try:
+            with open(f, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(block)
+        except OSError as e:
+            raise InputError(f"cannot read {f} (named by the mesh file {spec.path}): {e.strerror or e}") from None
+    return "sha256:" + h.hexdigest()
+
+
+# MTL texture statements and how many arguments each of their options takes (the OBJ/MTL specification; -o, -s
+# and -t take one to three numbers).
+_MTL_TEXTURE = re.compile(r"^\s*(map_\w+|bump|disp|decal|refl|norm)\s+(.+?)\s*$", re.I)
+_MTL_OPTION_ARGS = {"-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1,
+                    "-clamp": 1, "-bm": 1, "-imfchan": 1, "-type": 1, "-cc": 1}
+
+
+def _mtl_texture_name(args: str) -> str:
+    """The file name of an MTL texture statement's arguments (after its options; it may hold spaces)."""
+    toks = args.split()
+    i = 0
+    while i < len(toks) and toks[i].lower() in _MTL_OPTION_ARGS:
+        n = _MTL_OPTION_ARGS[toks[i].lower()]
+        i += 1
+        for _ in range(n):
+            if i >= len(toks) - 1:
+                break
+            if n == 3:  # -o / -s / -t: one to three numbers
+                try:
+                    float(toks[i])
+                except ValueError:
+                    break
+            i += 1
+    return " ".join(toks[i:]).replace("\\", "/")
+
+
+def linked_files(path: Path) -> list[tuple[str, Path | None]]:
+    """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
+    in order: an OBJ's textures (through its MTL libraries) and a glTF's external buffers and images. A texture
+    name that is not found as written is looked for by its base name beside the MTL, as Blender's importer does."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    out: list[tuple[str, Path | None]] = []
+    if ext == ".obj":
+        for mtl in _obj_material_libraries(path):
+            try:
+                lines = mtl.read_text(errors="replace").splitlines()
+            except OSError:
+                continue
+            for line in lines:
+                m = _MTL_TEXTURE.match(line)
+                if not m:
+                    continue
+                name = _mtl_texture_name(m.group(2))
+                if not name:
+                    continue
+                cands = [mtl.parent / name, mtl.parent / Path(name).name]
+                out.append((name, next((c for c in cands if c.is_file()), None)))
+    elif ext == ".gltf":
+        import json
+        from urllib.parse import unquote
+
+        try:
+            doc = json.loads(path.read_text(errors="replace"))
+        except (OSError, ValueError):
+            return out  # the importer reports it
+        if not isinstance(doc, dict):
+            return out
+        for key in ("buffers", "images"):
+            for item in doc.get(key) or []:
+                uri = item.get("uri") if isinstance(item, dict) else None
+                if isinstance(uri, str) and uri and not uri.startswith("data:"):
+                    f = path.parent / unquote(uri)
+                    out.append((uri, f if f.is_file() else None))
+    return out
+
+
 def _obj_material_libraries(path: Path) -> list[Path]:
     out = []
     try:

@@ -15,8 +15,8 @@ composited on white (or RGBA) with the sRGB transfer function (what Blender's "S
 transform applies), planar z-depth and world normals as float32 EXR, and the part-id mask. A writer
 thread rasterizes and writes view i while Cycles renders view i + 1 (the render releases the GIL).
 
-What each view was rendered from is recorded (``source_hash`` in ``meta.json``) and checked on
-resume, and a finished view counts only if its files are intact (a truncated PNG is rendered again).
+What each view was rendered from is recorded (``source_hash`` in ``meta.json``, and for a mesh file
+``linked_files_hash``: the textures and buffers it names) and checked on resume, and a finished view counts only if its files are intact (a truncated PNG is rendered again).
 """
 
 from __future__ import annotations
@@ -626,6 +626,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     settings = cfg.settings()
     meta_path = obj_dir / "meta.json"
     source_hash = O.source_fingerprint(spec)
+    linked_hash = O.linked_files_fingerprint(spec)
     if meta_path.exists():
         try:
             old = json.loads(meta_path.read_text())
@@ -636,11 +637,12 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 raise OutputError(f"{obj_dir} holds another render of {spec.key} "
                                   f"({old.get('source')}); use --force to overwrite it")
             shutil.rmtree(obj_dir)
-        elif old.get("source_hash") not in (None, source_hash):  # None: rendered before hashes were kept
+        elif (old.get("source_hash") not in (None, source_hash)  # None: rendered before hashes were kept
+              or old.get("linked_files_hash") not in (None, linked_hash)):
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} as it was before it changed "
-                                  "(its content differs from what they were rendered from); "
-                                  "use --force to render it again")
+                                  "(its content, or a texture or buffer file it names, differs from what they "
+                                  "were rendered from); use --force to render it again")
             shutil.rmtree(obj_dir)
         elif old.get("complete") and all(view_intact(obj_dir, i) for i in range(old.get("n_views", -1))):
             for i in range(old["n_views"]):
@@ -714,6 +716,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             "format_version": F.FORMAT_VERSION, "generator": f"blender_mrvm {__version__}",
             "category": spec.category, "object_id": spec.object_id, "source": spec.describe(),
             "source_hash": source_hash,
+            **({"linked_files_hash": linked_hash} if linked_hash is not None else {}),
             "split": split, "settings": settings, "n_views": len(poses), "complete": False,
             "normalization": {"matrix": norm.tolist(), "scale": float(norm[0, 0]),
                               "note": "x_normalized = matrix @ x_source (ShapeNetCore v2: bbox centre 0, diagonal 1)"},
