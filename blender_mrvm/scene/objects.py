@@ -176,13 +176,46 @@ def quiet_stdout():
         os.close(devnull)
 
 
+# What Blender's OBJ importer prints on stderr when a texture's folder is missing (the image search): said better
+# by the render's own warning about missing textures, so it is dropped.
+_IMPORTER_NOISE = re.compile(r"^Failed to open dir \(No such file or directory\):")
+
+
+@contextlib.contextmanager
+def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
+    """Hold what is written on fd 2 (Blender's C-level messages, and Python's) and pass it on afterwards without
+    the lines ``drop`` matches."""
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            kept = [ln for ln in held.read().decode(errors="replace").splitlines(keepends=True) if not drop.match(ln)]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
+
+
 def _import_file(path: Path) -> list[bpy.types.Object]:
     """Import a mesh file with Blender's importers (trimesh for OFF); return the new objects."""
     ext = path.suffix.lower()
     check_mesh_file(path)
     before = {o.as_pointer() for o in bpy.data.objects}
     try:
-        with quiet_stdout():
+        with quiet_stdout(), filtered_stderr():
             _run_importer(path, ext)
     except RuntimeError as e:
         raise InputError(f"cannot read mesh file {path}: {str(e).strip().splitlines()[-1]}") from None
