@@ -76,6 +76,10 @@ def world(tmp_path_factory):
     (w / "occupied" / "precious.txt").write_text("keep me")
     (w / "a_file").write_text("not a folder")
     (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
+    for ext in ("fbx", "usd", "usdz", "abc"):  # the formats of other tools, damaged
+        (w / f"garbage.{ext}").write_bytes(b"not a mesh\n" * 20)
+    (w / "collada").mkdir()
+    (w / "collada" / "cone.dae").write_text("<COLLADA/>")
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
     (w / "earlier_eval" / "eval.json").write_text(json.dumps({"overall": {"psnr": 20.0}, "views": []}))
     (w / "emptydir").mkdir()
@@ -478,6 +482,13 @@ RENDER = [
     # an unreadable mesh: one error line, and no dataset folder holding only its manifest left behind (session 29)
     Case("tracebacks", ["render-dataset", "--source", "{w}/broken.obj", "--out", "{new}", "--views", "2",
                         "--resolution", "16"], "cannot read mesh file"),
+    # other tools' formats (session 41): damaged files, and COLLADA, which Blender 5 cannot import
+    *[Case("tracebacks", ["render-dataset", "--source", "{w}/garbage." + ext, "--out", "{new}", "--views", "2",
+                          "--resolution", "16"], "cannot read mesh file") for ext in ("fbx", "usd", "usdz", "abc")],
+    Case("tracebacks", ["render-dataset", "--source", "{w}/collada/cone.dae", "--out", "{new}", "--views", "2"],
+         "no COLLADA importer"),
+    Case("tracebacks", ["render-dataset", "--source", "{w}/collada", "--out", "{new}", "--views", "2"],
+         "no COLLADA importer"),
 ]
 
 USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2

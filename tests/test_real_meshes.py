@@ -139,3 +139,26 @@ def test_resume_notices_a_texture_that_changed_or_appeared(tmp_path, bpy_empty):
     del second["linked_files_hash"]
     meta_path.write_text(json.dumps(second))
     assert run_to_end(render_dataset(RenderConfig(**cfg))).views_skipped == 2
+
+
+def test_texture_named_the_windows_way_is_found_beside_the_mesh(tmp_path, bpy_empty):
+    """An MTL written on Windows names `textures\\DUCKCM.PNG` where the file sits beside the mesh as duckCM.png:
+    the render finds it (backslashes, then the base name in any letter case) instead of dropping the texture."""
+    import shutil
+
+    from blender_mrvm.scene.objects import linked_files
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+
+    shutil.copy(DATA / "duck.obj", tmp_path / "duck.obj")
+    shutil.copy(DATA / "duckCM.png", tmp_path / "duckCM.png")
+    mtl = (DATA / "duck.mtl").read_text()
+    assert "duckCM.png" in mtl
+    (tmp_path / "duck.mtl").write_text(mtl.replace("duckCM.png", "textures\\DUCKCM.PNG"))
+    assert linked_files(tmp_path / "duck.obj")[0] == ("textures/DUCKCM.PNG", tmp_path / "duckCM.png")
+    out = tmp_path / "d"
+    summary = run_to_end(render_dataset(RenderConfig(out=out, sources=(str(tmp_path / "duck.obj"),), views=2,
+                                                     rig="turntable", resolution=(32, 32), samples=2)))
+    assert not summary.warnings, summary.warnings
+    assert "missing_textures" not in json.loads((out / "custom" / "duck" / "meta.json").read_text())
+    r, g, b = np.median(_foreground(out, "duck"), axis=0)
+    assert r > 0.6 and g > 0.45 and b < 0.3, (r, g, b)  # the texture's yellow

@@ -4,7 +4,7 @@ A *source* string names what to render:
 
 - ``selected``: each selected mesh object of the current file (copies are rendered; the user's
   objects are never modified);
-- a mesh file (OBJ, PLY, STL, glTF/GLB, OFF);
+- a mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD/USDA/USDC/USDZ, Alembic);
 - a folder: a ShapeNetCore folder (``<synset>/<model>/models/model_normalized.obj``, one synset
   folder or the whole tree) or a folder of mesh files;
 - ``procedural:<category>:<seed>``: a generated object of the procedural library.
@@ -28,7 +28,18 @@ from mathutils import Matrix
 
 from ..errors import InputError
 
-MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".usda", ".usdc", ".usdz", ".abc")
+# 3D formats this Blender cannot import (COLLADA left Blender in 5.0) or that are not a mesh file to import: a
+# folder's files of these kinds are named in a warning instead of passed over without a word.
+OTHER_3D_EXTS = {".dae": "Blender 5 has no COLLADA importer; export it as glTF, FBX or OBJ",
+                 ".blend": "open it in Blender and render its objects with the source 'selected'",
+                 ".3ds": "export it as glTF, FBX or OBJ", ".max": "export it as glTF, FBX or OBJ",
+                 ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD",
+                 ".c4d": "export it as FBX or glTF", ".lwo": "export it as FBX or OBJ",
+                 ".x3d": "export it as glTF or OBJ", ".wrl": "export it as glTF or OBJ",
+                 ".3mf": "export it as STL or OBJ", ".skp": "export it as glTF, FBX or OBJ",
+                 ".step": "tessellate it to STL or OBJ in its CAD tool", ".stp": "tessellate it to STL or OBJ in its CAD tool",
+                 ".iges": "tessellate it to STL or OBJ in its CAD tool", ".igs": "tessellate it to STL or OBJ in its CAD tool"}
 
 # ShapeNetCore v2 synset ids of the 13 categories used by SRN / NMR / pixelNeRF.
 SHAPENET_SYNSETS = {
@@ -83,8 +94,10 @@ def _shapenet_models(root: Path) -> list[tuple[str, Path]]:
     return [(SHAPENET_SYNSETS.get(f.parents[2].name, f.parents[2].name), f) for f in files]
 
 
-def resolve_sources(sources: tuple[str, ...], category: str | None = None) -> list[ObjectSpec]:
-    """Turn source strings into object specs; raises InputError for anything unusable."""
+def resolve_sources(sources: tuple[str, ...], category: str | None = None,
+                    passed_over: list[str] | None = None) -> list[ObjectSpec]:
+    """Turn source strings into object specs; raises InputError for anything unusable. Files of another 3D
+    format (``OTHER_3D_EXTS``) found in a folder are appended to ``passed_over`` as a message each."""
     if not sources:
         raise InputError("no source given: name mesh files, a folder, 'selected' or 'procedural:<category>:<seed>'")
     specs: list[ObjectSpec] = []
@@ -118,13 +131,22 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None) -> li
                         specs.append(ObjectSpec("file", safe_id(category or cat), safe_id(f.parents[1].name), path=str(f)))
                     continue
                 files = sorted(f for f in p.iterdir() if f.suffix.lower() in MESH_EXTS and f.is_file())
+                other = sorted(f for f in p.iterdir() if f.suffix.lower() in OTHER_3D_EXTS and f.is_file())
                 if not files:
-                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) or ShapeNet models in folder {src}")
+                    hint = (f"; it holds {len(other)} {other[0].suffix} file(s): {OTHER_3D_EXTS[other[0].suffix.lower()]}"
+                            if other else "")
+                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) or ShapeNet models in folder {src}{hint}")
+                if other and passed_over is not None:
+                    for ext in sorted({f.suffix.lower() for f in other}):
+                        these = [f.name for f in other if f.suffix.lower() == ext]
+                        passed_over.append(f"{src}: {len(these)} {ext} file(s) not rendered ({', '.join(these[:3])}"
+                                           f"{', ...' if len(these) > 3 else ''}): {OTHER_3D_EXTS[ext]}")
                 for f in files:
                     specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(f.stem), path=str(f)))
             else:
                 if p.suffix.lower() not in MESH_EXTS:
-                    raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}; "
+                    hint = f" ({OTHER_3D_EXTS[p.suffix.lower()]})" if p.suffix.lower() in OTHER_3D_EXTS else ""
+                    raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}{hint}; "
                                      f"supported: {', '.join(MESH_EXTS)}")
                 specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(p.stem), path=str(p)))
     keys = [s.key for s in specs]
@@ -184,7 +206,8 @@ _IMPORTER_NOISE = re.compile(r"^Failed to open dir \(No such file or directory\)
 @contextlib.contextmanager
 def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
     """Hold what is written on fd 2 (Blender's C-level messages, and Python's) and pass it on afterwards without
-    the lines ``drop`` matches."""
+    the lines ``drop`` matches; all of it is dropped when the block raises (the caller's error says what failed:
+    a corrupt USD or Alembic file makes their libraries print their own lines, an add-on importer a traceback)."""
     import tempfile
 
     try:
@@ -195,8 +218,10 @@ def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
         return
     with tempfile.TemporaryFile() as held:
         os.dup2(held.fileno(), 2)
+        failed = True
         try:
             yield
+            failed = False
         finally:
             with contextlib.suppress(OSError, ValueError):
                 sys.stderr.flush()
@@ -204,7 +229,7 @@ def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
             os.close(saved)
             held.seek(0)
             kept = [ln for ln in held.read().decode(errors="replace").splitlines(keepends=True) if not drop.match(ln)]
-            if kept:
+            if kept and not failed:
                 sys.stderr.write("".join(kept))
                 sys.stderr.flush()
 
@@ -214,17 +239,21 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
     ext = path.suffix.lower()
     check_mesh_file(path)
     before = {o.as_pointer() for o in bpy.data.objects}
-    try:
-        with quiet_stdout(), filtered_stderr():
+    with quiet_stdout(), filtered_stderr():  # what the importers print is dropped when the file is refused
+        try:
             _run_importer(path, ext)
-    except RuntimeError as e:
-        raise InputError(f"cannot read mesh file {path}: {str(e).strip().splitlines()[-1]}") from None
-    new = [o for o in bpy.data.objects if o.as_pointer() not in before]
-    meshes = [o for o in new if o.type == "MESH" and len(o.data.polygons) > 0]
-    if not meshes:
-        for o in new:
-            bpy.data.objects.remove(o)
-        raise InputError(f"cannot read mesh file {path}: no faces found (corrupt or empty file)")
+        except RuntimeError as e:
+            lines = [ln.strip() for ln in str(e).strip().splitlines() if ln.strip()]
+            said = [ln for ln in lines if not ln.startswith("Location:")] or lines or ["the importer failed"]
+            said = re.sub(r"^Error:\s*|,? see console for details?\.?$", "", said[-1]) or "the importer failed"
+            raise InputError(f"cannot read mesh file {path}: {said}") from None
+        new = _drop_scene_objects([o for o in bpy.data.objects if o.as_pointer() not in before])
+        meshes = [o for o in new if o.type == "MESH" and _has_faces(o)]
+        if not meshes:
+            for o in new:
+                bpy.data.objects.remove(o)
+            raise InputError(f"cannot read mesh file {path}: no faces found (points or lines only, or a corrupt or "
+                             "empty file)")
     return new
 
 
@@ -260,8 +289,70 @@ def check_mesh_file(path: Path) -> None:
                          "fix or re-export the mesh")
 
 
+def _has_faces(o: bpy.types.Object) -> bool:
+    """Whether a mesh object has faces once evaluated (an Alembic or USD cache fills its mesh in a modifier)."""
+    if len(o.data.polygons) > 0:
+        return True
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = o.evaluated_get(dg)
+    me = ev.to_mesh()
+    try:
+        return len(me.polygons) > 0
+    finally:
+        ev.to_mesh_clear()
+
+
+def _drop_scene_objects(new: list[bpy.types.Object]) -> list[bpy.types.Object]:
+    """Remove the lights and cameras a file brought (glTF, FBX): a dataset is lit and seen by the renderer's own
+    rig. Their children keep where they are. Returns the objects left."""
+    drop = [o for o in new if o.type in ("LIGHT", "CAMERA", "SPEAKER", "LIGHT_PROBE")]
+    if not drop:
+        return new
+    gone = {o.as_pointer() for o in drop}
+    kept = [o for o in new if o.as_pointer() not in gone]
+    for o in kept:
+        if o.parent is not None and o.parent.as_pointer() in gone:
+            mw = o.matrix_world.copy()
+            o.parent = None
+            o.matrix_world = mw
+    for o in drop:
+        bpy.data.objects.remove(o)
+    return kept
+
+
+@contextlib.contextmanager
+def _fbx_lights_readable():
+    """Blender 5.0.1's FBX importer fails on any file with a light (it sets ``lamp.cycles.cast_shadow``, which 5.0
+    removed: AttributeError). While it runs, a light that fails so is kept as created; the lights are dropped
+    after the import anyway (:func:`_drop_scene_objects`)."""
+    try:
+        from io_scene_fbx import import_fbx
+    except ImportError:
+        yield
+        return
+    orig = import_fbx.blen_read_light
+
+    def read_light(*args, **kwargs):
+        before = {lt.as_pointer() for lt in bpy.data.lights}
+        try:
+            return orig(*args, **kwargs)
+        except AttributeError:
+            made = [lt for lt in bpy.data.lights if lt.as_pointer() not in before]
+            if not made:
+                raise
+            return made[0]
+
+    import_fbx.blen_read_light = read_light
+    try:
+        yield
+    finally:
+        import_fbx.blen_read_light = orig
+
+
 def _run_importer(path: Path, ext: str) -> None:
-    """Run the Blender importer for ``ext`` (OBJ is read as Y-up, like ShapeNet; trimesh for OFF)."""
+    """Run the Blender importer for ``ext`` (OBJ is read as Y-up, like ShapeNet; trimesh for OFF). FBX, USD and
+    Alembic use their files' own axes; USD is read without its cameras, lights, world or instancing (so every
+    surface is a mesh object the data passes see), at its render purpose."""
     if ext == ".obj":
         bpy.ops.wm.obj_import(filepath=str(path), use_split_objects=False, use_split_groups=False,
                               forward_axis="NEGATIVE_Z", up_axis="Y")
@@ -276,6 +367,19 @@ def _run_importer(path: Path, ext: str) -> None:
         bpy.ops.import_scene.gltf(filepath=str(path))
     elif ext == ".off":
         _import_with_trimesh(path)
+    elif ext == ".fbx":
+        import addon_utils
+
+        addon_utils.enable("io_scene_fbx", default_set=False)
+        with _fbx_lights_readable():
+            bpy.ops.import_scene.fbx(filepath=str(path), use_anim=False)
+    elif ext in (".usd", ".usda", ".usdc", ".usdz"):
+        bpy.ops.wm.usd_import(filepath=str(path), import_cameras=False, import_lights=False,
+                              create_world_material=False, support_scene_instancing=False, import_guide=False,
+                              import_proxy=False, import_render=True, import_visible_only=True,
+                              set_frame_range=False)
+    elif ext == ".abc":
+        bpy.ops.wm.alembic_import(filepath=str(path), as_background_job=False, set_frame_range=False)
 
 
 def _import_with_trimesh(path: Path) -> None:
@@ -295,18 +399,46 @@ def _import_with_trimesh(path: Path) -> None:
     bpy.context.scene.collection.objects.link(obj)
 
 
-def _image_missing(img) -> bool:
-    """Whether an image datablock names a file that is not there (Blender renders it magenta)."""
+def find_beside(folder: Path, name: str) -> Path | None:
+    """A file a mesh names, looked for as meshes made on Windows need: ``name`` as written (backslashes as folder
+    separators) under ``folder``, else its base name in ``folder``, else that base name in any letter case."""
+    name = name.replace("\\", "/")
+    base = Path(name).name
+    for cand in (Path(folder) / name, Path(folder) / base):
+        if cand.is_file():
+            return cand
+    if base:
+        low = base.lower()
+        with contextlib.suppress(OSError):
+            for f in sorted(Path(folder).iterdir()):
+                if f.name.lower() == low and f.is_file():
+                    return f
+    return None
+
+
+def _image_missing(img, search: Path | None = None) -> bool:
+    """Whether an image datablock names a file that is not there (Blender renders it magenta). Blender reads a
+    path written with Windows backslashes; with ``search`` (the mesh file's folder) a file found there by
+    :func:`find_beside` is pointed to instead of counted missing."""
     if img is None or img.packed_file is not None or img.source not in ("FILE", "SEQUENCE", "MOVIE"):
         return False
-    return not os.path.isfile(bpy.path.abspath(img.filepath, library=img.library))
+    path = bpy.path.abspath(img.filepath, library=img.library)
+    if os.path.isfile(path) or os.path.isfile(path.replace("\\", "/")):
+        return False
+    found = find_beside(search, Path(path.replace("\\", "/")).name) if search is not None else None
+    if found is None:
+        return True
+    img.filepath = str(found)
+    img.reload()
+    return False
 
 
-def drop_missing_textures(objs: list[bpy.types.Object]) -> list[str]:
+def drop_missing_textures(objs: list[bpy.types.Object], search: Path | None = None) -> list[str]:
     """Unlink every image texture of these (imported) objects' materials whose file is missing, so the surface
     takes its material's own colour (an OBJ's ``Kd``) instead of Blender's missing-texture magenta; return the
-    missing files' names (sorted, once each). Only for imported files: materials of the user's own objects are
-    never touched."""
+    missing files' names (sorted, once each). A texture found in ``search`` (the mesh file's folder) under its
+    base name, in any letter case, is used from there instead. Only for imported files: materials of the user's
+    own objects are never touched."""
     missing: set[str] = set()
     done: set[int] = set()
     for o in objs:
@@ -317,11 +449,35 @@ def drop_missing_textures(objs: list[bpy.types.Object]) -> list[str]:
                 continue
             done.add(m.as_pointer())
             tree = m.node_tree
-            for n in [n for n in tree.nodes if n.type == "TEX_IMAGE" and _image_missing(n.image)]:
-                missing.add(Path(bpy.path.abspath(n.image.filepath)).name or n.image.name)
+            for n in [n for n in tree.nodes if n.type == "TEX_IMAGE" and _image_missing(n.image, search)]:
+                missing.add(Path(bpy.path.abspath(n.image.filepath).replace("\\", "/")).name or n.image.name)
                 for link in [lk for lk in tree.links if lk.from_node == n]:
                     tree.links.remove(link)
     return sorted(missing)
+
+
+def opaque_invisible_materials(objs: list[bpy.types.Object]) -> list[str]:
+    """Set to 1 the alpha of these (imported) objects' materials whose Principled BSDF alpha is 0 with nothing
+    linked to it; return their names (sorted). Blender's FBX importer reads such a 0 from files of 3ds Max and
+    other exporters that mean an opaque surface (its own comment: the formula is a guess), and the object would
+    render as nothing while its masks and depth show it. Only for imported files."""
+    fixed: set[str] = set()
+    done: set[int] = set()
+    for o in objs:
+        if o.type != "MESH":
+            continue
+        for m in o.data.materials:
+            if m is None or m.node_tree is None or m.as_pointer() in done:
+                continue
+            done.add(m.as_pointer())
+            for n in m.node_tree.nodes:
+                if n.type != "BSDF_PRINCIPLED":
+                    continue
+                a = n.inputs.get("Alpha")
+                if a is not None and not a.is_linked and a.default_value <= 0.0:
+                    a.default_value = 1.0
+                    fixed.add(m.name)
+    return sorted(fixed)
 
 
 def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
@@ -329,16 +485,20 @@ def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
     return [o for o in objs if o.parent is None or o.parent.as_pointer() not in ids]
 
 
-def load_into(spec: ObjectSpec, collection: bpy.types.Collection,
-              missing_textures: list[str] | None = None) -> list[bpy.types.Object]:
+def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textures: list[str] | None = None,
+              made_opaque: list[str] | None = None) -> list[bpy.types.Object]:
     """Load a dataset object into ``collection`` (objects only live there); return its objects. A mesh file's
     textures that are missing are dropped (:func:`drop_missing_textures`) and their names appended to
-    ``missing_textures`` when given."""
+    ``missing_textures``; its materials read as fully transparent are made opaque (:func:`opaque_invisible_materials`)
+    and their names appended to ``made_opaque`` (each when given)."""
     if spec.kind == "file":
         new = _import_file(Path(spec.path))
-        lost = drop_missing_textures(new)
+        lost = drop_missing_textures(new, Path(spec.path).parent)
         if missing_textures is not None:
             missing_textures.extend(lost)
+        fixed = opaque_invisible_materials(new)
+        if made_opaque is not None:
+            made_opaque.extend(fixed)
         default = None
         for o in new:
             for c in list(o.users_collection):
@@ -416,12 +576,12 @@ def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.View
     return np.concatenate(pts)
 
 
-def normalization_matrix(verts: np.ndarray) -> np.ndarray:
+def normalization_matrix(verts: np.ndarray, what: str = "the object") -> np.ndarray:
     """ShapeNetCore v2 normalization: bbox centre to the origin, bbox diagonal to 1."""
     lo, hi = verts.min(axis=0), verts.max(axis=0)
     diag = float(np.linalg.norm(hi - lo))
     if not np.isfinite(diag) or diag <= 0:
-        raise InputError("the object is degenerate (zero-size bounding box)")
+        raise InputError(f"{what} is degenerate (zero-size bounding box: all its vertices at one point)")
     s = 1.0 / diag
     n = np.eye(4)
     n[:3, :3] *= s
@@ -616,7 +776,8 @@ def _mtl_texture_name(args: str) -> str:
 def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
     in order: an OBJ's textures (through its MTL libraries) and a glTF's external buffers and images. A texture
-    name that is not found as written is looked for by its base name beside the MTL, as Blender's importer does."""
+    name that is not found as written is looked for by its base name beside the MTL (:func:`find_beside`), as the
+    render does."""
     path = Path(path)
     ext = path.suffix.lower()
     out: list[tuple[str, Path | None]] = []
@@ -633,8 +794,7 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
                 name = _mtl_texture_name(m.group(2))
                 if not name:
                     continue
-                cands = [mtl.parent / name, mtl.parent / Path(name).name]
-                out.append((name, next((c for c in cands if c.is_file()), None)))
+                out.append((name, find_beside(mtl.parent, name)))
     elif ext == ".gltf":
         import json
         from urllib.parse import unquote

@@ -579,13 +579,15 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
     """Render every object of ``cfg.sources`` (this shard's share); yields Progress, returns RenderSummary."""
     cfg.validate()
     user_scene = bpy.context.scene
-    specs = shard_specs(O.resolve_sources(tuple(cfg.sources), cfg.category), cfg.shard)
+    passed_over: list[str] = []
+    specs = shard_specs(O.resolve_sources(tuple(cfg.sources), cfg.category, passed_over), cfg.shard)
     scene_cams = _scene_cameras(user_scene, cfg) if cfg.rig == "scene" else None
     fresh = not Path(cfg.out).exists()
     prepare_output(cfg)
     n_views = len(scene_cams) if scene_cams else cfg.views
     total = len(specs) * n_views
     summary = RenderSummary(Path(cfg.out))
+    summary.warnings.extend(passed_over)
     t0 = time.perf_counter()
     done = 0
     yield Progress(0, total, "starting")
@@ -654,7 +656,12 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     writer = _Writer()
     try:
         missing_tex: list[str] = []
-        objs = O.load_into(spec, session.coll, missing_tex)
+        made_opaque: list[str] = []
+        objs = O.load_into(spec, session.coll, missing_tex, made_opaque)
+        if made_opaque:
+            summary.warnings.append(
+                f"{spec.key}: {len(made_opaque)} material(s) read as fully transparent ({', '.join(made_opaque[:3])}"
+                f"{', ...' if len(made_opaque) > 3 else ''}; an FBX exporter's opacity misread), rendered opaque")
         if missing_tex:
             summary.warnings.append(
                 f"{spec.key}: {len(missing_tex)} texture file(s) not found ({', '.join(missing_tex[:3])}"
@@ -662,7 +669,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 "put the files where the mesh's materials name them and render again with --force")
         vl = session.view_layer
         O.check_vertices(O.mesh_vertices_world(objs, vl), spec.describe())
-        norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl))
+        norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl), spec.describe())
         O.apply_world_transform(objs, norm, vl)
         radius = float(np.linalg.norm(O.mesh_vertices_world(objs, vl), axis=1).max())
 
@@ -737,6 +744,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             meta["scene_cameras"] = cam_names
         if missing_tex:
             meta["missing_textures"] = missing_tex  # rendered with their material's own colour
+        if made_opaque:
+            meta["made_opaque"] = made_opaque  # alpha 0 with nothing driving it: rendered at alpha 1
         if cfg.fov_range_deg is not None:
             meta["render"].update({"fov_range_deg": list(cfg.fov_range_deg), "distance_range": list(cfg.distance_range),
                                    "camera_seed": object_camera_seed(cfg, spec.key)})
@@ -748,6 +757,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             (obj_dir / k).mkdir(exist_ok=True)
 
         current_intr = None
+        opacity: list[float] = []  # per rendered view, filled on the writer thread
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
             msg = f"{spec.key}: view {i + 1}/{len(poses)}"
             if view_intact(obj_dir, i):
@@ -761,7 +771,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             box = raster.pixel_box(outline, intr, c2w, border_margin) if border_margin else None
             colour = session.render_colour(box)
             # Rasterized and written on the writer thread while the next view renders.
-            writer.submit(_make_view, obj_dir, i, colour, tris, intr, c2w, clip, labelled, cfg.rgba)
+            writer.submit(_make_view, obj_dir, i, colour, tris, intr, c2w, clip, labelled, cfg.rgba, opacity)
             summary.views_rendered += 1
             yield msg
         writer.wait()
@@ -779,6 +789,12 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         F.atomic_write_json(obj_dir / "transforms.json",
                             F.transforms_dict(intrs[0], frames, {"near": near, "far": far,
                                                                  "aabb": [lo.tolist(), hi.tolist()]}))
+        if opacity and float(np.median(opacity)) < SEE_THROUGH:
+            meta["see_through"] = {"median_opacity_over_mask": round(float(np.median(opacity)), 3)}
+            summary.warnings.append(
+                f"{spec.key}: the images show through the object (median opacity {np.median(opacity):.2f} over the "
+                "pixels its masks and depth give it): its materials are transparent; the masks and depth still "
+                "show the surface")
         meta["complete"] = True
         F.atomic_write_json(meta_path, meta)
     finally:
@@ -789,10 +805,21 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
 
 
 def _make_view(obj_dir: Path, index: int, colour: dict, tris: raster.Triangles, intr: C.Intrinsics,
-               c2w: np.ndarray, clip: tuple[float, float], labelled: np.ndarray, rgba: bool) -> None:
-    """The writer thread's job for one view: its exact data passes, then its files (no bpy here)."""
+               c2w: np.ndarray, clip: tuple[float, float], labelled: np.ndarray, rgba: bool,
+               opacity: list[float]) -> None:
+    """The writer thread's job for one view: its exact data passes, then its files (no bpy here); appends the
+    colour's mean opacity over the mask's object pixels to ``opacity`` (see :data:`SEE_THROUGH`)."""
     data = raster.rasterize(tris, intr, c2w, clip[0], clip[1])
     write_view(obj_dir, index, colour, data, labelled, rgba, c2w)
+    on = data.object_id > 0
+    if on.any():
+        opacity.append(float(np.clip(colour["Combined"]["A"][on], 0, 1).mean()))
+
+
+SEE_THROUGH = 0.5
+"""An object whose colour renders with a median opacity below this over the pixels its mask and depth give it is
+named in a warning: the masks and depth show a surface the images show through (transparent or glass materials,
+or an importer's misread opacity)."""
 
 
 def config_dict(cfg: RenderConfig) -> dict:
