@@ -490,3 +490,28 @@ def test_see_through_objects_are_named_and_misread_fbx_opacity_is_made_opaque(tm
     rgb = np.stack([ov.rgb(i)[..., :3] for i in range(3)])
     mask = np.stack([ov.mask(i) > 0 for i in range(3)])
     assert rgb[mask].mean() < 120, "the object is drawn, not the white background through it"
+
+
+def test_surfaces_the_mesh_does_not_hold_are_named(tmp_path, bpy_empty):
+    """Cycles' true displacement draws a sphere a third larger than its mesh, whose masks and depth the exact data
+    passes rasterize: the images draw what the passes do not have, and the render says so."""
+    import bpy
+
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0)
+    ball = bpy.context.active_object
+    mat = bpy.data.materials.new("bumpy")
+    tree = mat.node_tree
+    disp = tree.nodes.new("ShaderNodeDisplacement")
+    disp.inputs["Height"].default_value = 1.0
+    disp.inputs["Scale"].default_value = 0.35
+    out = next(n for n in tree.nodes if n.type == "OUTPUT_MATERIAL")
+    tree.links.new(disp.outputs["Displacement"], out.inputs["Displacement"])
+    mat.displacement_method = "DISPLACEMENT"
+    ball.data.materials.append(mat)
+    s = _render(out=tmp_path / "d", sources=("selected",), views=3, resolution=(32, 32), samples=2)
+    assert len(s.warnings) == 1 and "do not have" in s.warnings[0], s.warnings
+    meta = json.loads((tmp_path / "d" / "custom" / "Sphere" / "meta.json").read_text())
+    assert meta["unmasked"]["median_opaque_outside_mask"] > 0.1 and "see_through" not in meta
+    mat.displacement_method = "BUMP"  # shading only: the silhouette is the mesh's
+    s = _render(out=tmp_path / "e", sources=("selected",), views=3, resolution=(32, 32), samples=2)
+    assert not s.warnings, s.warnings

@@ -757,7 +757,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             (obj_dir / k).mkdir(exist_ok=True)
 
         current_intr = None
-        opacity: list[float] = []  # per rendered view, filled on the writer thread
+        opacity: list[tuple[float, float]] = []  # per rendered view (inside, outside the mask), from the writer thread
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
             msg = f"{spec.key}: view {i + 1}/{len(poses)}"
             if view_intact(obj_dir, i):
@@ -789,12 +789,19 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         F.atomic_write_json(obj_dir / "transforms.json",
                             F.transforms_dict(intrs[0], frames, {"near": near, "far": far,
                                                                  "aabb": [lo.tolist(), hi.tolist()]}))
-        if opacity and float(np.median(opacity)) < SEE_THROUGH:
-            meta["see_through"] = {"median_opacity_over_mask": round(float(np.median(opacity)), 3)}
+        inside = float(np.median([o[0] for o in opacity])) if opacity else 1.0
+        outside = float(np.median([o[1] for o in opacity])) if opacity else 0.0
+        if inside < SEE_THROUGH:
+            meta["see_through"] = {"median_opacity_over_mask": round(inside, 3)}
             summary.warnings.append(
-                f"{spec.key}: the images show through the object (median opacity {np.median(opacity):.2f} over the "
-                "pixels its masks and depth give it): its materials are transparent; the masks and depth still "
-                "show the surface")
+                f"{spec.key}: the images show through the object (median opacity {inside:.2f} over the pixels its "
+                "masks and depth give it): its materials are transparent; the masks and depth still show the surface")
+        if outside > UNMASKED:
+            meta["unmasked"] = {"median_opaque_outside_mask": round(outside, 3)}
+            summary.warnings.append(
+                f"{spec.key}: the images draw surfaces the masks and depth do not have (opaque pixels outside the "
+                f"mask: {100 * outside:.0f}% of its area, median): true displacement, instances or hair render in "
+                "the colour but are not in the mesh; apply them to the mesh to keep the passes exact")
         meta["complete"] = True
         F.atomic_write_json(meta_path, meta)
     finally:
@@ -806,20 +813,28 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
 
 def _make_view(obj_dir: Path, index: int, colour: dict, tris: raster.Triangles, intr: C.Intrinsics,
                c2w: np.ndarray, clip: tuple[float, float], labelled: np.ndarray, rgba: bool,
-               opacity: list[float]) -> None:
-    """The writer thread's job for one view: its exact data passes, then its files (no bpy here); appends the
-    colour's mean opacity over the mask's object pixels to ``opacity`` (see :data:`SEE_THROUGH`)."""
+               opacity: list[tuple[float, float]]) -> None:
+    """The writer thread's job for one view: its exact data passes, then its files (no bpy here); appends to
+    ``opacity`` the colour's mean opacity over the mask's object pixels and the opaque pixels outside the mask as
+    a share of its object pixels (see :data:`SEE_THROUGH`, :data:`UNMASKED`)."""
     data = raster.rasterize(tris, intr, c2w, clip[0], clip[1])
     write_view(obj_dir, index, colour, data, labelled, rgba, c2w)
     on = data.object_id > 0
     if on.any():
-        opacity.append(float(np.clip(colour["Combined"]["A"][on], 0, 1).mean()))
+        alpha = np.clip(colour["Combined"]["A"], 0, 1)
+        near = np.pad(on, 1)  # the mask grown by a pixel: antialiased edges are not extra geometry
+        near = near[1:-1, 1:-1] | near[:-2, 1:-1] | near[2:, 1:-1] | near[1:-1, :-2] | near[1:-1, 2:]
+        opacity.append((float(alpha[on].mean()), float(((alpha > 0.9) & ~near).sum() / on.sum())))
 
 
 SEE_THROUGH = 0.5
 """An object whose colour renders with a median opacity below this over the pixels its mask and depth give it is
 named in a warning: the masks and depth show a surface the images show through (transparent or glass materials,
 or an importer's misread opacity)."""
+UNMASKED = 0.05
+"""An object whose images draw opaque pixels outside its masks (grown by a pixel), a median share above this of its
+mask's pixels, is named in a warning: Cycles renders surfaces the mesh does not hold (true displacement, instances,
+hair), which have no masks or depth."""
 
 
 def config_dict(cfg: RenderConfig) -> dict:
