@@ -182,6 +182,15 @@ def test_shapenet_folder_layout(tmp_path, bpy_empty):
     s = _render(out=tmp_path / "d2", sources=(str(tmp_path / "ShapeNetCore.v2" / "03001627"),), views=1,
                 resolution=(16, 16), samples=1)
     assert s.objects == ["chair/abc123"]
+    # ShapeNetCore v1 (the NMR renders' source): <synset>/<model>/model.obj, the whole tree or one synset
+    for synset, model in (("02691156", "a1"), ("04379243", "t2")):
+        write_mesh(tmp_path / "ShapeNetCore.v1" / synset / model / "model.obj")
+    s = _render(out=tmp_path / "d3", sources=(str(tmp_path / "ShapeNetCore.v1"),), views=1, resolution=(16, 16),
+                samples=1)
+    assert sorted(s.objects) == ["airplane/a1", "table/t2"]
+    s = _render(out=tmp_path / "d4", sources=(str(tmp_path / "ShapeNetCore.v1" / "04379243"),), views=1,
+                resolution=(16, 16), samples=1)
+    assert s.objects == ["table/t2"]
 
 
 def test_selected_objects_and_scene_rig_leave_user_scene_untouched(tmp_path, bpy_empty):

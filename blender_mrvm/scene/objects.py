@@ -5,8 +5,8 @@ A *source* string names what to render:
 - ``selected``: each selected mesh object of the current file (copies are rendered; the user's
   objects are never modified);
 - a mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD/USDA/USDC/USDZ, Alembic);
-- a folder: a ShapeNetCore folder (``<synset>/<model>/models/model_normalized.obj``, one synset
-  folder or the whole tree) or a folder of mesh files;
+- a folder: a ShapeNetCore folder (v2: ``<synset>/<model>/models/model_normalized.obj``, v1:
+  ``<synset>/<model>/model.obj``; one synset folder or the whole tree) or a folder of mesh files;
 - ``procedural:<category>:<seed>``: a generated object of the procedural library.
 
 Objects are normalized as ShapeNetCore v2 is: centred on their bounding-box centre and scaled so
@@ -87,11 +87,15 @@ def safe_id(name: str) -> str:
     return s or "object"
 
 
-def _shapenet_models(root: Path) -> list[tuple[str, Path]]:
-    """(category, model file) pairs under a ShapeNetCore root or a single synset folder."""
-    files = sorted(root.glob("*/models/model_normalized.obj")) + sorted(root.glob("*/*/models/model_normalized.obj"))
-    # <synset>/<model>/models/model_normalized.obj: the synset folder names the category
-    return [(SHAPENET_SYNSETS.get(f.parents[2].name, f.parents[2].name), f) for f in files]
+def _shapenet_models(root: Path) -> list[tuple[str, str, Path]]:
+    """(category, model id, model file) under a ShapeNetCore v2 or v1 root or a single synset folder of either."""
+    # v2: <synset>/<model>/models/model_normalized.obj; the synset folder names the category
+    v2 = sorted(root.glob("*/models/model_normalized.obj")) + sorted(root.glob("*/*/models/model_normalized.obj"))
+    if v2:
+        return [(SHAPENET_SYNSETS.get(f.parents[2].name, f.parents[2].name), f.parents[1].name, f) for f in v2]
+    # v1 (the NMR renders' source): <synset>/<model>/model.obj
+    v1 = sorted(root.glob("*/model.obj")) + sorted(root.glob("*/*/model.obj"))
+    return [(SHAPENET_SYNSETS.get(f.parents[1].name, f.parents[1].name), f.parent.name, f) for f in v1]
 
 
 def resolve_sources(sources: tuple[str, ...], category: str | None = None,
@@ -127,8 +131,8 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
             if p.is_dir():
                 models = _shapenet_models(p)
                 if models:
-                    for cat, f in models:
-                        specs.append(ObjectSpec("file", safe_id(category or cat), safe_id(f.parents[1].name), path=str(f)))
+                    for cat, model_id, f in models:
+                        specs.append(ObjectSpec("file", safe_id(category or cat), safe_id(model_id), path=str(f)))
                     continue
                 files = sorted(f for f in p.iterdir() if f.suffix.lower() in MESH_EXTS and f.is_file())
                 other = sorted(f for f in p.iterdir() if f.suffix.lower() in OTHER_3D_EXTS and f.is_file())
