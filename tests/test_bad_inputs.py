@@ -76,7 +76,7 @@ def world(tmp_path_factory):
     (w / "occupied" / "precious.txt").write_text("keep me")
     (w / "a_file").write_text("not a folder")
     (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
-    for ext in ("fbx", "usd", "usdz", "abc"):  # the formats of other tools, damaged
+    for ext in ("fbx", "usd", "usdz", "abc", "blend"):  # the formats of other tools, damaged
         (w / f"garbage.{ext}").write_bytes(b"not a mesh\n" * 20)
     (w / "collada").mkdir()
     (w / "collada" / "cone.dae").write_text("<COLLADA/>")
@@ -484,7 +484,7 @@ RENDER = [
                         "--resolution", "16"], "cannot read mesh file"),
     # other tools' formats (session 41): damaged files, and COLLADA, which Blender 5 cannot import
     *[Case("tracebacks", ["render-dataset", "--source", "{w}/garbage." + ext, "--out", "{new}", "--views", "2",
-                          "--resolution", "16"], "cannot read mesh file") for ext in ("fbx", "usd", "usdz", "abc")],
+                          "--resolution", "16"], "cannot read") for ext in ("fbx", "usd", "usdz", "abc", "blend")],
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada/cone.dae", "--out", "{new}", "--views", "2"],
          "no COLLADA importer"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada", "--out", "{new}", "--views", "2"],

@@ -524,3 +524,54 @@ def test_surfaces_the_mesh_does_not_hold_are_named(tmp_path, bpy_empty):
     mat.displacement_method = "BUMP"  # shading only: the silhouette is the mesh's
     s = _render(out=tmp_path / "e", sources=("selected",), views=3, resolution=(32, 32), samples=2)
     assert not s.warnings, s.warnings
+
+
+def test_blend_file_renders_what_its_render_shows(tmp_path, bpy_empty):
+    """A .blend as a source: what a render of its scene shows (a cube cut in half by a boolean whose cutter is
+    hidden from renders, and a text object, made a mesh so its masks and depth exist), not what is hidden from
+    renders (an object, an excluded collection) nor its light and camera; the open file itself is refused."""
+    import bpy
+
+    from blender_mrvm.errors import InputError
+
+    scene = bpy_empty
+    bpy.ops.mesh.primitive_cube_add(size=2.0)
+    cube = bpy.context.active_object
+    cube.name = "Block"
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(1.5, 0, 0))
+    cutter = bpy.context.active_object
+    cutter.name = "Cutter"
+    cutter.hide_render = True
+    mod = cube.modifiers.new("cut", "BOOLEAN")
+    mod.operation, mod.object = "DIFFERENCE", cutter  # leaves x in [-1, 0.5]
+    bpy.ops.object.text_add(location=(-1.0, 0, 1.2))  # small, above the block's kept part
+    bpy.context.active_object.name = "Label"
+    bpy.context.active_object.data.size = 0.3
+    bpy.ops.mesh.primitive_uv_sphere_add(location=(5, 0, 0))
+    bpy.context.active_object.name = "HiddenBall"
+    bpy.context.active_object.hide_render = True
+    extra = bpy.data.collections.new("Excluded")
+    scene.collection.children.link(extra)
+    bpy.ops.mesh.primitive_monkey_add(location=(0, 6, 0))
+    monkey = bpy.context.active_object
+    for c in list(monkey.users_collection):
+        c.objects.unlink(monkey)
+    extra.objects.link(monkey)
+    bpy.context.view_layer.layer_collection.children["Excluded"].exclude = True
+    bpy.ops.object.light_add(type="POINT", location=(0, 0, 3))
+    bpy.ops.object.camera_add(location=(0, -5, 0))
+    path = tmp_path / "asset.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "open.blend"))
+    with pytest.raises(InputError, match="selected"):
+        _render(out=tmp_path / "o", sources=(str(tmp_path / "open.blend"),), views=1)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    n_objects = len(bpy.data.objects)
+    s = _render(out=tmp_path / "d", sources=(str(path),), views=2, resolution=(32, 32), samples=2)
+    assert s.objects == ["custom/asset"] and not s.warnings, s.warnings
+    meta = json.loads((tmp_path / "d" / "custom" / "asset" / "meta.json").read_text())
+    assert sorted(meta["labels"].values()) == ["Block", "Label_mesh", "background"]
+    lo, hi = np.array(meta["bbox"])
+    ext = hi - lo  # the block is 1.5 x 2 x 2 (2 x 2 x 2 uncut), the text above its kept part
+    assert ext[0] < 0.85 * ext[1], ext  # the boolean cut (the hidden cutter still cuts)
+    assert len(bpy.data.objects) == n_objects, "nothing of the .blend is left in the open file"

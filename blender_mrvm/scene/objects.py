@@ -4,7 +4,8 @@ A *source* string names what to render:
 
 - ``selected``: each selected mesh object of the current file (copies are rendered; the user's
   objects are never modified);
-- a mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD/USDA/USDC/USDZ, Alembic);
+- a mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD/USDA/USDC/USDZ, Alembic) or a .blend (what a render of its
+  first scene shows);
 - a folder: a ShapeNetCore folder (v2: ``<synset>/<model>/models/model_normalized.obj``, v1:
   ``<synset>/<model>/model.obj``; one synset folder or the whole tree) or a folder of mesh files;
 - ``procedural:<category>:<seed>``: a generated object of the procedural library.
@@ -28,11 +29,11 @@ from mathutils import Matrix
 
 from ..errors import InputError
 
-MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".usda", ".usdc", ".usdz", ".abc")
+MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".usda", ".usdc", ".usdz", ".abc",
+             ".blend")
 # 3D formats this Blender cannot import (COLLADA left Blender in 5.0) or that are not a mesh file to import: a
 # folder's files of these kinds are named in a warning instead of passed over without a word.
 OTHER_3D_EXTS = {".dae": "Blender 5 has no COLLADA importer; export it as glTF, FBX or OBJ",
-                 ".blend": "open it in Blender and render its objects with the source 'selected'",
                  ".3ds": "export it as glTF, FBX or OBJ", ".max": "export it as glTF, FBX or OBJ",
                  ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD",
                  ".c4d": "export it as FBX or glTF", ".lwo": "export it as FBX or OBJ",
@@ -251,7 +252,10 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
             said = [ln for ln in lines if not ln.startswith("Location:")] or lines or ["the importer failed"]
             said = re.sub(r"^Error:\s*|,? see console for details?\.?$", "", said[-1]) or "the importer failed"
             raise InputError(f"cannot read mesh file {path}: {said}") from None
-        new = _drop_scene_objects([o for o in bpy.data.objects if o.as_pointer() not in before])
+        new = [o for o in bpy.data.objects if o.as_pointer() not in before]
+        if ext == ".blend":
+            new = _blend_rendered(new)
+        new = _drop_scene_objects(new)
         meshes = [o for o in new if o.type == "MESH" and _has_faces(o)]
         if not meshes:
             for o in new:
@@ -384,6 +388,84 @@ def _run_importer(path: Path, ext: str) -> None:
                               set_frame_range=False)
     elif ext == ".abc":
         bpy.ops.wm.alembic_import(filepath=str(path), as_background_job=False, set_frame_range=False)
+    elif ext == ".blend":
+        _append_blend_scene(path)
+
+
+def _append_blend_scene(path: Path) -> None:
+    """Append a .blend's scene (the first by name) with its objects; :func:`_blend_rendered` then keeps what a
+    render of it shows."""
+    if bpy.data.filepath and Path(bpy.data.filepath).resolve() == Path(path).resolve():
+        raise InputError(f"{path} is the open file: render its objects with the source 'selected'")
+    try:
+        with bpy.data.libraries.load(str(path), link=False) as (src, dst):
+            if not src.scenes:
+                raise InputError(f"cannot read {path}: it holds no scene")
+            dst.scenes = [sorted(src.scenes)[0]]
+    except OSError as e:
+        raise InputError(f"cannot read {path}: {str(e).strip() or 'not a .blend file'}") from None
+    _BLEND_APPENDED.extend(sc for sc in dst.scenes if sc is not None)
+
+
+_BLEND_APPENDED: list = []  # the scene _append_blend_scene appended, for _blend_rendered
+
+
+def _object_refs(stack) -> list:
+    """The objects the modifiers or constraints of ``stack`` point to (any Object pointer property)."""
+    out = []
+    for item in stack:
+        for prop in item.bl_rna.properties:
+            if prop.type == "POINTER" and getattr(prop.fixed_type, "identifier", "") == "Object":
+                val = getattr(item, prop.identifier, None)
+                if val is not None:
+                    out.append(val)
+    return out
+
+
+def _blend_rendered(new: list[bpy.types.Object]) -> list[bpy.types.Object]:
+    """Of the objects a .blend's scene brought, those its render shows (not excluded from its view layer, no
+    collection or object hidden from renders), with armatures and parents they need; curves, surfaces, text and
+    metaballs made meshes (the data passes rasterize meshes); the scene itself removed. Objects left out stay in
+    the file's data unlinked. Objects that shown ones use (a boolean's hidden cutter, an armature) come along
+    hidden from renders, so they move with the normalization and the data passes leave them out."""
+    scenes, _BLEND_APPENDED[:] = list(_BLEND_APPENDED), []
+    shown: set[int] = set()
+    for sc in scenes:
+        def walk(lc):
+            if lc.exclude or lc.collection.hide_render:
+                return
+            shown.update(o.as_pointer() for o in lc.collection.objects if not o.hide_render)
+            for child in lc.children:
+                walk(child)
+
+        walk(sc.view_layers[0].layer_collection)
+    keep = [o for o in new if o.as_pointer() in shown]
+    ptrs = {o.as_pointer() for o in keep}
+    appended = {o.as_pointer() for o in new}
+    todo = list(keep)
+    while todo:  # the parents, and the objects modifiers and constraints use (a boolean's cutter, an armature)
+        o = todo.pop()
+        for dep in [o.parent, *_object_refs(o.modifiers), *_object_refs(o.constraints)]:
+            if dep is not None and dep.as_pointer() in appended and dep.as_pointer() not in ptrs:
+                dep.hide_render = dep.hide_render or dep.as_pointer() not in shown  # moved along, never drawn
+                keep.append(dep)
+                ptrs.add(dep.as_pointer())
+                todo.append(dep)
+    out = []
+    for o in keep:
+        if o.type in ("CURVE", "SURFACE", "FONT", "META") and o.as_pointer() in shown:
+            me = bpy.data.meshes.new_from_object(o)  # its geometry (bevel, extrusion); curve modifiers are rare
+            mo = bpy.data.objects.new(o.name + "_mesh", me)
+            mo.matrix_world = o.matrix_world.copy()
+            out.append(mo)
+        else:
+            out.append(o)
+    for sc in scenes:
+        bpy.data.scenes.remove(sc)
+    for o in out:
+        if o.type == "MESH":
+            render_evaluation(o)
+    return out
 
 
 def _import_with_trimesh(path: Path) -> None:
@@ -557,13 +639,19 @@ def render_evaluation(ob: bpy.types.Object) -> None:
             m.levels = m.render_levels
 
 
+def renders(o: bpy.types.Object) -> bool:
+    """Whether an object is a mesh the camera sees in a render (what the data passes hold)."""
+    return o.type == "MESH" and not o.hide_render and getattr(o, "visible_camera", True)
+
+
 def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
-    """World-space vertices of the evaluated meshes (modifiers applied) in ``view_layer``, (N, 3)."""
+    """World-space vertices of the evaluated, render-visible meshes (modifiers applied) in ``view_layer``, (N, 3):
+    the meshes :func:`mesh_triangles` rasterizes."""
     view_layer.update()
     depsgraph = view_layer.depsgraph
     pts = []
     for o in objs:
-        if o.type != "MESH":
+        if not renders(o):
             continue
         ev = o.evaluated_get(depsgraph)
         me = ev.to_mesh()
@@ -614,7 +702,7 @@ def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer
     depsgraph = view_layer.depsgraph
     parts = []
     for o in objs:
-        if o.type != "MESH" or o.hide_render or not getattr(o, "visible_camera", True):
+        if not renders(o):
             continue
         ev = o.evaluated_get(depsgraph)
         me = ev.to_mesh()

@@ -674,7 +674,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         radius = float(np.linalg.norm(O.mesh_vertices_world(objs, vl), axis=1).max())
 
         # Object / part ids for the mask pass.
-        meshes = sorted((o for o in objs if o.type == "MESH"), key=lambda o: o.name)
+        meshes = sorted((o for o in objs if O.renders(o)), key=lambda o: o.name)
         labelled = np.zeros(len(meshes) + 1, dtype=bool)
         labels: dict[int, str] = {0: "background"}
         for k, o in enumerate(meshes, start=1):
