@@ -78,6 +78,7 @@ def world(tmp_path_factory):
     (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
     for ext in ("fbx", "usd", "usdz", "abc", "blend"):  # the formats of other tools, damaged
         (w / f"garbage.{ext}").write_bytes(b"not a mesh\n" * 20)
+    (w / "line.obj").write_text("v 0 0 0\nv 1 2 3\nv -1 -2 -3\nf 1 2 3\n")  # one face, on a line: no area
     (w / "collada").mkdir()
     (w / "collada" / "cone.dae").write_text("<COLLADA/>")
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
@@ -485,6 +486,8 @@ RENDER = [
     # other tools' formats (session 41): damaged files, and COLLADA, which Blender 5 cannot import
     *[Case("tracebacks", ["render-dataset", "--source", "{w}/garbage." + ext, "--out", "{new}", "--views", "2",
                           "--resolution", "16"], "cannot read") for ext in ("fbx", "usd", "usdz", "abc", "blend")],
+    Case("silent-garbage", ["render-dataset", "--source", "{w}/line.obj", "--out", "{new}", "--views", "2",
+                            "--resolution", "16"], "no faces with any area"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada/cone.dae", "--out", "{new}", "--views", "2"],
          "no COLLADA importer"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada", "--out", "{new}", "--views", "2"],

@@ -689,6 +689,10 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if len(labels) > 256:
             raise InputError(f"{spec.key} has more than 255 parts; the uint8 mask cannot hold them")
         tris = O.mesh_triangles(objs, vl)  # once per object: the data passes of every view
+        if len(tris) == 0 or float(np.linalg.norm(np.cross(tris.verts[:, 1] - tris.verts[:, 0],
+                                                           tris.verts[:, 2] - tris.verts[:, 0]), axis=1).sum()) < 1e-12:
+            raise InputError(f"{spec.describe()} has no faces with any area (every face is a line or a point), so "
+                             "no view would show anything; fix or re-export the mesh")
         outline = raster.outline_points(tris)
 
         # Cameras.
