@@ -357,6 +357,13 @@ def _fbx_lights_readable():
         import_fbx.blen_read_light = orig
 
 
+def _known(op, **kwargs) -> dict:
+    """The keyword arguments this Blender's operator ``op`` has (the importers gained options between 4.2 and 5.0;
+    one it lacks keeps its default there)."""
+    names = {p.identifier for p in op.get_rna_type().properties}
+    return {k: v for k, v in kwargs.items() if k in names}
+
+
 def _run_importer(path: Path, ext: str) -> None:
     """Run the Blender importer for ``ext`` (OBJ is read as Y-up, like ShapeNet; trimesh for OFF). FBX, USD and
     Alembic use their files' own axes; USD is read without its cameras, lights, world or instancing (so every
@@ -382,12 +389,13 @@ def _run_importer(path: Path, ext: str) -> None:
         with _fbx_lights_readable():
             bpy.ops.import_scene.fbx(filepath=str(path), use_anim=False)
     elif ext in (".usd", ".usda", ".usdc", ".usdz"):
-        bpy.ops.wm.usd_import(filepath=str(path), import_cameras=False, import_lights=False,
-                              create_world_material=False, support_scene_instancing=False, import_guide=False,
-                              import_proxy=False, import_render=True, import_visible_only=True,
-                              set_frame_range=False)
+        op = bpy.ops.wm.usd_import
+        op(**_known(op, filepath=str(path), import_cameras=False, import_lights=False, create_world_material=False,
+                    support_scene_instancing=False, import_guide=False, import_proxy=False, import_render=True,
+                    import_visible_only=True, set_frame_range=False))
     elif ext == ".abc":
-        bpy.ops.wm.alembic_import(filepath=str(path), as_background_job=False, set_frame_range=False)
+        op = bpy.ops.wm.alembic_import
+        op(**_known(op, filepath=str(path), as_background_job=False, set_frame_range=False))
     elif ext == ".blend":
         _append_blend_scene(path)
 
