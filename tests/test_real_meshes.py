@@ -162,3 +162,29 @@ def test_texture_named_the_windows_way_is_found_beside_the_mesh(tmp_path, bpy_em
     assert "missing_textures" not in json.loads((out / "custom" / "duck" / "meta.json").read_text())
     r, g, b = np.median(_foreground(out, "duck"), axis=0)
     assert r > 0.6 and g > 0.45 and b < 0.3, (r, g, b)  # the texture's yellow
+
+
+def test_fbx_with_an_external_texture_renders_it_and_resume_notices_it_change(tmp_path, bpy_empty):
+    """The duck exported to FBX with its texture beside it (not embedded): the render is the texture's yellow, the
+    texture is one of the file's linked files, and a resume after the texture changed is refused."""
+    import addon_utils
+    import bpy
+
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.objects import linked_files
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+
+    addon_utils.enable("io_scene_fbx", default_set=False)
+    bpy.ops.wm.obj_import(filepath=str(DATA / "duck.obj"), forward_axis="NEGATIVE_Z", up_axis="Y")
+    fbx = tmp_path / "duck.fbx"
+    bpy.ops.export_scene.fbx(filepath=str(fbx), path_mode="COPY", embed_textures=False)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    png = tmp_path / "duck.fbm" / "duckCM.png"  # Blender's exporter copies it into the FBX's media folder
+    assert [(Path(n).name, f) for n, f in linked_files(fbx)] == [("duckCM.png", png)]
+    cfg = dict(out=tmp_path / "d", sources=(str(fbx),), views=2, rig="turntable", resolution=(32, 32), samples=2)
+    assert not run_to_end(render_dataset(RenderConfig(**cfg))).warnings
+    r, g, b = np.median(_foreground(tmp_path / "d", "duck"), axis=0)
+    assert r > 0.6 and g > 0.45 and b < 0.3, (r, g, b)
+    png.write_bytes(png.read_bytes()[:-1] + b"\0")
+    with pytest.raises(OutputError, match="texture"):
+        run_to_end(render_dataset(RenderConfig(**cfg)))

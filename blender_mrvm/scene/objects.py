@@ -875,7 +875,8 @@ def _mtl_texture_name(args: str) -> str:
 
 def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
-    in order: an OBJ's textures (through its MTL libraries) and a glTF's external buffers and images. A texture
+    in order: an OBJ's textures (through its MTL libraries), a binary FBX's images it does not embed and a glTF's
+    external buffers and images. A texture
     name that is not found as written is looked for by its base name beside the MTL (:func:`find_beside`), as the
     render does."""
     path = Path(path)
@@ -895,6 +896,9 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
                 if not name:
                     continue
                 out.append((name, find_beside(mtl.parent, name)))
+    elif ext == ".fbx":
+        for name in _fbx_texture_names(path):
+            out.append((name, find_beside(path.parent, name)))
     elif ext == ".gltf":
         import json
         from urllib.parse import unquote
@@ -912,6 +916,38 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
                     f = path.parent / unquote(uri)
                     out.append((uri, f if f.is_file() else None))
     return out
+
+
+def _fbx_texture_names(path: Path) -> list[str]:
+    """The image files a binary FBX names and does not embed (its Video nodes' RelativeFilename, else Filename),
+    sorted, once each; [] when Blender's FBX parser cannot read it (the import reports that)."""
+    try:
+        import addon_utils
+
+        addon_utils.enable("io_scene_fbx", default_set=False)
+        from io_scene_fbx import parse_fbx
+
+        root, _ = parse_fbx.parse(str(path))
+    except Exception:  # not a binary FBX, damaged: the importer's own error says so
+        return []
+    names: set[str] = set()
+    todo = [root]
+    while todo:
+        e = todo.pop()
+        for c in e.elems:
+            if c.id == b"Video":
+                props = {cc.id: cc.props for cc in c.elems}
+                content = props.get(b"Content")
+                if content and isinstance(content[0], bytes) and len(content[0]) > 0:
+                    continue  # embedded
+                for key in (b"RelativeFilename", b"Filename", b"FileName"):
+                    val = props.get(key)
+                    if val and isinstance(val[0], bytes) and val[0].strip():
+                        names.add(val[0].decode(errors="replace").replace("\\", "/"))
+                        break
+            else:
+                todo.append(c)
+    return sorted(names)
 
 
 def _obj_material_libraries(path: Path) -> list[Path]:
