@@ -761,7 +761,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             (obj_dir / k).mkdir(exist_ok=True)
 
         current_intr = None
-        opacity: list[tuple[float, float]] = []  # per rendered view (inside, outside the mask), from the writer thread
+        opacity: list[tuple] = []  # per rendered view (inside, outside the mask), from the writer thread
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
             msg = f"{spec.key}: view {i + 1}/{len(poses)}"
             if view_intact(obj_dir, i):
@@ -793,8 +793,10 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         F.atomic_write_json(obj_dir / "transforms.json",
                             F.transforms_dict(intrs[0], frames, {"near": near, "far": far,
                                                                  "aabb": [lo.tolist(), hi.tolist()]}))
-        inside = float(np.median([o[0] for o in opacity])) if opacity else 1.0
-        outside = float(np.median([o[1] for o in opacity])) if opacity else 0.0
+        seen = [o[0] for o in opacity if o[0] is not None]  # views where the object is more than its edges
+        inside = float(np.median(seen)) if seen else 1.0
+        sized = [o[1] for o in opacity if o[1] is not None]  # views where the object covers 16 pixels or more
+        outside = float(np.median(sized)) if sized else 0.0
         if inside < SEE_THROUGH:
             meta["see_through"] = {"median_opacity_over_mask": round(inside, 3)}
             summary.warnings.append(
@@ -817,18 +819,22 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
 
 def _make_view(obj_dir: Path, index: int, colour: dict, tris: raster.Triangles, intr: C.Intrinsics,
                c2w: np.ndarray, clip: tuple[float, float], labelled: np.ndarray, rgba: bool,
-               opacity: list[tuple[float, float]]) -> None:
+               opacity: list[tuple]) -> None:
     """The writer thread's job for one view: its exact data passes, then its files (no bpy here); appends to
-    ``opacity`` the colour's mean opacity over the mask's object pixels and the opaque pixels outside the mask as
-    a share of its object pixels (see :data:`SEE_THROUGH`, :data:`UNMASKED`)."""
+    ``opacity`` the colour's mean opacity over the mask's inner object pixels (None where the object is nothing but
+    edges: thin parts are partly covered pixels) and the opaque pixels outside the mask as a share of its object
+    pixels (None where it covers under 16 pixels) (see :data:`SEE_THROUGH`, :data:`UNMASKED`)."""
     data = raster.rasterize(tris, intr, c2w, clip[0], clip[1])
     write_view(obj_dir, index, colour, data, labelled, rgba, c2w)
     on = data.object_id > 0
     if on.any():
         alpha = np.clip(colour["Combined"]["A"], 0, 1)
-        near = np.pad(on, 1)  # the mask grown by a pixel: antialiased edges are not extra geometry
-        near = near[1:-1, 1:-1] | near[:-2, 1:-1] | near[2:, 1:-1] | near[1:-1, :-2] | near[1:-1, 2:]
-        opacity.append((float(alpha[on].mean()), float(((alpha > 0.9) & ~near).sum() / on.sum())))
+        pad = np.pad(on, 1)
+        sides = (pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:])
+        near = on | sides[0] | sides[1] | sides[2] | sides[3]  # grown by a pixel: antialiased edges are no geometry
+        inner = on & sides[0] & sides[1] & sides[2] & sides[3]  # shrunk by one: edge pixels are partly covered
+        opacity.append((float(alpha[inner].mean()) if inner.any() else None,
+                        float(((alpha > 0.9) & ~near).sum() / on.sum()) if on.sum() >= 16 else None))
 
 
 SEE_THROUGH = 0.5
