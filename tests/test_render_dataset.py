@@ -173,24 +173,16 @@ def test_every_mesh_format_loads_and_normalizes(tmp_path, bpy_empty, ext):
     assert F.read_png(tmp_path / "d" / "custom" / "thing" / "mask" / "000000.png").max() == 1
 
 
-def test_shapenet_folder_layout(tmp_path, bpy_empty):
+@pytest.mark.parametrize("version,model_file", [("v2", "models/model_normalized.obj"),
+                                                ("v1", "model.obj")])  # v1: the NMR renders' source
+def test_shapenet_folder_layout(tmp_path, bpy_empty, version, model_file):
+    root = tmp_path / f"ShapeNetCore.{version}"
     for synset, model in (("03001627", "abc123"), ("04379243", "def456")):
-        write_mesh(tmp_path / "ShapeNetCore.v2" / synset / model / "models" / "model_normalized.obj")
-    s = _render(out=tmp_path / "d", sources=(str(tmp_path / "ShapeNetCore.v2"),), views=1, resolution=(16, 16),
-                samples=1)
+        write_mesh(root / synset / model / model_file)
+    s = _render(out=tmp_path / "d", sources=(str(root),), views=1, resolution=(16, 16), samples=1)
     assert sorted(s.objects) == ["chair/abc123", "table/def456"]
-    s = _render(out=tmp_path / "d2", sources=(str(tmp_path / "ShapeNetCore.v2" / "03001627"),), views=1,
-                resolution=(16, 16), samples=1)
+    s = _render(out=tmp_path / "d2", sources=(str(root / "03001627"),), views=1, resolution=(16, 16), samples=1)
     assert s.objects == ["chair/abc123"]
-    # ShapeNetCore v1 (the NMR renders' source): <synset>/<model>/model.obj, the whole tree or one synset
-    for synset, model in (("02691156", "a1"), ("04379243", "t2")):
-        write_mesh(tmp_path / "ShapeNetCore.v1" / synset / model / "model.obj")
-    s = _render(out=tmp_path / "d3", sources=(str(tmp_path / "ShapeNetCore.v1"),), views=1, resolution=(16, 16),
-                samples=1)
-    assert sorted(s.objects) == ["airplane/a1", "table/t2"]
-    s = _render(out=tmp_path / "d4", sources=(str(tmp_path / "ShapeNetCore.v1" / "04379243"),), views=1,
-                resolution=(16, 16), samples=1)
-    assert s.objects == ["table/t2"]
 
 
 def test_selected_objects_and_scene_rig_leave_user_scene_untouched(tmp_path, bpy_empty):

@@ -185,21 +185,34 @@ def remove_new_data(before: dict[str, set[int]]) -> None:
 
 
 @contextlib.contextmanager
-def quiet_stdout():
-    """Silence Blender's C-level progress prints (render 'Fra:' lines, importer timings) on fd 1."""
+def _fd_to(fd: int, stream, target: int, flush_after: bool):
+    """Point file descriptor ``fd`` (``stream``'s, flushed first) at ``target`` inside the block; a descriptor that
+    cannot be duplicated (no console) is left as it is."""
     try:
-        sys.stdout.flush()
-        saved = os.dup(1)
+        stream.flush()
+        saved = os.dup(fd)
     except (OSError, ValueError):
         yield
         return
-    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(target, fd)
     try:
-        os.dup2(devnull, 1)
         yield
     finally:
-        os.dup2(saved, 1)
+        if flush_after:
+            with contextlib.suppress(OSError, ValueError):
+                stream.flush()
+        os.dup2(saved, fd)
         os.close(saved)
+
+
+@contextlib.contextmanager
+def quiet_stdout():
+    """Silence Blender's C-level progress prints (render 'Fra:' lines, importer timings) on fd 1."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        with _fd_to(1, sys.stdout, devnull, flush_after=False):
+            yield
+    finally:
         os.close(devnull)
 
 
@@ -215,28 +228,14 @@ def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
     a corrupt USD or Alembic file makes their libraries print their own lines, an add-on importer a traceback)."""
     import tempfile
 
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):
-        yield
-        return
     with tempfile.TemporaryFile() as held:
-        os.dup2(held.fileno(), 2)
-        failed = True
-        try:
+        with _fd_to(2, sys.stderr, held.fileno(), flush_after=True):
             yield
-            failed = False
-        finally:
-            with contextlib.suppress(OSError, ValueError):
-                sys.stderr.flush()
-            os.dup2(saved, 2)
-            os.close(saved)
-            held.seek(0)
-            kept = [ln for ln in held.read().decode(errors="replace").splitlines(keepends=True) if not drop.match(ln)]
-            if kept and not failed:
-                sys.stderr.write("".join(kept))
-                sys.stderr.flush()
+        held.seek(0)  # reached only when the block did not raise
+        kept = [ln for ln in held.read().decode(errors="replace").splitlines(keepends=True) if not drop.match(ln)]
+        if kept:
+            sys.stderr.write("".join(kept))
+            sys.stderr.flush()
 
 
 def _import_file(path: Path) -> list[bpy.types.Object]:
@@ -534,6 +533,17 @@ def drop_missing_textures(objs: list[bpy.types.Object], search: Path | None = No
     base name, in any letter case, is used from there instead. Only for imported files: materials of the user's
     own objects are never touched."""
     missing: set[str] = set()
+    for m in _node_materials(objs):
+        tree = m.node_tree
+        for n in [n for n in tree.nodes if n.type == "TEX_IMAGE" and _image_missing(n.image, search)]:
+            missing.add(Path(bpy.path.abspath(n.image.filepath).replace("\\", "/")).name or n.image.name)
+            for link in [lk for lk in tree.links if lk.from_node == n]:
+                tree.links.remove(link)
+    return sorted(missing)
+
+
+def _node_materials(objs: list[bpy.types.Object]):
+    """Each node material of these objects' meshes, once."""
     done: set[int] = set()
     for o in objs:
         if o.type != "MESH":
@@ -542,12 +552,7 @@ def drop_missing_textures(objs: list[bpy.types.Object], search: Path | None = No
             if m is None or m.node_tree is None or m.as_pointer() in done:
                 continue
             done.add(m.as_pointer())
-            tree = m.node_tree
-            for n in [n for n in tree.nodes if n.type == "TEX_IMAGE" and _image_missing(n.image, search)]:
-                missing.add(Path(bpy.path.abspath(n.image.filepath).replace("\\", "/")).name or n.image.name)
-                for link in [lk for lk in tree.links if lk.from_node == n]:
-                    tree.links.remove(link)
-    return sorted(missing)
+            yield m
 
 
 def opaque_invisible_materials(objs: list[bpy.types.Object]) -> list[str]:
@@ -556,21 +561,12 @@ def opaque_invisible_materials(objs: list[bpy.types.Object]) -> list[str]:
     other exporters that mean an opaque surface (its own comment: the formula is a guess), and the object would
     render as nothing while its masks and depth show it. Only for imported files."""
     fixed: set[str] = set()
-    done: set[int] = set()
-    for o in objs:
-        if o.type != "MESH":
-            continue
-        for m in o.data.materials:
-            if m is None or m.node_tree is None or m.as_pointer() in done:
-                continue
-            done.add(m.as_pointer())
-            for n in m.node_tree.nodes:
-                if n.type != "BSDF_PRINCIPLED":
-                    continue
-                a = n.inputs.get("Alpha")
-                if a is not None and not a.is_linked and a.default_value <= 0.0:
-                    a.default_value = 1.0
-                    fixed.add(m.name)
+    for m in _node_materials(objs):
+        for n in m.node_tree.nodes:
+            a = n.inputs.get("Alpha") if n.type == "BSDF_PRINCIPLED" else None
+            if a is not None and not a.is_linked and a.default_value <= 0.0:
+                a.default_value = 1.0
+                fixed.add(m.name)
     return sorted(fixed)
 
 
@@ -792,12 +788,7 @@ def source_fingerprint(spec: ObjectSpec) -> str:
             files += _obj_material_libraries(path)
         for f in files:
             h.update(f.name.encode() + b"\0")
-            try:
-                with open(f, "rb") as fh:
-                    for block in iter(lambda: fh.read(1 << 20), b""):
-                        h.update(block)
-            except OSError as e:
-                raise InputError(f"cannot read mesh file {f}: {e.strerror or e}") from None
+            _hash_file(h, f, f"cannot read mesh file {f}")
     elif spec.kind == "procedural":
         from . import procedural
 
@@ -837,14 +828,19 @@ def linked_files_fingerprint(spec: ObjectSpec) -> str | None:
         h.update(name.encode() + b"\0")
         if f is None:
             h.update(b"missing\0")
-            continue
-        try:
-            with open(f, "rb") as fh:
-                for block in iter(lambda: fh.read(1 << 20), b""):
-                    h.update(block)
-        except OSError as e:
-            raise InputError(f"cannot read {f} (named by the mesh file {spec.path}): {e.strerror or e}") from None
+        else:
+            _hash_file(h, f, f"cannot read {f} (named by the mesh file {spec.path})")
     return "sha256:" + h.hexdigest()
+
+
+def _hash_file(h, path: Path, what: str) -> None:
+    """Feed a file's bytes to the hash ``h``; an unreadable file is an InputError starting with ``what``."""
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except OSError as e:
+        raise InputError(f"{what}: {e.strerror or e}") from None
 
 
 # MTL texture statements and how many arguments each of their options takes (the OBJ/MTL specification; -o, -s
