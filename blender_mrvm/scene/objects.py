@@ -245,7 +245,7 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
     before = {o.as_pointer() for o in bpy.data.objects}
     with quiet_stdout(), filtered_stderr():  # what the importers print is dropped when the file is refused
         try:
-            _run_importer(path, ext)
+            scenes = _append_blend_scene(path) if ext == ".blend" else _run_importer(path, ext)
         except RuntimeError as e:
             lines = [ln.strip() for ln in str(e).strip().splitlines() if ln.strip()]
             said = [ln for ln in lines if not ln.startswith("Location:")] or lines or ["the importer failed"]
@@ -253,7 +253,7 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
             raise InputError(f"cannot read mesh file {path}: {said}") from None
         new = [o for o in bpy.data.objects if o.as_pointer() not in before]
         if ext == ".blend":
-            new = _blend_rendered(new)
+            new = _blend_rendered(new, scenes)
         new = _drop_scene_objects(new)
         meshes = [o for o in new if o.type == "MESH" and _has_faces(o)]
         if not meshes:
@@ -395,13 +395,11 @@ def _run_importer(path: Path, ext: str) -> None:
     elif ext == ".abc":
         op = bpy.ops.wm.alembic_import
         op(**_known(op, filepath=str(path), as_background_job=False, set_frame_range=False))
-    elif ext == ".blend":
-        _append_blend_scene(path)
 
 
-def _append_blend_scene(path: Path) -> None:
-    """Append a .blend's scene (the first by name) with its objects; :func:`_blend_rendered` then keeps what a
-    render of it shows."""
+def _append_blend_scene(path: Path) -> list:
+    """Append a .blend's scene (the first by name) with its objects; return it (in a list) for
+    :func:`_blend_rendered`, which keeps what a render of it shows."""
     if bpy.data.filepath and Path(bpy.data.filepath).resolve() == Path(path).resolve():
         raise InputError(f"{path} is the open file: render its objects with the source 'selected'")
     try:
@@ -411,10 +409,7 @@ def _append_blend_scene(path: Path) -> None:
             dst.scenes = [sorted(src.scenes)[0]]
     except OSError as e:
         raise InputError(f"cannot read {path}: {str(e).strip() or 'not a .blend file'}") from None
-    _BLEND_APPENDED.extend(sc for sc in dst.scenes if sc is not None)
-
-
-_BLEND_APPENDED: list = []  # the scene _append_blend_scene appended, for _blend_rendered
+    return [sc for sc in dst.scenes if sc is not None]
 
 
 def _object_refs(stack) -> list:
@@ -429,13 +424,12 @@ def _object_refs(stack) -> list:
     return out
 
 
-def _blend_rendered(new: list[bpy.types.Object]) -> list[bpy.types.Object]:
+def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types.Object]:
     """Of the objects a .blend's scene brought, those its render shows (not excluded from its view layer, no
     collection or object hidden from renders), with armatures and parents they need; curves, surfaces, text and
     metaballs made meshes (the data passes rasterize meshes); the scene itself removed. Objects left out stay in
     the file's data unlinked. Objects that shown ones use (a boolean's hidden cutter, an armature) come along
     hidden from renders, so they move with the normalization and the data passes leave them out."""
-    scenes, _BLEND_APPENDED[:] = list(_BLEND_APPENDED), []
     shown: set[int] = set()
     for sc in scenes:
         def walk(lc):

@@ -16,7 +16,8 @@ transform applies), planar z-depth and world normals as float32 EXR, and the par
 thread rasterizes and writes view i while Cycles renders view i + 1 (the render releases the GIL).
 
 What each view was rendered from is recorded (``source_hash`` in ``meta.json``, and for a mesh file
-``linked_files_hash``: the textures and buffers it names) and checked on resume, and a finished view counts only if its files are intact (a truncated PNG is rendered again).
+``linked_files_hash``: the textures and buffers it names) and checked on resume, and a finished view
+counts only if its files are intact (a truncated PNG is rendered again).
 """
 
 from __future__ import annotations
@@ -661,7 +662,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if made_opaque:
             summary.warnings.append(
                 f"{spec.key}: {len(made_opaque)} material(s) read as fully transparent ({', '.join(made_opaque[:3])}"
-                f"{', ...' if len(made_opaque) > 3 else ''}; an FBX exporter's opacity misread), rendered opaque")
+                f"{', ...' if len(made_opaque) > 3 else ''}: alpha 0 with nothing driving it, how Blender's FBX importer "
+                "reads many 3ds Max files), rendered opaque")
         if missing_tex:
             summary.warnings.append(
                 f"{spec.key}: {len(missing_tex)} texture file(s) not found ({', '.join(missing_tex[:3])}"
