@@ -567,3 +567,37 @@ def test_blend_file_renders_what_its_render_shows(tmp_path, bpy_empty):
     ext = hi - lo  # the block is 1.5 x 2 x 2 (2 x 2 x 2 uncut), the text above its kept part
     assert ext[0] < 0.85 * ext[1], ext  # the boolean cut (the hidden cutter still cuts)
     assert len(bpy.data.objects) == n_objects, "nothing of the .blend is left in the open file"
+
+
+def test_blend_file_images_are_part_of_what_its_views_were_rendered_from(tmp_path, bpy_empty):
+    """A .blend whose material reads an image beside it (relative path, not packed): the image is one of its linked
+    files, and a resume after the image changed is refused; a packed image is in the .blend's own bytes."""
+    import bpy
+
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.objects import linked_files
+
+    tex = tmp_path / "tex" / "wood.png"
+    tex.parent.mkdir()
+    F.write_png(tex, np.full((8, 8, 3), (150, 90, 40), np.uint8))
+    bpy.ops.mesh.primitive_cube_add()
+    mat = bpy.data.materials.new("wood")
+    node = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    node.image = bpy.data.images.load(str(tex))
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    bpy.context.active_object.data.materials.append(mat)
+    packed = bpy.data.images.new("packed", 4, 4)
+    packed.pack()
+    path = tmp_path / "asset.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True, relative_remap=True)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    n_images = len(bpy.data.images)
+    assert linked_files(path) == [("tex/wood.png", tex)]
+    assert len(bpy.data.images) == n_images, "reading the paths leaves nothing behind"
+    kw = dict(out=tmp_path / "d", sources=(str(path),), views=2, resolution=(24, 24), samples=1)
+    _render(**kw)
+    assert _render(**kw).views_skipped == 2
+    F.write_png(tex, np.full((8, 8, 3), (20, 200, 40), np.uint8))
+    with pytest.raises(OutputError, match="texture"):
+        _render(**kw)

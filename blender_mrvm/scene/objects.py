@@ -865,8 +865,8 @@ def _mtl_texture_name(args: str) -> str:
 
 def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
-    in order: an OBJ's textures (through its MTL libraries), a binary FBX's images it does not embed and a glTF's
-    external buffers and images. A texture
+    in order: an OBJ's textures (through its MTL libraries), a binary FBX's or a .blend's images it does not embed
+    and a glTF's external buffers and images. A texture
     name that is not found as written is looked for by its base name beside the MTL (:func:`find_beside`), as the
     render does."""
     path = Path(path)
@@ -889,6 +889,10 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     elif ext == ".fbx":
         for name in _fbx_texture_names(path):
             out.append((name, find_beside(path.parent, name)))
+    elif ext == ".blend":
+        for name in _blend_image_files(path):
+            f = path.parent / name
+            out.append((name, f if f.is_file() else None))
     elif ext == ".gltf":
         import json
         from urllib.parse import unquote
@@ -937,6 +941,27 @@ def _fbx_texture_names(path: Path) -> list[str]:
                         break
             else:
                 todo.append(c)
+    return sorted(names)
+
+
+def _blend_image_files(path: Path) -> list[str]:
+    """The image files a .blend uses and does not pack, relative to its folder where they lie under it (else
+    absolute), sorted; its images are appended for a moment to read their paths, then removed."""
+    before = {im.as_pointer() for im in bpy.data.images}
+    try:
+        with bpy.data.libraries.load(str(path), link=False) as (src, dst):
+            dst.images = list(src.images)
+    except OSError:
+        return []  # the render's own reading says what is wrong
+    new = [im for im in bpy.data.images if im.as_pointer() not in before]
+    names: set[str] = set()
+    for im in new:
+        if im.packed_file is None and im.source in ("FILE", "SEQUENCE", "MOVIE") and im.filepath:
+            f = Path(bpy.path.abspath(im.filepath, library=im.library).replace("\\", "/")).resolve()
+            base = Path(path).parent.resolve()
+            names.add(str(f.relative_to(base)) if f.is_relative_to(base) else str(f))
+    if new:
+        bpy.data.batch_remove(new)
     return sorted(names)
 
 
