@@ -951,8 +951,8 @@ def _blend_image_files(path: Path) -> list[str]:
     try:
         with bpy.data.libraries.load(str(path), link=False) as (src, dst):
             dst.images = list(src.images)
-    except OSError:
-        return []  # the render's own reading says what is wrong
+    except (OSError, ValueError):  # unreadable, or the open file itself: the render's own reading says so
+        return []
     new = [im for im in bpy.data.images if im.as_pointer() not in before]
     names: set[str] = set()
     for im in new:
