@@ -162,7 +162,8 @@ def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = F
     white get the default model when every camera (references and targets) sits within
     :data:`TURNTABLE_TOLERANCE` of its training turntable; otherwise, on a GPU (``gpu``), the quality model
     (``mrvm_quality``: 0.5-1.3 dB better than the any-view model off the turntable on the library's objects, level
-    with it on real meshes (docs/real_meshes/), many times slower on a CPU), else the any-view model (``mrvm_anyview``, as fast as the default). A model this copy lacks falls back
+    with it on real meshes (docs/real_meshes/), many times slower on a CPU), else the any-view model
+    (``mrvm_anyview``, as fast as the default). A model this copy lacks falls back
     to the next (the default last). ``framing_known`` False (a box guessed from the cameras) leaves the framing
     out of the choice."""
     if background == "scene" and shipped_or_none("gpnr_captures") is not None:

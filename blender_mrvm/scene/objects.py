@@ -33,14 +33,11 @@ MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".
              ".blend")
 # 3D formats this Blender cannot import (COLLADA left Blender in 5.0) or that are not a mesh file to import: a
 # folder's files of these kinds are named in a warning instead of passed over without a word.
-OTHER_3D_EXTS = {".dae": "Blender 5 has no COLLADA importer; export it as glTF, FBX or OBJ",
-                 ".3ds": "export it as glTF, FBX or OBJ", ".max": "export it as glTF, FBX or OBJ",
-                 ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD",
-                 ".c4d": "export it as FBX or glTF", ".lwo": "export it as FBX or OBJ",
-                 ".x3d": "export it as glTF or OBJ", ".wrl": "export it as glTF or OBJ",
-                 ".3mf": "export it as STL or OBJ", ".skp": "export it as glTF, FBX or OBJ",
-                 ".step": "tessellate it to STL or OBJ in its CAD tool", ".stp": "tessellate it to STL or OBJ in its CAD tool",
-                 ".iges": "tessellate it to STL or OBJ in its CAD tool", ".igs": "tessellate it to STL or OBJ in its CAD tool"}
+_EXPORT, _CAD = "export it as glTF, FBX or OBJ", "tessellate it to STL or OBJ in its CAD tool"
+OTHER_3D_EXTS = {".dae": "Blender 5 has no COLLADA importer; " + _EXPORT, ".3ds": _EXPORT, ".max": _EXPORT,
+                 ".skp": _EXPORT, ".c4d": _EXPORT, ".lwo": _EXPORT, ".x3d": _EXPORT, ".wrl": _EXPORT,
+                 ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD", ".3mf": "export it as STL or OBJ",
+                 ".step": _CAD, ".stp": _CAD, ".iges": _CAD, ".igs": _CAD}
 
 # ShapeNetCore v2 synset ids of the 13 categories used by SRN / NMR / pixelNeRF.
 SHAPENET_SYNSETS = {
@@ -135,8 +132,9 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                     for cat, model_id, f in models:
                         specs.append(ObjectSpec("file", safe_id(category or cat), safe_id(model_id), path=str(f)))
                     continue
-                files = sorted(f for f in p.iterdir() if f.suffix.lower() in MESH_EXTS and f.is_file())
-                other = sorted(f for f in p.iterdir() if f.suffix.lower() in OTHER_3D_EXTS and f.is_file())
+                listed = sorted(f for f in p.iterdir() if f.is_file())
+                files = [f for f in listed if f.suffix.lower() in MESH_EXTS]
+                other = [f for f in listed if f.suffix.lower() in OTHER_3D_EXTS]
                 if not files:
                     hint = (f"; it holds {len(other)} {other[0].suffix} file(s): {OTHER_3D_EXTS[other[0].suffix.lower()]}"
                             if other else "")
@@ -239,7 +237,8 @@ def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
 
 
 def _import_file(path: Path) -> list[bpy.types.Object]:
-    """Import a mesh file with Blender's importers (trimesh for OFF); return the new objects."""
+    """Import a mesh file with Blender's importers (trimesh for OFF; a .blend's scene appended and reduced to what
+    its render shows); return the new objects, without the file's lights and cameras."""
     ext = path.suffix.lower()
     check_mesh_file(path)
     before = {o.as_pointer() for o in bpy.data.objects}
