@@ -79,6 +79,9 @@ def world(tmp_path_factory):
     for ext in ("fbx", "usd", "usdz", "abc", "blend"):  # the formats of other tools, damaged
         (w / f"garbage.{ext}").write_bytes(b"not a mesh\n" * 20)
     (w / "line.obj").write_text("v 0 0 0\nv 1 2 3\nv -1 -2 -3\nf 1 2 3\n")  # one face, on a line: no area
+    # UTF-16 (a Windows editor's "Unicode"): Blender reads it as another shape, its signs and decimals lost
+    (w / "utf16.obj").write_bytes("v -0.5 0.25 0\nv 1.5 0 0\nv 0 1.25 0\nv 0 0 -1.5\nf 1 2 3\nf 1 2 4\nf 1 3 4\n"
+                                  "f 2 3 4\n".encode("utf-16"))
     (w / "collada").mkdir()
     (w / "collada" / "cone.dae").write_text("<COLLADA/>")
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
@@ -488,6 +491,8 @@ RENDER = [
                           "--resolution", "16"], "cannot read") for ext in ("fbx", "usd", "usdz", "abc", "blend")],
     Case("silent-garbage", ["render-dataset", "--source", "{w}/line.obj", "--out", "{new}", "--views", "2",
                             "--resolution", "16"], "no faces with any area"),
+    Case("silent-garbage", ["render-dataset", "--source", "{w}/utf16.obj", "--out", "{new}", "--views", "2",
+                            "--resolution", "16"], "is UTF-16 or UTF-32 text"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada/cone.dae", "--out", "{new}", "--views", "2"],
          "no COLLADA importer"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada", "--out", "{new}", "--views", "2"],

@@ -601,3 +601,73 @@ def test_blend_file_images_are_part_of_what_its_views_were_rendered_from(tmp_pat
     F.write_png(tex, np.full((8, 8, 3), (20, 200, 40), np.uint8))
     with pytest.raises(OutputError, match="texture"):
         _render(**kw)
+
+
+def test_blend_file_linked_libraries_are_part_of_what_its_views_were_rendered_from(tmp_path, bpy_empty):
+    """A .blend whose scene links an object from a library (another .blend), whose material reads an image from a
+    second library in another folder: both libraries and the image are its linked files, the views show the
+    linked object, and a resume after the library's object or the image changed (the .blend's own bytes did not)
+    is refused; with the library gone, the file is refused before any view is written."""
+    import bpy
+
+    from blender_mrvm.errors import InputError, OutputError
+    from blender_mrvm.scene.objects import linked_files
+
+    lib_dir, tex_dir = tmp_path / "lib", tmp_path / "shared"
+    lib_dir.mkdir(), tex_dir.mkdir()
+    tex = tex_dir / "paint.png"
+    F.write_png(tex, np.full((8, 8, 3), (30, 60, 200), np.uint8))
+    mat = bpy.data.materials.new("paint")  # the second library: a material reading the image
+    node = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    node.image = bpy.data.images.load(str(tex))
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    mat.use_fake_user = True
+    materials = tex_dir / "materials.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(materials), copy=True, relative_remap=True)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    with bpy.data.libraries.load(str(materials), link=True, relative=True) as (src, dst):
+        dst.materials = ["paint"]
+    bpy.ops.mesh.primitive_monkey_add()  # the first library: an object using the linked material
+    bpy.context.active_object.name = "Suzanne"
+    bpy.context.active_object.data.materials.append(dst.materials[0])
+    parts = lib_dir / "parts.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(parts), copy=True, relative_remap=True)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    with bpy.data.libraries.load(str(parts), link=True, relative=True) as (src, dst):
+        dst.objects = ["Suzanne"]
+    bpy.context.scene.collection.objects.link(dst.objects[0])
+    path = tmp_path / "shot.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True, relative_remap=True)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    n = (len(bpy.data.libraries), len(bpy.data.objects), len(bpy.data.images), len(bpy.data.scenes))
+
+    assert linked_files(path) == [("lib/parts.blend", parts), ("shared/materials.blend", materials),
+                                  ("shared/paint.png", tex)]
+    assert (len(bpy.data.libraries), len(bpy.data.objects), len(bpy.data.images), len(bpy.data.scenes)) == n, \
+        "reading the libraries leaves nothing behind"
+    kw = dict(out=tmp_path / "d", sources=(str(path),), views=2, resolution=(24, 24), samples=1)
+    _render(**kw)
+    obj = tmp_path / "d" / "custom" / "shot"
+    rgb = F.read_png(obj / "rgb" / "000000.png")[..., :3].astype(float)
+    inside = F.read_png(obj / "mask" / "000000.png") > 0
+    assert inside.mean() > 0.05, "the linked object is rendered"
+    assert rgb[inside][:, 2].mean() > rgb[inside][:, 0].mean() + 20, "in the second library's image's colour"
+    assert _render(**kw).views_skipped == 2
+
+    bpy.ops.wm.open_mainfile(filepath=str(parts))  # the object changes in its library; shot.blend does not
+    bpy.data.objects["Suzanne"].scale = (1.0, 1.0, 0.3)
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    with pytest.raises(OutputError, match="linked .blend"):
+        _render(**kw)
+    assert _render(**kw, force=True).views_skipped == 0
+    F.write_png(tex, np.full((8, 8, 3), (200, 60, 30), np.uint8))  # the second library's image changes
+    with pytest.raises(OutputError, match="linked .blend"):
+        _render(**kw)
+
+    parts.rename(tmp_path / "moved.blend")  # the library is gone: Blender would render the scene without it
+    with pytest.raises(InputError, match=r"1 object of its scene \(Suzanne\) is linked from another .blend and "
+                                         r"missing: the linked file .*parts.blend cannot be read"):
+        _render(**{**kw, "out": tmp_path / "d2"})
+    assert not (tmp_path / "d2" / "custom").exists()

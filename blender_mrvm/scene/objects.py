@@ -267,7 +267,7 @@ _OBJ_NONFINITE = re.compile(rb"(?im)^[ \t]*v[ \t][^\n#]*?(?<![a-z0-9_.])[+-]?(na
 
 
 def check_mesh_file(path: Path) -> None:
-    """Refuse a mesh file with NaN or infinite vertex coordinates (InputError, one line).
+    """Refuse a mesh file with NaN or infinite vertex coordinates, or an OBJ in UTF-16 (InputError, one line).
 
     Blender's importers silently replace them with 0 (mesh validation), so the object would be
     rendered with vertices the file does not have; trimesh reads the numbers as they are. OBJ is
@@ -279,6 +279,11 @@ def check_mesh_file(path: Path) -> None:
             data = path.read_bytes()
         except OSError:
             return  # the importer reports it
+        if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:
+            raise InputError(f"cannot read mesh file {path}: it is UTF-16 or UTF-32 text (or holds NUL bytes), "
+                             "which Blender's OBJ importer misreads without a word (signs and decimals of numbers "
+                             f"are lost); save it as UTF-8, e.g. iconv -f UTF-16 -t UTF-8 '{path.name}' > "
+                             f"'{path.stem}_utf8.obj'")
         bad = len(_OBJ_NONFINITE.findall(data))
     elif ext in (".ply", ".stl", ".glb", ".gltf"):
         import trimesh
@@ -408,7 +413,21 @@ def _append_blend_scene(path: Path) -> list:
             dst.scenes = [sorted(src.scenes)[0]]
     except OSError as e:
         raise InputError(f"cannot read {path}: {str(e).strip() or 'not a .blend file'}") from None
-    return [sc for sc in dst.scenes if sc is not None]
+    scenes = [sc for sc in dst.scenes if sc is not None]
+    lost = sorted({o.name for sc in scenes for o in sc.objects
+                   if o.is_missing or (o.data is not None and o.data.is_missing)})
+    if lost:  # Blender renders the rest; a dataset of the rest would not be what the file shows
+        libs = sorted({bpy.path.abspath(lib.filepath, library=lib.parent) for lib in bpy.data.libraries
+                       if lib.is_missing})
+        where = (f"the linked file{'s' if len(libs) > 1 else ''} {', '.join(libs)} cannot be read" if libs else
+                 "its linked files no longer hold them")
+        n = len(lost)
+        raise InputError(f"cannot read {path}: {n} object{'s' if n > 1 else ''} of its scene ({', '.join(lost[:3])}"
+                         f"{', ...' if n > 3 else ''}) {'are' if n > 1 else 'is'} linked from another .blend and "
+                         f"missing: {where}. "
+                         "Relocate the library in Blender (the Outliner's Blender File view) and save, or make "
+                         "the objects local")
+    return scenes
 
 
 def _object_refs(stack) -> list:
@@ -864,8 +883,8 @@ def _mtl_texture_name(args: str) -> str:
 
 def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
-    in order: an OBJ's textures (through its MTL libraries), a binary FBX's or a .blend's images it does not embed
-    and a glTF's external buffers and images. A texture
+    in order: an OBJ's textures (through its MTL libraries), a binary FBX's or a .blend's images it does not embed,
+    the other .blend files a .blend links data from (and their images) and a glTF's external buffers and images. A texture
     name that is not found as written is looked for by its base name beside the MTL (:func:`find_beside`), as the
     render does."""
     path = Path(path)
@@ -889,7 +908,7 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
         for name in _fbx_texture_names(path):
             out.append((name, find_beside(path.parent, name)))
     elif ext == ".blend":
-        for name in _blend_image_files(path):
+        for name in _blend_image_files(path) + _blend_library_files(path):
             f = path.parent / name
             out.append((name, f if f.is_file() else None))
     elif ext == ".gltf":
@@ -946,22 +965,83 @@ def _fbx_texture_names(path: Path) -> list[str]:
 def _blend_image_files(path: Path) -> list[str]:
     """The image files a .blend uses and does not pack, relative to its folder where they lie under it (else
     absolute), sorted; its images are appended for a moment to read their paths, then removed."""
-    before = {im.as_pointer() for im in bpy.data.images}
-    try:
+    with _borrowed():
         with bpy.data.libraries.load(str(path), link=False) as (src, dst):
             dst.images = list(src.images)
-    except (OSError, ValueError):  # unreadable, or the open file itself: the render's own reading says so
-        return []
-    new = [im for im in bpy.data.images if im.as_pointer() not in before]
-    names: set[str] = set()
-    for im in new:
-        if im.packed_file is None and im.source in ("FILE", "SEQUENCE", "MOVIE") and im.filepath:
-            f = Path(bpy.path.abspath(im.filepath, library=im.library).replace("\\", "/")).resolve()
-            base = Path(path).parent.resolve()
-            names.add(str(f.relative_to(base)) if f.is_relative_to(base) else str(f))
-    if new:
-        bpy.data.batch_remove(new)
-    return sorted(names)
+        return sorted({_name_beside(path, im.filepath, im.library) for im in dst.images
+                       if im is not None and _external_image(im)})
+    return []  # unreadable, or the open file itself: the render's own reading says so
+
+
+class _borrowed:
+    """Everything a block adds to ``bpy.data`` (data blocks and the library entries they came through) is removed
+    when it ends, so reading another .blend leaves nothing in the open file. A block that raises OSError or
+    ValueError (an unreadable file, or the open file itself) is ended quietly, and the code after the block
+    runs."""
+
+    def __enter__(self):
+        self.names = [p.identifier for p in bpy.data.bl_rna.properties
+                      if p.type == "COLLECTION" and _is_id_type(p.fixed_type)]
+        self.before = {id_.as_pointer() for n in self.names for id_ in getattr(bpy.data, n)}
+        return self
+
+    def __exit__(self, kind, value, tb):
+        new = [id_ for n in self.names if n != "libraries" for id_ in getattr(bpy.data, n)
+               if id_.as_pointer() not in self.before]
+        if new:
+            bpy.data.batch_remove(new)
+        for lib in [lib for lib in bpy.data.libraries if lib.as_pointer() not in self.before]:
+            bpy.data.libraries.remove(lib)
+        return kind is not None and issubclass(kind, (OSError, ValueError))
+
+
+def _is_id_type(t) -> bool:
+    while t is not None:
+        if t.identifier == "ID":
+            return True
+        t = t.base
+    return False
+
+
+def _external_image(im) -> bool:
+    return im.packed_file is None and im.source in ("FILE", "SEQUENCE", "MOVIE") and bool(im.filepath)
+
+
+def _name_beside(path: Path, filepath: str, library) -> str:
+    """A Blender file path (``//`` relative to ``library``'s file, or the open one) as the hash names it: relative to
+    the .blend ``path``'s folder where it lies under it, else absolute."""
+    f = Path(bpy.path.abspath(filepath, library=library).replace("\\", "/")).resolve()
+    base = Path(path).parent.resolve()
+    return str(f.relative_to(base)) if f.is_relative_to(base) else str(f)
+
+
+def _blend_library_files(path: Path) -> list[str]:
+    """The other .blend files a .blend's scenes link data from, directly or through each other, and the image
+    files that linked data uses and does not pack, sorted ([] for a file that links nothing, so such a file's
+    ``linked_files_hash`` is what it was before libraries were counted). Its scenes are linked for a moment to
+    read them, then removed with every library entry that came along."""
+    me = Path(path).resolve()
+    with _borrowed():
+        with bpy.data.libraries.load(str(path), link=True) as (src, dst):
+            dst.scenes = list(src.scenes)
+        libs = [lib for lib in bpy.data.libraries
+                if Path(bpy.path.abspath(lib.filepath, library=lib.parent)).resolve() != me
+                and _links_from(lib, me)]
+        names = {_name_beside(path, lib.filepath, lib.parent) for lib in libs if lib.packed_file is None}
+        inside = {lib.as_pointer() for lib in libs}
+        names |= {_name_beside(path, im.filepath, im.library) for im in bpy.data.images
+                  if im.library is not None and im.library.as_pointer() in inside and _external_image(im)}
+        return sorted(names)
+    return []  # unreadable, or the open file itself: the render's own reading says so
+
+
+def _links_from(lib, me: Path) -> bool:
+    """Whether the library entry ``lib`` was reached through the .blend ``me`` (its parent chain leads there)."""
+    while lib.parent is not None:
+        lib = lib.parent
+        if Path(bpy.path.abspath(lib.filepath, library=lib.parent)).resolve() == me:
+            return True
+    return False
 
 
 def _obj_material_libraries(path: Path) -> list[Path]:

@@ -644,8 +644,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
               or old.get("linked_files_hash") not in (None, linked_hash)):
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} as it was before it changed "
-                                  "(its content, or a texture or buffer file it names, differs from what they "
-                                  "were rendered from); use --force to render it again")
+                                  "(its content, or a texture, buffer or linked .blend file it names, differs from "
+                                  "what they were rendered from); use --force to render it again")
             shutil.rmtree(obj_dir)
         elif old.get("complete") and all(view_intact(obj_dir, i) for i in range(old.get("n_views", -1))):
             for i in range(old["n_views"]):
