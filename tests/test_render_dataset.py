@@ -458,6 +458,72 @@ def test_every_format_renders_the_same_object(tmp_path, bpy_empty):
         _render(out=tmp_path / "e", sources=(str(only / "cone.dae"),), views=2)
 
 
+def _textured_cube(tex: Path, grouped: bool):
+    """A selected cube whose material reads the image file ``tex`` (blue), inside a node group if ``grouped``."""
+    import bpy
+
+    F.write_png(tex, np.full((8, 8, 3), (30, 60, 200), np.uint8))
+    bpy.ops.mesh.primitive_cube_add()
+    mat = bpy.data.materials.new("paint")
+    tree = bpy.data.node_groups.new("paint_group", "ShaderNodeTree") if grouped else mat.node_tree
+    node = tree.nodes.new("ShaderNodeTexImage")
+    node.image = bpy.data.images.load(str(tex))
+    colour = node.outputs["Color"]
+    if grouped:
+        tree.interface.new_socket("Color", in_out="OUTPUT", socket_type="NodeSocketColor")
+        tree.links.new(colour, tree.nodes.new("NodeGroupOutput").inputs[0])
+        gnode = mat.node_tree.nodes.new("ShaderNodeGroup")
+        gnode.node_tree = tree
+        colour = gnode.outputs[0]
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    mat.node_tree.links.new(colour, bsdf.inputs["Base Color"])
+    bpy.context.active_object.data.materials.append(mat)
+
+
+def test_images_the_render_reads_are_part_of_what_its_views_were_rendered_from(tmp_path, bpy_empty):
+    """The image files the rendered materials read (here a selected object's, through a node group; for files,
+    those an importer found by itself) are hashed into meta.json after loading: a resume that would add views
+    rendered with another image is refused, a finished object is skipped without loading it. A USD text layer's
+    asset paths (its exported texture here) are among its linked files."""
+    import bpy
+
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.objects import linked_files
+
+    tex = tmp_path / "paint.png"
+    _textured_cube(tex, grouped=True)
+    kw = dict(out=tmp_path / "d", sources=("selected",), views=3, resolution=(24, 24), samples=1)
+    _render(**kw)
+    obj = tmp_path / "d" / "custom" / "Cube"
+    meta = json.loads((obj / "meta.json").read_text())
+    assert meta["rendered_images_hash"].startswith("sha256:")
+    rgb = F.read_png(obj / "rgb" / "000000.png")[..., :3].astype(float)
+    inside = F.read_png(obj / "mask" / "000000.png") > 0
+    assert rgb[inside][:, 2].mean() > rgb[inside][:, 0].mean() + 20, "the image is what colours it"
+    F.write_png(tex, np.full((8, 8, 3), (200, 60, 30), np.uint8))
+    assert _render(**kw).views_skipped == 3, "a finished object is kept as it was rendered"
+    (obj / "rgb" / "000002.png").unlink()  # unfinished: the missing view would be red among blue ones
+    with pytest.raises(OutputError, match="other images than its materials read now"):
+        _render(**kw)
+    assert (obj / "rgb" / "000001.png").is_file(), "nothing is removed without --force"
+    assert _render(**kw, force=True).views_skipped == 0
+    assert json.loads((obj / "meta.json").read_text())["rendered_images_hash"] != meta["rendered_images_hash"]
+
+    src = tmp_path / "usd"
+    src.mkdir()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    _textured_cube(tex, grouped=False)  # Blender's USD export writes an image read by the BSDF itself
+    bpy.ops.wm.usd_export(filepath=str(src / "cube.usda"), selected_objects_only=True, export_materials=True)
+    assert linked_files(src / "cube.usda") == [("./textures/paint.png", src / "textures" / "paint.png")]
+    bpy.ops.wm.read_homefile(use_empty=True)
+    kw = dict(out=tmp_path / "u", sources=(str(src / "cube.usda"),), views=2, resolution=(24, 24), samples=1)
+    _render(**kw)
+    assert json.loads((tmp_path / "u" / "custom" / "cube" / "meta.json").read_text())["rendered_images_hash"]
+    F.write_png(src / "textures" / "paint.png", np.full((8, 8, 3), (30, 200, 30), np.uint8))
+    with pytest.raises(OutputError, match="texture"):
+        _render(**kw)
+
+
 def test_see_through_objects_are_named_and_misread_fbx_opacity_is_made_opaque(tmp_path, bpy_empty):
     """Masks and depth are rasterized from the geometry; the colour is Cycles'. A user's object in a nearly
     transparent material (kept as it is) renders images that show through the surface the masks show: named in a

@@ -845,6 +845,49 @@ def linked_files_fingerprint(spec: ObjectSpec) -> str | None:
     return "sha256:" + h.hexdigest()
 
 
+def rendered_images_fingerprint(objs: list[bpy.types.Object], base: Path | None) -> str | None:
+    """The image files the materials of these objects' rendered meshes read (through node groups too; packed and
+    generated images are in the source itself), as a hash of their names and bytes: ``None`` when they read none.
+
+    What the importers found, not what the file names: a texture an FBX importer found by searching folders, a USD
+    file's textures, those of a selected object's materials. Names are relative to ``base`` (the mesh file's folder,
+    the open .blend's) where they lie under it, so a dataset moved with its sources still resumes. A file that
+    cannot be read counts by name, as :func:`linked_files_fingerprint` counts a missing one."""
+    import hashlib
+
+    files: dict[str, Path] = {}
+    seen: set[int] = set()
+
+    def walk(tree):
+        if tree is None or tree.as_pointer() in seen:
+            return
+        seen.add(tree.as_pointer())
+        for n in tree.nodes:
+            img = getattr(n, "image", None)
+            if isinstance(img, bpy.types.Image) and _external_image(img):
+                f = Path(bpy.path.abspath(img.filepath, library=img.library).replace("\\", "/")).resolve()
+                rel = base is not None and f.is_relative_to(Path(base).resolve())
+                files[str(f.relative_to(Path(base).resolve())) if rel else str(f)] = f
+            if n.type == "GROUP":
+                walk(n.node_tree)
+
+    for o in objs:
+        if renders(o):
+            for slot in o.material_slots:
+                if slot.material is not None:
+                    walk(slot.material.node_tree)
+    if not files:
+        return None
+    h = hashlib.sha256()
+    for name in sorted(files):
+        h.update(name.encode() + b"\0")
+        try:
+            _hash_file(h, files[name], "")
+        except InputError:
+            h.update(b"unreadable\0")
+    return "sha256:" + h.hexdigest()
+
+
 def _hash_file(h, path: Path, what: str) -> None:
     """Feed a file's bytes to the hash ``h``; an unreadable file is an InputError starting with ``what``."""
     try:
@@ -884,7 +927,8 @@ def _mtl_texture_name(args: str) -> str:
 def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
     in order: an OBJ's textures (through its MTL libraries), a binary FBX's or a .blend's images it does not embed,
-    the other .blend files a .blend links data from (and their images) and a glTF's external buffers and images. A texture
+    the other .blend files a .blend links data from (and their images), the asset paths of a USD text layer
+    (sublayers, references, payloads, textures) and a glTF's external buffers and images. A texture
     name that is not found as written is looked for by its base name beside the MTL (:func:`find_beside`), as the
     render does."""
     path = Path(path)
@@ -911,6 +955,15 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
         for name in _blend_image_files(path) + _blend_library_files(path):
             f = path.parent / name
             out.append((name, f if f.is_file() else None))
+    elif ext == ".usda":
+        try:
+            text = path.read_text(errors="replace")
+        except OSError:
+            return out  # the importer reports it
+        names = {m.group(1) or m.group(2) for m in _USDA_ASSET.finditer(text)}
+        for name in sorted(n for n in names if "://" not in n and "<UDIM>" not in n.upper()):
+            f = path.parent / name  # sublayers, references, payloads, textures
+            out.append((name, f if f.is_file() else None))
     elif ext == ".gltf":
         import json
         from urllib.parse import unquote
@@ -928,6 +981,10 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
                     f = path.parent / unquote(uri)
                     out.append((uri, f if f.is_file() else None))
     return out
+
+
+# A USD text layer's asset paths (@path@; @@@path@@@ when the path holds an @); URLs and UDIM patterns are left out.
+_USDA_ASSET = re.compile(r"(?<!@)@(?!@)([^@\n]+?)@(?!@)|@@@(.+?)@@@")
 
 
 def _fbx_texture_names(path: Path) -> list[str]:

@@ -630,6 +630,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     meta_path = obj_dir / "meta.json"
     source_hash = O.source_fingerprint(spec)
     linked_hash = O.linked_files_fingerprint(spec)
+    old = None
     if meta_path.exists():
         try:
             old = json.loads(meta_path.read_text())
@@ -659,6 +660,17 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         missing_tex: list[str] = []
         made_opaque: list[str] = []
         objs = O.load_into(spec, session.coll, missing_tex, made_opaque)
+        images_base = Path(spec.path).parent if spec.kind == "file" else (
+            Path(bpy.data.filepath).parent if bpy.data.filepath else None)
+        images_hash = O.rendered_images_fingerprint(objs, images_base)
+        if meta_path.exists() and "rendered_images_hash" in (old or {}) and old["rendered_images_hash"] != images_hash:
+            # the images the render read (found by the importer, or a selected object's) changed since the views
+            # before were rendered: those views would not match these (a finished object is never re-imported)
+            if not cfg.force:
+                raise OutputError(f"{obj_dir} holds views of {spec.describe()} rendered with other images than "
+                                  "its materials read now (a texture changed, appeared or went); use --force to "
+                                  "render it again")
+            shutil.rmtree(obj_dir)
         if made_opaque:
             summary.warnings.append(
                 f"{spec.key}: {len(made_opaque)} material(s) read as fully transparent ({', '.join(made_opaque[:3])}"
@@ -730,6 +742,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             "category": spec.category, "object_id": spec.object_id, "source": spec.describe(),
             "source_hash": source_hash,
             **({"linked_files_hash": linked_hash} if linked_hash is not None else {}),
+            "rendered_images_hash": images_hash,  # None: its materials read no image file
             "split": split, "settings": settings, "n_views": len(poses), "complete": False,
             "normalization": {"matrix": norm.tolist(), "scale": float(norm[0, 0]),
                               "note": "x_normalized = matrix @ x_source (ShapeNetCore v2: bbox centre 0, diagonal 1)"},
