@@ -51,3 +51,132 @@ def depth_consistency(ov, a: int, b: int, occlusion: float = 0.02) -> np.ndarray
     z = z[fg]
     rel = (z - dbv) / dbv
     return np.abs(rel[rel < occlusion])
+
+
+def _z_up_to_y_up(v: np.ndarray) -> np.ndarray:
+    """Blender's Z-up coordinates in a Y-up file's: (x, y, z) -> (x, z, -y)."""
+    return np.stack([v[:, 0], v[:, 2], -v[:, 1]], axis=1)
+
+
+def write_collada(path: Path, up: str = "Z_UP", texture: str | None = None, rgb=(0.8, 0.05, 0.05)) -> Path:
+    """:func:`asymmetric_mesh` as a COLLADA 1.4.1 file (Blender 5 writes none): its vertices in the file's ``up``
+    axis (Z_UP or Y_UP), under a node whose matrix (a rotation, a scale and a move) the vertices are stored
+    undone by, so only a reader that applies the node's transform and the up axis puts the object where it is.
+    A lambert material of colour ``rgb``, or of the image ``texture`` (a file name) through planar UVs."""
+    m = asymmetric_mesh()
+    v = np.asarray(m.vertices, dtype=np.float64)
+    f = np.asarray(m.faces, dtype=np.int64)
+    c, s = np.cos(0.7), np.sin(0.7)
+    node = np.array([[c * 2, -s * 2, 0, 0.3], [s * 2, c * 2, 0, -0.2], [0, 0, 2, 0.5], [0, 0, 0, 1]])  # Z-up
+    if up == "Y_UP":
+        swap = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], dtype=np.float64)  # Z-up -> Y-up
+        node = swap @ node @ swap.T
+        v = _z_up_to_y_up(v)
+    local = (np.linalg.inv(node) @ np.c_[v, np.ones(len(v))].T).T[:, :3]
+    nums = lambda a: " ".join(f"{x:.9g}" for x in np.asarray(a).ravel())  # noqa: E731
+    uv_src = uv_in = bind = img = ""
+    diffuse = f"<color>{nums(list(rgb) + [1.0])}</color>"
+    if texture is not None:
+        uv = (v[:, :2] - v[:, :2].min(0)) / np.ptp(v[:, :2], axis=0)
+        uv_src = (f'<source id="uv"><float_array id="uv-a" count="{uv.size}">{nums(uv)}</float_array><technique_common>'
+                  f'<accessor source="#uv-a" count="{len(uv)}" stride="2"><param name="S" type="float"/>'
+                  '<param name="T" type="float"/></accessor></technique_common></source>')
+        uv_in = '<input semantic="TEXCOORD" source="#uv" offset="0" set="0"/>'
+        bind = '<bind_vertex_input semantic="UVMap" input_semantic="TEXCOORD" input_set="0"/>'
+        img = f'<library_images><image id="tex"><init_from>{texture}</init_from></image></library_images>'
+        diffuse = '<texture texture="samp" texcoord="UVMap"/>'
+    params = ('<newparam sid="surf"><surface type="2D"><init_from>tex</init_from></surface></newparam>'
+              '<newparam sid="samp"><sampler2D><source>surf</source></sampler2D></newparam>') if texture else ""
+    path.write_text(f"""<?xml version="1.0" encoding="utf-8"?>
+<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">
+<asset><unit name="meter" meter="1"/><up_axis>{up}</up_axis></asset>
+{img}
+<library_effects><effect id="fx"><profile_COMMON>{params}<technique sid="common"><lambert><diffuse>{diffuse}</diffuse>
+</lambert></technique></profile_COMMON></effect></library_effects>
+<library_materials><material id="mat" name="paint"><instance_effect url="#fx"/></material></library_materials>
+<library_geometries><geometry id="geo" name="thing"><mesh>
+<source id="pos"><float_array id="pos-a" count="{local.size}">{nums(local)}</float_array><technique_common>
+<accessor source="#pos-a" count="{len(local)}" stride="3"><param name="X" type="float"/><param name="Y" type="float"/>
+<param name="Z" type="float"/></accessor></technique_common></source>{uv_src}
+<vertices id="vtx"><input semantic="POSITION" source="#pos"/></vertices>
+<triangles material="m" count="{len(f)}"><input semantic="VERTEX" source="#vtx" offset="0"/>{uv_in}<p>{nums(f)}</p>
+</triangles></mesh></geometry></library_geometries>
+<library_visual_scenes><visual_scene id="scene"><node id="thing" name="thing"><matrix>{nums(node)}</matrix>
+<instance_geometry url="#geo"><bind_material><technique_common><instance_material symbol="m" target="#mat">{bind}
+</instance_material></technique_common></bind_material></instance_geometry></node></visual_scene>
+</library_visual_scenes>
+<scene><instance_visual_scene url="#scene"/></scene>
+</COLLADA>
+""")
+    return path
+
+
+def write_ascii_fbx(path: Path, rgb=(0.8, 0.05, 0.05)) -> Path:
+    """:func:`asymmetric_mesh` as an ASCII FBX 7.3 file (Blender reads binary FBX only): Y-up, as FBX files from
+    most tools, one model, one mesh, one material of colour ``rgb``."""
+    m = asymmetric_mesh()
+    v = _z_up_to_y_up(np.asarray(m.vertices, dtype=np.float64))
+    f = np.asarray(m.faces, dtype=np.int64).copy()
+    f[:, 2] = -f[:, 2] - 1  # FBX marks a polygon's last index by its bitwise complement
+    nums = lambda a: ",".join(f"{x:.9g}" for x in np.asarray(a).ravel())  # noqa: E731
+    r, g, b = rgb
+    path.write_text(f"""; FBX 7.3.0 project file
+FBXHeaderExtension:  {{
+    FBXHeaderVersion: 1003
+    FBXVersion: 7300
+}}
+GlobalSettings:  {{
+    Version: 1000
+    Properties70:  {{
+        P: "UpAxis", "int", "Integer", "",1
+        P: "UpAxisSign", "int", "Integer", "",1
+        P: "FrontAxis", "int", "Integer", "",2
+        P: "FrontAxisSign", "int", "Integer", "",1
+        P: "CoordAxis", "int", "Integer", "",0
+        P: "CoordAxisSign", "int", "Integer", "",1
+        P: "UnitScaleFactor", "double", "Number", "",1
+    }}
+}}
+Objects:  {{
+    Geometry: 1000, "Geometry::thing", "Mesh" {{
+        Vertices: *{v.size} {{
+            a: {nums(v)}
+        }}
+        PolygonVertexIndex: *{f.size} {{
+            a: {nums(f)}
+        }}
+        GeometryVersion: 124
+        LayerElementMaterial: 0 {{
+            Version: 101
+            MappingInformationType: "AllSame"
+            ReferenceInformationType: "IndexToDirect"
+            Materials: *1 {{
+                a: 0
+            }}
+        }}
+        Layer: 0 {{
+            Version: 100
+            LayerElement:  {{
+                Type: "LayerElementMaterial"
+                TypedIndex: 0
+            }}
+        }}
+    }}
+    Model: 2000, "Model::thing", "Mesh" {{
+        Version: 232
+    }}
+    Material: 3000, "Material::paint", "" {{
+        Version: 102
+        ShadingModel: "lambert"
+        Properties70:  {{
+            P: "DiffuseColor", "Color", "", "A",{r},{g},{b}
+        }}
+    }}
+}}
+Connections:  {{
+    C: "OO",2000,0
+    C: "OO",1000,2000
+    C: "OO",3000,2000
+}}
+""")
+    return path

@@ -76,14 +76,16 @@ def world(tmp_path_factory):
     (w / "occupied" / "precious.txt").write_text("keep me")
     (w / "a_file").write_text("not a folder")
     (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
-    for ext in ("fbx", "usd", "usdz", "abc", "blend"):  # the formats of other tools, damaged
+    for ext in ("fbx", "usd", "usdz", "abc", "blend", "dae", "3ds"):  # the formats of other tools, damaged
         (w / f"garbage.{ext}").write_bytes(b"not a mesh\n" * 20)
     (w / "line.obj").write_text("v 0 0 0\nv 1 2 3\nv -1 -2 -3\nf 1 2 3\n")  # one face, on a line: no area
     # UTF-16 (a Windows editor's "Unicode"): Blender reads it as another shape, its signs and decimals lost
     (w / "utf16.obj").write_bytes("v -0.5 0.25 0\nv 1.5 0 0\nv 0 1.25 0\nv 0 0 -1.5\nf 1 2 3\nf 1 2 4\nf 1 3 4\n"
                                   "f 2 3 4\n".encode("utf-16"))
     (w / "collada").mkdir()
-    (w / "collada" / "cone.dae").write_text("<COLLADA/>")
+    (w / "collada" / "cone.dae").write_text("<COLLADA/>")  # read with assimp: a COLLADA file with nothing in it
+    (w / "sketchup").mkdir()
+    (w / "sketchup" / "house.skp").write_bytes(b"SketchUp Model")  # no importer anywhere
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
     (w / "earlier_eval" / "eval.json").write_text(json.dumps({"overall": {"psnr": 20.0}, "views": []}))
     (w / "emptydir").mkdir()
@@ -486,17 +488,23 @@ RENDER = [
     # an unreadable mesh: one error line, and no dataset folder holding only its manifest left behind (session 29)
     Case("tracebacks", ["render-dataset", "--source", "{w}/broken.obj", "--out", "{new}", "--views", "2",
                         "--resolution", "16"], "cannot read mesh file"),
-    # other tools' formats (session 41): damaged files, and COLLADA, which Blender 5 cannot import
+    # other tools' formats (session 41): damaged files; COLLADA, which Blender 5 cannot import, is read with assimp
+    # (session 42), and SketchUp by nothing
     *[Case("tracebacks", ["render-dataset", "--source", "{w}/garbage." + ext, "--out", "{new}", "--views", "2",
-                          "--resolution", "16"], "cannot read") for ext in ("fbx", "usd", "usdz", "abc", "blend")],
+                          "--resolution", "16"], "cannot read") for ext in ("fbx", "usd", "usdz", "abc", "blend", "dae",
+                                                                            "3ds")],
     Case("silent-garbage", ["render-dataset", "--source", "{w}/line.obj", "--out", "{new}", "--views", "2",
                             "--resolution", "16"], "no faces with any area"),
     Case("silent-garbage", ["render-dataset", "--source", "{w}/utf16.obj", "--out", "{new}", "--views", "2",
                             "--resolution", "16"], "is UTF-16 or UTF-32 text"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada/cone.dae", "--out", "{new}", "--views", "2"],
-         "no COLLADA importer"),
+         "cannot read mesh file"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/collada", "--out", "{new}", "--views", "2"],
-         "no COLLADA importer"),
+         "cannot read mesh file"),
+    Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup/house.skp", "--out", "{new}", "--views", "2"],
+         "export it as glTF"),
+    Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup", "--out", "{new}", "--views", "2"],
+         "export it as glTF"),
 ]
 
 USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2

@@ -418,18 +418,18 @@ def _export_in_every_format(folder: Path) -> list[str]:
 def test_every_format_renders_the_same_object(tmp_path, bpy_empty):
     """OBJ, FBX, GLB, USDA/USDC/USDZ and Alembic exports of one object render the same silhouette and bounds;
     the files' own light and camera are dropped (Blender 5.0.1's FBX importer fails on a light unless helped); a
-    COLLADA file in the folder is named in a warning, and alone is refused with what to do."""
+    SketchUp file in the folder is named in a warning, and alone is refused with what to do."""
     from blender_mrvm.errors import InputError
 
     src = tmp_path / "src"
     src.mkdir()
     names = _export_in_every_format(src)
     assert len(names) == 7, names
-    (src / "cone.dae").write_text("<COLLADA/>")
+    (src / "cone.skp").write_bytes(b"SketchUp Model")
     s = _render(out=tmp_path / "d", sources=(str(src),), views=3, rig="sphere", resolution=(40, 40), samples=2)
     stems = sorted(Path(n).stem for n in names)
     assert sorted(o.split("/")[1] for o in s.objects) == stems
-    assert len(s.warnings) == 1 and "cone.dae" in s.warnings[0] and "COLLADA" in s.warnings[0], s.warnings
+    assert len(s.warnings) == 1 and "cone.skp" in s.warnings[0] and "export it as glTF" in s.warnings[0], s.warnings
     root = tmp_path / "d" / "custom"
     ref = F.read_object(root / "m_obj")
     ref_rgb = np.stack([ref.rgb(i)[..., :3] for i in range(3)]).astype(np.float32) / 255
@@ -451,11 +451,11 @@ def test_every_format_renders_the_same_object(tmp_path, bpy_empty):
             assert np.abs(rgb - ref_rgb)[mask & ref_mask].mean() < 0.03, stem
     only = tmp_path / "only"
     only.mkdir()
-    shutil.copy(src / "cone.dae", only / "cone.dae")
-    with pytest.raises(InputError, match="COLLADA"):
+    shutil.copy(src / "cone.skp", only / "cone.skp")
+    with pytest.raises(InputError, match="export it as glTF"):
         _render(out=tmp_path / "e", sources=(str(only),), views=2)
-    with pytest.raises(InputError, match="COLLADA"):
-        _render(out=tmp_path / "e", sources=(str(only / "cone.dae"),), views=2)
+    with pytest.raises(InputError, match="export it as glTF"):
+        _render(out=tmp_path / "e", sources=(str(only / "cone.skp"),), views=2)
 
 
 def _textured_cube(tex: Path, grouped: bool):
@@ -522,6 +522,49 @@ def test_images_the_render_reads_are_part_of_what_its_views_were_rendered_from(t
     F.write_png(src / "textures" / "paint.png", np.full((8, 8, 3), (30, 200, 30), np.uint8))
     with pytest.raises(OutputError, match="texture"):
         _render(**kw)
+
+
+def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty):
+    """COLLADA (Z_UP and Y_UP, the object under a rotated, scaled and moved node), an ASCII FBX and a textured
+    COLLADA, which Blender 5 has no importer for, are read with assimp: the same silhouettes and bounds as the mesh
+    itself read by Blender, in their materials' colour or texture; a folder takes them; a broken one is refused
+    with one line."""
+    from blender_mrvm.errors import InputError
+    from tests.helpers import write_ascii_fbx, write_collada
+
+    src = tmp_path / "src"
+    src.mkdir()
+    write_mesh(src / "m_ply.ply")
+    write_collada(src / "m_zup.dae", "Z_UP")
+    write_collada(src / "m_yup.dae", "Y_UP")
+    write_ascii_fbx(src / "m_ascii.fbx")
+    F.write_png(src / "blue.png", np.full((8, 8, 3), (20, 40, 220), np.uint8))
+    write_collada(src / "m_tex.dae", "Y_UP", texture="blue.png")
+    s = _render(out=tmp_path / "d", sources=(str(src),), views=3, rig="sphere", resolution=(40, 40), samples=2)
+    assert sorted(o.split("/")[1] for o in s.objects) == ["m_ascii", "m_ply", "m_tex", "m_yup", "m_zup"]
+    assert not s.warnings, s.warnings
+    root = tmp_path / "d" / "custom"
+    ref = F.read_object(root / "m_ply")
+    ref_mask = np.stack([ref.mask(i) > 0 for i in range(3)])
+    assert ref_mask.mean() > 0.1
+    ref_bbox = json.loads((root / "m_ply" / "meta.json").read_text())["bbox"]
+    for stem in ("m_zup", "m_yup", "m_ascii", "m_tex"):
+        ov = F.read_object(root / stem)
+        mask = np.stack([ov.mask(i) > 0 for i in range(3)])
+        iou = (mask & ref_mask).sum() / (mask | ref_mask).sum()
+        assert iou > 0.99, (stem, iou)
+        assert np.allclose(json.loads((root / stem / "meta.json").read_text())["bbox"], ref_bbox, atol=1e-4), stem
+        rgb = np.stack([ov.rgb(i)[..., :3] for i in range(3)]).astype(np.float32) / 255
+        r, g, b = np.median(rgb[mask], axis=0)
+        if stem == "m_tex":
+            assert b - r > 0.3 and b - g > 0.3, (stem, r, g, b)
+        else:
+            assert r - g > 0.3 and r - b > 0.3, (stem, r, g, b)
+    assert json.loads((root / "m_tex" / "meta.json").read_text())["rendered_images_hash"]
+
+    (src / "broken.dae").write_text("<COLLADA><library_geometries>")
+    with pytest.raises(InputError, match=r"^cannot read mesh file .*broken.dae: .+"):
+        _render(out=tmp_path / "e", sources=(str(src / "broken.dae"),), views=2)
 
 
 def test_see_through_objects_are_named_and_misread_fbx_opacity_is_made_opaque(tmp_path, bpy_empty):

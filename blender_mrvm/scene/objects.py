@@ -29,15 +29,33 @@ from mathutils import Matrix
 
 from ..errors import InputError
 
+# Formats Blender has no importer for (COLLADA left Blender in 5.0; it reads binary FBX only), read with the Open
+# Asset Import Library (the assimp-py package) where it is installed: :func:`_import_with_assimp`.
+ASSIMP_EXTS = {".dae": "COLLADA", ".3ds": "3D Studio", ".lwo": "LightWave", ".x": "DirectX", ".ac": "AC3D",
+               ".ase": "3ds Max ASE", ".3mf": "3MF", ".ms3d": "MilkShape 3D"}
+_ASSIMP_PIN = "assimp-py==1.1.0"
+
+
+def _assimp_available() -> bool:
+    try:
+        import assimp_py  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".usda", ".usdc", ".usdz", ".abc",
-             ".blend")
-# 3D formats this Blender cannot import (COLLADA left Blender in 5.0) or that are not a mesh file to import: a
-# folder's files of these kinds are named in a warning instead of passed over without a word.
+             ".blend") + (tuple(ASSIMP_EXTS) if _assimp_available() else ())
+# 3D formats this Blender cannot import or that are not a mesh file to import: a folder's files of these kinds are
+# named in a warning instead of passed over without a word.
 _EXPORT, _CAD = "export it as glTF, FBX or OBJ", "tessellate it to STL or OBJ in its CAD tool"
-OTHER_3D_EXTS = {".dae": "Blender 5 has no COLLADA importer; " + _EXPORT, ".3ds": _EXPORT, ".max": _EXPORT,
-                 ".skp": _EXPORT, ".c4d": _EXPORT, ".lwo": _EXPORT, ".x3d": _EXPORT, ".wrl": _EXPORT,
-                 ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD", ".3mf": "export it as STL or OBJ",
+_ASSIMP_ADVICE = f"; or install {_ASSIMP_PIN} into the Python that runs the render, which reads it"
+OTHER_3D_EXTS = {".max": _EXPORT, ".skp": _EXPORT, ".c4d": _EXPORT, ".x3d": _EXPORT, ".wrl": _EXPORT,
+                 ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD",
                  ".step": _CAD, ".stp": _CAD, ".iges": _CAD, ".igs": _CAD}
+if not _assimp_available():
+    OTHER_3D_EXTS.update({ext: f"Blender has no {name} importer; {_EXPORT}{_ASSIMP_ADVICE}"
+                          for ext, name in ASSIMP_EXTS.items()})
 
 # ShapeNetCore v2 synset ids of the 13 categories used by SRN / NMR / pixelNeRF.
 SHAPENET_SYNSETS = {
@@ -368,9 +386,10 @@ def _known(op, **kwargs) -> dict:
 
 
 def _run_importer(path: Path, ext: str) -> None:
-    """Run the Blender importer for ``ext`` (OBJ is read as Y-up, like ShapeNet; trimesh for OFF). FBX, USD and
-    Alembic use their files' own axes; USD is read without its cameras, lights, world or instancing (so every
-    surface is a mesh object the data passes see), at its render purpose."""
+    """Run the Blender importer for ``ext`` (OBJ is read as Y-up, like ShapeNet; trimesh for OFF; assimp for the
+    formats Blender has no importer for, ASCII FBX among them). FBX, USD and Alembic use their files' own axes; USD
+    is read without its cameras, lights, world or instancing (so every surface is a mesh object the data passes
+    see), at its render purpose."""
     if ext == ".obj":
         bpy.ops.wm.obj_import(filepath=str(path), use_split_objects=False, use_split_groups=False,
                               forward_axis="NEGATIVE_Z", up_axis="Y")
@@ -385,12 +404,16 @@ def _run_importer(path: Path, ext: str) -> None:
         bpy.ops.import_scene.gltf(filepath=str(path))
     elif ext == ".off":
         _import_with_trimesh(path)
+    elif ext == ".fbx" and not _binary_fbx(path):  # Blender reads binary FBX only
+        _import_with_assimp(path, "ASCII FBX")
     elif ext == ".fbx":
         import addon_utils
 
         addon_utils.enable("io_scene_fbx", default_set=False)
         with _fbx_lights_readable():
             bpy.ops.import_scene.fbx(filepath=str(path), use_anim=False)
+    elif ext in ASSIMP_EXTS:
+        _import_with_assimp(path, ASSIMP_EXTS[ext])
     elif ext in (".usd", ".usda", ".usdc", ".usdz"):
         op = bpy.ops.wm.usd_import
         op(**_known(op, filepath=str(path), import_cameras=False, import_lights=False, create_world_material=False,
@@ -485,6 +508,136 @@ def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types
         if o.type == "MESH":
             render_evaluation(o)
     return out
+
+
+def _binary_fbx(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(21) == b"Kaydara FBX Binary  \x00"
+    except OSError:
+        return True  # Blender's importer reports it
+
+
+# assimp's scenes are Y-up (its loaders turn a COLLADA Z_UP asset, an FBX's axes and 3DS's Z-up that way); Blender
+# is Z-up: x, y, z -> x, -z, y, as Blender's glTF importer turns glTF's Y-up.
+_Y_UP_TO_Z_UP = Matrix(((1, 0, 0, 0), (0, 0, -1, 0), (0, 1, 0, 0), (0, 0, 0, 1)))
+
+
+def _import_with_assimp(path: Path, fmt: str) -> None:
+    """Read a file of a format Blender cannot import with assimp (assimp-py): every node's triangle meshes (points
+    and lines are dropped) become mesh objects at the node's world transform, with the file's normals, first UV
+    map and per-vertex colours; a material becomes a Principled BSDF of its diffuse colour, opacity and diffuse
+    texture (looked for beside the file as :func:`find_beside` does; one that is not there is dropped with a warning
+    by :func:`drop_missing_textures`). The file's cameras and lights are not read."""
+    try:
+        import assimp_py as A
+    except ImportError:
+        raise InputError(f"cannot read mesh file {path}: Blender has no {fmt} importer, and assimp-py, which reads "
+                         f"it, is not installed in this Python (pip install {_ASSIMP_PIN}); or {_EXPORT}") from None
+    flags = (A.Process_Triangulate | A.Process_SortByPType | A.Process_JoinIdenticalVertices
+             | A.Process_ValidateDataStructure)
+    try:
+        scene = A.import_file(str(path), flags)
+    except FileNotFoundError:
+        raise InputError(f"cannot read mesh file {path}: no such file") from None
+    except RuntimeError as e:  # the caller reports the loader's reason
+        raise RuntimeError(re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)) or "assimp cannot read it") from None
+    materials: dict[int, bpy.types.Material] = {}
+    meshes: dict[int, bpy.types.Mesh | None] = {}
+    coll = bpy.context.scene.collection
+
+    def material(i: int) -> bpy.types.Material:
+        if i not in materials:
+            materials[i] = _assimp_material(scene.materials[i] if 0 <= i < len(scene.materials) else {}, path)
+        return materials[i]
+
+    def mesh(i: int) -> bpy.types.Mesh | None:
+        if i not in meshes:
+            me = meshes[i] = _assimp_mesh(scene.meshes[i])
+            if me is not None:
+                mat = material(scene.meshes[i].material_index)
+                if "Col" in me.color_attributes and not any(n.type == "TEX_IMAGE" for n in mat.node_tree.nodes):
+                    mat = mat.copy()  # its vertex colours, as the material's diffuse colour
+                    node = mat.node_tree.nodes.new("ShaderNodeVertexColor")
+                    node.layer_name = "Col"
+                    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+                    mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+                me.materials.append(mat)
+        return meshes[i]
+
+    todo = [(scene.root_node, Matrix.Identity(4))]
+    while todo:
+        node, parent = todo.pop()
+        world = parent @ Matrix([list(r) for r in node.transformation])
+        for i in node.mesh_indices:
+            me = mesh(i)
+            if me is not None:
+                obj = bpy.data.objects.new(node.name or me.name, me)
+                obj.matrix_world = _Y_UP_TO_Z_UP @ world
+                coll.objects.link(obj)
+        todo.extend((c, world) for c in node.children)
+
+
+def _assimp_mesh(m) -> bpy.types.Mesh | None:
+    """A Blender mesh of an assimp mesh's triangles (None for a points or lines mesh)."""
+    verts = np.frombuffer(m.vertices, dtype=np.float32).reshape(-1, 3)
+    if m.num_faces == 0 or len(m.indices) != 3 * m.num_faces:  # SortByPType: one primitive kind a mesh
+        return None
+    tris = np.frombuffer(m.indices, dtype=np.uint32).reshape(-1, 3)
+    me = bpy.data.meshes.new(m.name or "mesh")
+    me.vertices.add(len(verts))
+    me.vertices.foreach_set("co", verts.ravel())
+    me.loops.add(tris.size)
+    me.loops.foreach_set("vertex_index", tris.ravel().astype(np.int32))
+    me.polygons.add(len(tris))
+    me.polygons.foreach_set("loop_start", np.arange(0, tris.size, 3, dtype=np.int32))
+    corner = tris.ravel()
+    if m.texcoords and m.texcoords[0] is not None and len(m.texcoords[0]):
+        uv = np.frombuffer(m.texcoords[0], dtype=np.float32).reshape(len(verts), -1)[:, :2]
+        me.uv_layers.new(name="UVMap").data.foreach_set("uv", uv[corner].ravel())
+    if m.colors and m.colors[0] is not None and len(m.colors[0]):
+        col = np.frombuffer(m.colors[0], dtype=np.float32).reshape(len(verts), 4)
+        attr = me.color_attributes.new("Col", "FLOAT_COLOR", "POINT")
+        attr.data.foreach_set("color", col.ravel())
+    me.update(calc_edges=True)
+    me.validate(clean_customdata=False)
+    if m.normals is not None and len(m.normals) == len(m.vertices) and len(me.vertices) == len(verts):
+        n = np.frombuffer(m.normals, dtype=np.float32).reshape(-1, 3)
+        if np.isfinite(n).all():
+            me.shade_smooth()
+            me.normals_split_custom_set_from_vertices(n.tolist())
+    return me
+
+
+def _assimp_material(d: dict, path: Path) -> bpy.types.Material:
+    """A Principled BSDF of an assimp material's diffuse colour, opacity and diffuse texture."""
+    mat = bpy.data.materials.new(str(d.get("NAME") or "material"))
+    tree = mat.node_tree
+    bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    rgba = d.get("COLOR_DIFFUSE") or d.get("COLOR_BASE")
+    if rgba:
+        bsdf.inputs["Base Color"].default_value = (*[float(c) for c in rgba[:3]], 1.0)
+        mat.diffuse_color = (*[float(c) for c in rgba[:3]], 1.0)
+    opacity = d.get("OPACITY")
+    if opacity is not None and 0.0 <= float(opacity) < 1.0:
+        bsdf.inputs["Alpha"].default_value = float(opacity)
+    textures = d.get("TEXTURES") or {}
+    names = textures.get(1) or textures.get(12) or []  # aiTextureType_DIFFUSE, aiTextureType_BASE_COLOR
+    if names:
+        name = str(names[0])
+        node = tree.nodes.new("ShaderNodeTexImage")
+        if name.startswith("*"):  # embedded in the file: assimp-py does not hand its bytes over
+            img = bpy.data.images.new(f"embedded texture {name[1:]}", 1, 1)
+            img.source, img.filepath = "FILE", str(path.parent / f"<embedded texture {name[1:]}>")
+        else:
+            found = find_beside(path.parent, name)
+            img = (bpy.data.images.load(str(found), check_existing=True) if found is not None else
+                   bpy.data.images.new(Path(name.replace("\\", "/")).name or name, 1, 1))
+            if found is None:
+                img.source, img.filepath = "FILE", str(path.parent / name.replace("\\", "/"))
+        node.image = img
+        tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    return mat
 
 
 def _import_with_trimesh(path: Path) -> None:

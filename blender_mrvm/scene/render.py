@@ -674,8 +674,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if made_opaque:
             summary.warnings.append(
                 f"{spec.key}: {len(made_opaque)} material(s) read as fully transparent ({', '.join(made_opaque[:3])}"
-                f"{', ...' if len(made_opaque) > 3 else ''}: alpha 0 with nothing driving it, how Blender's FBX importer "
-                "reads many 3ds Max files), rendered opaque")
+                f"{', ...' if len(made_opaque) > 3 else ''}: alpha 0 with nothing driving it, how importers read many "
+                "3ds Max exports to FBX or COLLADA), rendered opaque")
         if missing_tex:
             summary.warnings.append(
                 f"{spec.key}: {len(missing_tex)} texture file(s) not found ({', '.join(missing_tex[:3])}"

@@ -4,6 +4,8 @@
 # line count. Session 41's sweeps (README.md here):
 #   apt-get download assimp-testmodels && dpkg-deb -x assimp-testmodels_*.deb /tmp/atm
 #   M=/tmp/atm/usr/share/assimp/models; docs/asset_sweep/sweep.sh /tmp/sweep $M/OBJ $M/PLY $M/STL $M/OFF $M/glTF2 $M/FBX
+#   session 42, the formats read with assimp: docs/asset_sweep/sweep.sh /tmp/sweep_assimp $M/Collada $M/FBX $M/3DS \
+#       $M/LWO $M/X $M/AC $M/ASE $M/3MF $M/MS3D
 #   docs/asset_sweep/sweep.sh /tmp/pbsweep "$(.venv/bin/python -c 'import pybullet_data as p; print(p.getDataPath())')"
 set -u
 out=$1; shift
@@ -11,7 +13,8 @@ PY=${PY:-$(cd "$(dirname "$0")/../.." && pwd)/.venv/bin/python}
 VIEWS=${VIEWS:-4}
 mkdir -p "$out"
 find "$@" -type f \( -iname "*.obj" -o -iname "*.ply" -o -iname "*.stl" -o -iname "*.off" -o -iname "*.gltf" \
-    -o -iname "*.glb" -o -iname "*.fbx" \) | grep -v " " | grep -v random_urdfs | sort | awk '{printf "%03d %s\n", NR, $0}' > "$out/list.txt"
+    -o -iname "*.glb" -o -iname "*.fbx" -o -iname "*.dae" -o -iname "*.3ds" -o -iname "*.lwo" -o -iname "*.x" \
+    -o -iname "*.ac" -o -iname "*.ase" -o -iname "*.3mf" -o -iname "*.ms3d" \) | grep -v " " | grep -v random_urdfs | sort | awk '{printf "%03d %s\n", NR, $0}' > "$out/list.txt"
 while read -r n f; do
     timeout 300 "$PY" -m blender_mrvm render-dataset --source "$f" --views "$VIEWS" --resolution 32 --samples 4 \
         --out "$out/d$n" > "$out/o$n.txt" 2>&1
