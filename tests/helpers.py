@@ -180,3 +180,72 @@ Connections:  {{
 }}
 """)
     return path
+
+
+def write_ac3d(path: Path, rgb=(0.8, 0.05, 0.05)) -> Path:
+    """:func:`asymmetric_mesh` as an AC3D file (Y-up, as the format is), one object in a material of colour ``rgb``."""
+    m = asymmetric_mesh()
+    v = _z_up_to_y_up(np.asarray(m.vertices, dtype=np.float64))
+    lines = ["AC3Db", 'MATERIAL "paint" rgb {} {} {}  amb 0.2 0.2 0.2  emis 0 0 0  spec 0 0 0  shi 10  trans 0'
+             .format(*rgb), "OBJECT world", "kids 1", "OBJECT poly", 'name "thing"', f"numvert {len(v)}"]
+    lines += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in v]
+    lines.append(f"numsurf {len(m.faces)}")
+    for a, b, c in np.asarray(m.faces):
+        lines += ["SURF 0x10", "mat 0", "refs 3", f"{a} 0 0", f"{b} 0 0", f"{c} 0 0"]
+    lines.append("kids 0")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_3mf(path: Path) -> Path:
+    """:func:`asymmetric_mesh` as a 3MF package (Z-up, millimetres, as the format is)."""
+    import zipfile
+
+    m = asymmetric_mesh()
+    verts = "".join(f'<vertex x="{x:.9g}" y="{y:.9g}" z="{z:.9g}"/>' for x, y, z in np.asarray(m.vertices))
+    tris = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in np.asarray(m.faces))
+    model = ('<?xml version="1.0" encoding="UTF-8"?><model unit="millimeter" xml:lang="en-US" '
+             'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02"><resources><object id="1" type="model">'
+             f'<mesh><vertices>{verts}</vertices><triangles>{tris}</triangles></mesh></object></resources>'
+             '<build><item objectid="1"/></build></model>')
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("[Content_Types].xml", '<?xml version="1.0" encoding="UTF-8"?><Types xmlns="http://schemas.openxml'
+                   'formats.org/package/2006/content-types"><Default Extension="rels" ContentType="application/vnd.'
+                   'openxmlformats-package.relationships+xml"/><Default Extension="model" ContentType="application/'
+                   'vnd.ms-package.3dmanufacturing-3dmodel+xml"/></Types>')
+        z.writestr("_rels/.rels", '<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.'
+                   'openxmlformats.org/package/2006/relationships"><Relationship Target="/3D/3dmodel.model" Id="rel0" '
+                   'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>')
+        z.writestr("3D/3dmodel.model", model)
+    return path
+
+
+def write_directx(path: Path) -> Path:
+    """:func:`asymmetric_mesh` as a DirectX text .x file: Y-up and left-handed, as the format is, so a reader that
+    does not turn its handedness would show the object mirrored."""
+    m = asymmetric_mesh()
+    v = np.asarray(m.vertices, dtype=np.float64)
+    v = np.stack([v[:, 0], v[:, 2], v[:, 1]], axis=1)  # Blender (x, y, z) -> left-handed Y-up (x, z, y)
+    f = np.asarray(m.faces)[:, ::-1]  # the same faces seen from outside in a left-handed frame
+    verts = ",\n".join(f"{x:.9f};{y:.9f};{z:.9f};" for x, y, z in v)
+    faces = ",\n".join(f"3;{a},{b},{c};" for a, b, c in f)
+    path.write_text(f"xof 0303txt 0032\nMesh thing {{\n{len(v)};\n{verts};\n{len(f)};\n{faces};\n}}\n")
+    return path
+
+
+def write_3ds(path: Path) -> Path:
+    """:func:`asymmetric_mesh` as a 3D Studio .3ds file (binary chunks; Z-up, as the format is), no material."""
+    import struct
+
+    m = asymmetric_mesh()
+    v = np.asarray(m.vertices, dtype="<f4")
+    f = np.asarray(m.faces, dtype="<u2")
+
+    def chunk(cid: int, body: bytes) -> bytes:
+        return struct.pack("<HI", cid, 6 + len(body)) + body
+
+    verts = chunk(0x4110, struct.pack("<H", len(v)) + v.tobytes())
+    faces = chunk(0x4120, struct.pack("<H", len(f)) + np.c_[f, np.zeros(len(f), "<u2")].astype("<u2").tobytes())
+    obj = chunk(0x4000, b"thing\0" + chunk(0x4100, verts + faces))
+    path.write_bytes(chunk(0x4D4D, chunk(0x0002, struct.pack("<I", 3)) + chunk(0x3D3D, obj)))
+    return path

@@ -525,12 +525,12 @@ def test_images_the_render_reads_are_part_of_what_its_views_were_rendered_from(t
 
 
 def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty):
-    """COLLADA (Z_UP and Y_UP, the object under a rotated, scaled and moved node), an ASCII FBX and a textured
-    COLLADA, which Blender 5 has no importer for, are read with assimp: the same silhouettes and bounds as the mesh
+    """COLLADA (Z_UP and Y_UP, the object under a rotated, scaled and moved node), an ASCII FBX, a textured
+    COLLADA, AC3D, 3MF, DirectX and 3DS, which Blender 5 has no importer for, are read with assimp: the same silhouettes and bounds as the mesh
     itself read by Blender, in their materials' colour or texture; a folder takes them; a broken one is refused
     with one line."""
     from blender_mrvm.errors import InputError
-    from tests.helpers import write_ascii_fbx, write_collada
+    from tests.helpers import write_3ds, write_3mf, write_ac3d, write_ascii_fbx, write_collada, write_directx
 
     src = tmp_path / "src"
     src.mkdir()
@@ -538,17 +538,22 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
     write_collada(src / "m_zup.dae", "Z_UP")
     write_collada(src / "m_yup.dae", "Y_UP")
     write_ascii_fbx(src / "m_ascii.fbx")
+    write_ac3d(src / "m_ac.ac")  # Y-up as the format is
+    write_3mf(src / "m_3mf.3mf")  # Z-up as the format is, kept as written by assimp's loader
+    write_directx(src / "m_x.x")  # Y-up and left-handed: mirrored unless its handedness is turned
+    write_3ds(src / "m_3ds.3ds")  # Z-up as the format is, turned Y-up by assimp's loader
     F.write_png(src / "blue.png", np.full((8, 8, 3), (20, 40, 220), np.uint8))
     write_collada(src / "m_tex.dae", "Y_UP", texture="blue.png")
     s = _render(out=tmp_path / "d", sources=(str(src),), views=3, rig="sphere", resolution=(40, 40), samples=2)
-    assert sorted(o.split("/")[1] for o in s.objects) == ["m_ascii", "m_ply", "m_tex", "m_yup", "m_zup"]
+    assert sorted(o.split("/")[1] for o in s.objects) == ["m_3ds", "m_3mf", "m_ac", "m_ascii", "m_ply", "m_tex",
+                                                          "m_x", "m_yup", "m_zup"]
     assert not s.warnings, s.warnings
     root = tmp_path / "d" / "custom"
     ref = F.read_object(root / "m_ply")
     ref_mask = np.stack([ref.mask(i) > 0 for i in range(3)])
     assert ref_mask.mean() > 0.1
     ref_bbox = json.loads((root / "m_ply" / "meta.json").read_text())["bbox"]
-    for stem in ("m_zup", "m_yup", "m_ascii", "m_tex"):
+    for stem in ("m_zup", "m_yup", "m_ascii", "m_tex", "m_ac", "m_3mf", "m_x", "m_3ds"):
         ov = F.read_object(root / stem)
         mask = np.stack([ov.mask(i) > 0 for i in range(3)])
         iou = (mask & ref_mask).sum() / (mask | ref_mask).sum()
@@ -558,6 +563,8 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
         r, g, b = np.median(rgb[mask], axis=0)
         if stem == "m_tex":
             assert b - r > 0.3 and b - g > 0.3, (stem, r, g, b)
+        elif stem in ("m_3mf", "m_x", "m_3ds"):  # no material in the file: a grey
+            assert abs(r - g) < 0.03 and abs(r - b) < 0.03, (stem, r, g, b)
         else:
             assert r - g > 0.3 and r - b > 0.3, (stem, r, g, b)
     assert json.loads((root / "m_tex" / "meta.json").read_text())["rendered_images_hash"]

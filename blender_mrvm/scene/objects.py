@@ -518,9 +518,11 @@ def _binary_fbx(path: Path) -> bool:
         return True  # Blender's importer reports it
 
 
-# assimp's scenes are Y-up (its loaders turn a COLLADA Z_UP asset, an FBX's axes and 3DS's Z-up that way); Blender
-# is Z-up: x, y, z -> x, -z, y, as Blender's glTF importer turns glTF's Y-up.
+# assimp's scenes are Y-up (its loaders turn a COLLADA Z_UP asset, an FBX's axes and 3DS's and ASE's Z-up that way;
+# AC3D, LightWave, MilkShape and DirectX are Y-up formats); Blender is Z-up: x, y, z -> x, -z, y, as Blender's glTF
+# importer turns glTF's Y-up. 3MF is a Z-up format whose coordinates assimp's loader keeps as written.
 _Y_UP_TO_Z_UP = Matrix(((1, 0, 0, 0), (0, 0, -1, 0), (0, 1, 0, 0), (0, 0, 0, 1)))
+_ASSIMP_TO_Z_UP = {".3mf": Matrix.Identity(4)}
 
 
 def _import_with_assimp(path: Path, fmt: str) -> None:
@@ -540,8 +542,12 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
         scene = A.import_file(str(path), flags)
     except FileNotFoundError:
         raise InputError(f"cannot read mesh file {path}: no such file") from None
-    except RuntimeError as e:  # the caller reports the loader's reason
-        raise RuntimeError(re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)) or "assimp cannot read it") from None
+    except RuntimeError as e:  # the caller reports the loader's reason; assimp gives none for a scene without meshes
+        raise RuntimeError(re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)).strip()
+                           or "assimp found no mesh in it (cameras or lights only, or a file it cannot parse)") from None
+    except ValueError:  # assimp-py takes triangles only: its loader kept lines or points
+        raise InputError(f"cannot read mesh file {path}: it holds lines or points, which assimp-py does not read "
+                         f"({fmt} files of faces only are read); {_EXPORT}") from None
     materials: dict[int, bpy.types.Material] = {}
     meshes: dict[int, bpy.types.Mesh | None] = {}
     coll = bpy.context.scene.collection
@@ -573,7 +579,7 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
             me = mesh(i)
             if me is not None:
                 obj = bpy.data.objects.new(node.name or me.name, me)
-                obj.matrix_world = _Y_UP_TO_Z_UP @ world
+                obj.matrix_world = _ASSIMP_TO_Z_UP.get(path.suffix.lower(), _Y_UP_TO_Z_UP) @ world
                 coll.objects.link(obj)
         todo.extend((c, world) for c in node.children)
 
