@@ -92,6 +92,27 @@ def test_extension_zip(tmp_path):
     assert manifest["version"] == tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
 
 
+def test_extension_zip_bundles_wheels(tmp_path):
+    """With wheels (build-extension --wheels DIR, or the downloaded assimp-py ones), the zip holds them under wheels/
+    and its manifest lists them, so Blender installs them; the package folder itself is left as it was."""
+    from blender_mrvm.commands.build_extension import PACKAGE_DIR, build, validate
+
+    wheel = tmp_path / "whl" / "tinypkg-1.0-py3-none-any.whl"
+    wheel.parent.mkdir()
+    with zipfile.ZipFile(wheel, "w") as z:
+        z.writestr("tinypkg/__init__.py", "")
+        z.writestr("tinypkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: tinypkg\nVersion: 1.0\n")
+        z.writestr("tinypkg-1.0.dist-info/WHEEL", "Wheel-Version: 1.0\nRoot-Is-Purelib: true\nTag: py3-none-any\n")
+        z.writestr("tinypkg-1.0.dist-info/RECORD", "")
+    before = (PACKAGE_DIR / "blender_manifest.toml").read_text()
+    zip_path = build(tmp_path / "out", [wheel])
+    validate(zip_path)
+    z = zipfile.ZipFile(zip_path)
+    assert "wheels/tinypkg-1.0-py3-none-any.whl" in z.namelist()
+    assert tomllib.loads(z.read("blender_manifest.toml").decode())["wheels"] == ["./wheels/tinypkg-1.0-py3-none-any.whl"]
+    assert (PACKAGE_DIR / "blender_manifest.toml").read_text() == before and not (PACKAGE_DIR / "wheels").exists()
+
+
 def test_relative_imports_only():
     bad = []
     for f in (ROOT / "blender_mrvm").rglob("*.py"):

@@ -561,6 +561,7 @@ OTHER = [
     Case("tracebacks", ["preview-library", "--out", "{w}/occupied", "--seeds", "1", "--categories", "chair"],
          "is a folder; name a file"),
     Case("tracebacks", ["build-extension", "--out", "{w}/a_file"], "extension output folder"),
+    Case("tracebacks", ["build-extension", "--out", "{new}", "--wheels", "{w}/emptydir"], "not a folder of .whl files"),
     Case("tracebacks", ["fetch-weights", "--out", "{w}/a_file"], "weight cache folder"),
     Case("tracebacks", ["train", "--preset", "fast", "--data", "{w}/ds", "--iterations", "1", "--out", "{w}/a_file"],
          "run folder"),

@@ -40,16 +40,57 @@ def find_blender_ext() -> Path:
                     "install the bpy module or run `blender --command extension build` in blender_mrvm/")
 
 
-def build(out_dir: Path) -> Path:
+# Python wheels the extension bundles (Blender installs the one for its platform): assimp-py, with which
+# render-dataset reads COLLADA, ASCII FBX, 3DS and other formats Blender has no importer for. Blender 4.2 to 5.0 run
+# Python 3.11. The wheels are fetched from the package index at build time (never at run time) into a cache.
+BUNDLED_WHEELS = ("assimp-py==1.1.0",)
+WHEEL_PLATFORMS = ("win_amd64", "macosx_11_0_arm64", "manylinux2014_x86_64", "manylinux2014_aarch64")
+WHEEL_CACHE = Path(".cache") / "extension_wheels"
+
+
+def fetch_wheels(dest: Path) -> list[Path]:
+    """Download :data:`BUNDLED_WHEELS` for every platform in :data:`WHEEL_PLATFORMS` (Python 3.11) into ``dest``
+    (kept: a later build reuses them); MRVMError with pip's last line when the index cannot be reached."""
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    for req in BUNDLED_WHEELS:
+        for plat in WHEEL_PLATFORMS:
+            res = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
+                                  "--python-version", "3.11", "--platform", plat, "-q", "-d", str(dest), req],
+                                 capture_output=True, text=True)
+            if res.returncode != 0:
+                said = (res.stderr or res.stdout).strip().splitlines() or ["pip failed"]
+                raise MRVMError(f"cannot download {req} for {plat}: {said[-1]}")
+    return sorted(dest.glob("*.whl"))
+
+
+def build(out_dir: Path, wheels: list[Path] | None = None) -> Path:
+    """Build the extension zip into ``out_dir``; with ``wheels``, a staged copy of the package that bundles them
+    (listed in its manifest's ``wheels``), the source folder itself otherwise."""
+    import shutil
+    import tempfile
+    import tomllib
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tool = find_blender_ext()
-    res = subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(PACKAGE_DIR),
-                          "--output-dir", str(out_dir)], capture_output=True, text=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        source = PACKAGE_DIR
+        if wheels:
+            source = Path(tmp) / PACKAGE_DIR.name
+            shutil.copytree(PACKAGE_DIR, source, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+            (source / "wheels").mkdir()
+            for w in wheels:
+                shutil.copy2(w, source / "wheels" / Path(w).name)
+            listed = ", ".join(f'"./wheels/{Path(w).name}"' for w in sorted(wheels, key=lambda w: Path(w).name))
+            text = (source / "blender_manifest.toml").read_text()
+            first_table = text.index("\n[") + 1  # a top-level key, so before the first [table]
+            (source / "blender_manifest.toml").write_text(
+                f"{text[:first_table]}wheels = [{listed}]\n\n{text[first_table:]}")
+        res = subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(source),
+                              "--output-dir", str(out_dir)], capture_output=True, text=True)
     if res.returncode != 0:
         raise MRVMError(f"extension build failed: {(res.stdout + res.stderr).strip().splitlines()[-1]}")
-    import tomllib
-
     manifest = tomllib.loads((PACKAGE_DIR / "blender_manifest.toml").read_text())
     zip_path = out_dir / f"{manifest['id']}-{manifest['version']}.zip"
     if not zip_path.is_file():
@@ -66,14 +107,32 @@ def validate(path: Path) -> None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="dist", help="output folder for the zip (default: dist)")
+    p.add_argument("--wheels", default="auto", metavar="auto|none|DIR",
+                   help="bundle assimp-py (COLLADA, ASCII FBX, 3DS, ... in render-dataset) for Windows, macOS and "
+                        f"Linux: auto (default) downloads the wheels into {WHEEL_CACHE} once and builds without "
+                        "them, with a warning, when the package index cannot be reached; none; or a folder of .whl "
+                        "files")
 
 
 def run(args) -> int:
     from ..guards import check_folder_writable
 
     check_folder_writable(Path(args.out), "extension output folder")
-    zip_path = build(Path(args.out))
+    wheels: list[Path] = []
+    if args.wheels == "auto":
+        try:
+            wheels = fetch_wheels(WHEEL_CACHE)
+        except MRVMError as e:
+            print(f"warning: {e}; the extension is built without assimp-py (render-dataset in Blender then names "
+                  "COLLADA, ASCII FBX and 3DS files with advice instead of reading them)", file=sys.stderr)
+    elif args.wheels != "none":
+        folder = Path(args.wheels)
+        wheels = sorted(folder.glob("*.whl")) if folder.is_dir() else []
+        if not wheels:
+            raise MRVMError(f"--wheels {args.wheels}: not a folder of .whl files (or auto, or none)")
+    zip_path = build(Path(args.out), wheels)
     validate(zip_path)
-    print(f"built {zip_path} ({zip_path.stat().st_size / 1024:.0f} KiB); install it with "
+    print(f"built {zip_path} ({zip_path.stat().st_size / 1024:.0f} KiB"
+          f"{f', {len(wheels)} wheels' if wheels else ''}); install it with "
           "Edit > Preferences > Get Extensions > Install from Disk")
     return 0
