@@ -111,11 +111,15 @@ def write_collada(path: Path, up: str = "Z_UP", texture: str | None = None, rgb=
     return path
 
 
-def write_ascii_fbx(path: Path, rgb=(0.8, 0.05, 0.05)) -> Path:
+def write_ascii_fbx(path: Path, rgb=(0.8, 0.05, 0.05), up: str = "Y") -> Path:
     """:func:`asymmetric_mesh` as an ASCII FBX 7.3 file (Blender reads binary FBX only): Y-up, as FBX files from
-    most tools, one model, one mesh, one material of colour ``rgb``."""
+    most tools, or Z-up with -Y forward, as 3ds Max writes them (``up="Z"``), its axes in GlobalSettings; one model,
+    one mesh, one material of colour ``rgb``."""
     m = asymmetric_mesh()
-    v = _z_up_to_y_up(np.asarray(m.vertices, dtype=np.float64))
+    v = np.asarray(m.vertices, dtype=np.float64)
+    if up == "Y":
+        v = _z_up_to_y_up(v)
+    axes = (1, 1, 2, 1) if up == "Y" else (2, 1, 1, -1)  # up axis and sign, front axis and sign
     f = np.asarray(m.faces, dtype=np.int64).copy()
     f[:, 2] = -f[:, 2] - 1  # FBX marks a polygon's last index by its bitwise complement
     nums = lambda a: ",".join(f"{x:.9g}" for x in np.asarray(a).ravel())  # noqa: E731
@@ -128,10 +132,10 @@ FBXHeaderExtension:  {{
 GlobalSettings:  {{
     Version: 1000
     Properties70:  {{
-        P: "UpAxis", "int", "Integer", "",1
-        P: "UpAxisSign", "int", "Integer", "",1
-        P: "FrontAxis", "int", "Integer", "",2
-        P: "FrontAxisSign", "int", "Integer", "",1
+        P: "UpAxis", "int", "Integer", "",{axes[0]}
+        P: "UpAxisSign", "int", "Integer", "",{axes[1]}
+        P: "FrontAxis", "int", "Integer", "",{axes[2]}
+        P: "FrontAxisSign", "int", "Integer", "",{axes[3]}
         P: "CoordAxis", "int", "Integer", "",0
         P: "CoordAxisSign", "int", "Integer", "",1
         P: "UnitScaleFactor", "double", "Number", "",1

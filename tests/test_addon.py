@@ -109,7 +109,8 @@ def test_extension_zip_bundles_wheels(tmp_path):
     validate(zip_path)
     z = zipfile.ZipFile(zip_path)
     assert "wheels/tinypkg-1.0-py3-none-any.whl" in z.namelist()
-    assert tomllib.loads(z.read("blender_manifest.toml").decode())["wheels"] == ["./wheels/tinypkg-1.0-py3-none-any.whl"]
+    manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
+    assert manifest["wheels"] == ["./wheels/tinypkg-1.0-py3-none-any.whl"]
     assert (PACKAGE_DIR / "blender_manifest.toml").read_text() == before and not (PACKAGE_DIR / "wheels").exists()
 
 

@@ -543,8 +543,9 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
     except FileNotFoundError:
         raise InputError(f"cannot read mesh file {path}: no such file") from None
     except RuntimeError as e:  # the caller reports the loader's reason; assimp gives none for a scene without meshes
-        raise RuntimeError(re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)).strip()
-                           or "assimp found no mesh in it (cameras or lights only, or a file it cannot parse)") from None
+        said = re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)).strip()
+        raise RuntimeError(said or "assimp found no mesh in it (cameras or lights only, or a file it cannot parse)") \
+            from None
     except ValueError:  # assimp-py takes triangles only: its loader kept lines or points
         raise InputError(f"cannot read mesh file {path}: it holds lines or points, which assimp-py does not read "
                          f"({fmt} files of faces only are read); {_EXPORT}") from None
