@@ -185,19 +185,40 @@ _DATA_COLLECTIONS = ("objects", "meshes", "materials", "images", "textures", "no
                      "lights", "worlds", "collections", "curves", "armatures", "actions")
 
 
-def snapshot_data() -> dict[str, set[int]]:
-    """Pointers of every datablock that may be created while loading or rendering."""
-    return {name: {d.as_pointer() for d in getattr(bpy.data, name)} for name in _DATA_COLLECTIONS}
+def snapshot_data(names: tuple[str, ...] = _DATA_COLLECTIONS) -> dict[str, set[int]]:
+    """Pointers of the datablocks in ``bpy.data``'s collections ``names`` (by default every kind that may be created
+    while loading or rendering; :func:`all_id_collections` for every kind)."""
+    return {name: {d.as_pointer() for d in getattr(bpy.data, name)} for name in names}
+
+
+def all_id_collections() -> tuple[str, ...]:
+    """The names of every collection of data blocks in ``bpy.data`` (libraries among them)."""
+    def is_id(t) -> bool:
+        while t is not None:
+            if t.identifier == "ID":
+                return True
+            t = t.base
+        return False
+
+    return tuple(p.identifier for p in bpy.data.bl_rna.properties if p.type == "COLLECTION" and is_id(p.fixed_type))
+
+
+_REMOVE_FIRST = ("objects", "collections", "meshes", "curves", "armatures", "cameras", "lights", "materials",
+                 "node_groups", "textures", "images", "worlds", "actions")
 
 
 def remove_new_data(before: dict[str, set[int]]) -> None:
-    """Remove datablocks created since ``before`` (the user's own data is untouched)."""
-    for name in ("objects", "collections", "meshes", "curves", "armatures", "cameras", "lights", "materials",
-                 "node_groups", "textures", "images", "worlds", "actions"):
-        coll = getattr(bpy.data, name)
-        new = [d for d in coll if d.as_pointer() not in before[name]]
+    """Remove datablocks created since ``before`` in the collections it holds (the user's own data is untouched);
+    library entries last, once nothing of theirs is left."""
+    order = [n for n in _REMOVE_FIRST if n in before] + [n for n in before if n not in _REMOVE_FIRST
+                                                         and n != "libraries"]
+    for name in order:
+        new = [d for d in getattr(bpy.data, name) if d.as_pointer() not in before[name]]
         if new:
             bpy.data.batch_remove(new)
+    if "libraries" in before:
+        for lib in [lib for lib in bpy.data.libraries if lib.as_pointer() not in before["libraries"]]:
+            bpy.data.libraries.remove(lib)
 
 
 @contextlib.contextmanager
@@ -1197,27 +1218,12 @@ class _borrowed:
     runs."""
 
     def __enter__(self):
-        self.names = [p.identifier for p in bpy.data.bl_rna.properties
-                      if p.type == "COLLECTION" and _is_id_type(p.fixed_type)]
-        self.before = {id_.as_pointer() for n in self.names for id_ in getattr(bpy.data, n)}
+        self.before = snapshot_data(all_id_collections())
         return self
 
     def __exit__(self, kind, value, tb):
-        new = [id_ for n in self.names if n != "libraries" for id_ in getattr(bpy.data, n)
-               if id_.as_pointer() not in self.before]
-        if new:
-            bpy.data.batch_remove(new)
-        for lib in [lib for lib in bpy.data.libraries if lib.as_pointer() not in self.before]:
-            bpy.data.libraries.remove(lib)
+        remove_new_data(self.before)
         return kind is not None and issubclass(kind, (OSError, ValueError))
-
-
-def _is_id_type(t) -> bool:
-    while t is not None:
-        if t.identifier == "ID":
-            return True
-        t = t.base
-    return False
 
 
 def _external_image(im) -> bool:
