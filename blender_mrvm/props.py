@@ -98,8 +98,8 @@ class MRVM_PG_dataset(bpy.types.PropertyGroup):
     library_seed: IntProperty(name="First seed", default=0, min=0)
     source_path: StringProperty(name="Path", subtype="FILE_PATH",
                                 description="Mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD, Alembic; COLLADA, 3DS and "
-                                            "others where assimp-py is installed) or .blend, folder of them, or "
-                                            "ShapeNetCore folder")
+                                            "others where assimp-py is installed), .blend or .zip archive of "
+                                            "them, folder of them, or ShapeNetCore folder")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_dataset",
                                description="Dataset root folder (// is relative to the .blend)")
     rig: EnumProperty(name="Rig", items=RIGS, default="sphere")

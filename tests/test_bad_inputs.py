@@ -76,7 +76,7 @@ def world(tmp_path_factory):
     (w / "occupied" / "precious.txt").write_text("keep me")
     (w / "a_file").write_text("not a folder")
     (w / "broken.obj").write_text("v 0 0 0\nv one 0 0\n")  # a mesh file with no faces
-    for ext in ("fbx", "usd", "usdz", "abc", "blend", "dae", "3ds"):  # the formats of other tools, damaged
+    for ext in ("fbx", "usd", "usdz", "abc", "blend", "dae", "3ds", "zip"):  # the formats of other tools, damaged
         (w / f"garbage.{ext}").write_bytes(b"not a mesh\n" * 20)
     (w / "line.obj").write_text("v 0 0 0\nv 1 2 3\nv -1 -2 -3\nf 1 2 3\n")  # one face, on a line: no area
     # UTF-16 (a Windows editor's "Unicode"): Blender reads it as another shape, its signs and decimals lost
@@ -495,7 +495,7 @@ RENDER = [
     # (session 42), and SketchUp by nothing
     *[Case("tracebacks", ["render-dataset", "--source", "{w}/garbage." + ext, "--out", "{new}", "--views", "2",
                           "--resolution", "16"], "cannot read") for ext in ("fbx", "usd", "usdz", "abc", "blend", "dae",
-                                                                            "3ds")],
+                                                                            "3ds", "zip")],
     Case("silent-garbage", ["render-dataset", "--source", "{w}/line.obj", "--out", "{new}", "--views", "2",
                             "--resolution", "16"], "no faces with any area"),
     Case("silent-garbage", ["render-dataset", "--source", "{w}/utf16.obj", "--out", "{new}", "--views", "2",

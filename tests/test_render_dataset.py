@@ -575,6 +575,71 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
         _render(out=tmp_path / "e", sources=(str(src / "broken.dae"),), views=2)
 
 
+def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_empty):
+    """A downloaded model as a zip: a textured glTF (.gltf, .bin and its image in a subfolder, beside a licence
+    and a macOS resource fork) renders in its texture's colour, named by the archive; an archive of two meshes
+    (one an Alembic cache, read from the unpacked file during the render) gives an object each; a resume skips
+    them, a changed archive refuses it; a folder takes archives and names the ones without meshes; a broken
+    archive and one without meshes are refused with one line."""
+    import zipfile
+
+    import bpy
+
+    from blender_mrvm.errors import InputError, OutputError
+
+    model = tmp_path / "export"
+    (model / "textures").mkdir(parents=True)
+    _textured_cube(model / "textures" / "paint.png", grouped=False)
+    bpy.ops.export_scene.gltf(filepath=str(model / "scene.gltf"), export_format="GLTF_SEPARATE", use_selection=True)
+    bpy.ops.wm.alembic_export(filepath=str(model / "cube.abc"), selected=True)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    gltf_files = [f for f in sorted(model.rglob("*")) if f.is_file() and f.suffix != ".abc"]
+    assert {f.suffix for f in gltf_files} >= {".gltf", ".bin", ".png"}, gltf_files
+    src = tmp_path / "downloads"
+    src.mkdir()
+    with zipfile.ZipFile(src / "blue_cube.zip", "w") as z:
+        for f in gltf_files:
+            z.write(f, "model/" + str(f.relative_to(model)))
+        z.writestr("license.txt", "CC-BY")
+        z.writestr("__MACOSX/model/._scene.gltf", b"\0\5\26\7")
+    with zipfile.ZipFile(src / "two.zip", "w") as z:
+        for f in gltf_files:
+            z.write(f, str(f.relative_to(model)))
+        z.write(model / "cube.abc", "cube.abc")
+    with zipfile.ZipFile(src / "readme.zip", "w") as z:
+        z.writestr("readme.txt", "no mesh here")
+
+    kw = dict(out=tmp_path / "d", sources=(str(src),), views=2, rig="sphere", resolution=(24, 24), samples=1)
+    s = _render(**kw)
+    assert sorted(s.objects) == ["custom/blue_cube", "custom/two_cube", "custom/two_scene"]
+    assert len(s.warnings) == 1 and "readme.zip" in s.warnings[0] and "no mesh file inside" in s.warnings[0]
+    root = tmp_path / "d" / "custom"
+    meta = json.loads((root / "blue_cube" / "meta.json").read_text())
+    assert meta["source"] == f"{src / 'blue_cube.zip'}!/model/scene.gltf"
+    assert "missing_textures" not in meta
+    for obj in ("blue_cube", "two_scene", "two_cube"):
+        ov = F.read_object(root / obj)
+        mask = ov.mask(0) > 0
+        assert mask.mean() > 0.05, obj
+        if obj != "two_cube":  # Alembic carries no materials
+            r, g, b = np.median(ov.rgb(0)[..., :3][mask].astype(float), axis=0)
+            assert b > r + 40 and b > g + 40, (obj, r, g, b)
+    assert np.allclose(json.loads((root / "two_cube" / "meta.json").read_text())["bbox"], meta["bbox"], atol=1e-4)
+    assert _render(**kw).views_skipped == 6, "resumed: the archives unchanged, their images hashed the same"
+
+    (root / "blue_cube" / "rgb" / "000001.png").unlink()
+    with zipfile.ZipFile(src / "blue_cube.zip", "a") as z:
+        z.writestr("notes.txt", "changed")
+    with pytest.raises(OutputError, match="as it was before it changed"):
+        _render(**kw)
+
+    with pytest.raises(InputError, match=r"no mesh files .* in archive .*readme.zip"):
+        _render(out=tmp_path / "e", sources=(str(src / "readme.zip"),), views=2)
+    (src / "broken.zip").write_bytes(b"PK\3\4 not really")
+    with pytest.raises(InputError, match=r"cannot read archive .*broken.zip"):
+        _render(out=tmp_path / "e", sources=(str(src / "broken.zip"),), views=2)
+
+
 def test_see_through_objects_are_named_and_misread_fbx_opacity_is_made_opaque(tmp_path, bpy_empty):
     """Masks and depth are rasterized from the geometry; the colour is Cycles'. A user's object in a nearly
     transparent material (kept as it is) renders images that show through the surface the masks show: named in a

@@ -84,6 +84,8 @@ class ObjectSpec:
     """Seed (kind 'procedural')."""
     params: tuple[tuple[str, str], ...] = field(default_factory=tuple)
     """Generator parameters (kind 'procedural')."""
+    member: str = ""
+    """The mesh file inside the zip archive ``path`` (kind 'file'; empty for a file on disk)."""
 
     @property
     def key(self) -> str:
@@ -91,7 +93,7 @@ class ObjectSpec:
 
     def describe(self) -> str:
         if self.kind == "file":
-            return self.path
+            return f"{self.path}!/{self.member}" if self.member else self.path
         if self.kind == "procedural":
             return f"procedural:{self.category}:{self.seed}"
         return "selected:" + ",".join(self.names)
@@ -153,6 +155,15 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                 listed = sorted(f for f in p.iterdir() if f.is_file())
                 files = [f for f in listed if f.suffix.lower() in MESH_EXTS]
                 other = [f for f in listed if f.suffix.lower() in OTHER_3D_EXTS]
+                archives = [(f, _archive_members(f, quiet=True)) for f in listed if f.suffix.lower() == ".zip"]
+                if passed_over is not None and any(not m for _, m in archives):
+                    empty = [f.name for f, m in archives if not m]
+                    passed_over.append(f"{src}: {len(empty)} .zip file(s) with no mesh file inside not rendered "
+                                       f"({', '.join(empty[:3])}{', ...' if len(empty) > 3 else ''})")
+                for f, members in archives:
+                    specs.extend(_archive_specs(f, members, category))
+                if not files and any(m for _, m in archives):
+                    continue
                 if not files:
                     hint = (f"; it holds {len(other)} {other[0].suffix} file(s): {OTHER_3D_EXTS[other[0].suffix.lower()]}"
                             if other else "")
@@ -164,17 +175,96 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                                            f"{', ...' if len(these) > 3 else ''}): {OTHER_3D_EXTS[ext]}")
                 for f in files:
                     specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(f.stem), path=str(f)))
+            elif p.suffix.lower() == ".zip":
+                members = _archive_members(p)
+                if not members:
+                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) in archive {src}")
+                specs.extend(_archive_specs(p, members, category))
             else:
                 if p.suffix.lower() not in MESH_EXTS:
                     hint = f" ({OTHER_3D_EXTS[p.suffix.lower()]})" if p.suffix.lower() in OTHER_3D_EXTS else ""
                     raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}{hint}; "
-                                     f"supported: {', '.join(MESH_EXTS)}")
+                                     f"supported: {', '.join(MESH_EXTS)}, and .zip archives of them")
                 specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(p.stem), path=str(p)))
     keys = [s.key for s in specs]
     dup = sorted({k for k in keys if keys.count(k) > 1})
     if dup:
         raise InputError(f"two sources map to the same object folder: {dup[0]} (rename one)")
     return specs
+
+
+# A zip archive is unpacked, whole, into the render's work folder: beyond this it is refused (unzip it and name the
+# folder instead).
+ARCHIVE_LIMIT_BYTES = 4 << 30
+
+
+def _archive_members(path: Path, quiet: bool = False) -> list[str]:
+    """The mesh files inside a zip archive, at any depth, sorted (macOS resource forks left out). A file that is not
+    a readable zip is an InputError, or with ``quiet`` holds none."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = [i.filename for i in z.infolist() if not i.is_dir()]
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        if quiet:
+            return []
+        raise InputError(f"cannot read archive {path}: {str(e).strip() or 'not a zip file'}") from None
+    return sorted(n for n in names if Path(n).suffix.lower() in MESH_EXTS and not n.startswith("__MACOSX/")
+                  and not Path(n).name.startswith("._"))
+
+
+def _archive_specs(path: Path, members: list[str], category: str | None) -> list[ObjectSpec]:
+    """One object a mesh file inside the archive: named by the archive (and the file, when it holds several)."""
+    one = len(members) == 1
+    return [ObjectSpec("file", safe_id(category or "custom"),
+                       safe_id(path.stem if one else f"{path.stem}_{Path(m).stem}"), path=str(path), member=m)
+            for m in members]
+
+
+def source_file(spec: ObjectSpec, work_dir: Path | None = None) -> Path:
+    """The mesh file to import for a 'file' spec: the file itself, or, for a file inside a zip archive, where the
+    archive is unpacked (once a run) under ``work_dir`` (a temporary folder removed at exit when None), with the
+    files around it, so textures, buffers and caches it names are read from there."""
+    if not spec.member:
+        return Path(spec.path)
+    return archive_root(spec, work_dir) / spec.member
+
+
+def archive_root(spec: ObjectSpec, work_dir: Path | None = None) -> Path:
+    """The folder a 'file' spec's zip archive is unpacked into (see :func:`source_file`)."""
+    import hashlib
+    import zipfile
+
+    if work_dir is None:
+        work_dir = _process_work_dir()
+    root = Path(work_dir) / "archives" / hashlib.sha256(str(Path(spec.path).resolve()).encode()).hexdigest()[:16]
+    if not (root / ".unpacked").is_file():
+        try:
+            with zipfile.ZipFile(spec.path) as z:
+                size = sum(i.file_size for i in z.infolist())
+                if size > ARCHIVE_LIMIT_BYTES:
+                    raise InputError(f"archive {spec.path} unpacks to {size / 2**30:.1f} GiB, more than "
+                                     f"{ARCHIVE_LIMIT_BYTES / 2**30:.0f} GiB: unzip it and name the folder instead")
+                z.extractall(root)  # zipfile keeps every member under root (no absolute paths, no '..')
+        except (zipfile.BadZipFile, OSError, EOFError) as e:
+            raise InputError(f"cannot read archive {spec.path}: {str(e).strip() or 'not a zip file'}") from None
+        (root / ".unpacked").touch()
+    return root
+
+
+_WORK_DIR: list[Path] = []
+
+
+def _process_work_dir() -> Path:
+    if not _WORK_DIR:
+        import atexit
+        import shutil
+        import tempfile
+
+        _WORK_DIR.append(Path(tempfile.mkdtemp(prefix="mrvm_archives_")))
+        atexit.register(shutil.rmtree, _WORK_DIR[0], True)
+    return _WORK_DIR[0]
 
 
 # --------------------------------------------------------------------------------------------
@@ -769,14 +859,19 @@ def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
 
 
 def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textures: list[str] | None = None,
-              made_opaque: list[str] | None = None) -> list[bpy.types.Object]:
+              made_opaque: list[str] | None = None, work_dir: Path | None = None) -> list[bpy.types.Object]:
     """Load a dataset object into ``collection`` (objects only live there); return its objects. A mesh file's
     textures that are missing are dropped (:func:`drop_missing_textures`) and their names appended to
     ``missing_textures``; its materials read as fully transparent are made opaque (:func:`opaque_invisible_materials`)
-    and their names appended to ``made_opaque`` (each when given)."""
+    and their names appended to ``made_opaque`` (each when given). A file inside a zip archive is read where the
+    archive is unpacked under ``work_dir`` (:func:`source_file`), which must outlive the render."""
     if spec.kind == "file":
-        new = _import_file(Path(spec.path))
-        lost = drop_missing_textures(new, Path(spec.path).parent)
+        path = source_file(spec, work_dir)
+        try:
+            new = _import_file(path)
+        except InputError as e:  # named as the user named it, not where the archive was unpacked
+            raise InputError(str(e).replace(str(path), spec.describe())) from None
+        lost = drop_missing_textures(new, path.parent)
         if missing_textures is not None:
             missing_textures.extend(lost)
         fixed = opaque_invisible_materials(new)
@@ -968,13 +1063,17 @@ def check_vertices(verts: np.ndarray, what: str) -> None:
 def source_fingerprint(spec: ObjectSpec) -> str:
     """What a dataset object is rendered from, as a hash: a changed source gets a new fingerprint.
 
-    Mesh files: their bytes (and an OBJ's material libraries beside it). Procedural objects: the
+    Mesh files: their bytes (and an OBJ's material libraries beside it); inside a zip archive, the archive's bytes.
+    Procedural objects: the
     full generator parameters. Selected objects: their evaluated geometry, placement and materials.
     """
     import hashlib
 
     h = hashlib.sha256()
-    if spec.kind == "file":
+    if spec.kind == "file" and spec.member:  # the archive's bytes: every file around the mesh inside it too
+        h.update(spec.member.encode() + b"\0")
+        _hash_file(h, Path(spec.path), f"cannot read archive {spec.path}")
+    elif spec.kind == "file":
         path = Path(spec.path)
         files = [path]
         if path.suffix.lower() == ".obj":
@@ -1014,7 +1113,7 @@ def linked_files_fingerprint(spec: ObjectSpec) -> str | None:
     A named file that is missing counts as missing (by name), so its appearance later changes the hash too."""
     import hashlib
 
-    if spec.kind != "file":
+    if spec.kind != "file" or spec.member:  # an archive's files are in its own bytes (source_fingerprint)
         return None
     h = hashlib.sha256()
     for name, f in linked_files(Path(spec.path)):

@@ -659,9 +659,11 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     try:
         missing_tex: list[str] = []
         made_opaque: list[str] = []
-        objs = O.load_into(spec, session.coll, missing_tex, made_opaque)
-        images_base = Path(spec.path).parent if spec.kind == "file" else (
-            Path(bpy.data.filepath).parent if bpy.data.filepath else None)
+        objs = O.load_into(spec, session.coll, missing_tex, made_opaque, work_dir=tmpdir)
+        if spec.kind == "file":  # names relative to the mesh's folder (an archive's: where it is unpacked)
+            images_base = O.archive_root(spec, tmpdir) if spec.member else Path(spec.path).parent
+        else:
+            images_base = Path(bpy.data.filepath).parent if bpy.data.filepath else None
         images_hash = O.rendered_images_fingerprint(objs, images_base)
         if meta_path.exists() and "rendered_images_hash" in (old or {}) and old["rendered_images_hash"] != images_hash:
             # the images the render read (found by the importer, or a selected object's) changed since the views
