@@ -577,7 +577,8 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
 
 def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_empty):
     """A downloaded model as a zip: a textured glTF (.gltf, .bin and its image in a subfolder, beside a licence
-    and a macOS resource fork) renders in its texture's colour, named by the archive; an archive of two meshes
+    and a macOS resource fork) renders in its texture's colour, named by the archive, and so does a KMZ's textured
+    COLLADA (read with assimp, its image found where the archive is unpacked); an archive of two meshes
     (one an Alembic cache, read from the unpacked file during the render) gives an object each; a resume skips
     them, a changed archive refuses it; a folder takes archives and names the ones without meshes; a broken
     archive and one without meshes are refused with one line."""
@@ -608,16 +609,24 @@ def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_
         z.write(model / "cube.abc", "cube.abc")
     with zipfile.ZipFile(src / "readme.zip", "w") as z:
         z.writestr("readme.txt", "no mesh here")
+    from tests.helpers import write_collada
+
+    write_collada(model / "thing.dae", "Z_UP", texture="paint.png")  # Google Earth's KMZ: COLLADA and its images
+    shutil.copy(model / "textures" / "paint.png", model / "paint.png")
+    with zipfile.ZipFile(src / "earth.kmz", "w") as z:
+        z.writestr("doc.kml", "<kml/>")
+        z.write(model / "thing.dae", "models/thing.dae")
+        z.write(model / "paint.png", "models/paint.png")
 
     kw = dict(out=tmp_path / "d", sources=(str(src),), views=2, rig="sphere", resolution=(24, 24), samples=1)
     s = _render(**kw)
-    assert sorted(s.objects) == ["custom/blue_cube", "custom/two_cube", "custom/two_scene"]
+    assert sorted(s.objects) == ["custom/blue_cube", "custom/earth", "custom/two_cube", "custom/two_scene"]
     assert len(s.warnings) == 1 and "readme.zip" in s.warnings[0] and "no mesh file inside" in s.warnings[0]
     root = tmp_path / "d" / "custom"
     meta = json.loads((root / "blue_cube" / "meta.json").read_text())
     assert meta["source"] == f"{src / 'blue_cube.zip'}!/model/scene.gltf"
     assert "missing_textures" not in meta
-    for obj in ("blue_cube", "two_scene", "two_cube"):
+    for obj in ("blue_cube", "two_scene", "two_cube", "earth"):
         ov = F.read_object(root / obj)
         mask = ov.mask(0) > 0
         assert mask.mean() > 0.05, obj
@@ -625,7 +634,7 @@ def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_
             r, g, b = np.median(ov.rgb(0)[..., :3][mask].astype(float), axis=0)
             assert b > r + 40 and b > g + 40, (obj, r, g, b)
     assert np.allclose(json.loads((root / "two_cube" / "meta.json").read_text())["bbox"], meta["bbox"], atol=1e-4)
-    assert _render(**kw).views_skipped == 6, "resumed: the archives unchanged, their images hashed the same"
+    assert _render(**kw).views_skipped == 8, "resumed: the archives unchanged, their images hashed the same"
 
     (root / "blue_cube" / "rgb" / "000001.png").unlink()
     with zipfile.ZipFile(src / "blue_cube.zip", "a") as z:

@@ -40,7 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", action="append", required=True, metavar="SRC",
                    help="mesh file (obj, ply, stl, glb, gltf, off, fbx, usd/usda/usdc/usdz, abc; with assimp-py "
                         "also dae (COLLADA), ASCII fbx, 3ds, lwo, x, ac, ase, 3mf, ms3d), .blend file (what a render "
-                        "of its first scene shows), .zip archive of them (a downloaded model with its textures), "
+                        "of its first scene shows), .zip archive of them (a downloaded model with its textures; also "
+                        "KMZ and .zae), "
                         "folder of them, ShapeNetCore folder, 'selected', or "
                         "'procedural:<category>:<seed>'; repeat for several")
     p.add_argument("--out", required=True, help="dataset root folder")

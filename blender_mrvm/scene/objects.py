@@ -155,7 +155,7 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                 listed = sorted(f for f in p.iterdir() if f.is_file())
                 files = [f for f in listed if f.suffix.lower() in MESH_EXTS]
                 other = [f for f in listed if f.suffix.lower() in OTHER_3D_EXTS]
-                archives = [(f, _archive_members(f, quiet=True)) for f in listed if f.suffix.lower() == ".zip"]
+                archives = [(f, _archive_members(f, quiet=True)) for f in listed if f.suffix.lower() in ARCHIVE_EXTS]
                 if passed_over is not None and any(not m for _, m in archives):
                     empty = [f.name for f, m in archives if not m]
                     passed_over.append(f"{src}: {len(empty)} .zip file(s) with no mesh file inside not rendered "
@@ -175,16 +175,18 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                                            f"{', ...' if len(these) > 3 else ''}): {OTHER_3D_EXTS[ext]}")
                 for f in files:
                     specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(f.stem), path=str(f)))
-            elif p.suffix.lower() == ".zip":
+            elif p.suffix.lower() in ARCHIVE_EXTS:
                 members = _archive_members(p)
                 if not members:
-                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) in archive {src}")
+                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) in archive {src}"
+                                     + ("; a .dae in it is read with assimp-py, which is not installed here"
+                                        if p.suffix.lower() in (".kmz", ".zae") and ".dae" not in MESH_EXTS else ""))
                 specs.extend(_archive_specs(p, members, category))
             else:
                 if p.suffix.lower() not in MESH_EXTS:
                     hint = f" ({OTHER_3D_EXTS[p.suffix.lower()]})" if p.suffix.lower() in OTHER_3D_EXTS else ""
                     raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}{hint}; "
-                                     f"supported: {', '.join(MESH_EXTS)}, and .zip archives of them")
+                                     f"supported: {', '.join(MESH_EXTS)}, and .zip, .kmz or .zae archives of them")
                 specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(p.stem), path=str(p)))
     keys = [s.key for s in specs]
     dup = sorted({k for k in keys if keys.count(k) > 1})
@@ -193,8 +195,10 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
     return specs
 
 
-# A zip archive is unpacked, whole, into the render's work folder: beyond this it is refused (unzip it and name the
-# folder instead).
+# Zip archives of mesh files: a downloaded model (.zip), Google Earth and SketchUp's KMZ and zipped COLLADA (.zae),
+# each a zip of COLLADA files and their textures. One is unpacked, whole, into the render's work folder: beyond
+# ARCHIVE_LIMIT_BYTES it is refused (unzip it and name the folder instead).
+ARCHIVE_EXTS = (".zip", ".kmz", ".zae")
 ARCHIVE_LIMIT_BYTES = 4 << 30
 
 
