@@ -253,3 +253,58 @@ def write_3ds(path: Path) -> Path:
     obj = chunk(0x4000, b"thing\0" + chunk(0x4100, verts + faces))
     path.write_bytes(chunk(0x4D4D, chunk(0x0002, struct.pack("<I", 3)) + chunk(0x3D3D, obj)))
     return path
+
+
+def write_ase_quad(path: Path, texture: str, tiling: float) -> Path:
+    """A square in the z = 0 plane as a 3ds Max ASE file (Z-up), UV-mapped once over, its material's diffuse map
+    ``texture`` repeated ``tiling`` times along U and V by the map's own UVW tiling (not by its UVs)."""
+    corners = [(-1, -1, 0, 0, 0), (1, -1, 0, 1, 0), (1, 1, 0, 1, 1), (-1, 1, 0, 0, 1)]
+    verts = " ".join(f"*MESH_VERTEX {i} {x} {y} {z}" for i, (x, y, z, _, _) in enumerate(corners))
+    tverts = " ".join(f"*MESH_TVERT {i} {u} {v} 0" for i, (_, _, _, u, v) in enumerate(corners))
+    faces = ("*MESH_FACE 0: A: 0 B: 1 C: 2 AB: 1 BC: 1 CA: 0 *MESH_SMOOTHING 1 *MESH_MTLID 0 "
+             "*MESH_FACE 1: A: 0 B: 2 C: 3 AB: 0 BC: 1 CA: 1 *MESH_SMOOTHING 1 *MESH_MTLID 0")
+    path.write_text(f"""*3DSMAX_ASCIIEXPORT 200
+*MATERIAL_LIST {{
+ *MATERIAL_COUNT 1
+ *MATERIAL 0 {{
+  *MATERIAL_NAME "paint"
+  *MATERIAL_CLASS "Standard"
+  *MATERIAL_DIFFUSE 1.0 1.0 1.0
+  *MAP_DIFFUSE {{
+   *MAP_NAME "Map #1"
+   *MAP_CLASS "Bitmap"
+   *MAP_SUBNO 1
+   *MAP_AMOUNT 1.0
+   *BITMAP "{texture}"
+   *MAP_TYPE Screen
+   *UVW_U_OFFSET 0.0
+   *UVW_V_OFFSET 0.0
+   *UVW_U_TILING {tiling}
+   *UVW_V_TILING {tiling}
+   *UVW_ANGLE 0.0
+  }}
+ }}
+}}
+*GEOMOBJECT {{
+ *NODE_NAME "quad"
+ *NODE_TM {{
+  *NODE_NAME "quad"
+  *TM_ROW0 1.0 0.0 0.0
+  *TM_ROW1 0.0 1.0 0.0
+  *TM_ROW2 0.0 0.0 1.0
+  *TM_ROW3 0.0 0.0 0.0
+ }}
+ *MESH {{
+  *MESH_NUMVERTEX 4
+  *MESH_NUMFACES 2
+  *MESH_VERTEX_LIST {{ {verts} }}
+  *MESH_FACE_LIST {{ {faces} }}
+  *MESH_NUMTVERTEX 4
+  *MESH_TVERTLIST {{ {tverts} }}
+  *MESH_NUMTVFACES 2
+  *MESH_TFACELIST {{ *MESH_TFACE 0 0 1 2 *MESH_TFACE 1 0 2 3 }}
+ }}
+ *MATERIAL_REF 0
+}}
+""")
+    return path

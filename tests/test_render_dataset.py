@@ -575,6 +575,33 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
         _render(out=tmp_path / "e", sources=(str(src / "broken.dae"),), views=2)
 
 
+def test_assimp_materials_uv_tiling_is_rendered(tmp_path, bpy_empty):
+    """A 3ds Max ASE square whose diffuse map repeats 2x2 checker squares once, and the same with the map's own UVW
+    tiling at 2: seen from above, the second shows twice as many squares along a row (the tiling baked into the
+    UVs), not the same picture."""
+    from tests.helpers import write_ase_quad
+
+    src = tmp_path / "src"
+    src.mkdir()
+    checker = np.zeros((32, 32, 3), np.uint8)
+    checker[:16, :16] = checker[16:, 16:] = (220, 20, 20)
+    checker[:16, 16:] = checker[16:, :16] = (20, 20, 220)
+    F.write_png(src / "checker.png", checker)
+    write_ase_quad(src / "once.ase", "checker.png", 1.0)
+    write_ase_quad(src / "twice.ase", "checker.png", 2.0)
+    s = _render(out=tmp_path / "d", sources=(str(src),), views=1, rig="turntable", elevation_deg=89.0,
+                resolution=(64, 64), samples=4)
+    assert not s.warnings, s.warnings
+    changes = {}
+    for stem in ("once", "twice"):
+        ov = F.read_object(tmp_path / "d" / "custom" / stem)
+        rgb, mask = ov.rgb(0)[..., :3].astype(int), ov.mask(0) > 0
+        row = rgb[32][mask[32]]
+        red = row[:, 0] > row[:, 2]
+        changes[stem] = int((red[1:] != red[:-1]).sum())  # red/blue boundaries crossed along the middle row
+    assert changes == {"once": 1, "twice": 3}, changes
+
+
 def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_empty):
     """A downloaded model as a zip: a textured glTF (.gltf, .bin and its image in a subfolder, beside a licence
     and a macOS resource fork) renders in its texture's colour, named by the archive, and so does a KMZ's textured

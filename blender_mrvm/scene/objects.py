@@ -652,6 +652,7 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
         raise InputError(f"cannot read mesh file {path}: Blender has no {fmt} importer, and assimp-py, which reads "
                          f"it, is not installed in this Python (pip install {_ASSIMP_PIN}); or {_EXPORT}") from None
     flags = (A.Process_Triangulate | A.Process_SortByPType | A.Process_JoinIdenticalVertices
+             | A.Process_TransformUVCoords  # a material's UV scale, offset and rotation, baked into the UVs
              | A.Process_ValidateDataStructure)
     try:
         scene = A.import_file(str(path), flags)
