@@ -602,6 +602,19 @@ def test_assimp_materials_uv_tiling_is_rendered(tmp_path, bpy_empty):
     assert changes == {"once": 1, "twice": 3}, changes
 
 
+def test_meshes_of_one_name_in_an_archive_are_told_apart_by_their_folders(tmp_path):
+    import zipfile
+
+    from blender_mrvm.scene.objects import resolve_sources
+
+    with zipfile.ZipFile(tmp_path / "pack.zip", "w") as z:
+        for folder in ("chairs", "tables"):
+            z.writestr(f"{folder}/model.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    specs = resolve_sources((str(tmp_path / "pack.zip"),))
+    assert [(s.object_id, s.member) for s in specs] == [("pack_chairs_model", "chairs/model.obj"),
+                                                       ("pack_tables_model", "tables/model.obj")]
+
+
 def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_empty):
     """A downloaded model as a zip: a textured glTF (.gltf, .bin and its image in a subfolder, beside a licence
     and a macOS resource fork) renders in its texture's colour, named by the archive, and so does a KMZ's textured

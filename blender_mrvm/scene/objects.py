@@ -219,10 +219,12 @@ def _archive_members(path: Path, quiet: bool = False) -> list[str]:
 
 
 def _archive_specs(path: Path, members: list[str], category: str | None) -> list[ObjectSpec]:
-    """One object a mesh file inside the archive: named by the archive (and the file, when it holds several)."""
+    """One object a mesh file inside the archive: named by the archive (and, when it holds several, by the file's
+    path in it without its suffix: ``pack.zip``'s ``chairs/a.obj`` is ``pack_chairs_a``)."""
     one = len(members) == 1
     return [ObjectSpec("file", safe_id(category or "custom"),
-                       safe_id(path.stem if one else f"{path.stem}_{Path(m).stem}"), path=str(path), member=m)
+                       safe_id(path.stem if one else f"{path.stem}_{Path(m).with_suffix('')}"), path=str(path),
+                       member=m)
             for m in members]
 
 
