@@ -602,6 +602,32 @@ def test_assimp_materials_uv_tiling_is_rendered(tmp_path, bpy_empty):
     assert changes == {"once": 1, "twice": 3}, changes
 
 
+def test_obj_material_libraries_are_found_as_the_obj_names_them(tmp_path, bpy_empty):
+    """An OBJ's `mtllib` may name several libraries on one line (the OBJ specification), a Windows path or another
+    letter case; Blender's importer reads each such line as one name as written and renders every material grey
+    without a word. Each is found and read (red and green faces); a library that is nowhere is named in a warning
+    and in meta.json."""
+    mesh = ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nusemtl red\nf 1 2 3\nf 1 2 4\nusemtl green\nf 1 3 4\n"
+            "f 2 3 4\n")
+    src = tmp_path / "src"
+    (src / "mats").mkdir(parents=True)
+    (src / "red.mtl").write_text("newmtl red\nKd 1 0 0\n")
+    (src / "mats" / "green.mtl").write_text("newmtl green\nKd 0 1 0\n")
+    for name, lines in {"one_line": "mtllib red.mtl mats/green.mtl", "windows": "mtllib .\\RED.MTL\r\nmtllib mats\\Green.mtl",
+                        "gone": "mtllib red.mtl gone.mtl"}.items():
+        (src / f"{name}.obj").write_text(lines + "\n" + mesh)
+    s = _render(out=tmp_path / "d", sources=(str(src),), views=4, rig="sphere", resolution=(32, 32), samples=2)
+    assert len(s.warnings) == 1 and "gone.mtl" in s.warnings[0] and "default grey" in s.warnings[0], "\n".join(s.warnings)
+    for name, colours in {"one_line": ("red", "green"), "windows": ("red", "green"), "gone": ("red",)}.items():
+        ov = F.read_object(tmp_path / "d" / "custom" / name)
+        px = np.concatenate([ov.rgb(i)[..., :3][ov.mask(i) > 0].astype(int) for i in range(4)])
+        red = ((px[:, 0] > 150) & (px[:, 1] < 80)).sum()
+        green = ((px[:, 1] > 150) & (px[:, 0] < 80)).sum()
+        assert red > 20 and (green > 20) == ("green" in colours), (name, red, green)
+    meta = json.loads((tmp_path / "d" / "custom" / "gone" / "meta.json").read_text())
+    assert meta["missing_material_libraries"] == ["gone.mtl"]
+
+
 def test_meshes_of_one_name_in_an_archive_are_told_apart_by_their_folders(tmp_path):
     import zipfile
 

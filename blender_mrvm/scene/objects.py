@@ -508,8 +508,11 @@ def _run_importer(path: Path, ext: str) -> None:
     is read without its cameras, lights, world or instancing (so every surface is a mesh object the data passes
     see), at its render purpose."""
     if ext == ".obj":
-        bpy.ops.wm.obj_import(filepath=str(path), use_split_objects=False, use_split_groups=False,
-                              forward_axis="NEGATIVE_Z", up_axis="Y")
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="mrvm_obj_") as tmp:
+            bpy.ops.wm.obj_import(filepath=str(_obj_for_blender(path, Path(tmp))), use_split_objects=False,
+                                  use_split_groups=False, forward_axis="NEGATIVE_Z", up_axis="Y")
     elif ext == ".ply":
         bpy.ops.wm.ply_import(filepath=str(path))
     elif ext == ".stl":
@@ -784,11 +787,12 @@ def _import_with_trimesh(path: Path) -> None:
 
 def find_beside(folder: Path, name: str) -> Path | None:
     """A file a mesh names, looked for as meshes made on Windows need: ``name`` as written (backslashes as folder
-    separators) under ``folder``, else its base name in ``folder``, else that base name in any letter case."""
+    separators) under ``folder``, else the same path in any letter case, else its base name in ``folder``, else that
+    base name in any letter case."""
     name = name.replace("\\", "/")
     base = Path(name).name
-    for cand in (Path(folder) / name, Path(folder) / base):
-        if cand.is_file():
+    for cand in (Path(folder) / name, _any_case(Path(folder), name), Path(folder) / base):
+        if cand is not None and cand.is_file():
             return cand
     if base:
         low = base.lower()
@@ -797,6 +801,27 @@ def find_beside(folder: Path, name: str) -> Path | None:
                 if f.name.lower() == low and f.is_file():
                     return f
     return None
+
+
+def _any_case(folder: Path, name: str) -> Path | None:
+    """``name`` (a relative path with / separators) under ``folder``, each part matched in any letter case, as
+    Windows would find it; None when a part is not there."""
+    cur = folder
+    for part in [p for p in name.split("/") if p not in ("", ".")]:
+        if part == "..":
+            cur = cur.parent
+            continue
+        if (cur / part).exists():
+            cur = cur / part
+            continue
+        try:
+            match = next((c for c in sorted(cur.iterdir()) if c.name.lower() == part.lower()), None)
+        except OSError:
+            return None
+        if match is None:
+            return None
+        cur = match
+    return cur
 
 
 def _image_missing(img, search: Path | None = None) -> bool:
@@ -866,12 +891,14 @@ def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
 
 
 def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textures: list[str] | None = None,
-              made_opaque: list[str] | None = None, work_dir: Path | None = None) -> list[bpy.types.Object]:
+              made_opaque: list[str] | None = None, work_dir: Path | None = None,
+              missing_libraries: list[str] | None = None) -> list[bpy.types.Object]:
     """Load a dataset object into ``collection`` (objects only live there); return its objects. A mesh file's
     textures that are missing are dropped (:func:`drop_missing_textures`) and their names appended to
     ``missing_textures``; its materials read as fully transparent are made opaque (:func:`opaque_invisible_materials`)
-    and their names appended to ``made_opaque`` (each when given). A file inside a zip archive is read where the
-    archive is unpacked under ``work_dir`` (:func:`source_file`), which must outlive the render."""
+    and their names appended to ``made_opaque`` (each when given). An OBJ's material libraries that are nowhere
+    beside it are appended to ``missing_libraries``. A file inside a zip archive is read where the archive is
+    unpacked under ``work_dir`` (:func:`source_file`), which must outlive the render."""
     if spec.kind == "file":
         path = source_file(spec, work_dir)
         try:
@@ -881,6 +908,8 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
         lost = drop_missing_textures(new, path.parent)
         if missing_textures is not None:
             missing_textures.extend(lost)
+        if missing_libraries is not None and path.suffix.lower() == ".obj":
+            missing_libraries.extend(missing_material_libraries(path))
         fixed = opaque_invisible_materials(new)
         if made_opaque is not None:
             made_opaque.extend(fixed)
@@ -1374,14 +1403,65 @@ def _links_from(lib, me: Path) -> bool:
 
 
 def _obj_material_libraries(path: Path) -> list[Path]:
+    """The material libraries an OBJ's ``mtllib`` lines name that are there (:func:`_mtllib_lines`), in order."""
+    return [f for _, found, _ in _mtllib_lines(path) for f in found]
+
+
+def _mtllib_lines(path: Path) -> list[tuple[str, list[Path], list[str]]]:
+    """Each ``mtllib`` line of an OBJ: (the line, the files it names that are there, the names that are not). A line
+    may name several files (the OBJ specification), a Windows path or another letter case; each is looked for as
+    :func:`find_beside` does. The whole rest of the line is tried first, as Blender's importer reads it (a name
+    with spaces)."""
     out = []
     try:
         with open(path, "r", errors="replace") as f:
             for line in f:
-                if line.startswith("mtllib "):
-                    p = path.parent / line.split(None, 1)[1].strip()
-                    if p.is_file():
-                        out.append(p)
+                if not line.startswith("mtllib"):
+                    continue
+                rest = line[6:].strip()
+                if not rest or not line[6:7].isspace():
+                    continue
+                whole = path.parent / rest
+                if whole.is_file():
+                    out.append((line, [whole], []))
+                    continue
+                found, missing = [], []
+                for name in rest.split():
+                    f_ = find_beside(path.parent, name)
+                    (found.append(f_) if f_ is not None else missing.append(name))
+                out.append((line, found, missing))
     except OSError:
         pass
     return out
+
+
+def _obj_for_blender(path: Path, tmp: Path) -> Path:
+    """The OBJ to hand Blender's importer: the file itself when each ``mtllib`` line names one library as written,
+    else a copy in ``tmp`` whose ``mtllib`` lines name each library found by its path from there, one a line (Blender
+    reads the rest of the line as one name, in the letter case written, so a line of several names, a Windows path
+    or another case lost every colour without a word)."""
+    lines = _mtllib_lines(path)
+    if all(len(found) == 1 and not missing and found[0] == path.parent / line[6:].strip()
+           for line, found, missing in lines):
+        return path
+    def named(f: Path) -> str:  # Blender joins the OBJ's folder and the name, even an absolute one
+        try:
+            return os.path.relpath(f.resolve(), tmp.resolve())
+        except ValueError:  # another drive (Windows): the library beside the copy; its textures are then
+            shutil.copy2(f, tmp / f.name)  # found beside the mesh (drop_missing_textures)
+            return f.name
+
+    import shutil
+
+    fixes = {line: "".join(f"mtllib {named(f)}\n" for f in found) for line, found, _ in lines}
+    out = tmp / path.name
+    with open(path, "r", errors="surrogateescape", newline="") as src, \
+            open(out, "w", errors="surrogateescape", newline="") as dst:
+        for line in src:
+            dst.write(fixes.get(line.replace("\r\n", "\n"), line) if line.startswith("mtllib") else line)
+    return out
+
+
+def missing_material_libraries(path: Path) -> list[str]:
+    """The material libraries an OBJ names that are nowhere beside it (its materials then render a default grey)."""
+    return sorted({name for _, _, missing in _mtllib_lines(path) for name in missing})

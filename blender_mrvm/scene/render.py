@@ -659,7 +659,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     try:
         missing_tex: list[str] = []
         made_opaque: list[str] = []
-        objs = O.load_into(spec, session.coll, missing_tex, made_opaque, work_dir=tmpdir)
+        missing_mtl: list[str] = []
+        objs = O.load_into(spec, session.coll, missing_tex, made_opaque, work_dir=tmpdir, missing_libraries=missing_mtl)
         if spec.kind == "file":  # names relative to the mesh's folder (an archive's: where it is unpacked)
             images_base = O.archive_root(spec, tmpdir) if spec.member else Path(spec.path).parent
         else:
@@ -678,6 +679,11 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 f"{spec.key}: {len(made_opaque)} material(s) read as fully transparent ({', '.join(made_opaque[:3])}"
                 f"{', ...' if len(made_opaque) > 3 else ''}: alpha 0 with nothing driving it, how importers read many "
                 "3ds Max exports to FBX or COLLADA), rendered opaque")
+        if missing_mtl:
+            summary.warnings.append(
+                f"{spec.key}: {len(missing_mtl)} material library file(s) not found ({', '.join(missing_mtl[:3])}"
+                f"{', ...' if len(missing_mtl) > 3 else ''}): the materials they define render a default grey; put the "
+                ".mtl files beside the mesh and render again with --force")
         if missing_tex:
             summary.warnings.append(
                 f"{spec.key}: {len(missing_tex)} texture file(s) not found ({', '.join(missing_tex[:3])}"
@@ -765,6 +771,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             meta["scene_cameras"] = cam_names
         if missing_tex:
             meta["missing_textures"] = missing_tex  # rendered with their material's own colour
+        if missing_mtl:
+            meta["missing_material_libraries"] = missing_mtl  # its materials rendered a default grey
         if made_opaque:
             meta["made_opaque"] = made_opaque  # alpha 0 with nothing driving it: rendered at alpha 1
         if cfg.fov_range_deg is not None:
