@@ -628,6 +628,30 @@ def test_obj_material_libraries_are_found_as_the_obj_names_them(tmp_path, bpy_em
     assert meta["missing_material_libraries"] == ["gone.mtl"]
 
 
+def test_vertex_colours_are_a_meshs_colour(tmp_path, bpy_empty):
+    """A scan's colour is its vertex colours (PLY, OBJ's `v x y z r g b`): a ball red on one side and blue on the
+    other renders so, in both formats, not in the default grey of a mesh without materials."""
+    import trimesh
+
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    rgba = np.full((len(ball.vertices), 4), 255, np.uint8)
+    rgba[:, :3] = np.where(ball.vertices[:, :1] > 0, (230, 10, 10), (10, 10, 230))
+    ball.visual.vertex_colors = rgba
+    src = tmp_path / "src"
+    src.mkdir()
+    ball.export(src / "ply_ball.ply")
+    (src / "obj_ball.obj").write_text(
+        "".join(f"v {x} {y} {z} {r / 255} {g / 255} {b / 255}\n" for (x, y, z), (r, g, b, _) in zip(ball.vertices, rgba))
+        + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in ball.faces))
+    _render(out=tmp_path / "d", sources=(str(src),), views=4, rig="sphere", resolution=(32, 32), samples=2)
+    for stem in ("ply_ball", "obj_ball"):
+        ov = F.read_object(tmp_path / "d" / "custom" / stem)
+        px = np.concatenate([ov.rgb(i)[..., :3][ov.mask(i) > 0].astype(int) for i in range(4)])
+        red = ((px[:, 0] > 120) & (px[:, 2] < 80)).mean()
+        blue = ((px[:, 2] > 120) & (px[:, 0] < 80)).mean()
+        assert red > 0.2 and blue > 0.2 and red + blue > 0.7, (stem, red, blue)  # grey before: both 0
+
+
 def test_meshes_of_one_name_in_an_archive_are_told_apart_by_their_folders(tmp_path):
     import zipfile
 

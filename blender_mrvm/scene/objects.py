@@ -870,6 +870,18 @@ def _node_materials(objs: list[bpy.types.Object]):
             yield m
 
 
+def _vertex_colour_material(attribute: str) -> bpy.types.Material:
+    """A Principled BSDF whose base colour is the mesh's colour attribute ``attribute`` (the roughness of the
+    default grey)."""
+    mat = bpy.data.materials.new(f"MRVM_vertex_colours_{attribute}")
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    node = mat.node_tree.nodes.new("ShaderNodeVertexColor")
+    node.layer_name = attribute
+    mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Roughness"].default_value = 0.6
+    return mat
+
+
 def opaque_invisible_materials(objs: list[bpy.types.Object]) -> list[str]:
     """Set to 1 the alpha of these (imported) objects' materials whose Principled BSDF alpha is 0 with nothing
     linked to it; return their names (sorted). Blender's FBX importer reads such a 0 from files of 3ds Max and
@@ -914,11 +926,20 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
         if made_opaque is not None:
             made_opaque.extend(fixed)
         default = None
+        by_colours: dict[str, bpy.types.Material] = {}
         for o in new:
             for c in list(o.users_collection):
                 c.objects.unlink(o)
             collection.objects.link(o)
-            if o.type == "MESH" and not any(o.data.materials):
+            colours = o.data.color_attributes if o.type == "MESH" else None
+            if colours and not any(o.data.materials):
+                # A scan's vertex colours (PLY, OBJ's "v x y z r g b") are its only colour: read them, as other
+                # tools show such a file (they rendered grey before)
+                name = (colours.active_color or colours[0]).name
+                if name not in by_colours:
+                    by_colours[name] = _vertex_colour_material(name)
+                o.data.materials.append(by_colours[name])
+            elif o.type == "MESH" and not any(o.data.materials):
                 # Imported geometry without materials: a neutral grey reads against the white background.
                 if default is None:
                     default = bpy.data.materials.new("MRVM_default_grey")
