@@ -18,7 +18,7 @@ srcs() { for m in "$@"; do printf -- "--source %s " "$P/$m"; done; }
 for what in ${*:-test}; do
   case $what in
   test)  # textured (duck, table, tray, laikago chassis, a1 trunk, panda hand), coloured by material (soccerball,
-         # mug, lego, kuka link), bare (bunny, teddy as convex pieces, husky base STL)
+         # mug, kuka link), bare (bunny, teddy as convex pieces, husky base STL; lego, whose lego.mtl is not shipped)
     S=$(srcs duck.obj teddy2_VHACD_CHs.obj bunny.obj soccerball.obj objects/mug.obj lego/lego.obj table/table.obj \
         tray/tray_textured.obj laikago/chassis.obj a1/meshes/trunk.obj kuka_iiwa/meshes/link_4.obj \
         husky/meshes/base_link.stl franka_panda/meshes/visual/hand.obj)
