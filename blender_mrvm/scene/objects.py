@@ -17,6 +17,7 @@ the bounding-box diagonal is 1. The 4x4 normalization matrix is recorded in ``me
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import re
 import sys
@@ -44,8 +45,9 @@ def _assimp_available() -> bool:
     return True
 
 
+_HAVE_ASSIMP = _assimp_available()
 MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".usda", ".usdc", ".usdz", ".abc",
-             ".blend") + (tuple(ASSIMP_EXTS) if _assimp_available() else ())
+             ".blend") + (tuple(ASSIMP_EXTS) if _HAVE_ASSIMP else ())
 # 3D formats this Blender cannot import or that are not a mesh file to import: a folder's files of these kinds are
 # named in a warning instead of passed over without a word.
 _EXPORT, _CAD = "export it as glTF, FBX or OBJ", "tessellate it to STL or OBJ in its CAD tool"
@@ -53,7 +55,7 @@ _ASSIMP_ADVICE = f"; or install {_ASSIMP_PIN} into the Python that runs the rend
 OTHER_3D_EXTS = {".max": _EXPORT, ".skp": _EXPORT, ".c4d": _EXPORT, ".x3d": _EXPORT, ".wrl": _EXPORT,
                  ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD",
                  ".step": _CAD, ".stp": _CAD, ".iges": _CAD, ".igs": _CAD}
-if not _assimp_available():
+if not _HAVE_ASSIMP:
     OTHER_3D_EXTS.update({ext: f"Blender has no {name} importer; {_EXPORT}{_ASSIMP_ADVICE}"
                           for ext, name in ASSIMP_EXTS.items()})
 
@@ -1168,17 +1170,24 @@ def linked_files_fingerprint(spec: ObjectSpec) -> str | None:
 
     Kept beside :func:`source_fingerprint`, not inside it, so datasets rendered before it was kept still resume.
     A named file that is missing counts as missing (by name), so its appearance later changes the hash too."""
-    import hashlib
-
     if spec.kind != "file" or spec.member:  # an archive's files are in its own bytes (source_fingerprint)
         return None
+    return _named_files_hash(linked_files(Path(spec.path)), f"the mesh file {spec.path}")
+
+
+def _named_files_hash(named, named_by: str) -> str:
+    """A hash of (name, file or None when missing) pairs, in order: each name, then the file's bytes or "missing"
+    (so a file that appears later changes it too); an unreadable file is an InputError that says ``named_by``
+    names it."""
+    import hashlib
+
     h = hashlib.sha256()
-    for name, f in linked_files(Path(spec.path)):
+    for name, f in named:
         h.update(name.encode() + b"\0")
         if f is None:
             h.update(b"missing\0")
         else:
-            _hash_file(h, f, f"cannot read {f} (named by the mesh file {spec.path})")
+            _hash_file(h, f, f"cannot read {f} (named by {named_by})")
     return "sha256:" + h.hexdigest()
 
 
@@ -1188,10 +1197,8 @@ def rendered_images_fingerprint(objs: list[bpy.types.Object], base: Path | None)
 
     What the importers found, not what the file names: a texture an FBX importer found by searching folders, a USD
     file's textures, those of a selected object's materials. Names are relative to ``base`` (the mesh file's folder,
-    the open .blend's) where they lie under it, so a dataset moved with its sources still resumes. A file that
-    cannot be read counts by name, as :func:`linked_files_fingerprint` counts a missing one."""
-    import hashlib
-
+    the open .blend's) where they lie under it, so a dataset moved with its sources still resumes. A missing file
+    counts by name, as in :func:`linked_files_fingerprint`."""
     files: dict[str, Path] = {}
     seen: set[int] = set()
 
@@ -1202,9 +1209,8 @@ def rendered_images_fingerprint(objs: list[bpy.types.Object], base: Path | None)
         for n in tree.nodes:
             img = getattr(n, "image", None)
             if isinstance(img, bpy.types.Image) and _external_image(img):
-                f = Path(bpy.path.abspath(img.filepath, library=img.library).replace("\\", "/")).resolve()
-                rel = base is not None and f.is_relative_to(Path(base).resolve())
-                files[str(f.relative_to(Path(base).resolve())) if rel else str(f)] = f
+                f = _blender_file(img.filepath, img.library)
+                files[_relative_name(f, base)] = f
             if n.type == "GROUP":
                 walk(n.node_tree)
 
@@ -1215,14 +1221,8 @@ def rendered_images_fingerprint(objs: list[bpy.types.Object], base: Path | None)
                     walk(slot.material.node_tree)
     if not files:
         return None
-    h = hashlib.sha256()
-    for name in sorted(files):
-        h.update(name.encode() + b"\0")
-        try:
-            _hash_file(h, files[name], "")
-        except InputError:
-            h.update(b"unreadable\0")
-    return "sha256:" + h.hexdigest()
+    return _named_files_hash([(n, files[n] if files[n].is_file() else None) for n in sorted(files)],
+                             "a material of the object")
 
 
 def _hash_file(h, path: Path, what: str) -> None:
@@ -1389,9 +1389,18 @@ def _external_image(im) -> bool:
 def _name_beside(path: Path, filepath: str, library) -> str:
     """A Blender file path (``//`` relative to ``library``'s file, or the open one) as the hash names it: relative to
     the .blend ``path``'s folder where it lies under it, else absolute."""
-    f = Path(bpy.path.abspath(filepath, library=library).replace("\\", "/")).resolve()
-    base = Path(path).parent.resolve()
-    return str(f.relative_to(base)) if f.is_relative_to(base) else str(f)
+    return _relative_name(_blender_file(filepath, library), Path(path).parent)
+
+
+def _blender_file(filepath: str, library) -> Path:
+    """A Blender file path (``//`` relative to ``library``'s file, or the open one's; Windows separators) resolved."""
+    return Path(bpy.path.abspath(filepath, library=library).replace("\\", "/")).resolve()
+
+
+def _relative_name(f: Path, base: Path | None) -> str:
+    """``f`` relative to the folder ``base`` where it lies under it, else absolute."""
+    base = Path(base).resolve() if base is not None else None
+    return str(f.relative_to(base)) if base is not None and f.is_relative_to(base) else str(f)
 
 
 def _blend_library_files(path: Path) -> list[str]:
@@ -1432,28 +1441,36 @@ def _mtllib_lines(path: Path) -> list[tuple[str, list[Path], list[str]]]:
     """Each ``mtllib`` line of an OBJ: (the line, the files it names that are there, the names that are not). A line
     may name several files (the OBJ specification), a Windows path or another letter case; each is looked for as
     :func:`find_beside` does. The whole rest of the line is tried first, as Blender's importer reads it (a name
-    with spaces)."""
+    with spaces). The OBJ is read once per version of it (the hashes, the import and its warning all ask); the
+    libraries are looked for at each call."""
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError:
+        return []
     out = []
+    for line in _mtllib_text_lines(str(path), st.st_mtime_ns, st.st_size):
+        rest = line[6:].strip()
+        whole = path.parent / rest
+        if whole.is_file():
+            out.append((line, [whole], []))
+            continue
+        found, missing = [], []
+        for name in rest.split():
+            f = find_beside(path.parent, name)
+            (found.append(f) if f is not None else missing.append(name))
+        out.append((line, found, missing))
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _mtllib_text_lines(path: str, _mtime_ns: int, _size: int) -> tuple[str, ...]:
+    """An OBJ's ``mtllib`` lines that name something (cached by the file's path, modification time and size)."""
     try:
         with open(path, "r", errors="replace") as f:
-            for line in f:
-                if not line.startswith("mtllib"):
-                    continue
-                rest = line[6:].strip()
-                if not rest or not line[6:7].isspace():
-                    continue
-                whole = path.parent / rest
-                if whole.is_file():
-                    out.append((line, [whole], []))
-                    continue
-                found, missing = [], []
-                for name in rest.split():
-                    f_ = find_beside(path.parent, name)
-                    (found.append(f_) if f_ is not None else missing.append(name))
-                out.append((line, found, missing))
+            return tuple(ln for ln in f if ln.startswith("mtllib") and ln[6:7].isspace() and ln[6:].strip())
     except OSError:
-        pass
-    return out
+        return ()
 
 
 def _obj_for_blender(path: Path, tmp: Path) -> Path:
