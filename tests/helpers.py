@@ -58,11 +58,14 @@ def _z_up_to_y_up(v: np.ndarray) -> np.ndarray:
     return np.stack([v[:, 0], v[:, 2], -v[:, 1]], axis=1)
 
 
-def write_collada(path: Path, up: str = "Z_UP", texture: str | None = None, rgb=(0.8, 0.05, 0.05)) -> Path:
+def write_collada(path: Path, up: str = "Z_UP", texture: str | None = None, rgb=(0.8, 0.05, 0.05),
+                  edges: bool = False) -> Path:
     """:func:`asymmetric_mesh` as a COLLADA 1.4.1 file (Blender 5 writes none): its vertices in the file's ``up``
     axis (Z_UP or Y_UP), under a node whose matrix (a rotation, a scale and a move) the vertices are stored
     undone by, so only a reader that applies the node's transform and the up axis puts the object where it is.
-    A lambert material of colour ``rgb``, or of the image ``texture`` (a file name) through planar UVs."""
+    A lambert material of colour ``rgb``, or of the image ``texture`` (a file name) through planar UVs. With
+    ``edges``, the mesh's first face's edges also as ``<lines>`` beside its triangles, and as a second geometry of
+    ``<linestrips>`` only on the same node, as SketchUp draws a model's edges."""
     m = asymmetric_mesh()
     v = np.asarray(m.vertices, dtype=np.float64)
     f = np.asarray(m.faces, dtype=np.int64)
@@ -85,6 +88,19 @@ def write_collada(path: Path, up: str = "Z_UP", texture: str | None = None, rgb=
         bind = '<bind_vertex_input semantic="UVMap" input_semantic="TEXCOORD" input_set="0"/>'
         img = f'<library_images><image id="tex"><init_from>{texture}</init_from></image></library_images>'
         diffuse = '<texture texture="samp" texcoord="UVMap"/>'
+    lines = edge_geo = edge_inst = ""
+    if edges:
+        a, b, c = f[0]
+        lines = (f'<lines count="3"><input semantic="VERTEX" source="#vtx" offset="0"/><p>{a} {b} {b} {c} {c} {a}</p>'
+                 '</lines>')
+        edge_geo = (f'<geometry id="edges" name="edges"><mesh><source id="epos"><float_array id="epos-a" '
+                    f'count="{local.size}">{nums(local)}</float_array><technique_common><accessor source="#epos-a" '
+                    f'count="{len(local)}" stride="3"><param name="X" type="float"/><param name="Y" type="float"/>'
+                    '<param name="Z" type="float"/></accessor></technique_common></source><vertices id="evtx">'
+                    '<input semantic="POSITION" source="#epos"/></vertices><linestrips count="1"><input '
+                    f'semantic="VERTEX" source="#evtx" offset="0"/><p>{a} {b} {c} {a}</p></linestrips></mesh>'
+                    '</geometry>')
+        edge_inst = '<instance_geometry url="#edges"/>'
     params = ('<newparam sid="surf"><surface type="2D"><init_from>tex</init_from></surface></newparam>'
               '<newparam sid="samp"><sampler2D><source>surf</source></sampler2D></newparam>') if texture else ""
     path.write_text(f"""<?xml version="1.0" encoding="utf-8"?>
@@ -100,10 +116,10 @@ def write_collada(path: Path, up: str = "Z_UP", texture: str | None = None, rgb=
 <param name="Z" type="float"/></accessor></technique_common></source>{uv_src}
 <vertices id="vtx"><input semantic="POSITION" source="#pos"/></vertices>
 <triangles material="m" count="{len(f)}"><input semantic="VERTEX" source="#vtx" offset="0"/>{uv_in}<p>{nums(f)}</p>
-</triangles></mesh></geometry></library_geometries>
+</triangles>{lines}</mesh></geometry>{edge_geo}</library_geometries>
 <library_visual_scenes><visual_scene id="scene"><node id="thing" name="thing"><matrix>{nums(node)}</matrix>
 <instance_geometry url="#geo"><bind_material><technique_common><instance_material symbol="m" target="#mat">{bind}
-</instance_material></technique_common></bind_material></instance_geometry></node></visual_scene>
+</instance_material></technique_common></bind_material></instance_geometry>{edge_inst}</node></visual_scene>
 </library_visual_scenes>
 <scene><instance_visual_scene url="#scene"/></scene>
 </COLLADA>
@@ -186,17 +202,28 @@ Connections:  {{
     return path
 
 
-def write_ac3d(path: Path, rgb=(0.8, 0.05, 0.05)) -> Path:
-    """:func:`asymmetric_mesh` as an AC3D file (Y-up, as the format is), one object in a material of colour ``rgb``."""
+def write_ac3d(path: Path, rgb=(0.8, 0.05, 0.05), edges: bool = False) -> Path:
+    """:func:`asymmetric_mesh` as an AC3D file (Y-up, as the format is), one object in a material of colour ``rgb``.
+    With ``edges``, the first face's outline also as a closed-line surface among the faces, and a second object of a
+    line surface only; the first with a ``data`` line whose text looks like a surface."""
     m = asymmetric_mesh()
     v = _z_up_to_y_up(np.asarray(m.vertices, dtype=np.float64))
     lines = ["AC3Db", 'MATERIAL "paint" rgb {} {} {}  amb 0.2 0.2 0.2  emis 0 0 0  spec 0 0 0  shi 10  trans 0'
-             .format(*rgb), "OBJECT world", "kids 1", "OBJECT poly", 'name "thing"', f"numvert {len(v)}"]
+             .format(*rgb), "OBJECT world", f"kids {2 if edges else 1}", "OBJECT poly", 'name "thing"']
+    data = "SURF 0x12 refs 2"  # free text, which a reader must skip, not parse
+    lines += [f"data {len(data)}", data] if edges else []
+    lines.append(f"numvert {len(v)}")
     lines += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in v]
-    lines.append(f"numsurf {len(m.faces)}")
-    for a, b, c in np.asarray(m.faces):
+    faces = np.asarray(m.faces)
+    lines.append(f"numsurf {len(faces) + edges}")
+    for k, (a, b, c) in enumerate(faces):
+        if edges and k == 1:
+            lines += ["SURF 0x11", "mat 0", "refs 3", f"{a} 0 0", f"{b} 0 0", f"{c} 0 0"]  # a closed line
         lines += ["SURF 0x10", "mat 0", "refs 3", f"{a} 0 0", f"{b} 0 0", f"{c} 0 0"]
     lines.append("kids 0")
+    if edges:
+        lines += ["OBJECT poly", 'name "wire"', "numvert 2", "0 0 0", "0 0.1 0", "numsurf 1", "SURF 0x12", "mat 0",
+                  "refs 2", "0 0 0", "1 0 0", "kids 0"]
     path.write_text("\n".join(lines) + "\n")
     return path
 

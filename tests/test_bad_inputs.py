@@ -87,6 +87,7 @@ def world(tmp_path_factory):
     (w / "line.ac").write_text('AC3Db\nMATERIAL "" rgb 1 1 1  amb 0.2 0.2 0.2  emis 0 0 0  spec 0.5 0.5 0.5  shi 10  '
                                'trans 0\nOBJECT world\nkids 1\nOBJECT poly\nnumvert 2\n-1 0 0\n1 0 0\nnumsurf 1\n'
                                'SURF 0x22\nmat 0\nrefs 2\n0 0 0\n1 1 0\nkids 0\n')  # an AC3D line: assimp-py reads faces only
+    (w / "utf16.ac").write_bytes((w / "line.ac").read_text().encode("utf-16"))  # assimp: "magic not found"
     (w / "sketchup").mkdir()
     (w / "sketchup" / "house.skp").write_bytes(b"SketchUp Model")  # no importer anywhere
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
@@ -506,6 +507,8 @@ RENDER = [
          "cannot read mesh file"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/line.ac", "--out", "{new}", "--views", "2"],
          "it holds lines or points"),
+    Case("tracebacks", ["render-dataset", "--source", "{w}/utf16.ac", "--out", "{new}", "--views", "2"],
+         "is UTF-16 or UTF-32 text"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup/house.skp", "--out", "{new}", "--views", "2"],
          "export it as glTF"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup", "--out", "{new}", "--views", "2"],

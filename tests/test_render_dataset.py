@@ -528,7 +528,8 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
     """COLLADA (Z_UP and Y_UP, the object under a rotated, scaled and moved node), ASCII FBX (Y-up and Z-up), a
     textured COLLADA, AC3D, 3MF, DirectX and 3DS, which Blender 5 has no importer for, are read with assimp: the
     same silhouettes and bounds as the mesh itself read by Blender, in their materials' colour or texture; a folder
-    takes them; a broken one is refused with one line."""
+    takes them; a broken one is refused with one line. A COLLADA and an AC3D that also draw edges as lines (which
+    assimp-py cannot hand over) are read without them: the same silhouettes and bounds."""
     from blender_mrvm.errors import InputError
     from tests.helpers import write_3ds, write_3mf, write_ac3d, write_ascii_fbx, write_collada, write_directx
 
@@ -545,16 +546,20 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
     write_3ds(src / "m_3ds.3ds")  # Z-up as the format is, turned Y-up by assimp's loader
     F.write_png(src / "blue.png", np.full((8, 8, 3), (20, 40, 220), np.uint8))
     write_collada(src / "m_tex.dae", "Y_UP", texture="blue.png")
+    write_collada(src / "m_edges.dae", "Z_UP", edges=True)  # SketchUp's edges: <lines>, and <linestrips> alone
+    write_ac3d(src / "m_ac_edges.ac", edges=True)  # a closed line among the faces, and an object of a line alone
     s = _render(out=tmp_path / "d", sources=(str(src),), views=3, rig="sphere", resolution=(40, 40), samples=2)
-    assert sorted(o.split("/")[1] for o in s.objects) == ["m_3ds", "m_3mf", "m_ac", "m_ascii", "m_ascii_zup",
-                                                          "m_ply", "m_tex", "m_x", "m_yup", "m_zup"]
+    assert sorted(o.split("/")[1] for o in s.objects) == ["m_3ds", "m_3mf", "m_ac", "m_ac_edges", "m_ascii",
+                                                          "m_ascii_zup", "m_edges", "m_ply", "m_tex", "m_x", "m_yup",
+                                                          "m_zup"]
     assert not s.warnings, s.warnings
     root = tmp_path / "d" / "custom"
     ref = F.read_object(root / "m_ply")
     ref_mask = np.stack([ref.mask(i) > 0 for i in range(3)])
     assert ref_mask.mean() > 0.1
     ref_bbox = json.loads((root / "m_ply" / "meta.json").read_text())["bbox"]
-    for stem in ("m_zup", "m_yup", "m_ascii", "m_ascii_zup", "m_tex", "m_ac", "m_3mf", "m_x", "m_3ds"):
+    for stem in ("m_zup", "m_yup", "m_ascii", "m_ascii_zup", "m_tex", "m_ac", "m_3mf", "m_x", "m_3ds", "m_edges",
+                 "m_ac_edges"):
         ov = F.read_object(root / stem)
         mask = np.stack([ov.mask(i) > 0 for i in range(3)])
         iou = (mask & ref_mask).sum() / (mask | ref_mask).sum()

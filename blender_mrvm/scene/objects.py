@@ -400,11 +400,13 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
     return new
 
 
+_ASSIMP_TEXT_EXTS = (".ac", ".ase")  # text-only formats of assimp's, which it reads as UTF-8 only
 _OBJ_NONFINITE = re.compile(rb"(?im)^[ \t]*v[ \t][^\n#]*?(?<![a-z0-9_.])[+-]?(nan|inf(inity)?)(?![a-z0-9_])")
 
 
 def check_mesh_file(path: Path) -> None:
-    """Refuse a mesh file with NaN or infinite vertex coordinates, or an OBJ in UTF-16 (InputError, one line).
+    """Refuse a mesh file with NaN or infinite vertex coordinates, or an OBJ, AC3D or ASE file in UTF-16 (InputError,
+    one line).
 
     Blender's importers silently replace them with 0 (mesh validation), so the object would be
     rendered with vertices the file does not have; trimesh reads the numbers as they are. OBJ is
@@ -422,6 +424,16 @@ def check_mesh_file(path: Path) -> None:
                              f"are lost); save it as UTF-8, e.g. iconv -f UTF-16 -t UTF-8 '{path.name}' > "
                              f"'{path.stem}_utf8.obj'")
         bad = len(_OBJ_NONFINITE.findall(data))
+    elif ext in _ASSIMP_TEXT_EXTS:
+        try:
+            with open(path, "rb") as f:
+                head = f.read(4096)
+        except OSError:
+            return  # the importer reports it
+        if head[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in head:
+            raise InputError(f"cannot read mesh file {path}: it is UTF-16 or UTF-32 text (or holds NUL bytes), which "
+                             f"assimp's {ASSIMP_EXTS[ext]} reader cannot parse; save it as UTF-8, e.g. iconv -f UTF-16 "
+                             f"-t UTF-8 '{path.name}' > '{path.stem}_utf8{path.suffix}'")
     elif ext in (".ply", ".stl", ".glb", ".gltf"):
         import trimesh
 
@@ -662,16 +674,22 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
              | A.Process_TransformUVCoords  # a material's UV scale, offset and rotation, baked into the UVs
              | A.Process_ValidateDataStructure)
     try:
-        scene = A.import_file(str(path), flags)
+        scene = _assimp_import(A, path, flags)
     except FileNotFoundError:
         raise InputError(f"cannot read mesh file {path}: no such file") from None
-    except RuntimeError as e:  # the caller reports the loader's reason; assimp gives none for a scene without meshes
-        said = re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)).strip()
-        raise RuntimeError(said or "assimp found no mesh in it (cameras or lights only, or a file it cannot parse)") \
-            from None
     except ValueError:  # assimp-py takes triangles only: its loader kept lines or points
-        raise InputError(f"cannot read mesh file {path}: it holds lines or points, which assimp-py does not read "
-                         f"({fmt} files of faces only are read); {_EXPORT}") from None
+        if path.suffix.lower() not in _FACES_ONLY:
+            raise InputError(f"cannot read mesh file {path}: it holds lines or points, which assimp-py does not read "
+                             f"({fmt} files of faces only are read); {_EXPORT}") from None
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="mrvm_faces_") as tmp:  # lines render nothing: read it without them
+            copy = Path(tmp) / path.name
+            _FACES_ONLY[path.suffix.lower()](path, copy)
+            try:
+                scene = _assimp_import(A, copy, flags)
+            except (ValueError, _NoMesh):
+                raise InputError(f"cannot read mesh file {path}: it holds lines or points only, no faces") from None
     materials: dict[int, bpy.types.Material] = {}
     meshes: dict[int, bpy.types.Mesh | None] = {}
     coll = bpy.context.scene.collection
@@ -706,6 +724,82 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
                 obj.matrix_world = _ASSIMP_TO_Z_UP.get(path.suffix.lower(), _Y_UP_TO_Z_UP) @ world
                 coll.objects.link(obj)
         todo.extend((c, world) for c in node.children)
+
+
+class _NoMesh(RuntimeError):
+    """assimp's loader failed: its reason, or one for a scene without meshes, where assimp gives none (the caller of
+    :func:`_import_with_assimp` reports it as the file's)."""
+
+
+def _assimp_import(A, path: Path, flags: int):
+    try:
+        return A.import_file(str(path), flags)
+    except RuntimeError as e:
+        said = re.sub(r"^Assimp error loading '[^']*':\s*", "", str(e)).strip()
+        raise _NoMesh(said or "assimp found no mesh in it (cameras or lights only, or a file it cannot parse)") \
+            from None
+
+
+_COLLADA_LINES = re.compile(rb"<(lines|linestrips)\b[^>]*?(?:/>|>.*?</\1\s*>)", re.S)
+
+
+def _collada_faces_only(path: Path, out: Path) -> None:
+    """A copy of a COLLADA file without its ``<lines>`` and ``<linestrips>`` (SketchUp and Google Earth models draw
+    their edges with them; assimp-py cannot hand them over, and they render nothing)."""
+    out.write_bytes(_COLLADA_LINES.sub(b"", path.read_bytes()))
+
+
+def _ac3d_faces_only(path: Path, out: Path) -> None:
+    """A copy of an AC3D file without its line and closed-line surfaces (``SURF`` types 1 and 2; FlightGear's models
+    draw wires and edges with them), each object's ``numsurf`` counting the polygons kept, and without the vertices
+    of an object left with none (assimp reads those as points)."""
+    src = path.read_text(errors="surrogateescape").splitlines()
+    dst: list[str] = []
+    numvert = -1  # where the current object's numvert line is in dst
+    i = 0
+    while i < len(src):
+        line = src[i]
+        word = line.split(None, 1)[0] if line.strip() else ""
+        if word == "numvert":
+            numvert = len(dst)
+        if word == "data" and len(line.split()) > 1 and line.split()[1].isdigit():  # free text of that many bytes
+            n, j = int(line.split()[1]), i + 1
+            taken = 0
+            while j < len(src) and taken < n:
+                taken += len(src[j]) + 1
+                j += 1
+            dst += src[i:j]
+            i = j
+            continue
+        if word != "numsurf":
+            dst.append(line)
+            i += 1
+            continue
+        count, i = int(line.split()[1]), i + 1
+        kept: list[str] = []
+        n_kept = 0
+        for _ in range(count):
+            surf: list[str] = []
+            while i < len(src) and not src[i].lstrip().startswith("refs"):
+                surf.append(src[i])
+                i += 1
+            if i >= len(src):
+                raise InputError(f"cannot read mesh file {path}: a surface without its refs (a damaged AC3D file)")
+            refs = int(src[i].split()[1])
+            surf += src[i:i + 1 + refs]
+            i += 1 + refs
+            kind = int(surf[0].split()[1], 0) & 0xF if surf[0].lstrip().startswith("SURF") else 0
+            if kind == 0:  # a polygon
+                kept += surf
+                n_kept += 1
+        if n_kept == 0 and numvert >= 0:  # points: render nothing either
+            dst[numvert:] = ["numvert 0"]
+        dst.append(f"numsurf {n_kept}")
+        dst += kept
+    out.write_text("\n".join(dst) + "\n", errors="surrogateescape")
+
+
+_FACES_ONLY = {".dae": _collada_faces_only, ".ac": _ac3d_faces_only}
 
 
 def _assimp_mesh(m) -> bpy.types.Mesh | None:
