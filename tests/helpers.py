@@ -251,6 +251,62 @@ def write_3mf(path: Path) -> Path:
     return path
 
 
+def write_x3d(path: Path, rgb=(0.8, 0.05, 0.05), edges: bool = False, texture_urls: str = "") -> Path:
+    """:func:`asymmetric_mesh` as an X3D file (Y-up, as the format is) under a Transform (a rotation about Y, a scale
+    and a move) that its coordinates are stored undone by, in a Material of colour ``rgb``. With ``edges``, the first
+    face's outline also as an IndexedLineSet in a Shape of its own. ``texture_urls``: an ImageTexture's url field
+    (X3D's list of files to try in turn, e.g. '"a.png" "a.gif"')."""
+    m = asymmetric_mesh()
+    v = _z_up_to_y_up(np.asarray(m.vertices, dtype=np.float64))
+    f = np.asarray(m.faces)
+    c, s = np.cos(0.7), np.sin(0.7)
+    node = np.array([[2 * c, 0, 2 * s, 0.3], [0, 2, 0, 0.5], [-2 * s, 0, 2 * c, 0.2], [0, 0, 0, 1]])  # T R_y(0.7) S(2)
+    local = (np.linalg.inv(node) @ np.c_[v, np.ones(len(v))].T).T[:, :3]
+    nums = " ".join(f"{x:.9g}" for x in local.ravel())
+    idx = " ".join(f"{a} {b} {c} -1" for a, b, c in f)
+    a, b, c = f[0]
+    lines = (f'<Shape><IndexedLineSet coordIndex="{a} {b} {c} {a} -1"><Coordinate point="{nums}"/></IndexedLineSet>'
+             '</Shape>') if edges else ""
+    tex = f"<ImageTexture url='{texture_urls}'/>" if texture_urls else ""
+    path.write_text(f"""<?xml version="1.0" encoding="UTF-8"?>
+<X3D profile="Interchange" version="3.3"><Scene>
+<Transform translation="0.3 0.5 0.2" rotation="0 1 0 0.7" scale="2 2 2">
+<Shape><Appearance><Material diffuseColor="{rgb[0]} {rgb[1]} {rgb[2]}"/>{tex}</Appearance>
+<IndexedFaceSet solid="true" coordIndex="{idx}"><Coordinate point="{nums}"/></IndexedFaceSet></Shape>{lines}
+</Transform></Scene></X3D>
+""")
+    return path
+
+
+def write_amf(path: Path) -> Path:
+    """:func:`asymmetric_mesh` as an AMF file (Z-up, as the 3D-printing format is)."""
+    m = asymmetric_mesh()
+    verts = "".join(f"<vertex><coordinates><x>{x:.9g}</x><y>{y:.9g}</y><z>{z:.9g}</z></coordinates></vertex>"
+                    for x, y, z in np.asarray(m.vertices))
+    tris = "".join(f"<triangle><v1>{a}</v1><v2>{b}</v2><v3>{c}</v3></triangle>" for a, b, c in np.asarray(m.faces))
+    path.write_text(f'<?xml version="1.0" encoding="UTF-8"?>\n<amf unit="meter"><object id="0"><mesh><vertices>{verts}'
+                    f"</vertices><volume>{tris}</volume></mesh></object></amf>\n")
+    return path
+
+
+def write_dxf(path: Path, edges: bool = False) -> Path:
+    """:func:`asymmetric_mesh` as a DXF file of 3DFACE entities (Z-up, as CAD is). With ``edges``, a LINE entity
+    among them, as CAD drawings mix them."""
+    m = asymmetric_mesh()
+    v = np.asarray(m.vertices, dtype=np.float64)
+    out = ["0", "SECTION", "2", "ENTITIES"]
+    for k, (a, b, c) in enumerate(np.asarray(m.faces)):
+        if edges and k == 1:
+            out += ["0", "LINE", "8", "0", "10", f"{v[a][0]:.9g}", "20", f"{v[a][1]:.9g}", "30", f"{v[a][2]:.9g}",
+                    "11", f"{v[b][0]:.9g}", "21", f"{v[b][1]:.9g}", "31", f"{v[b][2]:.9g}"]
+        out += ["0", "3DFACE", "8", "0"]
+        for i, q in enumerate((v[a], v[b], v[c], v[c])):  # a triangle: the fourth corner repeats the third
+            out += [f"1{i}", f"{q[0]:.9g}", f"2{i}", f"{q[1]:.9g}", f"3{i}", f"{q[2]:.9g}"]
+    out += ["0", "ENDSEC", "0", "EOF"]
+    path.write_text("\n".join(out) + "\n")
+    return path
+
+
 def write_directx(path: Path) -> Path:
     """:func:`asymmetric_mesh` as a DirectX text .x file: Y-up and left-handed, as the format is, so a reader that
     does not turn its handedness would show the object mirrored."""

@@ -141,6 +141,37 @@ def test_resume_notices_a_texture_that_changed_or_appeared(tmp_path, bpy_empty):
     assert run_to_end(render_dataset(RenderConfig(**cfg))).views_skipped == 2
 
 
+def test_resume_notices_a_texture_of_a_file_read_with_assimp(tmp_path, bpy_empty):
+    """The textures of a file read with assimp are part of what its views were rendered from, as an OBJ's are: a
+    COLLADA rendered before its texture was there is not resumed once it is (the warning's advice, --force, then
+    renders it with the texture); of an X3D texture's list of files to try, the one that is there is named."""
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.objects import linked_files
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+    from tests.helpers import write_collada, write_x3d
+
+    write_collada(tmp_path / "m.dae", "Y_UP", texture="blue.png")
+    assert linked_files(tmp_path / "m.dae") == [("blue.png", None)]
+    out = tmp_path / "d"
+    cfg = dict(out=out, sources=(str(tmp_path / "m.dae"),), views=2, rig="turntable", resolution=(24, 24), samples=1)
+    s = run_to_end(render_dataset(RenderConfig(**cfg)))
+    assert any("blue.png" in w and "--force" in w for w in s.warnings), s.warnings
+    F.write_png(tmp_path / "blue.png", np.full((8, 8, 3), (20, 40, 220), np.uint8))  # the texture appears
+    assert linked_files(tmp_path / "m.dae") == [("blue.png", tmp_path / "blue.png")]
+    with pytest.raises(OutputError, match="texture"):
+        run_to_end(render_dataset(RenderConfig(**cfg)))
+    s = run_to_end(render_dataset(RenderConfig(**cfg, force=True)))
+    assert s.views_rendered == 2 and not s.warnings
+    r, g, b = np.median(_foreground(out, "m"), axis=0)
+    assert b - r > 0.3 and b - g > 0.3, (r, g, b)
+
+    write_x3d(tmp_path / "k.x3d", texture_urls='"k.png" "k.gif"')
+    (tmp_path / "k.gif").write_bytes(b"GIF89a")
+    assert linked_files(tmp_path / "k.x3d") == [("k.gif", tmp_path / "k.gif")]
+    (tmp_path / "k.gif").unlink()
+    assert linked_files(tmp_path / "k.x3d") == [("k.png", None)]
+
+
 def test_texture_named_the_windows_way_is_found_beside_the_mesh(tmp_path, bpy_empty):
     """An MTL written on Windows names `textures\\DUCKCM.PNG` where the file sits beside the mesh as duckCM.png:
     the render finds it (backslashes, then the base name in any letter case) instead of dropping the texture."""

@@ -359,8 +359,8 @@ def test_views_have_a_limit(tmp_path, capsys):
 
 
 def test_skip_bad_meshes_goes_on_past_a_refused_mesh(tmp_path, bpy_empty, capsys):
-    """A folder of meshes with one bad file (NaN vertices, an empty file): by default the run stops at it (exit 2);
-    with --skip-bad-meshes the others are rendered and each bad one is named in a warning line."""
+    """A folder of meshes with one bad file (NaN vertices, an empty file): by default the run stops at it (exit 2),
+    naming --skip-bad-meshes; with it the others are rendered and each bad one is named in a warning line."""
     import trimesh
 
     from blender_mrvm.cli import main
@@ -375,7 +375,8 @@ def test_skip_bad_meshes_goes_on_past_a_refused_mesh(tmp_path, bpy_empty, capsys
     write_mesh(src / "c_good.obj")
     args = ["render-dataset", "--source", str(src), "--views", "2", "--resolution", "16", "--samples", "1"]
     assert main(args + ["--out", str(tmp_path / "strict")]) == 2
-    assert "a_bad.obj" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "a_bad.obj" in err and "the other 2 object(s) without it: --skip-bad-meshes" in err, err
     assert main(args + ["--out", str(tmp_path / "d"), "--skip-bad-meshes"]) == 0
     err = capsys.readouterr().err
     warn = [ln for ln in err.splitlines() if ln.startswith("warning: ")]
@@ -526,12 +527,14 @@ def test_images_the_render_reads_are_part_of_what_its_views_were_rendered_from(t
 
 def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty):
     """COLLADA (Z_UP and Y_UP, the object under a rotated, scaled and moved node), ASCII FBX (Y-up and Z-up), a
-    textured COLLADA, AC3D, 3MF, DirectX and 3DS, which Blender 5 has no importer for, are read with assimp: the
+    textured COLLADA, AC3D, 3MF, DirectX, 3DS, X3D (under a rotated, scaled Transform), AMF and DXF, which Blender
+    5 has no importer for, are read with assimp: the
     same silhouettes and bounds as the mesh itself read by Blender, in their materials' colour or texture; a folder
-    takes them; a broken one is refused with one line. A COLLADA and an AC3D that also draw edges as lines (which
-    assimp-py cannot hand over) are read without them: the same silhouettes and bounds."""
+    takes them; a broken one is refused with one line. A COLLADA, AC3D, X3D and DXF file that also draw edges as
+    lines (which assimp-py cannot hand over) are read without them: the same silhouettes and bounds."""
     from blender_mrvm.errors import InputError
-    from tests.helpers import write_3ds, write_3mf, write_ac3d, write_ascii_fbx, write_collada, write_directx
+    from tests.helpers import (write_3ds, write_3mf, write_ac3d, write_amf, write_ascii_fbx, write_collada,
+                               write_directx, write_dxf, write_x3d)
 
     src = tmp_path / "src"
     src.mkdir()
@@ -548,10 +551,13 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
     write_collada(src / "m_tex.dae", "Y_UP", texture="blue.png")
     write_collada(src / "m_edges.dae", "Z_UP", edges=True)  # SketchUp's edges: <lines>, and <linestrips> alone
     write_ac3d(src / "m_ac_edges.ac", edges=True)  # a closed line among the faces, and an object of a line alone
+    write_x3d(src / "m_x3d.x3d", edges=True)  # Y-up, under a rotated, scaled, moved Transform; a line set beside
+    write_amf(src / "m_amf.amf")  # Z-up as the format is, kept as written by assimp's loader
+    write_dxf(src / "m_dxf.dxf", edges=True)  # Z-up 3DFACEs, turned Y-up by assimp's loader; a LINE among them
     s = _render(out=tmp_path / "d", sources=(str(src),), views=3, rig="sphere", resolution=(40, 40), samples=2)
-    assert sorted(o.split("/")[1] for o in s.objects) == ["m_3ds", "m_3mf", "m_ac", "m_ac_edges", "m_ascii",
-                                                          "m_ascii_zup", "m_edges", "m_ply", "m_tex", "m_x", "m_yup",
-                                                          "m_zup"]
+    assert sorted(o.split("/")[1] for o in s.objects) == ["m_3ds", "m_3mf", "m_ac", "m_ac_edges", "m_amf", "m_ascii",
+                                                          "m_ascii_zup", "m_dxf", "m_edges", "m_ply", "m_tex", "m_x",
+                                                          "m_x3d", "m_yup", "m_zup"]
     assert not s.warnings, s.warnings
     root = tmp_path / "d" / "custom"
     ref = F.read_object(root / "m_ply")
@@ -559,7 +565,7 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
     assert ref_mask.mean() > 0.1
     ref_bbox = json.loads((root / "m_ply" / "meta.json").read_text())["bbox"]
     for stem in ("m_zup", "m_yup", "m_ascii", "m_ascii_zup", "m_tex", "m_ac", "m_3mf", "m_x", "m_3ds", "m_edges",
-                 "m_ac_edges"):
+                 "m_ac_edges", "m_x3d", "m_amf", "m_dxf"):
         ov = F.read_object(root / stem)
         mask = np.stack([ov.mask(i) > 0 for i in range(3)])
         iou = (mask & ref_mask).sum() / (mask | ref_mask).sum()
@@ -569,7 +575,7 @@ def test_formats_blender_cannot_import_are_read_with_assimp(tmp_path, bpy_empty)
         r, g, b = np.median(rgb[mask], axis=0)
         if stem == "m_tex":
             assert b - r > 0.3 and b - g > 0.3, (stem, r, g, b)
-        elif stem in ("m_3mf", "m_x", "m_3ds"):  # no material in the file: a grey
+        elif stem in ("m_3mf", "m_x", "m_3ds", "m_amf", "m_dxf"):  # no material in the file: a grey
             assert abs(r - g) < 0.03 and abs(r - b) < 0.03, (stem, r, g, b)
         else:
             assert r - g > 0.3 and r - b > 0.3, (stem, r, g, b)

@@ -39,7 +39,7 @@ def parse_shard(text: str) -> tuple[int, int]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", action="append", required=True, metavar="SRC",
                    help="mesh file (obj, ply, stl, glb, gltf, off, fbx, usd/usda/usdc/usdz, abc; with assimp-py "
-                        "also dae (COLLADA), ASCII fbx, 3ds, lwo, x, ac, ase, 3mf, ms3d), .blend file (what a render "
+                        "also dae (COLLADA), ASCII fbx, 3ds, lwo, x, ac, ase, 3mf, ms3d, x3d, amf, dxf), .blend file (what a render "
                         "of its first scene shows), .zip archive of them (a downloaded model with its textures; also "
                         "KMZ and .zae), "
                         "folder of them, ShapeNetCore folder, 'selected', or "

@@ -33,7 +33,8 @@ from ..errors import InputError
 # Formats Blender has no importer for (COLLADA left Blender in 5.0; it reads binary FBX only), read with the Open
 # Asset Import Library (the assimp-py package) where it is installed: :func:`_import_with_assimp`.
 ASSIMP_EXTS = {".dae": "COLLADA", ".3ds": "3D Studio", ".lwo": "LightWave", ".x": "DirectX", ".ac": "AC3D",
-               ".ase": "3ds Max ASE", ".3mf": "3MF", ".ms3d": "MilkShape 3D"}
+               ".ase": "3ds Max ASE", ".3mf": "3MF", ".ms3d": "MilkShape 3D", ".x3d": "X3D", ".amf": "AMF",
+               ".dxf": "DXF"}
 _ASSIMP_PIN = "assimp-py==1.1.0"
 
 
@@ -52,7 +53,7 @@ MESH_EXTS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off", ".fbx", ".usd", ".
 # named in a warning instead of passed over without a word.
 _EXPORT, _CAD = "export it as glTF, FBX or OBJ", "tessellate it to STL or OBJ in its CAD tool"
 _ASSIMP_ADVICE = f"; or install {_ASSIMP_PIN} into the Python that runs the render, which reads it"
-OTHER_3D_EXTS = {".max": _EXPORT, ".skp": _EXPORT, ".c4d": _EXPORT, ".x3d": _EXPORT, ".wrl": _EXPORT,
+OTHER_3D_EXTS = {".max": _EXPORT, ".skp": _EXPORT, ".c4d": _EXPORT, ".wrl": _EXPORT, ".x3dv": _EXPORT,
                  ".ma": "export it as FBX or USD", ".mb": "export it as FBX or USD",
                  ".step": _CAD, ".stp": _CAD, ".iges": _CAD, ".igs": _CAD}
 if not _HAVE_ASSIMP:
@@ -652,19 +653,17 @@ def _binary_fbx(path: Path) -> bool:
         return True  # Blender's importer reports it
 
 
-# assimp's scenes are Y-up (its loaders turn a COLLADA Z_UP asset, an FBX's axes and 3DS's and ASE's Z-up that way;
-# AC3D, LightWave, MilkShape and DirectX are Y-up formats); Blender is Z-up: x, y, z -> x, -z, y, as Blender's glTF
-# importer turns glTF's Y-up. 3MF is a Z-up format whose coordinates assimp's loader keeps as written.
+# assimp's scenes are Y-up (its loaders turn a COLLADA Z_UP asset, an FBX's axes and 3DS's, ASE's and DXF's Z-up
+# that way; AC3D, LightWave, MilkShape, DirectX and X3D are Y-up formats); Blender is Z-up: x, y, z -> x, -z, y, as
+# Blender's glTF importer turns glTF's Y-up. 3MF and AMF are Z-up formats whose coordinates assimp keeps as written.
 _Y_UP_TO_Z_UP = Matrix(((1, 0, 0, 0), (0, 0, -1, 0), (0, 1, 0, 0), (0, 0, 0, 1)))
-_ASSIMP_TO_Z_UP = {".3mf": Matrix.Identity(4)}
+_ASSIMP_TO_Z_UP = {".3mf": Matrix.Identity(4), ".amf": Matrix.Identity(4)}
 
 
-def _import_with_assimp(path: Path, fmt: str) -> None:
-    """Read a file of a format Blender cannot import with assimp (assimp-py): every node's triangle meshes (points
-    and lines are dropped) become mesh objects at the node's world transform, with the file's normals, first UV
-    map and per-vertex colours; a material becomes a Principled BSDF of its diffuse colour, opacity and diffuse
-    texture (looked for beside the file as :func:`find_beside` does; one that is not there is dropped with a warning
-    by :func:`drop_missing_textures`). The file's cameras and lights are not read."""
+def _assimp_scene(path: Path, fmt: str):
+    """assimp-py's scene of ``path`` (triangles; a file that mixes lines or points with faces is read from a copy
+    without them: :data:`_FACES_ONLY`). An InputError when assimp-py is missing or the file holds no faces; a
+    :class:`_NoMesh` with assimp's reason when it cannot read it."""
     try:
         import assimp_py as A
     except ImportError:
@@ -674,22 +673,57 @@ def _import_with_assimp(path: Path, fmt: str) -> None:
              | A.Process_TransformUVCoords  # a material's UV scale, offset and rotation, baked into the UVs
              | A.Process_ValidateDataStructure)
     try:
-        scene = _assimp_import(A, path, flags)
+        return _assimp_import(A, path, flags)
     except FileNotFoundError:
         raise InputError(f"cannot read mesh file {path}: no such file") from None
     except ValueError:  # assimp-py takes triangles only: its loader kept lines or points
         if path.suffix.lower() not in _FACES_ONLY:
             raise InputError(f"cannot read mesh file {path}: it holds lines or points, which assimp-py does not read "
                              f"({fmt} files of faces only are read); {_EXPORT}") from None
-        import tempfile
+    import tempfile
 
-        with tempfile.TemporaryDirectory(prefix="mrvm_faces_") as tmp:  # lines render nothing: read it without them
-            copy = Path(tmp) / path.name
-            _FACES_ONLY[path.suffix.lower()](path, copy)
-            try:
-                scene = _assimp_import(A, copy, flags)
-            except (ValueError, _NoMesh):
-                raise InputError(f"cannot read mesh file {path}: it holds lines or points only, no faces") from None
+    with tempfile.TemporaryDirectory(prefix="mrvm_faces_") as tmp:  # lines render nothing: read it without them
+        copy = Path(tmp) / path.name
+        _FACES_ONLY[path.suffix.lower()](path, copy)
+        try:
+            return _assimp_import(A, copy, flags)
+        except (ValueError, _NoMesh):
+            raise InputError(f"cannot read mesh file {path}: it holds lines or points only, no faces") from None
+
+
+def _assimp_texture(d: dict, folder: Path) -> str | None:
+    """The diffuse texture an assimp material names (``*N``: embedded), as a file name to find beside the mesh;
+    of X3D's list of URLs to try in turn ("a.png" "a.gif", which assimp hands over as a.png""a.gif), the first
+    that is there."""
+    textures = d.get("TEXTURES") or {}
+    names = textures.get(1) or textures.get(12) or []  # aiTextureType_DIFFUSE, aiTextureType_BASE_COLOR
+    if not names:
+        return None
+    name = str(names[0])
+    if '"' in name:
+        urls = [u.strip() for u in name.split('"') if u.strip()] or [name]
+        name = next((u for u in urls if find_beside(folder, u) is not None), urls[0])
+    return name
+
+
+def _assimp_texture_names(path: Path) -> list[str]:
+    """The texture files a file read with assimp names (not embedded ones), once each in order; [] when assimp-py
+    cannot read it (the import reports that)."""
+    try:
+        scene = _assimp_scene(path, ASSIMP_EXTS.get(path.suffix.lower(), "ASCII FBX"))
+    except (InputError, RuntimeError):
+        return []
+    names = (_assimp_texture(dict(m), path.parent) for m in scene.materials)
+    return list(dict.fromkeys(n for n in names if n and not n.startswith("*")))
+
+
+def _import_with_assimp(path: Path, fmt: str) -> None:
+    """Read a file of a format Blender cannot import with assimp (assimp-py): every node's triangle meshes (points
+    and lines are dropped) become mesh objects at the node's world transform, with the file's normals, first UV
+    map and per-vertex colours; a material becomes a Principled BSDF of its diffuse colour, opacity and diffuse
+    texture (looked for beside the file as :func:`find_beside` does; one that is not there is dropped with a warning
+    by :func:`drop_missing_textures`). The file's cameras and lights are not read."""
+    scene = _assimp_scene(path, fmt)
     materials: dict[int, bpy.types.Material] = {}
     meshes: dict[int, bpy.types.Mesh | None] = {}
     coll = bpy.context.scene.collection
@@ -740,13 +774,27 @@ def _assimp_import(A, path: Path, flags: int):
             from None
 
 
-_COLLADA_LINES = re.compile(rb"<(lines|linestrips)\b[^>]*?(?:/>|>.*?</\1\s*>)", re.S)
+def _xml_without(*tags: str):
+    """A function that copies an XML file without the elements ``tags`` (with what is inside them)."""
+    pattern = re.compile(rb"<(" + "|".join(tags).encode() + rb")\b[^>]*?(?:/>|>.*?</\1\s*>)", re.S)
+
+    def copy(path: Path, out: Path) -> None:
+        out.write_bytes(pattern.sub(b"", path.read_bytes()))
+    return copy
 
 
-def _collada_faces_only(path: Path, out: Path) -> None:
-    """A copy of a COLLADA file without its ``<lines>`` and ``<linestrips>`` (SketchUp and Google Earth models draw
-    their edges with them; assimp-py cannot hand them over, and they render nothing)."""
-    out.write_bytes(_COLLADA_LINES.sub(b"", path.read_bytes()))
+def _dxf_faces_only(path: Path, out: Path) -> None:
+    """A copy of a DXF file without its LINE, 3DLINE and POINT entities, which CAD drawings mix with faces."""
+    pairs = path.read_bytes().splitlines(keepends=True)
+    keep: list[bytes] = []
+    drop = False
+    for i in range(0, len(pairs) - 1, 2):
+        code, value = pairs[i], pairs[i + 1]
+        if code.strip() == b"0":
+            drop = value.strip() in (b"LINE", b"3DLINE", b"POINT")
+        if not drop:
+            keep += (code, value)
+    out.write_bytes(b"".join(keep + pairs[len(pairs) - len(pairs) % 2:]))
 
 
 def _ac3d_faces_only(path: Path, out: Path) -> None:
@@ -799,7 +847,10 @@ def _ac3d_faces_only(path: Path, out: Path) -> None:
     out.write_text("\n".join(dst) + "\n", errors="surrogateescape")
 
 
-_FACES_ONLY = {".dae": _collada_faces_only, ".ac": _ac3d_faces_only}
+# Readers of a copy without the lines and points of a file that mixes them with faces: assimp-py cannot hand lines
+# over, and they render nothing (SketchUp's and Google Earth's COLLADA edges, FlightGear's AC3D wires, CAD drawings)
+_FACES_ONLY = {".dae": _xml_without("lines", "linestrips"), ".ac": _ac3d_faces_only,
+               ".x3d": _xml_without("IndexedLineSet", "LineSet", "PointSet"), ".dxf": _dxf_faces_only}
 
 
 def _assimp_mesh(m) -> bpy.types.Mesh | None:
@@ -845,10 +896,8 @@ def _assimp_material(d: dict, path: Path) -> bpy.types.Material:
     opacity = d.get("OPACITY")
     if opacity is not None and 0.0 <= float(opacity) < 1.0:
         bsdf.inputs["Alpha"].default_value = float(opacity)
-    textures = d.get("TEXTURES") or {}
-    names = textures.get(1) or textures.get(12) or []  # aiTextureType_DIFFUSE, aiTextureType_BASE_COLOR
-    if names:
-        name = str(names[0])
+    name = _assimp_texture(d, path.parent)
+    if name:
         node = tree.nodes.new("ShaderNodeTexImage")
         if name.startswith("*"):  # embedded in the file: assimp-py does not hand its bytes over
             img = bpy.data.images.new(f"embedded texture {name[1:]}", 1, 1)
@@ -1358,6 +1407,7 @@ def _mtl_texture_name(args: str) -> str:
 def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     """The files a mesh file names beside its own bytes, as (name as written, the file or ``None`` if missing),
     in order: an OBJ's textures (through its MTL libraries), a binary FBX's or a .blend's images it does not embed,
+    the textures of a file read with assimp (COLLADA, ASCII FBX, 3DS, ...),
     the other .blend files a .blend links data from (and their images), the asset paths of a USD text layer
     (sublayers, references, payloads, textures) and a glTF's external buffers and images. A texture
     name that is not found as written is looked for by its base name beside the MTL (:func:`find_beside`), as the
@@ -1379,8 +1429,14 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
                 if not name:
                     continue
                 out.append((name, find_beside(mtl.parent, name)))
+    elif ext == ".fbx" and not _binary_fbx(path):
+        for name in _assimp_texture_names(path):
+            out.append((name, find_beside(path.parent, name)))
     elif ext == ".fbx":
         for name in _fbx_texture_names(path):
+            out.append((name, find_beside(path.parent, name)))
+    elif ext in ASSIMP_EXTS:
+        for name in _assimp_texture_names(path):
             out.append((name, find_beside(path.parent, name)))
     elif ext == ".blend":
         for name in _blend_image_files(path) + _blend_library_files(path):

@@ -605,7 +605,11 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
                         if interrupted:
                             raise KeyboardInterrupt  # between views: every reported view is on disk
                 except InputError as e:  # the mesh itself is unusable, before any of its views was written
-                    if not (cfg.skip_bad_meshes and spec.kind == "file" and done == started):
+                    skippable = spec.kind == "file" and done == started
+                    if skippable and not cfg.skip_bad_meshes and len(specs) > 1:
+                        raise InputError(f"{e} (to render the other {len(specs) - 1} object(s) without it: "
+                                         "--skip-bad-meshes, in the panel Skip bad meshes)") from None
+                    if not (cfg.skip_bad_meshes and skippable):
                         raise
                     summary.warnings.append(f"{spec.key} skipped: {e}")
                     done += n_views

@@ -14,7 +14,7 @@ VIEWS=${VIEWS:-4}
 mkdir -p "$out"
 find "$@" -type f \( -iname "*.obj" -o -iname "*.ply" -o -iname "*.stl" -o -iname "*.off" -o -iname "*.gltf" \
     -o -iname "*.glb" -o -iname "*.fbx" -o -iname "*.dae" -o -iname "*.3ds" -o -iname "*.lwo" -o -iname "*.x" \
-    -o -iname "*.ac" -o -iname "*.ase" -o -iname "*.3mf" -o -iname "*.ms3d" \) | grep -v " " | grep -v random_urdfs | sort | awk '{printf "%03d %s\n", NR, $0}' > "$out/list.txt"
+    -o -iname "*.ac" -o -iname "*.ase" -o -iname "*.3mf" -o -iname "*.ms3d" -o -iname "*.x3d" -o -iname "*.amf" -o -iname "*.dxf" \) | grep -v " " | grep -v random_urdfs | sort | awk '{printf "%03d %s\n", NR, $0}' > "$out/list.txt"
 while read -r n f; do
     timeout 300 "$PY" -m blender_mrvm render-dataset --source "$f" --views "$VIEWS" --resolution 32 --samples 4 \
         --out "$out/d$n" > "$out/o$n.txt" 2>&1
