@@ -232,6 +232,47 @@ def _run(images, out, cfg=CFG):
     return run_to_end(recover_poses(images, out, cfg))
 
 
+def test_phone_photos_in_heic_and_webp_are_read(ring, tmp_path, monkeypatch):
+    """iPhones save HEIC, and web downloads are WebP, which pycolmap cannot read: they are read through JPEG copies
+    (their EXIF kept), beside photos it reads, and named as the user named them; the poses match the truth. Without
+    pillow-heif, HEIC photos stop with one line saying what to do."""
+    import pillow_heif
+    from PIL import Image
+
+    images, truth = ring
+    d = tmp_path / "in"
+    d.mkdir()
+    names = []
+    for i in range(10):  # consecutive ring views, 15 degrees apart
+        im = Image.open(images / f"{i:03d}.png").convert("RGB")
+        exif = Image.Exif()
+        exif[0x010F], exif[0x0110] = "Apple", "iPhone 15"
+        if i % 3 == 0:
+            names.append(f"IMG_{i:04d}.HEIC")
+            pillow_heif.from_pillow(im).save(d / names[-1], quality=95, exif=exif.tobytes())
+        elif i % 3 == 1:
+            names.append(f"IMG_{i:04d}.webp")
+            im.save(d / names[-1], "WEBP", quality=95, exif=exif.tobytes())
+        else:
+            names.append(f"IMG_{i:04d}.png")
+            im.save(d / names[-1])
+    res = _run(d, tmp_path / "out")
+    assert res.registered == names and not res.unregistered
+    tr = {v["name"]: np.array(v["c2w_opencv"]) for v in truth["views"]}
+    err = align.pose_errors(res.c2w_opencv, [tr[f"{i:03d}.png"] for i in range(10)])
+    assert err.median_rotation_deg < 0.5, err
+    meta = json.loads((tmp_path / "out" / "meta.json").read_text())
+    assert meta["converted_photos"] == {n.rsplit(".", 1)[0] + ".jpg": n for n in names if not n.endswith(".png")}
+    frames = json.loads((tmp_path / "out" / "transforms.json").read_text())["frames"]
+    assert [f["original_name"] for f in frames] == names
+    with Image.open(tmp_path / "out" / "colmap" / "photos" / "IMG_0000.jpg") as jpg:
+        assert jpg.getexif()[0x0110] == "iPhone 15"  # the EXIF that gives pycolmap its focal length prior
+
+    monkeypatch.setitem(__import__("sys").modules, "pillow_heif", None)  # not installed
+    with pytest.raises(InputError, match=r"holds HEIC/HEIF photos .*pip install pillow-heif"):
+        _run(d, tmp_path / "out2")
+
+
 def test_too_few_images(ring, tmp_path):
     d = _copy(ring[0], tmp_path / "in", [0, 1])
     with pytest.raises(InputError, match=r"found 2 image\(s\) .* needs at least 3"):

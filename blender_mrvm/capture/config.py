@@ -9,7 +9,9 @@ from ..errors import InputError
 CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 DISTORTED_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MATCHERS = ("auto", "exhaustive", "sequential")
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+CONVERTED_EXTENSIONS = (".heic", ".heif", ".webp")
+"""Photo formats pycolmap cannot read (HEIC/HEIF: iPhones' default; WebP), converted to JPEG for it."""
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp") + CONVERTED_EXTENSIONS
 
 
 @dataclass(frozen=True)

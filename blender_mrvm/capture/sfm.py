@@ -42,7 +42,7 @@ from ..errors import Cancelled, InputError, OutputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
-from .config import IMAGE_EXTENSIONS, CaptureConfig
+from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from ..datasets.format import remove_entries
 from .export import OUTPUT_ENTRIES, CaptureView, write_capture
 
@@ -130,6 +130,8 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
         pass  # a pair flag with more images simply runs the normal path
     from PIL import Image, UnidentifiedImageError
 
+    if any(Path(n).suffix.lower() in (".heic", ".heif") for n in names):
+        _heif_opener(images_dir)
     sizes: dict[tuple[int, int], list[str]] = {}
     for n in names:
         try:
@@ -146,6 +148,68 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
                          f"{common[0]}x{common[1]} ({sum(c for _, _, c in odd)} of {len(names)} differ); "
                          "use photos of one size")
     return next(iter(sizes))
+
+
+def _heif_opener(images_dir: Path) -> None:
+    """Let Pillow open HEIC/HEIF photos (pillow-heif); an InputError saying what to do when it is not installed."""
+    try:
+        import pillow_heif
+    except ImportError:
+        raise InputError(f"{images_dir} holds HEIC/HEIF photos (an iPhone's default), which need pillow-heif "
+                         "(pip install pillow-heif into the Python that runs this), or export them as JPEG") from None
+    pillow_heif.register_heif_opener()
+
+
+def converted_name(name: str, names: list[str]) -> str:
+    """The JPEG name of a photo pycolmap cannot read: its stem + .jpg, or its whole name + .jpg where that is
+    taken by another photo."""
+    stem = Path(name).stem + ".jpg"
+    taken = {n.lower() for n in names if n != name}
+    return stem if stem.lower() not in taken else name + ".jpg"
+
+
+def readable_photos(images_dir: Path, names: list[str], work: Path) -> ProgressGen:
+    """The folder and names pycolmap reads: ``images_dir`` itself when every photo is a format it reads, else
+    ``work/photos`` with the other formats (:data:`CONVERTED_EXTENSIONS`) converted to JPEG (quality 95, the
+    photo's EXIF kept, so the focal length prior stays; the pixels as the photo is shown, orientation 1) and the
+    rest copied. A progress generator; returns (folder, names there, {name there: photo's name} of those renamed)."""
+    todo = [n for n in names if Path(n).suffix.lower() in CONVERTED_EXTENSIONS]
+    if not todo:
+        return images_dir, names, {}
+    from PIL import Image, ImageOps
+
+    if any(Path(n).suffix.lower() in (".heic", ".heif") for n in todo):
+        _heif_opener(images_dir)
+    photos = work / "photos"
+    if photos.exists():
+        shutil.rmtree(photos)
+    photos.mkdir(parents=True)
+    out, renamed = [], {}
+    for i, n in enumerate(names):
+        if n in todo:
+            new = converted_name(n, names)
+            with Image.open(images_dir / n) as im:
+                exif = im.getexif()
+                shown = ImageOps.exif_transpose(im).convert("RGB")  # HEIF: already turned by libheif
+            exif[0x0112] = 1  # orientation: the pixels are as the photo is shown
+            shown.save(photos / new, "JPEG", quality=95, exif=exif.tobytes())
+            renamed[new] = n
+            yield Progress(i + 1, len(names), f"converting {n} to JPEG for pycolmap")
+        else:
+            new = n
+            shutil.copy2(images_dir / n, photos / n)
+        out.append(new)
+    return photos, out, renamed
+
+
+def _scaled(gen: ProgressGen, end: int):
+    """Run a progress generator as the part of the overall 0-100 before ``end``; return what it returns."""
+    while True:
+        try:
+            ev = next(gen)
+        except StopIteration as stop:
+            return stop.value
+        yield Progress(int(end * ev.fraction), 100, ev.message)
 
 
 def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
@@ -327,6 +391,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     stages = StageLog(work, run_stamp(images_dir, names, cfg))
     db_path = work / "database.db"
     matcher = choose_matcher(cfg, names)
+    # pycolmap reads run_names in photo_dir (JPEG copies of photos in formats it cannot read); names stay the photos'
+    photo_dir, run_names, renamed = yield from _scaled(readable_photos(images_dir, names, work), _STAGE_END["scan"])
     timings["scan"], cpu_timings["scan"] = time.perf_counter() - t, time.process_time() - c
     resumed = f", resuming after {', '.join(sorted(stages.done))}" if stages.done else ""
     yield Progress(_STAGE_END["scan"], 100, f"{len(names)} images, {matcher} matching{resumed}")
@@ -346,7 +412,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     mode = pycolmap.CameraMode.SINGLE if cfg.shared_camera else pycolmap.CameraMode.PER_IMAGE
     if "extract" not in stages.done:
         yield from _run_in_thread(lambda: pycolmap.extract_features(
-            db_path, images_dir, image_names=names, camera_mode=mode, reader_options=reader, extraction_options=ext,
+            db_path, photo_dir, image_names=run_names, camera_mode=mode, reader_options=reader, extraction_options=ext,
             device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
         stages.finish("extract")
     timings["extract"], cpu_timings["extract"] = time.perf_counter() - t, time.process_time() - c
@@ -413,7 +479,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         count["n"] = 2
 
     recs = yield from _run_in_thread(
-        lambda: pycolmap.incremental_mapping(db_path, images_dir, sparse, mopt, initial_image_pair_callback=on_init,
+        lambda: pycolmap.incremental_mapping(db_path, photo_dir, sparse, mopt, initial_image_pair_callback=on_init,
                                              next_image_callback=on_image, cancellation_token=token),
         token, "mapping", _STAGE_END["match"], status=lambda: f"{count['n']}/{len(names)} registered")
     timings["map"], cpu_timings["map"] = time.perf_counter() - t, time.process_time() - c
@@ -422,21 +488,22 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         raise InputError(f"mapping found no image pair to start from (too little overlap or baseline); "
                          f"database kept in {db_path}")
     best_idx, rec = max(recs.items(), key=lambda kv: kv[1].num_reg_images())
-    reg_names = sorted((rec.images[i].name for i in rec.reg_image_ids()), key=natural_key)
+    reg_names = sorted((rec.images[i].name for i in rec.reg_image_ids()), key=natural_key)  # as pycolmap reads them
+    reg_photos = [renamed.get(n, n) for n in reg_names]
     model_dir = sparse / str(best_idx)
     if not model_dir.is_dir():  # pycolmap writes sparse/<idx>; make sure the kept model is on disk
         model_dir.mkdir(parents=True, exist_ok=True)
         rec.write(model_dir)
-    _write_report(work, names, reg_names, model_dir, timings)
+    _write_report(work, names, reg_photos, model_dir, timings)
     if len(reg_names) < need:
-        missing = [n for n in names if n not in set(reg_names)]
+        missing = [n for n in names if n not in set(reg_photos)]
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise InputError(f"mapping registered only {len(reg_names)} of {len(names)} images (need {need}); "
                          f"partial model kept in {model_dir}; not registered: {shown}")
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
 
     # 5. undistort
-    image_root, und_model = images_dir, None
+    image_root, und_model = photo_dir, None
     if cfg.has_distortion:
         t, c = time.perf_counter(), time.process_time()
         und = work / "undistorted"
@@ -444,7 +511,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
             shutil.rmtree(und)
         uopts = undistort_options([rec.cameras[rec.images[i].camera_id] for i in rec.reg_image_ids()])
         yield from _run_in_thread(lambda: pycolmap.undistort_images(
-            und, model_dir, images_dir, image_names=reg_names, output_type="COLMAP", undistort_options=uopts,
+            und, model_dir, photo_dir, image_names=reg_names, output_type="COLMAP", undistort_options=uopts,
             num_threads=threads, cancellation_token=token), token, "undistorting", _STAGE_END["map"])
         rec = pycolmap.Reconstruction(str(und / "sparse"))
         sizes = sorted({(cam.width, cam.height) for cam in (rec.cameras[im.camera_id] for im in rec.images.values())})
@@ -475,8 +542,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         norm_json = norm.to_json()
     else:
         norm_json = None
-    views = [CaptureView(n, image_root / n, k, p) for n, k, p in zip(reg_names, intrs, c2ws)]
-    unregistered = [n for n in names if n not in set(reg_names)]
+    views = [CaptureView(renamed.get(n, n), image_root / n, k, p) for n, k, p in zip(reg_names, intrs, c2ws)]
+    unregistered = [n for n in names if n not in set(reg_photos)]
     reproj = float(rec.compute_mean_reprojection_error())
     # (the meta records the export time up to here)
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
@@ -488,6 +555,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "num_points": int(len(xyz)), "mean_reprojection_error_px": reproj,
         "normalization": norm_json, "timings_s": timings, "cpu_timings_s": cpu_timings,
         "config": asdict(cfg),
+        # photos pycolmap cannot read (HEIC, WebP) were read as JPEG copies: {copy's name: photo's name}
+        "converted_photos": renamed,
         "colmap_model": str(model_dir.relative_to(out_dir)),
         # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),
@@ -503,7 +572,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     stages.close()
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
-    return CaptureResult(out_dir, reg_names, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
+    return CaptureResult(out_dir, reg_photos, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
                          cpu_timings, c2ws, intrs)
 
 

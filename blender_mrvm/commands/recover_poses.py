@@ -17,7 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..capture.config import CAMERA_MODELS, MATCHERS, CaptureConfig
 
     d = CaptureConfig()
-    p.add_argument("--images", required=True, help="folder of photos or video frames (PNG/JPEG/TIFF/BMP, one size)")
+    p.add_argument("--images", required=True, help="folder of photos or video frames (PNG/JPEG/TIFF/BMP; HEIC/HEIF, an iPhone's "
+                        "default, and WebP through JPEG copies; one size)")
     p.add_argument("--out", required=True, help="capture folder to write")
     p.add_argument("--camera-model", choices=CAMERA_MODELS, default=d.camera_model,
                    help=f"COLMAP camera model; distorted models are undistorted on export (default {d.camera_model})")
