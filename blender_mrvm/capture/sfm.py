@@ -171,12 +171,12 @@ def converted_name(name: str, names: list[str]) -> str:
 def readable_photos(images_dir: Path, names: list[str], work: Path) -> ProgressGen:
     """The folder and names pycolmap reads: ``images_dir`` itself when every photo is a format it reads, else
     ``work/photos`` with the other formats (:data:`CONVERTED_EXTENSIONS`) converted to JPEG (quality 95, the
-    photo's EXIF kept, so the focal length prior stays; the pixels as the photo is shown, orientation 1) and the
-    rest copied. A progress generator; returns (folder, names there, {name there: photo's name} of those renamed)."""
+    photo's EXIF kept, so the focal length prior stays; the stored pixels, as a JPEG's are read, except that a HEIF's
+    are turned as libheif shows them) and the rest copied. A progress generator; returns (folder, names there, {name there: photo's name} of those renamed)."""
     todo = [n for n in names if Path(n).suffix.lower() in CONVERTED_EXTENSIONS]
     if not todo:
         return images_dir, names, {}
-    from PIL import Image, ImageOps
+    from PIL import Image
 
     if any(Path(n).suffix.lower() in (".heic", ".heif") for n in todo):
         _heif_opener(images_dir)
@@ -190,9 +190,10 @@ def readable_photos(images_dir: Path, names: list[str], work: Path) -> ProgressG
             new = converted_name(n, names)
             with Image.open(images_dir / n) as im:
                 exif = im.getexif()
-                shown = ImageOps.exif_transpose(im).convert("RGB")  # HEIF: already turned by libheif
-            exif[0x0112] = 1  # orientation: the pixels are as the photo is shown
-            shown.save(photos / new, "JPEG", quality=95, exif=exif.tobytes())
+                rgb = im.convert("RGB")
+            if Path(n).suffix.lower() in (".heic", ".heif"):
+                exif[0x0112] = 1  # libheif turned the pixels as the photo is shown (its size as check_images saw)
+            rgb.save(photos / new, "JPEG", quality=95, exif=exif.tobytes())  # others: as a JPEG's stored pixels
             renamed[new] = n
             yield Progress(i + 1, len(names), f"converting {n} to JPEG for pycolmap")
         else:
