@@ -117,11 +117,14 @@ class Normalization:
                 "method": self.method, "maps": "x_out = scale * rotation @ (x_colmap - centre)"}
 
 
-def auto_normalization(c2w: list[np.ndarray], points: np.ndarray) -> Normalization:
+def auto_normalization(c2w: list[np.ndarray], points: np.ndarray,
+                       ups_cam: list[np.ndarray] | None = None) -> Normalization:
     """Up from the cameras' up vectors; centre where the optical axes meet; radius from the points.
 
-    - up: the mean of the cameras' up vectors (-y of OpenCV cameras) goes to +z. Photos are taken
-      mostly upright, so this is the gravity direction to within a few degrees.
+    - up: the mean of the cameras' up vectors (-y of OpenCV cameras, or ``ups_cam``, each photo's up in its
+      camera's axes: a phone held upright stores a portrait photo turned, with an EXIF orientation saying so,
+      :func:`capture.sfm.photo_ups`) goes to +z. Photos are taken mostly upright, so this is the gravity
+      direction to within a few degrees.
     - centre: the least-squares point nearest to all optical axes (the object the photographer
       circled). When the axes are near parallel (a forward-facing capture, a stereo pair) the
       system is ill-conditioned and the median of the sparse points is used instead.
@@ -131,7 +134,8 @@ def auto_normalization(c2w: list[np.ndarray], points: np.ndarray) -> Normalizati
     """
     c2w = [np.asarray(p, dtype=np.float64) for p in c2w]
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    ups = np.array([-p[:3, 1] for p in c2w])
+    ups = np.array([-p[:3, 1] for p in c2w] if ups_cam is None else
+                   [p[:3, :3] @ np.asarray(u, dtype=np.float64) for p, u in zip(c2w, ups_cam)])
     up = ups.sum(0)
     if np.linalg.norm(up) < 1e-9:
         up = np.array([0.0, 0.0, 1.0])

@@ -203,6 +203,33 @@ def readable_photos(images_dir: Path, names: list[str], work: Path) -> ProgressG
     return photos, out, renamed
 
 
+# A photo's up in its stored pixels' camera axes (OpenCV: x right, y down) by its EXIF orientation (the turn or
+# mirror that shows it upright: 6 turns it 90 degrees clockwise, so its left edge is up; PIL's exif_transpose).
+_EXIF_UP = {1: (0, -1, 0), 2: (0, -1, 0), 3: (0, 1, 0), 4: (0, 1, 0), 5: (-1, 0, 0), 6: (-1, 0, 0), 7: (1, 0, 0),
+            8: (1, 0, 0)}
+
+
+def photo_orientation(path: Path) -> int:
+    """A photo's EXIF orientation (1 when it has none; HEIF's pixels come turned already)."""
+    if path.suffix.lower() in (".heic", ".heif"):
+        return 1
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            value = im.getexif().get(0x0112, 1)
+    except (OSError, ValueError, SyntaxError):
+        return 1
+    return value if value in _EXIF_UP else 1
+
+
+def photo_ups(images_dir: Path, names: list[str]) -> tuple[list[np.ndarray], dict[str, int]]:
+    """Each photo's up vector in its camera's axes (pycolmap reads the stored pixels, so a phone held upright for a
+    portrait photo is a camera turned 90 degrees about its axis) and {name: EXIF orientation} of the turned ones."""
+    orient = {n: photo_orientation(Path(images_dir) / n) for n in names}
+    return [np.array(_EXIF_UP[orient[n]], dtype=np.float64) for n in names], {n: o for n, o in orient.items() if o != 1}
+
+
 def _scaled(gen: ProgressGen, end: int):
     """Run a progress generator as the part of the overall 0-100 before ``end``; return what it returns."""
     while True:
@@ -525,6 +552,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
 
     # 6. export
     t, c = time.perf_counter(), time.process_time()
+    ups_cam, turned = photo_ups(images_dir, reg_photos)
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     c2ws, intrs = [], []
     for n in reg_names:
@@ -536,7 +564,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     xyz = np.array([p.xyz for p in pts.values()], dtype=np.float64).reshape(-1, 3)
     rgb = np.array([p.color for p in pts.values()], dtype=np.uint8).reshape(-1, 3)
     if cfg.normalize:
-        norm = align.auto_normalization(c2ws, xyz)
+        norm = align.auto_normalization(c2ws, xyz, ups_cam)
         s, r, tr = norm.s_r_t()
         c2ws = [align.apply_similarity_to_pose(p, s, r, tr) for p in c2ws]
         xyz = (s * xyz @ r.T + tr) if len(xyz) else xyz
@@ -558,6 +586,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "config": asdict(cfg),
         # photos pycolmap cannot read (HEIC, WebP) were read as JPEG copies: {copy's name: photo's name}
         "converted_photos": renamed,
+        # photos stored turned (a phone held upright): their EXIF orientation, which gave the scene's up
+        "exif_orientation": turned,
         "colmap_model": str(model_dir.relative_to(out_dir)),
         # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),
