@@ -138,8 +138,11 @@ CAPTURE_MODELS = [
 class MRVM_PG_capture(bpy.types.PropertyGroup):
     """Settings of the Recover poses operator."""
 
-    images_dir: StringProperty(name="Photos", subtype="DIR_PATH",
-                               description="Folder of photos or video frames, all of one size")
+    images_dir: StringProperty(name="Photos", subtype="FILE_PATH",
+                               description="Folder of photos or video frames, all of one size (HEIC and WebP "
+                                           "too), or a video file (mp4, mov, ...)")
+    video_frames: IntProperty(name="Video frames", default=40, min=3, soft_max=400,
+                              description="Of a video: the sharpest frame of each of this many equal spans of it")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_capture",
                                description="Capture folder to write (// is relative to the .blend)")
     camera_model: EnumProperty(name="Camera model", items=CAPTURE_MODELS, default="SIMPLE_PINHOLE")

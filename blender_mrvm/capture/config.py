@@ -48,6 +48,8 @@ class CaptureConfig:
     """CPU threads for extraction, matching and mapping (-1 = all)."""
     seed: int = 0
     """RANSAC / mapper random seed (results repeat run to run)."""
+    video_frames: int = 40
+    """A video's frames kept for recovery: the sharpest of each of this many equal spans of its duration."""
     normalize: bool = True
     """Rotate the cameras' mean up vector to +z and fit the object of interest in the unit sphere."""
     force: bool = False
@@ -66,6 +68,7 @@ class CaptureConfig:
         if self.num_threads != -1:
             V.at_least(self, "num_threads", 1)
         V.at_least(self, "seed", 0)
+        V.at_least(self, "video_frames", 3)
         V.at_least(self, "sequential_overlap", 1)
         V.at_least(self, "exhaustive_max_images", 2)
         V.at_least(self, "min_images", 2)

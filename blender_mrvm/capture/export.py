@@ -30,7 +30,7 @@ from ..datasets import format as F
 from ..errors import InputError
 from ..geometry.cameras import Intrinsics
 
-OUTPUT_ENTRIES = ("rgb", "pose", "intrinsics.txt", "transforms.json", "meta.json", "points.ply", "colmap")
+OUTPUT_ENTRIES = ("rgb", "pose", "intrinsics.txt", "transforms.json", "meta.json", "points.ply", "colmap", "frames")
 
 
 @dataclass

@@ -32,7 +32,7 @@ import re
 import shutil
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -43,6 +43,7 @@ from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
+from .video import extract_frames, is_video
 from ..datasets.format import remove_entries
 from .export import OUTPUT_ENTRIES, CaptureView, write_capture
 
@@ -411,12 +412,25 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     cpu_timings: dict[str, float] = {}  # process CPU seconds (all threads): robust to a busy machine
     t, c = time.perf_counter(), time.process_time()
 
-    # 1. scan
-    names = list_images(images_dir)
-    size = check_images(images_dir, names, cfg)
-    prepare_output(out_dir, images_dir, cfg.force)
+    # 1. scan (a video: its frames first)
+    source, video_info, video_ups = images_dir, None, None
+    if is_video(images_dir):
+        cfg = replace(cfg, single_camera=True)  # one camera: its focal length from the view graph (no EXIF)
+        prepare_output(out_dir, images_dir, cfg.force)
+        stamp = run_stamp(images_dir.parent, [images_dir.name], cfg)
+        images_dir = out_dir / "frames"
+        if images_dir.exists():
+            shutil.rmtree(images_dir)
+        names, video_info, video_ups = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
+                                                          _STAGE_END["scan"])
+        size = check_images(images_dir, names, cfg)
+    else:
+        names = list_images(images_dir)
+        size = check_images(images_dir, names, cfg)
+        prepare_output(out_dir, images_dir, cfg.force)
+        stamp = run_stamp(images_dir, names, cfg)
     work = out_dir / "colmap"
-    stages = StageLog(work, run_stamp(images_dir, names, cfg))
+    stages = StageLog(work, stamp)
     db_path = work / "database.db"
     matcher = choose_matcher(cfg, names)
     # pycolmap reads run_names in photo_dir (JPEG copies of photos in formats it cannot read); names stay the photos'
@@ -552,7 +566,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
 
     # 6. export
     t, c = time.perf_counter(), time.process_time()
-    ups_cam, turned = photo_ups(images_dir, reg_photos)
+    ups_cam, turned = photo_ups(images_dir, reg_photos) if video_ups is None else (video_ups[:len(reg_photos)], {})
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     c2ws, intrs = [], []
     for n in reg_names:
@@ -577,7 +591,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     # (the meta records the export time up to here)
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     meta = {
-        "kind": "capture", "version": FORMAT_VERSION, "source": str(images_dir.resolve()),
+        "kind": "capture", "version": FORMAT_VERSION, "source": str(source.resolve()),
         "registered": len(reg_names), "total": len(names), "unregistered": unregistered,
         "camera_model": cfg.camera_model, "undistorted": cfg.has_distortion, "matcher": matcher,
         "sift_first_octave": first_octave, "focal_from_view_graph": bool(focal_from_view_graph),
@@ -588,6 +602,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "converted_photos": renamed,
         # photos stored turned (a phone held upright): their EXIF orientation, which gave the scene's up
         "exif_orientation": turned,
+        # a video's frames (frames/, named frame_000001.jpg, ...): where they came from and when
+        "video": video_info,
         "colmap_model": str(model_dir.relative_to(out_dir)),
         # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),

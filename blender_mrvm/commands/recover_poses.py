@@ -17,8 +17,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..capture.config import CAMERA_MODELS, MATCHERS, CaptureConfig
 
     d = CaptureConfig()
-    p.add_argument("--images", required=True, help="folder of photos or video frames (PNG/JPEG/TIFF/BMP; HEIC/HEIF, an iPhone's "
-                        "default, and WebP through JPEG copies; one size)")
+    p.add_argument("--images", required=True,
+                   help="folder of photos or video frames (PNG/JPEG/TIFF/BMP; HEIC/HEIF, an iPhone's default, and "
+                        "WebP through JPEG copies; one size), or a video file (mp4, mov, ...: --frames of it, the "
+                        "sharpest of each span, with one shared camera)")
+    p.add_argument("--frames", type=int, default=d.video_frames,
+                   help=f"a video's frames to recover: the sharpest of each of this many equal spans of it "
+                        f"(default {d.video_frames})")
     p.add_argument("--out", required=True, help="capture folder to write")
     p.add_argument("--camera-model", choices=CAMERA_MODELS, default=d.camera_model,
                    help=f"COLMAP camera model; distorted models are undistorted on export (default {d.camera_model})")
@@ -52,7 +57,7 @@ def config_from_args(args: argparse.Namespace):
                          sequential_overlap=args.overlap,
                          min_registered_fraction=args.min_registered, allow_pair=args.pair,
                          normalize=not args.no_normalize, num_threads=args.threads, seed=args.seed,
-                         force=args.force).validate()
+                         video_frames=args.frames, force=args.force).validate()
 
 
 def run(args: argparse.Namespace) -> int:

@@ -24,7 +24,7 @@ def config_from_props(context):
 
     p = context.scene.mrvm_capture
     if not p.images_dir.strip():
-        raise MRVMError("choose a folder of photos")
+        raise MRVMError("choose a folder of photos or a video")
     out = p.output_dir.strip()
     if not out:
         raise MRVMError("choose an output folder")
@@ -32,7 +32,8 @@ def config_from_props(context):
         raise MRVMError("save the .blend first or choose an absolute output folder (// is relative to the .blend)")
     cfg = CaptureConfig(camera_model=p.camera_model, matcher=p.matcher, max_num_features=p.max_features,
                         upsample_below=p.upsample_below, single_camera=p.single_camera,
-                        estimate_focal=p.estimate_focal, allow_pair=p.allow_pair, force=p.force).validate()
+                        estimate_focal=p.estimate_focal, allow_pair=p.allow_pair, video_frames=p.video_frames,
+                        force=p.force).validate()
     return Path(bpy.path.abspath(p.images_dir)), Path(bpy.path.abspath(out)), cfg
 
 

@@ -25,6 +25,9 @@ class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
         col = layout.column()
         col.enabled = not p.running
         col.prop(p, "images_dir")
+        sub = col.column()
+        sub.active = is_video_path(p.images_dir)
+        sub.prop(p, "video_frames")
         col.prop(p, "output_dir")
         col.prop(p, "camera_model")
         col.prop(p, "matcher")
@@ -37,6 +40,14 @@ class MRVM_PT_capture(MRVMPanel, bpy.types.Panel):
         col.prop(p, "allow_pair")
         col.prop(p, "force")
         draw_job(layout, p, "mrvm.recover_poses", "CAMERA_DATA", "Recovering poses...")
+
+
+def is_video_path(path: str) -> bool:
+    from pathlib import Path
+
+    from ..capture.video import VIDEO_EXTENSIONS
+
+    return Path(bpy.path.abspath(path.strip())).suffix.lower() in VIDEO_EXTENSIONS if path.strip() else False
 
 
 def shares_camera(p) -> bool:
