@@ -88,6 +88,7 @@ def world(tmp_path_factory):
                                'trans 0\nOBJECT world\nkids 1\nOBJECT poly\nnumvert 2\n-1 0 0\n1 0 0\nnumsurf 1\n'
                                'SURF 0x22\nmat 0\nrefs 2\n0 0 0\n1 1 0\nkids 0\n')  # an AC3D line: assimp-py reads faces only
     (w / "utf16.ac").write_bytes((w / "line.ac").read_text().encode("utf-16"))  # assimp: "magic not found"
+    (w / "clip.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42 not a video")  # recover-poses takes videos
     (w / "sketchup").mkdir()
     (w / "sketchup" / "house.skp").write_bytes(b"SketchUp Model")  # no importer anywhere
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
@@ -509,6 +510,9 @@ RENDER = [
          "it holds lines or points"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/utf16.ac", "--out", "{new}", "--views", "2"],
          "is UTF-16 or UTF-32 text"),
+    Case("tracebacks", ["recover-poses", "--images", "{w}/clip.mp4", "--out", "{new}"], "cannot read video"),
+    Case("usage", ["recover-poses", "--images", "{w}/clip.mp4", "--out", "{new}", "--frames", "2"],
+         "video_frames must be at least 3"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup/house.skp", "--out", "{new}", "--views", "2"],
          "export it as glTF"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup", "--out", "{new}", "--views", "2"],

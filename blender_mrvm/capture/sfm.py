@@ -416,14 +416,20 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     source, video_info, video_ups = images_dir, None, None
     if is_video(images_dir):
         cfg = replace(cfg, single_camera=True)  # one camera: its focal length from the view graph (no EXIF)
+        fresh = not out_dir.exists()
         prepare_output(out_dir, images_dir, cfg.force)
         stamp = run_stamp(images_dir.parent, [images_dir.name], cfg)
         images_dir = out_dir / "frames"
         if images_dir.exists():
             shutil.rmtree(images_dir)
-        names, video_info, video_ups = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
-                                                          _STAGE_END["scan"])
-        size = check_images(images_dir, names, cfg)
+        try:
+            names, video_info, video_ups = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
+                                                              _STAGE_END["scan"])
+            size = check_images(images_dir, names, cfg)
+        except BaseException:
+            if fresh:  # a video that cannot be read leaves no output folder behind
+                shutil.rmtree(out_dir, ignore_errors=True)
+            raise
     else:
         names = list_images(images_dir)
         size = check_images(images_dir, names, cfg)
