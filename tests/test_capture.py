@@ -515,6 +515,27 @@ def test_umeyama_recovers_a_similarity():
     assert abs(s - 2.5) < 1e-9 and np.allclose(r2, r) and np.allclose(t, [1.0, -2.0, 0.5])
 
 
+def test_every_capture_setting_reaches_the_worker():
+    """The panel runs recover-poses in the worker Python: every CaptureConfig field, at values other than the
+    defaults, goes through its command line and back unchanged."""
+    from dataclasses import fields
+
+    from blender_mrvm.cli import build_parser
+    from blender_mrvm.commands.recover_poses import cli_args, config_from_args
+
+    d = CaptureConfig()
+    other = CaptureConfig(camera_model="OPENCV", single_camera=True, estimate_focal=False, matcher="sequential",
+                          max_num_features=999, max_image_size=1234, upsample_below=77, sequential_overlap=3,
+                          min_registered_fraction=0.25, allow_pair=True, normalize=False, num_threads=1, seed=7,
+                          video_frames=12, force=True)
+    changed = {f.name for f in fields(CaptureConfig) if getattr(other, f.name) != getattr(d, f.name)}
+    reachable = {f.name for f in fields(CaptureConfig)} - {"exhaustive_max_images", "min_images", "init_min_tri_angle"}
+    assert reachable <= changed, reachable - changed
+    for cfg in (d, other):
+        args = build_parser().parse_args(["recover-poses", *cli_args("photos", "out", cfg)])
+        assert config_from_args(args) == cfg
+
+
 def test_recover_poses_operator_creates_cameras(ring, tmp_path, empty_scene):
     import bpy
 

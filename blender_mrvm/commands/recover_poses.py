@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"COLMAP camera model; distorted models are undistorted on export (default {d.camera_model})")
     p.add_argument("--single-camera", action="store_true",
                    help="all photos share one camera (slower matching; default: intrinsics per photo)")
+    p.add_argument("--no-focal-from-views", action="store_true",
+                   help="a shared camera starts from COLMAP's 1.2 x width focal guess, not the view graph's estimate")
     p.add_argument("--matcher", choices=MATCHERS, default=d.matcher,
                    help=f"auto: sequential for more than {d.exhaustive_max_images} numbered frames, else exhaustive")
     p.add_argument("--max-features", type=int, default=d.max_num_features, help="SIFT features per image")
@@ -52,12 +54,25 @@ def config_from_args(args: argparse.Namespace):
     from ..capture.config import CaptureConfig
 
     return CaptureConfig(camera_model=args.camera_model, single_camera=args.single_camera,
-                         matcher=args.matcher, max_num_features=args.max_features,
+                         estimate_focal=not args.no_focal_from_views, matcher=args.matcher, max_num_features=args.max_features,
                          max_image_size=args.max_image_size, upsample_below=args.upsample_below,
                          sequential_overlap=args.overlap,
                          min_registered_fraction=args.min_registered, allow_pair=args.pair,
                          normalize=not args.no_normalize, num_threads=args.threads, seed=args.seed,
                          video_frames=args.frames, force=args.force).validate()
+
+
+def cli_args(images, out, cfg) -> list[str]:
+    """The arguments of this command that run ``cfg`` on ``images`` into ``out`` (what the panel's Recover Poses
+    hands the worker; :func:`config_from_args` reads them back to ``cfg``)."""
+    a = ["--images", str(images), "--out", str(out), "--camera-model", cfg.camera_model, "--matcher", cfg.matcher,
+         "--max-features", str(cfg.max_num_features), "--max-image-size", str(cfg.max_image_size),
+         "--upsample-below", str(cfg.upsample_below), "--overlap", str(cfg.sequential_overlap),
+         "--min-registered", repr(cfg.min_registered_fraction), "--threads", str(cfg.num_threads),
+         "--seed", str(cfg.seed), "--frames", str(cfg.video_frames)]
+    flags = {"--single-camera": cfg.single_camera, "--no-focal-from-views": not cfg.estimate_focal,
+             "--pair": cfg.allow_pair, "--no-normalize": not cfg.normalize, "--force": cfg.force}
+    return a + [f for f, on in flags.items() if on]
 
 
 def run(args: argparse.Namespace) -> int:

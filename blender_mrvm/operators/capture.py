@@ -1,12 +1,13 @@
-"""Operator: Recover poses (photos folder in, cameras + points out).
+"""Operator: Recover poses (photos folder or video in, cameras + points out).
 
-``invoke`` (the UI) runs modal: each pycolmap stage runs in a worker thread inside the core
-generator (``capture.sfm.recover_poses``), and a timer advances the generator, which waits at most
-0.1 s per step, so the UI stays responsive; Esc cancels the running stage through pycolmap's
-cancellation token (what finished stays in ``<output>/colmap``). When the generator ends, the
-capture folder is imported on the main thread (``scene.capture.import_capture``): one camera per
-registered photo with its intrinsics, the photo as camera background, the sparse points as a mesh
-with vertex colours, all in a new collection. ``execute`` (scripts) runs everything in one call.
+pycolmap runs in the worker Python (``worker.run_worker``: ``python -m blender_mrvm recover-poses --images DIR
+--out OUT ...``, the panel's settings as :func:`commands.recover_poses.cli_args`), as synthesis does: Blender's
+own Python has no pycolmap (nor PyAV, pillow-heif) unless someone installed them there, and the worker Python
+(the add-on preferences, else a project ``.venv``) has them. ``invoke`` (the UI) runs modal, a timer reading the
+worker's progress; Esc interrupts it, and the stages it finished stay in ``<output>/colmap`` (a rerun resumes them).
+When the worker ends, the capture folder is imported on the main thread (``scene.capture.import_capture``): one
+camera per registered photo with its intrinsics, the photo as camera background, the sparse points as a mesh with
+vertex colours, all in a new collection. ``execute`` (scripts) runs everything in one call.
 """
 
 from __future__ import annotations
@@ -37,13 +38,34 @@ def config_from_props(context):
     return Path(bpy.path.abspath(p.images_dir)), Path(bpy.path.abspath(out)), cfg
 
 
-def _import(context, result) -> str:
+WORKER_NEEDS = ("pycolmap", "PIL", "numpy")
+"""What the worker Python must have for pose recovery (HEIC photos and videos name what they need themselves)."""
+
+
+def run_capture(context, images: Path, out: Path, cfg):
+    """Progress generator: ``recover-poses`` in the worker Python; returns the capture folder."""
+    from .. import prefs as P
+    from ..commands.recover_poses import cli_args
+    from ..worker import choose_interpreter, require, run_worker
+
+    pr = P.get(context)
+    interp = choose_interpreter(pr.python_path if pr else "", WORKER_NEEDS)
+    require(interp, WORKER_NEEDS)
+    yield from run_worker("recover-poses", cli_args(images, out, cfg), interp.path)
+    return out
+
+
+def _import(context, out: Path) -> str:
+    import json
+
     from ..scene.capture import import_capture
 
-    made = import_capture(result.out_dir, context.scene, collection_name=f"Capture {Path(result.out_dir).name}")
+    meta = json.loads((out / "meta.json").read_text())
+    made = import_capture(out, context.scene, collection_name=f"Capture {out.name}")
     n = len(made["cameras"])
-    return (f"Recovered {len(result.registered)}/{result.total} photos into {result.out_dir}; {n} cameras and "
-            f"{result.num_points} points in collection {made['collection'].name!r}")
+    what = "video frames" if meta.get("video") else "photos"
+    return (f"Recovered {meta['registered']}/{meta['total']} {what} into {out}; {n} cameras and "
+            f"{meta['num_points']} points in collection {made['collection'].name!r}")
 
 
 class MRVM_OT_recover_poses(ProgressOperator, bpy.types.Operator):
@@ -59,13 +81,11 @@ class MRVM_OT_recover_poses(ProgressOperator, bpy.types.Operator):
     timer_interval = 0.05
 
     def start(self, context):
-        from ..capture.sfm import recover_poses
-
         images, out, cfg = config_from_props(context)
-        return recover_poses(images, out, cfg)
+        return run_capture(context, images, out, cfg)
 
-    def on_result(self, context, result) -> str:
-        return _import(context, result)
+    def on_result(self, context, out: Path) -> str:
+        return _import(context, out)
 
 
 classes = (MRVM_OT_recover_poses,)
