@@ -43,12 +43,14 @@ DEPENDENCIES: tuple[tuple[str, str, str], ...] = (
     ("PIL", "pillow>=10", "PNG images"),
     ("OpenEXR", "openexr>=3.3", "depth and normal maps (EXR)"),
     ("pycolmap", "pycolmap==4.2.1", "recovering the poses of photos"),
+    ("pillow_heif", "pillow-heif>=1.0", "HEIC photos (an iPhone's default) to recover poses from"),
+    ("av", "av>=14", "videos to recover poses from"),
 )
 """(import name, pip requirement, what needs it) of the worker's dependencies (pins as pyproject.toml)."""
 
 _PROBE = r"""
 import importlib.util, importlib.metadata, json, sys
-dists = {"PIL": "pillow", "OpenEXR": "openexr"}
+dists = {"PIL": "pillow", "OpenEXR": "openexr", "pillow_heif": "pillow-heif"}
 out = {}
 for m in sys.argv[1:]:
     try:
