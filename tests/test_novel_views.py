@@ -213,7 +213,7 @@ def test_dependency_status_in_preferences(empty_scene, prefs, bare_python):
     prefs.python_path = bare_python
     rep = P.dependency_status()
     assert rep.interpreter.source == "preferences"
-    assert rep.missing == ["torch", "safetensors", "numpy", "PIL", "OpenEXR", "pycolmap"]
+    assert rep.missing == ["torch", "safetensors", "numpy", "PIL", "OpenEXR", "pycolmap", "pillow_heif", "av"]
     log = _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO"))
     labels = _labels(log)
     assert "torch: missing (needed for training and novel-view synthesis)" in labels
