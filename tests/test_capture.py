@@ -370,6 +370,34 @@ def test_a_video_that_cannot_be_read(tmp_path):
         _run(still, tmp_path / "out2")
 
 
+def test_photos_of_one_camera_held_both_ways_are_read(ring, tmp_path):
+    """Photos a photo app exported, the turn baked into the pixels: landscape ones and portrait ones (the size
+    transposed). The portrait ones are read turned to the common size, all register with the poses of the truth,
+    and the scene's up counts the turn (the ring's axis is vertical)."""
+    from PIL import Image
+
+    images, truth = ring
+    d = tmp_path / "in"
+    d.mkdir()
+    for i in range(10):
+        im = np.asarray(Image.open(images / f"{i:03d}.png").convert("RGB"))
+        Image.fromarray(np.ascontiguousarray(np.rot90(im, -1) if i % 3 == 1 else im)).save(d / f"{i:03d}.png")
+    res = _run(d, tmp_path / "out")
+    assert res.registered == [f"{i:03d}.png" for i in range(10)]
+    meta = json.loads((tmp_path / "out" / "meta.json").read_text())
+    assert meta["turned_photos"] == ["001.png", "004.png", "007.png"]
+    tr = {v["name"]: np.array(v["c2w_opencv"]) for v in truth["views"]}
+    err = align.pose_errors(res.c2w_opencv, [tr[n] for n in res.registered])
+    assert err.median_rotation_deg < 0.5, err  # turned back a quarter counter-clockwise: the truth's cameras
+    centre = np.array([p[:3, 3] for p in res.c2w_opencv])
+    axis = np.linalg.svd(centre - centre.mean(0))[2][2]
+    assert np.degrees(np.arccos(abs(axis[2]))) < 30
+    (d / "odd.png").write_bytes((d / "000.png").read_bytes())
+    Image.fromarray(np.zeros((100, 200, 3), np.uint8)).save(d / "odd.png")
+    with pytest.raises(InputError, match=r"images differ in size: odd\.png is 200x100 .* held both ways"):
+        _run(d, tmp_path / "out2")
+
+
 def test_too_few_images(ring, tmp_path):
     d = _copy(ring[0], tmp_path / "in", [0, 1])
     with pytest.raises(InputError, match=r"found 2 image\(s\) .* needs at least 3"):

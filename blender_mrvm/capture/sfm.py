@@ -121,8 +121,10 @@ def choose_matcher(cfg: CaptureConfig, names: list[str]) -> str:
     return "exhaustive"
 
 
-def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tuple[int, int]:
-    """Check count, readability and sizes; return the common (width, height)."""
+def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tuple[tuple[int, int], list[str]]:
+    """Check count, readability and sizes; return the common (width, height) and the photos of the transposed size
+    (one camera held both ways, the turn baked into the pixels, as photo apps export them), read turned to the
+    common size (:func:`readable_photos`)."""
     need = cfg.required_images
     if len(names) < need:
         hint = "" if cfg.allow_pair or len(names) != 2 else " (a stereo pair needs --pair)"
@@ -141,14 +143,15 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
                 sizes.setdefault(im.size, []).append(n)
         except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
             raise InputError(f"cannot read image {images_dir / n}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from e
-    if len(sizes) > 1:
-        common = max(sizes, key=lambda s: len(sizes[s]))
-        odd = [(s, v[0], len(v)) for s, v in sizes.items() if s != common]
+    common = max(sizes, key=lambda s: (len(sizes[s]), s[0] >= s[1]))  # the most photos; on a tie, landscape
+    turned = sizes.get(common[::-1], []) if common[0] != common[1] else []
+    if len(sizes) > 1 + bool(turned):
+        odd = [(s, v[0], len(v)) for s, v in sizes.items() if s not in (common, common[::-1])]
         s, example, count = odd[0]
         raise InputError(f"images differ in size: {example} is {s[0]}x{s[1]} but {sizes[common][0]} is "
                          f"{common[0]}x{common[1]} ({sum(c for _, _, c in odd)} of {len(names)} differ); "
-                         "use photos of one size")
-    return next(iter(sizes))
+                         "use photos of one size (or of one size held both ways)")
+    return common, turned
 
 
 def _heif_opener(images_dir: Path) -> None:
@@ -169,12 +172,15 @@ def converted_name(name: str, names: list[str]) -> str:
     return stem if stem.lower() not in taken else name + ".jpg"
 
 
-def readable_photos(images_dir: Path, names: list[str], work: Path) -> ProgressGen:
-    """The folder and names pycolmap reads: ``images_dir`` itself when every photo is a format it reads, else
-    ``work/photos`` with the other formats (:data:`CONVERTED_EXTENSIONS`) converted to JPEG (quality 95, the
-    photo's EXIF kept, so the focal length prior stays; the stored pixels, as a JPEG's are read, except that a HEIF's
-    are turned as libheif shows them) and the rest copied. A progress generator; returns (folder, names there, {name there: photo's name} of those renamed)."""
-    todo = [n for n in names if Path(n).suffix.lower() in CONVERTED_EXTENSIONS]
+def readable_photos(images_dir: Path, names: list[str], work: Path, turned: list[str] = ()) -> ProgressGen:
+    """The folder and names pycolmap reads: ``images_dir`` itself when every photo is a format it reads at one size,
+    else ``work/photos`` with the other formats (:data:`CONVERTED_EXTENSIONS`) and the ``turned`` photos (of the
+    transposed size) converted to JPEG (quality 95, the photo's EXIF kept, so the focal length prior stays; the
+    stored pixels, as a JPEG's are read, except that a HEIF's are turned as libheif shows them, and a turned photo
+    is turned a quarter counter-clockwise, which :func:`photo_ups` turns its up by) and the rest copied. A progress
+    generator; returns (folder, names there, {name there: photo's name} of those renamed)."""
+    turned = set(turned)
+    todo = [n for n in names if Path(n).suffix.lower() in CONVERTED_EXTENSIONS or n in turned]
     if not todo:
         return images_dir, names, {}
     from PIL import Image
@@ -192,11 +198,13 @@ def readable_photos(images_dir: Path, names: list[str], work: Path) -> ProgressG
             with Image.open(images_dir / n) as im:
                 exif = im.getexif()
                 rgb = im.convert("RGB")
+            if n in turned:
+                rgb = rgb.transpose(Image.Transpose.ROTATE_90)  # counter-clockwise: to the common size
             if Path(n).suffix.lower() in (".heic", ".heif"):
                 exif[0x0112] = 1  # libheif turned the pixels as the photo is shown (its size as check_images saw)
             rgb.save(photos / new, "JPEG", quality=95, exif=exif.tobytes())  # others: as a JPEG's stored pixels
             renamed[new] = n
-            yield Progress(i + 1, len(names), f"converting {n} to JPEG for pycolmap")
+            yield Progress(i + 1, len(names), f"{'turning' if n in turned else 'converting'} {n} for pycolmap")
         else:
             new = n
             shutil.copy2(images_dir / n, photos / n)
@@ -224,11 +232,16 @@ def photo_orientation(path: Path) -> int:
     return value if value in _EXIF_UP else 1
 
 
-def photo_ups(images_dir: Path, names: list[str]) -> tuple[list[np.ndarray], dict[str, int]]:
+def photo_ups(images_dir: Path, names: list[str], turned: list[str] = ()) -> tuple[list[np.ndarray], dict[str, int]]:
     """Each photo's up vector in its camera's axes (pycolmap reads the stored pixels, so a phone held upright for a
-    portrait photo is a camera turned 90 degrees about its axis) and {name: EXIF orientation} of the turned ones."""
+    portrait photo is a camera turned 90 degrees about its axis; a ``turned`` photo was read turned a quarter
+    counter-clockwise, :func:`readable_photos`) and {name: EXIF orientation} of those stored turned."""
     orient = {n: photo_orientation(Path(images_dir) / n) for n in names}
-    return [np.array(_EXIF_UP[orient[n]], dtype=np.float64) for n in names], {n: o for n, o in orient.items() if o != 1}
+    ups = []
+    for n in names:
+        x, y, z = _EXIF_UP[orient[n]]
+        ups.append(np.array((y, -x, z) if n in set(turned) else (x, y, z), dtype=np.float64))  # (x, y) -> (y, -x)
+    return ups, {n: o for n, o in orient.items() if o != 1}
 
 
 def _scaled(gen: ProgressGen, end: int):
@@ -425,14 +438,14 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         try:
             names, video_info, video_ups = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
                                                               _STAGE_END["scan"])
-            size = check_images(images_dir, names, cfg)
+            size, turned_photos = check_images(images_dir, names, cfg)
         except BaseException:
             if fresh:  # a video that cannot be read leaves no output folder behind
                 shutil.rmtree(out_dir, ignore_errors=True)
             raise
     else:
         names = list_images(images_dir)
-        size = check_images(images_dir, names, cfg)
+        size, turned_photos = check_images(images_dir, names, cfg)
         prepare_output(out_dir, images_dir, cfg.force)
         stamp = run_stamp(images_dir, names, cfg)
     work = out_dir / "colmap"
@@ -440,7 +453,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     db_path = work / "database.db"
     matcher = choose_matcher(cfg, names)
     # pycolmap reads run_names in photo_dir (JPEG copies of photos in formats it cannot read); names stay the photos'
-    photo_dir, run_names, renamed = yield from _scaled(readable_photos(images_dir, names, work), _STAGE_END["scan"])
+    photo_dir, run_names, renamed = yield from _scaled(readable_photos(images_dir, names, work, turned_photos),
+                                                       _STAGE_END["scan"])
     timings["scan"], cpu_timings["scan"] = time.perf_counter() - t, time.process_time() - c
     resumed = f", resuming after {', '.join(sorted(stages.done))}" if stages.done else ""
     yield Progress(_STAGE_END["scan"], 100, f"{len(names)} images, {matcher} matching{resumed}")
@@ -572,7 +586,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
 
     # 6. export
     t, c = time.perf_counter(), time.process_time()
-    ups_cam, turned = photo_ups(images_dir, reg_photos) if video_ups is None else (video_ups[:len(reg_photos)], {})
+    ups_cam, turned = (photo_ups(images_dir, reg_photos, turned_photos) if video_ups is None else
+                       (video_ups[:len(reg_photos)], {}))
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     c2ws, intrs = [], []
     for n in reg_names:
@@ -608,6 +623,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "converted_photos": renamed,
         # photos stored turned (a phone held upright): their EXIF orientation, which gave the scene's up
         "exif_orientation": turned,
+        # photos of the transposed size (one camera held both ways), read turned a quarter counter-clockwise
+        "turned_photos": turned_photos,
         # a video's frames (frames/, named frame_000001.jpg, ...): where they came from and when
         "video": video_info,
         "colmap_model": str(model_dir.relative_to(out_dir)),
