@@ -100,7 +100,7 @@ def write_capture(out_dir: Path, views: list[CaptureView], xyz: np.ndarray, rgb:
             if im.format == "PNG" and im.mode == "RGB":  # already what rgb/ holds: copy the bytes
                 F.atomic_write(dst, lambda tmp, src=v.image_path: shutil.copyfile(src, tmp))
             else:
-                F.write_png(dst, np.asarray(im.convert("RGB")))
+                F.write_png(dst, np.asarray(im.convert("RGB")), compress_level=1)  # photos: 5x faster, 20 % larger
         F.write_srn_pose(out_dir / "pose" / f"{name}.txt", v.c2w_opencv)
         k = v.intrinsics
         frames.append({"file_path": f"rgb/{name}.png", "c2w_opencv": v.c2w_opencv, "original_name": v.original_name,
