@@ -237,10 +237,11 @@ def photo_ups(images_dir: Path, names: list[str], turned: list[str] = ()) -> tup
     portrait photo is a camera turned 90 degrees about its axis; a ``turned`` photo was read turned a quarter
     counter-clockwise, :func:`readable_photos`) and {name: EXIF orientation} of those stored turned."""
     orient = {n: photo_orientation(Path(images_dir) / n) for n in names}
+    turned = set(turned)
     ups = []
     for n in names:
         x, y, z = _EXIF_UP[orient[n]]
-        ups.append(np.array((y, -x, z) if n in set(turned) else (x, y, z), dtype=np.float64))  # (x, y) -> (y, -x)
+        ups.append(np.array((y, -x, z) if n in turned else (x, y, z), dtype=np.float64))  # (x, y) -> (y, -x)
     return ups, {n: o for n, o in orient.items() if o != 1}
 
 
@@ -587,7 +588,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     # 6. export
     t, c = time.perf_counter(), time.process_time()
     ups_cam, turned = (photo_ups(images_dir, reg_photos, turned_photos) if video_ups is None else
-                       (video_ups[:len(reg_photos)], {}))
+                       ([video_ups[names.index(n)] for n in reg_photos], {}))
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     c2ws, intrs = [], []
     for n in reg_names:
