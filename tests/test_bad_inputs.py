@@ -89,6 +89,11 @@ def world(tmp_path_factory):
                                'SURF 0x22\nmat 0\nrefs 2\n0 0 0\n1 1 0\nkids 0\n')  # an AC3D line: assimp-py reads faces only
     (w / "utf16.ac").write_bytes((w / "line.ac").read_text().encode("utf-16"))  # assimp: "magic not found"
     (w / "clip.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42 not a video")  # recover-poses takes videos
+    (w / "videos").mkdir()  # a folder of a video, not photos: the video itself is what to give
+    (w / "videos" / "orbit.mov").write_bytes(b"\x00\x00\x00\x14ftypqt  ")
+    (w / "raw").mkdir()  # camera RAW files, which pycolmap cannot read
+    for i in range(3):
+        (w / "raw" / f"IMG_{i}.CR2").write_bytes(b"II*\x00 raw")
     (w / "sketchup").mkdir()
     (w / "sketchup" / "house.skp").write_bytes(b"SketchUp Model")  # no importer anywhere
     (w / "earlier_eval").mkdir()  # an earlier evaluation's scores: a second eval into the folder needs --force
@@ -511,6 +516,10 @@ RENDER = [
     Case("tracebacks", ["render-dataset", "--source", "{w}/utf16.ac", "--out", "{new}", "--views", "2"],
          "is UTF-16 or UTF-32 text"),
     Case("tracebacks", ["recover-poses", "--images", "{w}/clip.mp4", "--out", "{new}"], "cannot read video"),
+    Case("silent-garbage", ["recover-poses", "--images", "{w}/videos", "--out", "{new}"],
+         "to use a video's frames, give the video itself"),
+    Case("silent-garbage", ["recover-poses", "--images", "{w}/raw", "--out", "{new}"],
+         "camera RAW file(s) (.CR2), which pycolmap cannot read"),
     Case("usage", ["recover-poses", "--images", "{w}/clip.mp4", "--out", "{new}", "--frames", "2"],
          "video_frames must be at least 3"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup/house.skp", "--out", "{new}", "--views", "2"],

@@ -43,7 +43,7 @@ from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
-from .video import extract_frames, is_video
+from .video import VIDEO_EXTENSIONS, extract_frames, is_video
 from ..datasets.format import remove_entries
 from .export import OUTPUT_ENTRIES, CaptureView, write_capture
 
@@ -128,7 +128,8 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
     need = cfg.required_images
     if len(names) < need:
         hint = "" if cfg.allow_pair or len(names) != 2 else " (a stereo pair needs --pair)"
-        raise InputError(f"found {len(names)} image(s) in {images_dir}; pose recovery needs at least {need}{hint}")
+        raise InputError(f"found {len(names)} image(s) in {images_dir}; pose recovery needs at least {need}{hint}"
+                         f"{_other_files_hint(images_dir)}")
     if len(names) > 2 and cfg.allow_pair and cfg.min_images > 2:
         pass  # a pair flag with more images simply runs the normal path
     from PIL import Image, UnidentifiedImageError
@@ -152,6 +153,28 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
                          f"{common[0]}x{common[1]} ({sum(c for _, _, c in odd)} of {len(names)} differ); "
                          "use photos of one size (or of one size held both ways)")
     return common, turned
+
+
+RAW_EXTENSIONS = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".orf", ".rw2", ".raf", ".pef", ".srw")
+"""Camera RAW files, which neither pycolmap nor Pillow reads."""
+
+
+def _other_files_hint(images_dir: Path) -> str:
+    """What else a folder with too few photos holds that the user may have meant: videos, camera RAW files."""
+    try:
+        files = [p for p in Path(images_dir).iterdir() if p.is_file()]
+    except OSError:
+        return ""
+    videos = sorted(p.name for p in files if p.suffix.lower() in VIDEO_EXTENSIONS)
+    raws = [p for p in files if p.suffix.lower() in RAW_EXTENSIONS]
+    if videos:
+        more = ", ..." if len(videos) > 1 else ""
+        return (f"; it holds {len(videos)} video(s) ({videos[0]}{more}): to use a video's frames, give the video "
+                f"itself (--images {Path(images_dir) / videos[0]}; in the panel, as Photos)")
+    if raws:
+        return (f"; it holds {len(raws)} camera RAW file(s) ({raws[0].suffix}), which pycolmap cannot read: export "
+                "them as JPEG or TIFF")
+    return ""
 
 
 def _heif_opener(images_dir: Path) -> None:
