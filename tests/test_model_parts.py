@@ -137,6 +137,31 @@ def test_ema_update_moves_target_towards_online():
         assert torch.allclose(t, 0.9 * b + 0.1 * o)
 
 
+def test_official_bn_relu_head_trains_and_its_target_tracks_the_statistics():
+    """mrvm.head 'bn_relu' (the official code's projector and predictor: BatchNorm1d, ReLU, the projector's hidden
+    layer the model's width): the MRVM loss is finite and reaches the predictor and the fine pass's mask token, the
+    target gets no gradient, and the EMA moves the target's BatchNorm statistics as well as its weights."""
+    from torch import nn
+
+    m, ctx, rays = _setup(mrvm={"head": "bn_relu"})
+    d = m.cfg.nerformer.d_model
+    assert isinstance(m.mrvm.projector[1], nn.BatchNorm1d) and m.mrvm.projector[0].out_features == d
+    assert m.mrvm.predictor[0].out_features == 2 * m.cfg.mrvm.proj_dim
+    m.train()
+    out = m.render_rays(ctx, rays, train=True, mask_views=True)
+    assert torch.isfinite(out["mrvm_loss"]) and out["mrvm_loss"] > 0
+    out["mrvm_loss"].backward()
+    assert m.mrvm.predictor[0].weight.grad.abs().sum() > 0 and m.fine.mask_token.grad.abs().sum() > 0
+    assert all(p.grad is None for p in m.mrvm.target_projector.parameters())
+    bn_o, bn_t = m.mrvm.projector[1], m.mrvm.target_projector[1]
+    assert not torch.equal(bn_o.running_mean, torch.zeros_like(bn_o.running_mean))  # the forward updated it
+    before = bn_t.running_mean.clone()
+    m.mrvm.update_target(0.9)
+    assert torch.allclose(bn_t.running_mean, 0.9 * before + 0.1 * bn_o.running_mean)
+    with pytest.raises(Exception, match="mrvm.head"):
+        C.model_config("fast", {**TINY, "mrvm": {"head": "bn"}})
+
+
 def test_all_views_masked_and_single_view_finite():
     m, ctx, rays = _setup(mrvm={"point_mask_ratio": 1.0, "view_mask_prob": 1.0})
     out = m.render_rays(ctx, rays, train=True, mask_views=True)

@@ -115,6 +115,10 @@ class MRVMConfig:
     """Momentum of the target projector (EMA of the online projector)."""
     proj_dim: int = 32
     """Width of the projector / predictor output."""
+    head: str = "ln_gelu"
+    """The projector's and predictor's MLPs: 'ln_gelu' (Linear, LayerNorm, GELU, Linear, the hidden layer 2x the
+    input; every shipped model) or 'bn_relu' (Linear, BatchNorm1d, ReLU, Linear as the official code: the projector's
+    hidden layer the model's width, the predictor's 2x its input; the BYOL-style head)."""
 
 
 @dataclass(frozen=True)
@@ -289,6 +293,8 @@ def validate(cfg: ModelConfig) -> None:
         raise InputError(f"nerformer.color_head must be 'direct' or 'blend', got {n.color_head!r}")
     if n.n_layers < 1 or n.fine_layers < 0 or n.pos_freqs < 0 or n.dir_freqs < 0:
         raise InputError("nerformer.n_layers must be >= 1; fine_layers, pos_freqs and dir_freqs >= 0")
+    if m.head not in ("ln_gelu", "bn_relu"):
+        raise InputError(f"mrvm.head must be 'ln_gelu' or 'bn_relu', got {m.head!r}")
     if m.view_masking not in ("count", "prob") or m.target not in ("coarse", "rerun"):
         raise InputError("mrvm.view_masking must be 'count' or 'prob', mrvm.target 'coarse' or 'rerun'")
     if n.arch == "legacy" and (m.target != "rerun" or m.view_masking != "prob" or n.fine_layers):

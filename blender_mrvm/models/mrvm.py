@@ -75,7 +75,10 @@ def normalized_l2(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return 2.0 - 2.0 * F.cosine_similarity(pred.float(), target.float(), dim=-1, eps=1e-6)
 
 
-def _mlp(d_in: int, d_out: int) -> nn.Sequential:
+def _mlp(d_in: int, d_out: int, head: str = "ln_gelu", hidden: int = 0) -> nn.Sequential:
+    """The head's MLP (``MRVMConfig.head``): 'ln_gelu' with a hidden layer 2x ``d_in``; 'bn_relu' with ``hidden``."""
+    if head == "bn_relu":
+        return nn.Sequential(nn.Linear(d_in, hidden), nn.BatchNorm1d(hidden), nn.ReLU(), nn.Linear(hidden, d_out))
     return nn.Sequential(nn.Linear(d_in, 2 * d_in), nn.LayerNorm(2 * d_in), nn.GELU(), nn.Linear(2 * d_in, d_out))
 
 
@@ -85,8 +88,8 @@ class MRVMHead(nn.Module):
     def __init__(self, d_model: int, cfg: MRVMConfig):
         super().__init__()
         self.cfg = cfg
-        self.projector = _mlp(d_model, cfg.proj_dim)
-        self.predictor = _mlp(cfg.proj_dim, cfg.proj_dim)
+        self.projector = _mlp(d_model, cfg.proj_dim, cfg.head, d_model)  # official: MLP(d, d, proj)
+        self.predictor = _mlp(cfg.proj_dim, cfg.proj_dim, cfg.head, 2 * cfg.proj_dim)  # MLP(proj, 2 proj, proj)
         self.target_projector = copy.deepcopy(self.projector)
         for p in self.target_projector.parameters():
             p.requires_grad_(False)
@@ -96,6 +99,9 @@ class MRVMHead(nn.Module):
         m = self.cfg.ema_momentum if momentum is None else momentum
         for pt, po in zip(self.target_projector.parameters(), self.projector.parameters()):
             pt.mul_(m).add_(po.detach(), alpha=1.0 - m)
+        for bt, bo in zip(self.target_projector.buffers(), self.projector.buffers()):  # BatchNorm's statistics
+            if bt.dtype.is_floating_point:
+                bt.mul_(m).add_(bo.detach(), alpha=1.0 - m)
 
     def loss(self, fine_latent: torch.Tensor, coarse_latent: torch.Tensor, reduce: bool = True) -> torch.Tensor:
         """Mean 2 - 2cos over the given (masked) points; both (N, D). 0 (with grad) when N == 0. ``reduce`` False:
