@@ -12,7 +12,7 @@
 set -eu
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
-ARM=$1                              # mrvm | base | balanced_mrvm (the `balanced` preset, for bench tradeoff)
+ARM=$1                              # mrvm | base | balanced_mrvm (the `balanced` preset, for bench tradeoff) | mrvm_bn (mrvm.head bn_relu)
 BUDGETS=${BUDGETS:-"1000 3000 9000"} # pretraining steps; finetuning adds a third
 SEED=${SEED:-0}
 SETTING=${SETTING:-unseen}          # unseen | all

@@ -1,6 +1,6 @@
 """The table of scripts/mrvm_budgets.sh: MRVM minus the identical model without it, per training budget.
 
-    python scripts/mrvm_budgets_table.py [data/eval]
+    python scripts/mrvm_budgets_table.py [data/eval] [ARM]   (ARM: mrvm, the default, or mrvm_bn)
 
 Reads ``budget_[all_][gpu_][r{RAYS}_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder (``all_``: the
 ``all`` setting; ``gpu_``: ``scripts/gpu_session.sh mrvm_scale``'s runs; ``r{RAYS}_``: ``mrvm_budgets.sh`` with
@@ -20,7 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from blender_mrvm.training.evaluate import compare_reports  # noqa: E402
 
-NAME = re.compile(r"budget_(all_)?(gpu_)?(r\d+_)?mrvm_s(\d+)_p(\d+)_(\d)v$")
+ARM = sys.argv[2] if len(sys.argv) > 2 else "mrvm"  # the MRVM arm to pair with base: mrvm, or mrvm_bn (mrvm.head)
+NAME = re.compile(rf"budget_(all_)?(gpu_)?(r\d+_)?{ARM}_s(\d+)_p(\d+)_(\d)v$")
 
 
 def interval(s: dict) -> str:
@@ -49,10 +50,10 @@ def batch(report: dict) -> str:
 
 def main(root: Path) -> str:
     rows = []
-    for d in sorted((p for p in root.glob("budget_*mrvm_s*_p*_*v") if NAME.search(p.name)), key=order):
+    for d in sorted((p for p in root.glob(f"budget_*{ARM}_s*_p*_*v") if NAME.search(p.name)), key=order):
         setting, gpu, rays, seed, steps, views = NAME.search(d.name).groups()
         setting = "all" if setting else "unseen"
-        other = root / d.name.replace("mrvm_s", "base_s")
+        other = root / d.name.replace(f"{ARM}_s", "base_s")
         if not (d / "eval.json").is_file() or not (other / "eval.json").is_file():
             continue
         a, b = json.loads((d / "eval.json").read_text()), json.loads((other / "eval.json").read_text())
