@@ -43,7 +43,7 @@ from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
-from .video import VIDEO_EXTENSIONS, extract_frames, is_video
+from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
 from ..datasets.format import remove_entries
 from .export import OUTPUT_ENTRIES, CaptureView, write_capture
 
@@ -450,7 +450,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     t, c = time.perf_counter(), time.process_time()
 
     # 1. scan (a video: its frames first)
-    source, video_info, video_ups = images_dir, None, None
+    source, video_info = images_dir, None
     if is_video(images_dir):
         cfg = replace(cfg, single_camera=True)  # one camera: its focal length from the view graph (no EXIF)
         fresh = not out_dir.exists()
@@ -460,8 +460,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         if images_dir.exists():
             shutil.rmtree(images_dir)
         try:
-            names, video_info, video_ups = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
-                                                              _STAGE_END["scan"])
+            names, video_info = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
+                                                   _STAGE_END["scan"])
             size, turned_photos = check_images(images_dir, names, cfg)
         except BaseException:
             if fresh:  # a video that cannot be read leaves no output folder behind
@@ -610,8 +610,10 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
 
     # 6. export
     t, c = time.perf_counter(), time.process_time()
-    ups_cam, turned = (photo_ups(images_dir, reg_photos, turned_photos) if video_ups is None else
-                       ([video_ups[names.index(n)] for n in reg_photos], {}))
+    if video_info is None:
+        ups_cam, turned = photo_ups(images_dir, reg_photos, turned_photos)
+    else:  # one display rotation for every frame
+        ups_cam, turned = [np.array(up_from_rotation(video_info["display_rotation_deg"]))] * len(reg_photos), {}
     by_name = {im.name: im for im in rec.images.values() if im.has_pose}
     c2ws, intrs = [], []
     for n in reg_names:

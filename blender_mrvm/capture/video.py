@@ -42,8 +42,8 @@ def _sharpness(grey: np.ndarray) -> float:
 
 def extract_frames(video: Path, out_dir: Path, count: int) -> ProgressGen:
     """Write the sharpest frame of each of ``count`` equal spans of ``video`` to ``out_dir`` as frame_000001.jpg,
-    ... A progress generator over the decoded frames; returns (names, info, ups): info holds the video's frame
-    rate, duration, size, display rotation and the kept frames' times; ups each frame's up in its camera's axes."""
+    ... A progress generator over the decoded frames; returns (names, info): info holds the video's frame rate,
+    duration, size, display rotation (every frame's up: :func:`up_from_rotation`) and the kept frames' times."""
     try:
         import av
     except ImportError:
@@ -120,8 +120,7 @@ def extract_frames(video: Path, out_dir: Path, count: int) -> ProgressGen:
         (out_dir / f"span_{span:06d}.jpg").replace(out_dir / name)
         names.append(name)
         times.append(round(kept[span][1], 4))
-    up = up_from_rotation(rotation)
     info = {"path": str(video.resolve()), "frames_decoded": seen, "frames_kept": len(names), "fps": rate,
             "duration_s": round(duration, 4), "width": size[0], "height": size[1],
             "display_rotation_deg": rotation, "times_s": times}
-    return names, info, [np.array(up)] * len(names)
+    return names, info

@@ -414,27 +414,23 @@ def check_mesh_file(path: Path) -> None:
     scanned as text (fast for big ShapeNet files); OFF is checked where trimesh imports it."""
     ext = path.suffix.lower()
     bad = 0
-    if ext == ".obj":
+    if ext == ".obj" or ext in _ASSIMP_TEXT_EXTS:
         try:
-            data = path.read_bytes()
+            if ext == ".obj":
+                data = path.read_bytes()  # all of it: the non-finite scan below
+            else:
+                with open(path, "rb") as f:
+                    data = f.read(4096)
         except OSError:
             return  # the importer reports it
         if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:
+            reader = ("Blender's OBJ importer misreads without a word (signs and decimals of numbers are lost)"
+                      if ext == ".obj" else f"assimp's {ASSIMP_EXTS[ext]} reader cannot parse")
             raise InputError(f"cannot read mesh file {path}: it is UTF-16 or UTF-32 text (or holds NUL bytes), "
-                             "which Blender's OBJ importer misreads without a word (signs and decimals of numbers "
-                             f"are lost); save it as UTF-8, e.g. iconv -f UTF-16 -t UTF-8 '{path.name}' > "
-                             f"'{path.stem}_utf8.obj'")
-        bad = len(_OBJ_NONFINITE.findall(data))
-    elif ext in _ASSIMP_TEXT_EXTS:
-        try:
-            with open(path, "rb") as f:
-                head = f.read(4096)
-        except OSError:
-            return  # the importer reports it
-        if head[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in head:
-            raise InputError(f"cannot read mesh file {path}: it is UTF-16 or UTF-32 text (or holds NUL bytes), which "
-                             f"assimp's {ASSIMP_EXTS[ext]} reader cannot parse; save it as UTF-8, e.g. iconv -f UTF-16 "
-                             f"-t UTF-8 '{path.name}' > '{path.stem}_utf8{path.suffix}'")
+                             f"which {reader}; save it as UTF-8, e.g. iconv -f UTF-16 -t UTF-8 '{path.name}' > "
+                             f"'{path.stem}_utf8{path.suffix}'")
+        if ext == ".obj":
+            bad = len(_OBJ_NONFINITE.findall(data))
     elif ext in (".ply", ".stl", ".glb", ".gltf"):
         import trimesh
 
@@ -663,7 +659,24 @@ _ASSIMP_TO_Z_UP = {".3mf": Matrix.Identity(4), ".amf": Matrix.Identity(4)}
 def _assimp_scene(path: Path, fmt: str):
     """assimp-py's scene of ``path`` (triangles; a file that mixes lines or points with faces is read from a copy
     without them: :data:`_FACES_ONLY`). An InputError when assimp-py is missing or the file holds no faces; a
-    :class:`_NoMesh` with assimp's reason when it cannot read it."""
+    :class:`_NoMesh` with assimp's reason when it cannot read it. The last file's scene is kept while its size and
+    time are unchanged: the resume hash (:func:`linked_files`) and the import that follows read it once."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        st = None
+    key = (str(path), st.st_size, st.st_mtime_ns) if st is not None else None
+    if key is not None and _LAST_SCENE and _LAST_SCENE[0] == key:
+        return _LAST_SCENE[1]
+    scene = _read_assimp_scene(path, fmt)
+    _LAST_SCENE[:] = [key, scene] if key is not None else []
+    return scene
+
+
+_LAST_SCENE: list = []  # [(path, size, mtime), scene] of :func:`_assimp_scene`'s last file
+
+
+def _read_assimp_scene(path: Path, fmt: str):
     try:
         import assimp_py as A
     except ImportError:
