@@ -4,7 +4,7 @@
 
 Reads ``budget_[all_][gpu_][r{RAYS}_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json`` under the folder (``all_``: the
 ``all`` setting; ``gpu_``: ``scripts/gpu_session.sh mrvm_scale``'s runs; ``r{RAYS}_``: ``mrvm_budgets.sh`` with
-``RAYS``, more rays a step; the batch of both is read from the checkpoint), pairs each MRVM evaluation with the baseline's on the same views
+``RAYS``, more rays a step; ``oft_``: ``FT=official``, the official code's finetune; the batch of both is read from the checkpoint), pairs each MRVM evaluation with the baseline's on the same views
 (``training.evaluate.compare_reports``: objects are the unit) and prints, per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
 difference with its 95% interval over objects (mean +- 1.96 standard errors).
 """
@@ -20,8 +20,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from blender_mrvm.training.evaluate import compare_reports  # noqa: E402
 
-ARM = sys.argv[2] if len(sys.argv) > 2 else "mrvm"  # the MRVM arm to pair with base: mrvm, or mrvm_bn (mrvm.head)
-NAME = re.compile(rf"budget_(all_)?(gpu_)?(r\d+_)?{ARM}_s(\d+)_p(\d+)_(\d)v$")
+
+
+def run_name(arm: str) -> re.Pattern:
+    """The evaluation folders of ``arm`` (mrvm, or mrvm_bn: mrvm.head bn_relu), the arm paired with base."""
+    return re.compile(rf"budget_(all_)?(gpu_)?(r\d+_)?(oft_)?{arm}_s(\d+)_p(\d+)_(\d)v$")
 
 
 def interval(s: dict) -> str:
@@ -31,10 +34,10 @@ def interval(s: dict) -> str:
     return f"{s['diff']:+.3f} [{s['diff'] - h:+.3f}, {s['diff'] + h:+.3f}]"
 
 
-def order(p: Path) -> list:
+def order(p: Path, name: re.Pattern) -> list:
     """`unseen` before `all`, then seed, budget and reference count."""
-    setting, gpu, rays, *nums = NAME.search(p.name).groups()
-    return [bool(setting), bool(gpu), int((rays or "r0_")[1:-1]), *map(int, nums)]
+    setting, gpu, rays, oft, *nums = name.search(p.name).groups()
+    return [bool(setting), bool(gpu), int((rays or "r0_")[1:-1]), bool(oft), *map(int, nums)]
 
 
 def batch(report: dict) -> str:
@@ -48,23 +51,26 @@ def batch(report: dict) -> str:
         return ""
 
 
-def main(root: Path) -> str:
-    rows = []
-    for d in sorted((p for p in root.glob(f"budget_*{ARM}_s*_p*_*v") if NAME.search(p.name)), key=order):
-        setting, gpu, rays, seed, steps, views = NAME.search(d.name).groups()
+def main(root: Path, arm: str = "mrvm") -> str:
+    rows, name = [], run_name(arm)
+    for d in sorted((p for p in root.glob(f"budget_*{arm}_s*_p*_*v") if name.search(p.name)),
+                    key=lambda p: order(p, name)):
+        setting, gpu, rays, oft, seed, steps, views = name.search(d.name).groups()
         setting = "all" if setting else "unseen"
-        other = root / d.name.replace(f"{ARM}_s", "base_s")
+        other = root / d.name.replace(f"{arm}_s", "base_s")
         if not (d / "eval.json").is_file() or not (other / "eval.json").is_file():
             continue
         a, b = json.loads((d / "eval.json").read_text()), json.loads((other / "eval.json").read_text())
         c = compare_reports(a, b)["overall"]
         oa, ob = a["overall"], b["overall"]
-        finetune = int(steps) // 3  # scripts/mrvm_budgets.sh: F = P / 3
+        finetune = 2 * int(steps) if oft else int(steps) // 3  # scripts/mrvm_budgets.sh: F = P / 3, FT=official 2P
         if gpu:
             setting += f", GPU {batch(a)} rays a step".replace("GPU  rays a step", "GPU")
         elif rays:  # scripts/mrvm_budgets.sh with RAYS: the recipe at more rays a step
             b = batch(a)
             setting += f", {b} rays a step" if b else f", {rays[1:-1]} rays per object a step"
+        if oft:  # scripts/mrvm_budgets.sh with FT=official: the official code's finetune
+            setting += ", official finetune (2P at lr 1e-3)"
         rows.append(f"| {setting} | {seed} | {steps} + {finetune} = {int(steps) + finetune} | {views} | {c['views']} "
                     f"| {oa['psnr']:.2f} / {oa['ssim']:.3f} / {oa['lpips']:.3f} "
                     f"| {ob['psnr']:.2f} / {ob['ssim']:.3f} / {ob['lpips']:.3f} "
@@ -78,4 +84,5 @@ def main(root: Path) -> str:
 
 
 if __name__ == "__main__":
-    print(main(Path(sys.argv[1] if len(sys.argv) > 1 else "data/eval")), end="")
+    print(main(Path(sys.argv[1] if len(sys.argv) > 1 else "data/eval"), sys.argv[2] if len(sys.argv) > 2 else "mrvm"),
+          end="")

@@ -351,7 +351,8 @@ def test_cudnn_attention_is_kept_out_unless_asked(monkeypatch):
 
 def test_mrvm_budgets_table_pairs_the_arms_and_names_a_gpu_budget_batch(tmp_path):
     """scripts/mrvm_budgets_table.py: MRVM minus base per seed, budget and reference count; the GPU runs of
-    `gpu_session.sh mrvm_scale` (``budget_all_gpu_*``) get their own rows, with the batch read from the checkpoint."""
+    `gpu_session.sh mrvm_scale` (``budget_all_gpu_*``) get their own rows, with the batch read from the checkpoint,
+    and so do runs with the official finetune (``budget_oft_*``)."""
     import importlib.util
 
     from blender_mrvm.models.config import model_config
@@ -378,12 +379,18 @@ def test_mrvm_budgets_table_pairs_the_arms_and_names_a_gpu_budget_batch(tmp_path
                             ("budget_all_{}_s1_p9000_2v", "mrvm", [20, 20, 20, 20]),
                             ("budget_all_{}_s1_p9000_2v", "base", [20, 20, 21, 21]),
                             ("budget_all_r1024_{}_s2_p1000_1v", "mrvm", [20, 20, 20, 20]),
-                            ("budget_all_r1024_{}_s2_p1000_1v", "base", [19, 19, 19, 19])):
+                            ("budget_all_r1024_{}_s2_p1000_1v", "base", [19, 19, 19, 19]),
+                            ("budget_oft_{}_s0_p1000_2v", "mrvm", [20, 21, 20, 21]),
+                            ("budget_oft_{}_s0_p1000_2v", "base", [20, 20, 20, 20])):
         d = tmp_path / "eval" / name.format(arm)
         d.mkdir(parents=True)
         (d / "eval.json").write_text(json.dumps(report(psnr, run if "gpu" in name else tmp_path / "gone")))
     rows = table.main(tmp_path / "eval").splitlines()[2:]
-    assert len(rows) == 3
+    assert len(rows) == 4
+    # FT=official runs of scripts/mrvm_budgets.sh: the official finetune, 2P steps, in their own rows
+    assert rows[0].startswith("| unseen, official finetune (2P at lr 1e-3) | 0 | 1000 + 2000 = 3000 | 2 | 4 |")
+    assert "| +0.500 [" in rows[0]
+    rows = rows[1:]
     assert rows[0].startswith("| all | 1 | 9000 + 3000 = 12000 | 2 | 4 |") and "| -0.500 [" in rows[0]
     # RAYS=1024 runs of scripts/mrvm_budgets.sh: their own rows (the checkpoint is gone, so the name gives the rays)
     assert rows[1].startswith("| all, 1024 rays per object a step | 2 | 1000 + 333 = 1333 | 1 | 4 |") and "| +1.000" in rows[1]
