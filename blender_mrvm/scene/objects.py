@@ -450,13 +450,26 @@ def _has_faces(o: bpy.types.Object) -> bool:
     """Whether a mesh object has faces once evaluated (an Alembic or USD cache fills its mesh in a modifier)."""
     if len(o.data.polygons) > 0:
         return True
-    dg = bpy.context.evaluated_depsgraph_get()
-    ev = o.evaluated_get(dg)
+    with evaluated_mesh(o.evaluated_get(bpy.context.evaluated_depsgraph_get())) as me:
+        return len(me.polygons) > 0
+
+
+@contextlib.contextmanager
+def evaluated_mesh(ev: bpy.types.Object):
+    """The mesh of an evaluated object (modifiers applied), freed when the block ends."""
     me = ev.to_mesh()
     try:
-        return len(me.polygons) > 0
+        yield me
     finally:
         ev.to_mesh_clear()
+
+
+def rendered_meshes(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer):
+    """``(object, evaluated object)`` for each render-visible mesh of ``objs`` (:func:`renders`), ``view_layer``
+    updated first."""
+    view_layer.update()
+    depsgraph = view_layer.depsgraph
+    return [(o, o.evaluated_get(depsgraph)) for o in objs if renders(o)]
 
 
 def _drop_scene_objects(new: list[bpy.types.Object]) -> list[bpy.types.Object]:
@@ -1154,22 +1167,13 @@ def renders(o: bpy.types.Object) -> bool:
 def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
     """World-space vertices of the evaluated, render-visible meshes (modifiers applied) in ``view_layer``, (N, 3):
     the meshes :func:`mesh_triangles` rasterizes."""
-    view_layer.update()
-    depsgraph = view_layer.depsgraph
     pts = []
-    for o in objs:
-        if not renders(o):
-            continue
-        ev = o.evaluated_get(depsgraph)
-        me = ev.to_mesh()
-        try:
+    for _, ev in rendered_meshes(objs, view_layer):
+        with evaluated_mesh(ev) as me:
             co = np.empty(len(me.vertices) * 3, dtype=np.float64)
             me.vertices.foreach_get("co", co)
-            co = co.reshape(-1, 3)
-            m = np.array(ev.matrix_world, dtype=np.float64)
-            pts.append(co @ m[:3, :3].T + m[:3, 3])
-        finally:
-            ev.to_mesh_clear()
+        m = np.array(ev.matrix_world, dtype=np.float64)
+        pts.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
     if not pts or sum(len(p) for p in pts) == 0:
         raise InputError("the object has no vertices")
     return np.concatenate(pts)
@@ -1205,15 +1209,9 @@ def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer
     """
     from .raster import Triangles, concatenate
 
-    view_layer.update()
-    depsgraph = view_layer.depsgraph
     parts = []
-    for o in objs:
-        if not renders(o):
-            continue
-        ev = o.evaluated_get(depsgraph)
-        me = ev.to_mesh()
-        try:
+    for o, ev in rendered_meshes(objs, view_layer):
+        with evaluated_mesh(ev) as me:
             if hasattr(me, "calc_loop_triangles"):
                 me.calc_loop_triangles()
             n = len(me.loop_triangles)
@@ -1234,8 +1232,6 @@ def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer
             smooth = np.empty(len(me.polygons), dtype=bool)
             me.polygons.foreach_get("use_smooth", smooth)
             mats = [m.pass_index if m is not None else 0 for m in me.materials] or [0]
-        finally:
-            ev.to_mesh_clear()
         m = np.array(ev.matrix_world, dtype=np.float64)
         lin = m[:3, :3]
         verts = (co.reshape(-1, 3) @ lin.T + m[:3, 3])[tv.reshape(-1, 3)]
@@ -1306,17 +1302,13 @@ def source_fingerprint(spec: ObjectSpec) -> str:
             src = bpy.data.objects.get(name)
             if src is None:
                 raise InputError(f"object {name!r} no longer exists")
-            ev = src.evaluated_get(depsgraph)
-            me = ev.to_mesh()
-            try:
+            with evaluated_mesh(src.evaluated_get(depsgraph)) as me:
                 co = np.empty(len(me.vertices) * 3, dtype=np.float32)
                 me.vertices.foreach_get("co", co)
                 lv = np.empty(len(me.loops), dtype=np.int32)
                 me.loops.foreach_get("vertex_index", lv)
                 h.update(co.tobytes() + lv.tobytes())
                 h.update(repr([m.name if m else "" for m in me.materials]).encode())
-            finally:
-                ev.to_mesh_clear()
             h.update(np.array(src.matrix_world, dtype=np.float32).tobytes())
     return "sha256:" + h.hexdigest()
 
