@@ -102,7 +102,7 @@ def extract_frames(video: Path, out_dir: Path, count: int) -> ProgressGen:
                     held[:] = [span, sharp, t, frame.to_ndarray(format="rgb24")]
                 if seen % 10 == 0:
                     yield Progress(min(seen, expected) if expected else 0, expected,
-                                   f"reading frames of {video.name}: {seen}")
+                                   f"reading frames of {video.name}: {seen}" + (f" of {expected}" if expected else ""))
         except av.FFmpegError as e:
             if not kept and not held:
                 raise InputError(f"cannot read video {video}: {str(e).splitlines()[0]}") from None
