@@ -23,6 +23,7 @@
 #                                                      nofoot: skipping without the footprint), seconds a view
 #   scripts/gpu_session.sh score CHECKPOINT ...        held-out scores on the GPU (SCORE_SETS; gpu_eval_pack.sh)
 #   scripts/gpu_session.sh mrvm_scale                  MRVM against none at a GPU budget, both arms side by side
+#                                                      (FT_RECIPE=official: the official code's finetune, 2 x PRE at lr 1e-3)
 #   scripts/gpu_session.sh train CONFIG SECONDS [CONFIG SECONDS ...]
 #                                                      runs side by side, each stopped (SIGINT) after SECONDS;
 #                                                      each run's last checkpoint's model in fp16, its log, and
@@ -320,7 +321,14 @@ EOF
     # short (then the arms are not comparable; the guards allow 1.5 s a step, session 28 ran ~1.05 side by side).
     # Back: scale_<arm>.safetensors (fp16), scale_<arm>.log,
     # scale_runs.tgz (configs and metrics), gpu_util.log; scored on the CPU (docs/gpu_session.md).
+    # FT_RECIPE=official: the official code's finetune instead, 2 x PRE steps at a constant lr 1e-3 with no warm-up
+    # (session 44 on the CPU: it takes MRVM's PSNR cost away; RECIPE.md "The official finetune").
     PRE=${PRE:-300}; FT=$((PRE / 3)); [ "$FT" -ge 1 ] || FT=1
+    case "${FT_RECIPE:-}" in
+      official) FT=$((2 * PRE)) ;;
+      "") ;;
+      *) echo "error: FT_RECIPE must be official or unset, not $FT_RECIPE" >&2; exit 2 ;;
+    esac
     mkdir -p runs /tmp/mrvm_scale
     pids=()
     for arm in mrvm base; do
@@ -337,10 +345,13 @@ c["train"].update(lr_warmup=warmup, data=os.environ.get("MRVM_DATA", "gpu_carry/
                   device=os.environ.get("DEVICE", "cuda"), amp=os.environ.get("AMP", "none"), threads=0,
                   log_every=5, ckpt_every=1000000, keep_checkpoints=1)
 json.dump(c, open(out, "w"), indent=1)
+if os.environ.get("FT_RECIPE") == "official":  # the finetune's own settings win over the fine-tuning policy
+    c["train"].update(lr=1e-3, lr_final_frac=1.0, lr_warmup=0)
+json.dump(c, open(out.replace(".json", "_ft.json"), "w"), indent=1)
 EOF
       ( timeout -s INT ${PRE_S:-$((PRE * 3 / 2 + 60))} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json --iterations $PRE \
           --out runs/scale_${arm}_pre --no-resume --force
-        timeout -s INT ${FT_S:-$((FT * 3 / 2 + 60))} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json \
+        timeout -s INT ${FT_S:-$((FT * 3 / 2 + 60))} $PY -m blender_mrvm train --config /tmp/mrvm_scale/${arm}_ft.json \
           --init runs/scale_${arm}_pre --iterations $FT --out runs/scale_$arm --no-resume --force ) > "$OUT/scale_$arm.log" 2>&1 &
       pids+=($!)
     done

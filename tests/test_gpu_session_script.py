@@ -125,10 +125,12 @@ def _refused(data: Path) -> None:
 
 
 @pytest.mark.slow
-def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path):
+@pytest.mark.parametrize("recipe", ["", "official"])
+def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path, recipe):
     """`gpu_session.sh mrvm_scale` (issue 11's MRVM trend at a GPU budget), here on the CPU with a tiny batch: each
-    arm pretrains PRE steps (the MRVM arm masking) and finetunes PRE/3 from it (no masking, lr 1e-4), the arms
-    differ only in MRVM, and the fp16 models, logs and run configs come back with the steps each run reached."""
+    arm pretrains PRE steps (the MRVM arm masking) and finetunes PRE/3 from it (no masking, lr 1e-4), or with
+    FT_RECIPE=official 2 x PRE steps at a constant lr 1e-3 (the official code's finetune); the arms differ only in
+    MRVM, and the fp16 models, logs and run configs come back with the steps each run reached."""
     root = tmp_path / "repo"
     (root / "scripts").mkdir(parents=True)
     shutil.copy(REPO / "scripts" / "gpu_session.sh", root / "scripts")
@@ -137,11 +139,12 @@ def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     env = {**os.environ, "OUT": str(out), "PY": sys.executable, "OMP_NUM_THREADS": "1", "DEVICE": "cpu", "OBJ": "1",
-           "RAYS": "16", "PRE": "3", "MRVM_DATA": str(data)}
+           "RAYS": "16", "PRE": "3", "MRVM_DATA": str(data), "FT_RECIPE": recipe}
     r = subprocess.run(["bash", "scripts/gpu_session.sh", "mrvm_scale"], cwd=root, env=env, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
-    for run, want in (("scale_mrvm_pre", 3), ("scale_mrvm", 1), ("scale_base_pre", 3), ("scale_base", 1)):
+    ft = 6 if recipe else 1
+    for run, want in (("scale_mrvm_pre", 3), ("scale_mrvm", ft), ("scale_base_pre", 3), ("scale_base", ft)):
         assert f"runs/{run}: step {want} of {want}\n" in r.stdout, r.stdout + r.stderr
     assert "CUT SHORT" not in r.stdout
     assert {p.name for p in out.iterdir()} >= {"scale_mrvm.safetensors", "scale_base.safetensors", "scale_mrvm.log",
@@ -152,7 +155,10 @@ def test_mrvm_scale_trains_both_arms_with_the_two_run_recipe(tmp_path):
                    for n in t.getnames() if n.endswith("metrics.jsonl")}
     assert [cfg[r]["model"]["config"]["mrvm"]["enabled"] for r in ("scale_mrvm_pre", "scale_base_pre")] == [True, False]
     assert masking == {"scale_mrvm_pre": {True}, "scale_mrvm": {False}, "scale_base_pre": {False}, "scale_base": {False}}
-    assert cfg["scale_mrvm"]["train"]["lr"] == cfg["scale_base"]["train"]["lr"] == 1e-4  # the finetuning policy
+    if recipe:  # the official finetune: constant 1e-3, no warm-up
+        assert [cfg["scale_mrvm"]["train"][k] for k in ("lr", "lr_final_frac", "lr_warmup")] == [1e-3, 1.0, 0]
+    else:
+        assert cfg["scale_mrvm"]["train"]["lr"] == cfg["scale_base"]["train"]["lr"] == 1e-4  # the finetuning policy
     strip = lambda c: {**c["train"], "out_dir": "", "init_checkpoint": ""}  # noqa: E731
     assert strip(cfg["scale_mrvm"]) == strip(cfg["scale_base"]) and strip(cfg["scale_mrvm_pre"]) == strip(cfg["scale_base_pre"])
     assert cfg["scale_mrvm_pre"]["train"]["objects_per_step"] == 1 and cfg["scale_mrvm_pre"]["train"]["rays_per_object"] == 16
