@@ -346,7 +346,8 @@ c["train"].update(lr_warmup=warmup, data=os.environ.get("MRVM_DATA", "gpu_carry/
                   log_every=5, ckpt_every=1000000, keep_checkpoints=1)
 json.dump(c, open(out, "w"), indent=1)
 if os.environ.get("FT_RECIPE") == "official":  # the finetune's own settings win over the fine-tuning policy
-    c["train"].update(lr=1e-3, lr_final_frac=1.0, lr_warmup=0)
+    from blender_mrvm.training.config import MRVM_OFFICIAL_FINETUNE
+    c["train"].update(MRVM_OFFICIAL_FINETUNE)
 json.dump(c, open(out.replace(".json", "_ft.json"), "w"), indent=1)
 EOF
       ( timeout -s INT ${PRE_S:-$((PRE * 3 / 2 + 60))} $PY -m blender_mrvm train --config /tmp/mrvm_scale/$arm.json --iterations $PRE \

@@ -33,7 +33,7 @@ FT_CFG=$CFG
 if [ "${FT:-}" = official ]; then
   NAME=${NAME}oft_
   mkdir -p data/runs && FT_CFG=data/runs/${NAME}${ARM}.json
-  $PY -c 'import json, sys; c = json.load(open(sys.argv[1])); c["train"].update(lr=1e-3, lr_final_frac=1.0, lr_warmup=0); json.dump(c, open(sys.argv[2], "w"), indent=1)' "$CFG" "$FT_CFG"
+  $PY -c 'import json, sys; from blender_mrvm.training.config import MRVM_OFFICIAL_FINETUNE as F; c = json.load(open(sys.argv[1])); c["train"].update(F); json.dump(c, open(sys.argv[2], "w"), indent=1)' "$CFG" "$FT_CFG"
 elif [ -n "${FT:-}" ]; then
   echo "error: FT must be official or unset, not $FT" >&2; exit 2
 fi

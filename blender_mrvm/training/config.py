@@ -208,6 +208,13 @@ rays from the whole image (no bbox sampling, as the official finetuning). Settin
 itself win."""
 
 
+MRVM_OFFICIAL_FINETUNE = {"lr": 1e-3, "lr_final_frac": 1.0, "lr_warmup": 0}
+"""The official MRVM code's finetuning run (``NeRFormer+MRVM/scripts/finetune.sh``): a constant lr 1e-3 with no
+warm-up, for twice the pretraining's steps. Not the fine-tuning policy (:data:`FINETUNE`): the MRVM budget study's
+second run with ``FT=official`` (``scripts/mrvm_budgets.sh``, ``gpu_session.sh mrvm_scale``), which took MRVM's PSNR
+cost away there (RECIPE.md "The official finetune")."""
+
+
 OPACITY_WEIGHT = 0.1
 """``opacity_weight`` of a new run on our renders whose config names none. Measured (RECIPE.md, "Depth from the
 renders' depth maps"): from scratch at equal budget, LPIPS 0.277 against 0.337 without it and background opacity
