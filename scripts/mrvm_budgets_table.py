@@ -6,12 +6,15 @@ Reads ``budget_[all_][gpu_][r{RAYS}_]{mrvm,base}_s{SEED}_p{P}_{1,2}v/eval.json``
 ``all`` setting; ``gpu_``: ``scripts/gpu_session.sh mrvm_scale``'s runs; ``r{RAYS}_``: ``mrvm_budgets.sh`` with
 ``RAYS``, more rays a step; ``oft_``: ``FT=official``, the official code's finetune; the batch of both is read from the checkpoint), pairs each MRVM evaluation with the baseline's on the same views
 (``training.evaluate.compare_reports``: objects are the unit) and prints, per seed, budget and reference count, both models' PSNR / SSIM / LPIPS, the nearest view's, and the paired
-difference with its 95% interval over objects (mean +- 1.96 standard errors).
+difference with its 95% interval over objects (mean +- 1.96 standard errors). A second table gives, per setting,
+budget and reference count, the mean paired difference over seeds with its standard error over seeds (the seed's
+spread is the larger one here: RECIPE.md "Two more seeds").
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -51,8 +54,28 @@ def batch(report: dict) -> str:
         return ""
 
 
-def main(root: Path, arm: str = "mrvm") -> str:
-    rows, name = [], run_name(arm)
+def over_seeds(diffs: list[float]) -> str:
+    """Mean over seeds, with the standard error over seeds when there are two or more."""
+    m = sum(diffs) / len(diffs)
+    if len(diffs) < 2:
+        return f"{m:+.3f}"
+    sd = math.sqrt(sum((d - m) ** 2 for d in diffs) / (len(diffs) - 1))
+    return f"{m:+.3f} ({sd / math.sqrt(len(diffs)):.3f})"
+
+
+def seeds_table(groups: dict) -> str:
+    """Per setting, budget and reference count: seeds, then the PSNR / SSIM / LPIPS differences' mean (SE) over them."""
+    head = ("| setting | steps (pretrain + finetune) | refs | seeds | PSNR diff, mean (SE) | SSIM diff | LPIPS diff |\n"
+            "|---|---|---:|---|---|---|---|\n")
+    rows = [f"| {setting} | {steps} | {views} | {', '.join(seeds)} | " + " | ".join(over_seeds(d[k]) for k in
+                                                                                   ("psnr", "ssim", "lpips")) + " |"
+            for (setting, steps, views), (seeds, d) in groups.items()]
+    return head + "\n".join(rows) + "\n"
+
+
+def main(root: Path, arm: str = "mrvm", seeds: bool = True) -> str:
+    """The per-seed table, then (``seeds``) the mean over seeds of each setting, budget and reference count."""
+    rows, name, groups = [], run_name(arm), {}
     for d in sorted((p for p in root.glob(f"budget_*{arm}_s*_p*_*v") if name.search(p.name)),
                     key=lambda p: order(p, name)):
         setting, gpu, rays, oft, seed, steps, views = name.search(d.name).groups()
@@ -71,7 +94,12 @@ def main(root: Path, arm: str = "mrvm") -> str:
             setting += f", {b} rays a step" if b else f", {rays[1:-1]} rays per object a step"
         if oft:  # scripts/mrvm_budgets.sh with FT=official: the official code's finetune
             setting += ", official finetune (2P at lr 1e-3)"
-        rows.append(f"| {setting} | {seed} | {steps} + {finetune} = {int(steps) + finetune} | {views} | {c['views']} "
+        budget = f"{steps} + {finetune} = {int(steps) + finetune}"
+        seen, d = groups.setdefault((setting, budget, views), ([], {"psnr": [], "ssim": [], "lpips": []}))
+        seen.append(seed)
+        for k in d:
+            d[k].append(c[k]["diff"])
+        rows.append(f"| {setting} | {seed} | {budget} | {views} | {c['views']} "
                     f"| {oa['psnr']:.2f} / {oa['ssim']:.3f} / {oa['lpips']:.3f} "
                     f"| {ob['psnr']:.2f} / {ob['ssim']:.3f} / {ob['lpips']:.3f} "
                     f"| {oa['baseline_nearest']['psnr']:.2f} / {oa['baseline_nearest']['lpips']:.3f} "
@@ -80,7 +108,10 @@ def main(root: Path, arm: str = "mrvm") -> str:
     head = ("| setting | seed | steps (pretrain + finetune) | refs | views | MRVM PSNR / SSIM / LPIPS | without MRVM "
             "| nearest view PSNR / LPIPS | PSNR diff [95%] | SSIM diff [95%] | LPIPS diff [95%] "
             "| objects where MRVM has the higher PSNR |\n|---|---|---|---:|---:|---|---|---|---|---|---|---:|\n")
-    return head + "\n".join(rows) + "\n"
+    out = head + "\n".join(rows) + "\n"
+    if seeds and groups:
+        out += "\nMRVM minus none, mean over seeds (SE over seeds):\n\n" + seeds_table(groups)
+    return out
 
 
 if __name__ == "__main__":

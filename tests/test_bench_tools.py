@@ -381,16 +381,26 @@ def test_mrvm_budgets_table_pairs_the_arms_and_names_a_gpu_budget_batch(tmp_path
                             ("budget_all_r1024_{}_s2_p1000_1v", "mrvm", [20, 20, 20, 20]),
                             ("budget_all_r1024_{}_s2_p1000_1v", "base", [19, 19, 19, 19]),
                             ("budget_oft_{}_s0_p1000_2v", "mrvm", [20, 21, 20, 21]),
-                            ("budget_oft_{}_s0_p1000_2v", "base", [20, 20, 20, 20])):
+                            ("budget_oft_{}_s0_p1000_2v", "base", [20, 20, 20, 20]),
+                            ("budget_oft_{}_s1_p1000_2v", "mrvm", [20, 20, 20, 20]),
+                            ("budget_oft_{}_s1_p1000_2v", "base", [20, 20, 20, 20])):
         d = tmp_path / "eval" / name.format(arm)
         d.mkdir(parents=True)
         (d / "eval.json").write_text(json.dumps(report(psnr, run if "gpu" in name else tmp_path / "gone")))
-    rows = table.main(tmp_path / "eval").splitlines()[2:]
-    assert len(rows) == 4
+    per_seed, _, seeds = table.main(tmp_path / "eval").partition("mean over seeds")
+    assert per_seed == table.main(tmp_path / "eval", seeds=False) + "\nMRVM minus none, "
+    rows = per_seed.splitlines()[2:-2]
+    assert len(rows) == 5
     # FT=official runs of scripts/mrvm_budgets.sh: the official finetune, 2P steps, in their own rows
     assert rows[0].startswith("| unseen, official finetune (2P at lr 1e-3) | 0 | 1000 + 2000 = 3000 | 2 | 4 |")
-    assert "| +0.500 [" in rows[0]
-    rows = rows[1:]
+    assert "| +0.500 [" in rows[0] and "| +0.000 [" in rows[1]
+    # the seeds' table: one row per setting, budget and reference count; mean and SE over the seeds
+    means = seeds.splitlines()[4:]
+    assert len(means) == 4
+    assert means[0] == ("| unseen, official finetune (2P at lr 1e-3) | 1000 + 2000 = 3000 | 2 | 0, 1 "
+                        "| +0.250 (0.250) | +0.000 (0.000) | +0.000 (0.000) |")
+    assert means[1].startswith("| all | 9000 + 3000 = 12000 | 2 | 1 | -0.500 |")
+    rows = rows[2:]
     assert rows[0].startswith("| all | 1 | 9000 + 3000 = 12000 | 2 | 4 |") and "| -0.500 [" in rows[0]
     # RAYS=1024 runs of scripts/mrvm_budgets.sh: their own rows (the checkpoint is gone, so the name gives the rays)
     assert rows[1].startswith("| all, 1024 rays per object a step | 2 | 1000 + 333 = 1333 | 1 | 4 |") and "| +1.000" in rows[1]
