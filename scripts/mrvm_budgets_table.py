@@ -14,8 +14,8 @@ spread is the larger one here: RECIPE.md "Two more seeds").
 from __future__ import annotations
 
 import json
-import math
 import re
+import statistics
 import sys
 from pathlib import Path
 
@@ -56,11 +56,10 @@ def batch(report: dict) -> str:
 
 def over_seeds(diffs: list[float]) -> str:
     """Mean over seeds, with the standard error over seeds when there are two or more."""
-    m = sum(diffs) / len(diffs)
+    m = statistics.fmean(diffs)
     if len(diffs) < 2:
         return f"{m:+.3f}"
-    sd = math.sqrt(sum((d - m) ** 2 for d in diffs) / (len(diffs) - 1))
-    return f"{m:+.3f} ({sd / math.sqrt(len(diffs)):.3f})"
+    return f"{m:+.3f} ({statistics.stdev(diffs) / len(diffs) ** 0.5:.3f})"
 
 
 def seeds_table(groups: dict) -> str:
