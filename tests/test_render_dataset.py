@@ -676,6 +676,31 @@ def test_meshes_of_one_name_in_an_archive_are_told_apart_by_their_folders(tmp_pa
                                                        ("pack_tables_model", "tables/model.obj")]
 
 
+def test_mesh_files_of_one_name_in_different_folders_are_told_apart_by_their_folders(tmp_path):
+    """Robots' parts share file names (``link1.stl`` in every arm's folder): they were refused as one object
+    folder; now each is named by the first folder below the ones they share, or every folder below it where those
+    are alike too. One object in two formats in one folder is still refused, naming both files."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.scene.objects import resolve_sources
+
+    tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    files = ["panda/meshes/visual/link1.obj", "xarm/desc/meshes/visual/link1.stl", "a1/meshes/hip.obj",
+             "legs/front/hip.obj", "legs/rear/hip.obj", "hip.obj", "duck.obj"]
+    for f in files:
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text(tri)
+    specs = resolve_sources(tuple(str(tmp_path / f) for f in files), category="real")
+    assert [s.key for s in specs] == ["real/panda_link1", "real/xarm_link1", "real/a1_hip",
+                                      "real/legs_front_hip", "real/legs_rear_hip", "real/hip", "real/duck"]
+    assert [s.path for s in specs] == [str(tmp_path / f) for f in files]
+    # a file named twice is one object named twice, and one object in two formats is one object folder
+    (tmp_path / "a1/meshes/hip.stl").write_text("solid x\nendsolid x\n")
+    for twice in (("a1/meshes/hip.obj", "a1/meshes/hip.obj"), ("a1/meshes/hip.obj", "a1/meshes/hip.stl")):
+        with pytest.raises(InputError, match=r"same object folder: real/hip \(.*hip\.obj and .*hip\.(obj|stl); "
+                                             r"rename one\)"):
+            resolve_sources(tuple(str(tmp_path / f) for f in twice), category="real")
+
+
 def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_empty):
     """A downloaded model as a zip: a textured glTF (.gltf, .bin and its image in a subfolder, beside a licence
     and a macOS resource fork) renders in its texture's colour, named by the archive, and so does a KMZ's textured

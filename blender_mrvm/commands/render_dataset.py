@@ -43,7 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "of its first scene shows), .zip archive of them (a downloaded model with its textures; also "
                         "KMZ and .zae), "
                         "folder of them, ShapeNetCore folder, 'selected', or "
-                        "'procedural:<category>:<seed>'; repeat for several")
+                        "'procedural:<category>:<seed>'; repeat for several (each object is named by its file; "
+                        "files of one name in different folders, such as two robots' link1.stl, by their folders "
+                        "too: panda_link1, xarm_link1)")
     p.add_argument("--out", required=True, help="dataset root folder")
     p.add_argument("--rig", default="sphere", help="sphere | hemisphere | spiral | turntable | scene (default: sphere)")
     p.add_argument("--views", type=int, default=24, help="views per object (default: 24)")

@@ -191,11 +191,40 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                     raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}{hint}; "
                                      f"supported: {', '.join(MESH_EXTS)}, and .zip, .kmz or .zae archives of them")
                 specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(p.stem), path=str(p)))
+    specs = _named_by_folder(specs)
     keys = [s.key for s in specs]
     dup = sorted({k for k in keys if keys.count(k) > 1})
     if dup:
-        raise InputError(f"two sources map to the same object folder: {dup[0]} (rename one)")
+        same = [s.describe() for s in specs if s.key == dup[0]]
+        raise InputError(f"two sources map to the same object folder: {dup[0]} ({' and '.join(same[:2])}; "
+                         "rename one)")
     return specs
+
+
+def _named_by_folder(specs: list[ObjectSpec]) -> list[ObjectSpec]:
+    """Mesh files of one name in different folders (a robot's ``link1.stl`` and another's) named by their folders:
+    the first folder below the folders they share (``franka_panda/meshes/visual/link1.obj`` and
+    ``xarm/.../visual/link1.stl`` are ``franka_panda_link1`` and ``xarm_link1``), or every folder below it where
+    those first folders are alike too. Files in one folder (``link_0.obj`` beside ``link_0.stl``: one object in two
+    formats) keep their name, and the caller refuses them as one object folder."""
+    groups: dict[str, list[int]] = {}
+    for i, s in enumerate(specs):
+        groups.setdefault(s.key, []).append(i)
+    out = list(specs)
+    for idx in groups.values():
+        if len(idx) < 2 or any(specs[i].kind != "file" or specs[i].member for i in idx):
+            continue
+        dirs = [Path(specs[i].path).expanduser().absolute().parent for i in idx]
+        if len(set(dirs)) < len(dirs):
+            continue
+        top = Path(os.path.commonpath(dirs))
+        rel = [d.relative_to(top).parts for d in dirs]
+        first = [r[:1] for r in rel]
+        for i, r, f in zip(idx, rel, first, strict=True):
+            parts = f if first.count(f) == 1 else r
+            name = "_".join((*parts, Path(specs[i].path).stem))
+            out[i] = ObjectSpec("file", specs[i].category, safe_id(name), path=specs[i].path)
+    return out
 
 
 # Zip archives of mesh files: a downloaded model (.zip), Google Earth and SketchUp's KMZ and zipped COLLADA (.zae),
