@@ -56,7 +56,7 @@ def seeds_of(root: Path, prefix: str) -> int:
 
 def main(argv: list[str]) -> int:
     root = Path(argv[argv.index("--root") + 1]) if "--root" in argv else Path("data/eval/finetune_rate")
-    names = ["shipped"] + [f"lr{lr}" for lr in ("1e-4", "3e-4", "1e-3")]
+    names = ["shipped"] + [f"lr{lr}" for lr in ("1e-4", "3e-4", "1e-3")] + ["losses"]
     arms = {n: {g: arm(root, n, g) for g in SETS} for n in names}
     arms = {n: a for n, a in arms.items() if all(a.values())}
     print("| model | seeds | U (26 real meshes): PSNR / SSIM / LPIPS | L (library val): PSNR / SSIM / LPIPS |")
@@ -68,8 +68,9 @@ def main(argv: list[str]) -> int:
     pairs = [(n, "shipped") for n in arms if n != "shipped"]
     if "lr1e-3" in arms and "lr1e-4" in arms:
         pairs.append(("lr1e-3", "lr1e-4"))
-    if "lr3e-4" in arms and "lr1e-4" in arms:
-        pairs.append(("lr3e-4", "lr1e-4"))
+    for other in ("lr3e-4", "losses"):
+        if other in arms and "lr1e-4" in arms:
+            pairs.append((other, "lr1e-4"))
     print("\n| difference | U: d PSNR (SE), objects better | U: d LPIPS (SE) | L: d PSNR (SE), objects better | "
           "L: d LPIPS (SE) |")
     print("|---|---|---|---|---|")
@@ -88,6 +89,11 @@ def main(argv: list[str]) -> int:
         change = p >= 0.10 and p >= 2 * se and lp <= 0 and lib >= -0.30
         print(f"\nrule.md step 1: U d PSNR {p:+.3f} (SE {se:.3f}), d LPIPS {lp:+.4f}, L d PSNR {lib:+.3f}: "
               + ("FINETUNE['lr'] becomes 1e-3" if change else "FINETUNE['lr'] stays 1e-4"))
+    if ("losses", "lr1e-4", "U") in res:
+        (p, _, _), (lp, lse, _) = res[("losses", "lr1e-4", "U")]
+        keep = lp <= -0.005 and lp <= -2 * lse and p >= -0.10
+        print(f"rule.md question 2: U d LPIPS {lp:+.4f} (SE {lse:.4f}), d PSNR {p:+.3f}: "
+              + ("the policy keeps the checkpoint's losses" if keep else "the policy's losses stay as they are"))
     return 0
 
 
