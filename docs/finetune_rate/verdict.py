@@ -26,20 +26,26 @@ def per_object(path: Path) -> dict[str, dict[str, float]]:
     return {o: {k: statistics.fmean(x) for k, x in m.items()} for o, m in acc.items()}
 
 
+def seeds(root: Path, prefix: str) -> list[str]:
+    """The runs named ``prefix`` (``prefix`` itself, or ``prefix_s<SEED>``) scored on every set of U and L."""
+    names = None
+    for s in (x for g in SETS.values() for x in g):
+        here = {d.name[len(s) + 1:] for d in root.glob(f"{s}_{prefix}*") if (d / "eval.json").is_file()}
+        here = {n for n in here if n == prefix or n.startswith(f"{prefix}_s")}
+        names = here if names is None else names & here
+    return sorted(names or ())
+
+
 def arm(root: Path, prefix: str, group: str) -> dict[str, dict[str, float]] | None:
     """Per object of group U or L: the metrics of every run named ``prefix`` (one or several seeds) averaged."""
-    runs = []
-    for s in SETS[group]:
-        dirs = sorted(d for d in root.glob(f"{s}_{prefix}*") if (d / "eval.json").is_file()
-                      and (d.name == f"{s}_{prefix}" or d.name.startswith(f"{s}_{prefix}_s")))
-        runs.append([per_object(d / "eval.json") for d in dirs])
-    if any(not r for r in runs) or len({len(r) for r in runs}) != 1:
+    runs = seeds(root, prefix)
+    if not runs:
         return None
     out = {}
-    for seeds in runs:
-        for o in seeds[0]:
-            out[f"{len(out)}:{o}" if o in out else o] = {
-                k: statistics.fmean(s[o][k] for s in seeds) for k in ("psnr", "ssim", "lpips")}
+    for s in SETS[group]:
+        per_run = [per_object(root / f"{s}_{r}" / "eval.json") for r in runs]
+        for o in per_run[0]:
+            out[f"{s}:{o}"] = {k: statistics.fmean(m[o][k] for m in per_run) for k in ("psnr", "ssim", "lpips")}
     return out
 
 
@@ -48,10 +54,6 @@ def paired(a: dict, b: dict, k: str) -> tuple[float, float, float]:
     d = [a[o][k] - b[o][k] for o in a]
     better = sum((x < 0) if k == "lpips" else (x > 0) for x in d) / len(d)
     return statistics.fmean(d), statistics.stdev(d) / len(d) ** 0.5, better
-
-
-def seeds_of(root: Path, prefix: str) -> int:
-    return len([d for d in root.glob(f"lib_{prefix}_s*") if (d / "eval.json").is_file()])
 
 
 def main(argv: list[str]) -> int:
@@ -64,7 +66,7 @@ def main(argv: list[str]) -> int:
     for n, a in arms.items():
         cells = [" / ".join(f"{statistics.fmean(m[k] for m in a[g].values()):.{3 if k != 'psnr' else 2}f}"
                             for k in ("psnr", "ssim", "lpips")) for g in SETS]
-        print(f"| {n} | {seeds_of(root, n) if n != 'shipped' else '-'} | {cells[0]} | {cells[1]} |")
+        print(f"| {n} | {len(seeds(root, n)) if n != 'shipped' else '-'} | {cells[0]} | {cells[1]} |")
     pairs = [(n, "shipped") for n in arms if n != "shipped"]
     if "lr1e-3" in arms and "lr1e-4" in arms:
         pairs.append(("lr1e-3", "lr1e-4"))
