@@ -222,18 +222,22 @@ def test_cli_and_panel_fine_tune_with_one_policy(train_ready, tmp_path):
 
     from blender_mrvm.models.pretrained import default_checkpoint
     from blender_mrvm.operators import train as T
-    from blender_mrvm.training.config import FINETUNE, load_run_config
+    from blender_mrvm.training.config import FINETUNE, FINETUNE_KEEPS_LOSSES, load_run_config
 
     p = train_ready.mrvm_train
     p.start_from, p.iterations = "SHIPPED", 40
-    job = T.plan_from_props(bpy.context)
-    T.write_job(job, tmp_path)
-    m_panel, t_panel = load_run_config(tmp_path / "train.json")
-    m_cli, t_cli = load_run_config(None, {"data": p.data_dir, "out_dir": str(tmp_path / "run"), "iterations": 40,
-                                          "init_checkpoint": "shipped"})
-    assert m_panel == m_cli
-    for k in FINETUNE:
-        assert getattr(t_panel, k) == getattr(t_cli, k), k
+    for keep in (False, True):  # "Keep its losses" and --keep-losses
+        p.keep_losses = keep
+        job = T.plan_from_props(bpy.context)
+        T.write_job(job, tmp_path)
+        m_panel, t_panel = load_run_config(tmp_path / "train.json")
+        m_cli, t_cli = load_run_config(None, {"data": p.data_dir, "out_dir": str(tmp_path / "run"), "iterations": 40,
+                                              "init_checkpoint": "shipped", "keep_init_losses": keep or None})
+        assert m_panel == m_cli
+        for k in (*FINETUNE, *FINETUNE_KEEPS_LOSSES):
+            assert getattr(t_panel, k) == getattr(t_cli, k), (keep, k)
+        assert t_cli.lpips_weight == (1.0 if keep else 0.0)  # the shipped model's own loss, or the default
+    p.keep_losses = False
     assert t_cli.pretrain_frac == 0.0 and t_cli.lr == FINETUNE["lr"] and t_cli.lr_warmup == 4  # a tenth of 40
     assert t_panel.init_checkpoint == str(default_checkpoint())
     # a run config that names its own learning rate keeps it

@@ -686,3 +686,56 @@ def test_ctrl_c_in_the_cli_saves_the_step_in_progress(tmp_path, data):
     done = subprocess.run(cmd + ["--iterations", str(step + 1)], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout.splitlines()[-1])["resumed_from"] == step
+
+
+def test_a_fine_tune_can_keep_the_losses_its_checkpoint_was_trained_with(tmp_path):
+    """The shipped default was trained with LPIPS patches (weight 1) and the depth loss (0.1); fine-tuned without
+    them its views got blurrier by LPIPS as their PSNR rose (RECIPE.md "Fine-tuning the shipped model on your
+    objects"). ``keep_init_losses`` (``train --keep-losses``, the panel's "Keep its losses") takes them from the
+    checkpoint: depth only where the data have depth maps (our renders), a setting the run config names wins, and
+    a run folder that holds a run keeps what it recorded. Off, the policy's losses are the defaults."""
+    from blender_mrvm.datasets.format import ROOT_MANIFEST
+    from blender_mrvm.models.checkpoint_files import checked_header
+    from blender_mrvm.models.pretrained import default_checkpoint
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.training.config import FINETUNE_KEEPS_LOSSES, finetune_policy
+
+    rec = json.loads(checked_header(default_checkpoint())[1]["train_config"])
+    assert rec["lpips_weight"] == 1.0 and rec["depth_weight"] == 0.1
+    ours, other = tmp_path / "ours", tmp_path / "other"
+    ours.mkdir()
+    other.mkdir()
+    (ours / ROOT_MANIFEST).write_text("{}")
+
+    def cfg(data, named=None, out="run", keep=True):
+        return load_run_config(None, {"data": str(data), "out_dir": str(tmp_path / out), "iterations": 100,
+                                      "init_checkpoint": "shipped", "keep_init_losses": keep or None,
+                                      **(named or {})})[1]
+
+    t = cfg(ours, keep=False)
+    assert t.lpips_weight == 0.0 and t.depth_weight == 0.0 and t.lr == 1e-4  # the policy as before
+    t = cfg(ours)
+    assert {k: getattr(t, k) for k in FINETUNE_KEEPS_LOSSES} == {k: rec[k] for k in FINETUNE_KEEPS_LOSSES}
+    assert t.lr == 1e-4 and t.pretrain_frac == 0.0 and t.keep_init_losses  # the rest of the policy as before
+    t = cfg(other)  # no depth maps there: no depth loss, the LPIPS loss still
+    assert t.depth_weight == 0.0 and t.lpips_weight == 1.0 and t.opacity_weight == 0.0
+    assert cfg(ours, {"lpips_weight": 0.0}).lpips_weight == 0.0  # named on the command line: it wins
+    (tmp_path / "own.json").write_text(json.dumps({"train": {"depth_weight": 0.0, "init_checkpoint": "shipped",
+                                                             "keep_init_losses": True, "data": str(ours)}}))
+    own = load_run_config(tmp_path / "own.json")[1]
+    assert own.depth_weight == 0.0 and own.lpips_weight == 1.0
+    # a run folder begun without them (its config.json) resumes as it began
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "config.json").write_text(json.dumps({"model": {}, "train": {"lpips_weight": 0.0,
+                                                                                     "depth_weight": 0.0}}))
+    t = cfg(ours, out="old")
+    assert t.lpips_weight == 0.0 and t.depth_weight == 0.0
+    # a new run (no checkpoint) and a checkpoint that cannot be read take nothing
+    new = load_run_config(None, {"data": str(ours), "out_dir": str(tmp_path / "new"), "keep_init_losses": True})[1]
+    assert new.lpips_weight == 0.0
+    gone = TrainConfig(data=str(ours), init_checkpoint=str(tmp_path / "missing.safetensors"), iterations=100,
+                       keep_init_losses=True)
+    assert finetune_policy(gone).lpips_weight == 0.0  # (load_run_config refuses it, naming the file)
+    (tmp_path / "bad.json").write_text(json.dumps({"train": {"keep_init_losses": "yes"}}))
+    with pytest.raises(InputError, match="keep_init_losses"):
+        load_run_config(tmp_path / "bad.json")

@@ -69,6 +69,8 @@ class TrainJob:
     """The add-on preferences' device: cpu, cuda, or auto (the trainer's default, the CPU)."""
     force: bool = False
     """Not resuming: the user confirmed removing the run the folder holds (``train --force``)."""
+    keep_losses: bool = False
+    """Fine-tuning: train with the losses the checkpoint was trained with (``train.keep_init_losses``)."""
 
 
 def _abs(p: str, what: str) -> Path:
@@ -159,7 +161,8 @@ def plan_from_props(context) -> TrainJob:
     pr = P.get(context)
     dev = (pr.device if pr else "AUTO").lower()
     return TrainJob(data, run_dir, name, model, init, base, int(p.iterations), int(p.checkpoint_every),
-                    int(p.rays_per_object), bool(p.resume), dev, force=replace_run)
+                    int(p.rays_per_object), bool(p.resume), dev, force=replace_run,
+                    keep_losses=bool(p.keep_losses) and init is not None)
 
 
 def prepare(context):
@@ -186,6 +189,8 @@ def write_job(job: TrainJob, job_dir: Path) -> list[str]:
         train["opacity_weight"] = default_opacity_weight([job.data])
     if job.init_checkpoint is not None:  # used only when the run folder has no checkpoint to resume
         train["init_checkpoint"] = str(job.init_checkpoint)  # the trainer's fine-tuning policy applies
+        if job.keep_losses:
+            train["keep_init_losses"] = True
     doc = {"train": train}
     if job.model:
         doc["model"] = job.model

@@ -59,6 +59,8 @@ class MRVM_PT_model(MRVMPanel, bpy.types.Panel):
             col.prop(p, "model_kind")
             if p.start_from == "NEW":
                 col.prop(p, "preset")
+        if p.start_from != "NEW":
+            col.prop(p, "keep_losses")
         col.prop(p, "iterations")
         col.prop(p, "checkpoint_every")
         col.prop(p, "rays_per_object")
