@@ -262,8 +262,8 @@ the data are our renders (they have depth maps); settings a run config names its
 
 def checkpoint_losses(tcfg: TrainConfig) -> dict[str, Any]:
     """The :data:`FINETUNE_KEEPS_LOSSES` settings recorded in ``tcfg.init_checkpoint`` (its ``train_config``) that
-    this run's data allow, or those a run folder that already holds a run recorded (runs begun before this policy
-resume as they began); {} when there are none or they cannot be read (the trainer then says what is wrong)."""
+    this run's data allow, or those its run folder recorded when it already holds a run (a run resumes with the
+    losses it began with); {} when there are none or they cannot be read (the trainer then says what is wrong)."""
     from ..models.checkpoint_files import checked_header
 
     try:
@@ -282,8 +282,9 @@ resume as they began); {} when there are none or they cannot be read (the traine
         if not isinstance(rec, dict):
             return {}
     out: dict[str, Any] = {}
+    defaults = TrainConfig()
     for k in FINETUNE_KEEPS_LOSSES:
-        v, kind = rec.get(k), type(getattr(TrainConfig(), k))
+        v, kind = rec.get(k), type(getattr(defaults, k))
         if isinstance(v, (int, float)) and not isinstance(v, bool) and (kind is float or float(v).is_integer()):
             out[k] = kind(v)
     if out.get("depth_weight", 0.0) > 0 and not default_opacity_weight(data_roots(tcfg)) > 0:
