@@ -256,7 +256,7 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
     keep_losses: BoolProperty(name="Keep its losses", default=False,
                               description="Fine-tune with the losses the model was trained with (the shipped one: "
                                           "LPIPS patches and depth): sharper views (LPIPS -0.02 on new objects of "
-                                          "your kind), 0.2 dB lower PSNR, half the steps a second on a CPU")
+                                          "your kind), 0.2 dB lower PSNR, about 1.2x the time a step on a CPU")
     model_kind: EnumProperty(name="Model", items=MODEL_KINDS, default="nerformer_mrvm",
                              description="Kind of model to train (a new one) or to fine-tune (the shipped one)")
     preset: EnumProperty(name="Size", items=[

@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-losses", dest="keep_init_losses", action="store_true", default=None,
                    help="with --init: fine-tune with the losses that checkpoint was trained with (the shipped default: "
                         "LPIPS patches and depth) instead of the defaults: sharper views (LPIPS -0.02 on new objects "
-                        "of your kind), 0.2 dB lower PSNR, half the steps a second on a CPU (sets "
+                        "of your kind), 0.2 dB lower PSNR, about 1.2x the time a step on a CPU (sets "
                         "train.keep_init_losses; RECIPE.md)")
     p.add_argument("--lpips-weight", type=float, default=None, metavar="W",
                    help="perceptual loss: rays drawn as 16x16 patches with LPIPS-VGG at this weight besides MSE "

@@ -139,7 +139,7 @@ class TrainConfig:
     """Fine-tuning: train with the losses ``init_checkpoint`` was trained with (:data:`FINETUNE_KEEPS_LOSSES`;
     the shipped default: LPIPS patches at 1 and depth at 0.1) instead of the defaults. Measured on the shipped
     default fine-tuned on 71 real meshes (RECIPE.md "Fine-tuning the shipped model on your objects"): views of new
-    objects of that kind LPIPS 0.022 sharper, 0.18 dB lower PSNR, about half the steps a second on a CPU. Off by
+    objects of that kind LPIPS 0.022 sharper, 0.18 dB lower PSNR, about 1.2x the time a step on a CPU. Off by
     default (the rule written before measuring allowed at most 0.10 dB)."""
 
     def __post_init__(self) -> None:

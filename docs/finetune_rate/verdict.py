@@ -2,7 +2,8 @@
 
     python docs/finetune_rate/verdict.py [--root data/eval/finetune_rate]
 
-Reads ``{rval,rtest,lib}_{name}/eval.json`` as ``score.sh`` writes them (names ``shipped`` and ``lr<LR>_s<SEED>``).
+Reads ``{rval,rtest,lib}_{name}/eval.json`` as ``score.sh`` writes them (names ``shipped``, ``lr<LR>_s<SEED>``,
+``losses_s<SEED>``, and ``i4k_lr1e-4_s0`` / ``i4k_losses_s0`` for the 4000-step probe).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ def paired(a: dict, b: dict, k: str) -> tuple[float, float, float]:
 def main(argv: list[str]) -> int:
     root = Path(argv[argv.index("--root") + 1]) if "--root" in argv else Path("data/eval/finetune_rate")
     names = ["shipped"] + [f"lr{lr}" for lr in ("1e-4", "3e-4", "1e-3")] + ["losses"]
+    names += ["lr1e-4_s0", "losses_s0", "i4k_lr1e-4", "i4k_losses"]  # the 4000-step probe (seed 0) and its seed at 2000
     arms = {n: {g: arm(root, n, g) for g in SETS} for n in names}
     arms = {n: a for n, a in arms.items() if all(a.values())}
     print("| model | seeds | U (26 real meshes): PSNR / SSIM / LPIPS | L (library val): PSNR / SSIM / LPIPS |")
@@ -73,6 +75,9 @@ def main(argv: list[str]) -> int:
     for other in ("lr3e-4", "losses"):
         if other in arms and "lr1e-4" in arms:
             pairs.append((other, "lr1e-4"))
+    for a, b in (("i4k_losses", "i4k_lr1e-4"), ("i4k_lr1e-4", "lr1e-4_s0"), ("i4k_losses", "losses_s0")):
+        if a in arms and b in arms:  # the 4000-step probe (one seed): against each other and their 2000 steps
+            pairs.append((a, b))
     print("\n| difference | U: d PSNR (SE), objects better | U: d LPIPS (SE) | L: d PSNR (SE), objects better | "
           "L: d LPIPS (SE) |")
     print("|---|---|---|---|---|")
