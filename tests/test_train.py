@@ -730,9 +730,9 @@ def test_a_fine_tune_can_keep_the_losses_its_checkpoint_was_trained_with(tmp_pat
                                                                                      "depth_weight": 0.0}}))
     t = cfg(ours, out="old")
     assert t.lpips_weight == 0.0 and t.depth_weight == 0.0
-    # a new run (no checkpoint) and a checkpoint that cannot be read take nothing
-    new = load_run_config(None, {"data": str(ours), "out_dir": str(tmp_path / "new"), "keep_init_losses": True})[1]
-    assert new.lpips_weight == 0.0
+    # a new run has no checkpoint to keep the losses of; a checkpoint that cannot be read gives nothing
+    with pytest.raises(InputError, match=r"keep_init_losses \(--keep-losses\) keeps the losses of the checkpoint"):
+        load_run_config(None, {"data": str(ours), "out_dir": str(tmp_path / "new"), "keep_init_losses": True})
     gone = TrainConfig(data=str(ours), init_checkpoint=str(tmp_path / "missing.safetensors"), iterations=100,
                        keep_init_losses=True)
     assert finetune_policy(gone).lpips_weight == 0.0  # (load_run_config refuses it, naming the file)

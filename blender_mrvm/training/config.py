@@ -182,6 +182,9 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     if given:
         tcfg = merge(tcfg, given)
+    if tcfg.keep_init_losses and not tcfg.init_checkpoint:
+        raise InputError("keep_init_losses (--keep-losses) keeps the losses of the checkpoint a run fine-tunes: give "
+                         "it one (--init shipped, or train.init_checkpoint), or drop it")
     tcfg = finetune_policy(tcfg, set(section) | set(given))
     tcfg = data_policy(tcfg, set(section) | set(given))
     validate(tcfg)
