@@ -246,14 +246,24 @@ def data_policy(tcfg: TrainConfig, named: set[str] = frozenset()) -> TrainConfig
     and the panel's new runs both go through it."""
     if "opacity_weight" in named:
         return tcfg
-    recorded = Path(tcfg.out_dir) / "config.json"
-    if recorded.is_file():
-        try:
-            w = json.loads(recorded.read_text()).get("train", {}).get("opacity_weight", 0.0)
-        except (OSError, ValueError, AttributeError):
-            return tcfg  # a damaged run folder: the trainer's resume rules speak for it
+    rec = recorded_train(tcfg.out_dir)
+    if rec is not None:  # a damaged run folder ({}): the trainer's resume rules speak for it
+        w = rec.get("opacity_weight", 0.0)
         return replace(tcfg, opacity_weight=float(w)) if isinstance(w, (int, float)) and w >= 0 else tcfg
     return replace(tcfg, opacity_weight=default_opacity_weight(data_roots(tcfg)))
+
+
+def recorded_train(out_dir: str | Path) -> dict[str, Any] | None:
+    """The train section a run folder's ``config.json`` recorded: None when the folder holds no run, {} when the
+    file cannot be read as one (the policies keep a run as it began: :func:`data_policy`, :func:`checkpoint_losses`)."""
+    recorded = Path(out_dir) / "config.json"
+    if not recorded.is_file():
+        return None
+    try:
+        rec = json.loads(recorded.read_text()).get("train", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return rec if isinstance(rec, dict) else {}
 
 
 FINETUNE_KEEPS_LOSSES = ("lpips_weight", "patch_size", "patch_scale_min", "patch_fg_prob", "depth_weight")
@@ -269,21 +279,15 @@ def checkpoint_losses(tcfg: TrainConfig) -> dict[str, Any]:
     losses it began with); {} when there are none or they cannot be read (the trainer then says what is wrong)."""
     from ..models.checkpoint_files import checked_header
 
-    try:
-        meta = checked_header(resolve_init_checkpoint(str(tcfg.init_checkpoint)))[1]
-        rec = json.loads(meta.get("train_config") or "{}")
-    except (InputError, OSError, ValueError):
-        return {}
+    rec = recorded_train(tcfg.out_dir)  # a run folder that holds a run keeps the losses it began with
+    if rec is None:
+        try:
+            rec = json.loads(checked_header(resolve_init_checkpoint(str(tcfg.init_checkpoint)))[1]
+                             .get("train_config") or "{}")
+        except (InputError, OSError, ValueError):
+            return {}
     if not isinstance(rec, dict):
         return {}
-    recorded = Path(tcfg.out_dir) / "config.json"
-    if recorded.is_file():  # a run folder that holds a run keeps the losses it began with (as data_policy does)
-        try:
-            rec = json.loads(recorded.read_text()).get("train", {})
-        except (OSError, ValueError, AttributeError):
-            return {}
-        if not isinstance(rec, dict):
-            return {}
     out: dict[str, Any] = {}
     defaults = TrainConfig()
     for k in FINETUNE_KEEPS_LOSSES:
