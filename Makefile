@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 WEIGHTS := .cache/weights/vgg16_imagenet_features.safetensors
 
-.PHONY: demo test test-fast bench extension clean
+.PHONY: demo test test-fast test-blender bench extension clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,6 +25,11 @@ test: $(STAMP) $(WEIGHTS)
 
 test-fast: $(STAMP) $(WEIGHTS)
 	MRVM_REQUIRE_WEIGHTS=1 $(PY) -m pytest -q -m "not slow"
+
+# The tests that use Blender under another bpy (the manifest says Blender 4.2+; CI runs 4.2 LTS): a venv of its own.
+BPY ?= 4.2.23
+test-blender: $(STAMP) $(WEIGHTS)
+	PY=$(PY) scripts/test_blender_version.sh $(BPY)
 
 bench: $(STAMP)
 	$(PY) -m blender_mrvm bench render --out bench_out

@@ -19,6 +19,24 @@ if str(ROOT) not in sys.path:
 
 os.environ.setdefault("TQDM_DISABLE", "1")
 
+_EXIT_STATUS: list[int] = []
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _EXIT_STATUS.append(int(exitstatus))
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    """Under a bpy 4.x module (``make test-blender``), end the process once pytest is done: while the interpreter
+    exits, bpy 4.2 can crash and bpy 4.5 spins for tens of minutes freeing memory, after every test ran and the
+    reports were written. bpy 5.0 exits normally and is left alone."""
+    bpy = sys.modules.get("bpy")
+    if bpy is not None and tuple(bpy.app.version) < (5, 0, 0) and _EXIT_STATUS:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_EXIT_STATUS[-1])
+
 
 @pytest.fixture(scope="session")
 def addon():

@@ -121,6 +121,7 @@ def test_pixel_box_bounds_the_projection():
 
 def _cycles_data_passes(bpy, scene, tmp: Path) -> dict:
     from blender_mrvm.datasets.format import read_exr_parts
+    from blender_mrvm.scene import compat
 
     scene.render.engine = "CYCLES"
     cy = scene.cycles
@@ -129,16 +130,12 @@ def _cycles_data_passes(bpy, scene, tmp: Path) -> dict:
     vl = scene.view_layers[0]
     vl.use_pass_z = vl.use_pass_normal = vl.use_pass_object_index = vl.use_pass_material_index = True
     s = scene.render.image_settings
-    s.media_type = "MULTI_LAYER_IMAGE"
-    s.file_format = "OPEN_EXR_MULTILAYER"
+    compat.set_file_format(s, "OPEN_EXR_MULTILAYER")
     s.color_depth = "32"
     scene.render.filepath = str(tmp / "data.exr")
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True, scene=scene.name)
-    out = {}
-    for name, chans in read_exr_parts(tmp / "data.exr").items():
-        out[name.split(".", 1)[1] if "." in name else name] = {k.rsplit(".", 1)[-1]: v for k, v in chans.items()}
-    return out
+    return compat.exr_passes(read_exr_parts(tmp / "data.exr"))
 
 
 @pytest.mark.slow

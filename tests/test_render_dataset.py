@@ -25,6 +25,17 @@ def _render(**kw):
     return run_to_end(render_dataset(RenderConfig(**kw)))
 
 
+def _material(name: str):
+    """A new material with its node tree, in any Blender (before 5.0 a new material has none)."""
+    import bpy
+
+    from blender_mrvm.scene import compat
+
+    mat = bpy.data.materials.new(name)
+    compat.node_tree(mat)
+    return mat
+
+
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     import bpy
@@ -235,7 +246,8 @@ def test_rgba_and_workbench(tmp_path, bpy_empty):
     from scipy.ndimage import binary_erosion
 
     inner, outer = binary_erosion(mask > 0, iterations=2), binary_erosion(mask == 0, iterations=2)  # AA edges aside
-    assert inner.sum() > 20 and (rgba[..., 3][outer] == 0).all() and (rgba[..., 3][inner] == 255).all()
+    # opaque inside: 255, or 254 under Blender 4.5, whose Workbench leaves its film's alpha a hair under 1
+    assert inner.sum() > 20 and (rgba[..., 3][outer] == 0).all() and (rgba[..., 3][inner] >= 254).all()
     assert (F.read_depth(obj / "depth" / "000000.exr") > 0).sum() == (mask > 0).sum()
 
 
@@ -398,7 +410,7 @@ def _export_in_every_format(folder: Path) -> list[str]:
     bpy.ops.wm.ply_import(filepath=str(ply))
     ply.unlink()
     obj = bpy.context.selected_objects[0]
-    mat = bpy.data.materials.new("red")
+    mat = _material("red")
     bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     bsdf.inputs["Base Color"].default_value = (0.8, 0.05, 0.05, 1.0)
     obj.data.materials.append(mat)
@@ -465,7 +477,7 @@ def _textured_cube(tex: Path, grouped: bool):
 
     F.write_png(tex, np.full((8, 8, 3), (30, 60, 200), np.uint8))
     bpy.ops.mesh.primitive_cube_add()
-    mat = bpy.data.materials.new("paint")
+    mat = _material("paint")
     tree = bpy.data.node_groups.new("paint_group", "ShaderNodeTree") if grouped else mat.node_tree
     node = tree.nodes.new("ShaderNodeTexImage")
     node.image = bpy.data.images.load(str(tex))
@@ -785,7 +797,7 @@ def test_see_through_objects_are_named_and_misread_fbx_opacity_is_made_opaque(tm
 
     bpy.ops.mesh.primitive_monkey_add()
     monkey = bpy.context.active_object
-    mat = bpy.data.materials.new("glassy")
+    mat = _material("glassy")
     bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     bsdf.inputs["Alpha"].default_value = 0.05
     bsdf.inputs["Base Color"].default_value = (0.1, 0.02, 0.02, 1.0)  # dark: the white background shows apart
@@ -817,7 +829,7 @@ def test_surfaces_the_mesh_does_not_hold_are_named(tmp_path, bpy_empty):
 
     bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0)
     ball = bpy.context.active_object
-    mat = bpy.data.materials.new("bumpy")
+    mat = _material("bumpy")
     tree = mat.node_tree
     disp = tree.nodes.new("ShaderNodeDisplacement")
     disp.inputs["Height"].default_value = 1.0
@@ -898,7 +910,7 @@ def test_blend_file_images_are_part_of_what_its_views_were_rendered_from(tmp_pat
     tex.parent.mkdir()
     F.write_png(tex, np.full((8, 8, 3), (150, 90, 40), np.uint8))
     bpy.ops.mesh.primitive_cube_add()
-    mat = bpy.data.materials.new("wood")
+    mat = _material("wood")
     node = mat.node_tree.nodes.new("ShaderNodeTexImage")
     node.image = bpy.data.images.load(str(tex))
     bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
@@ -934,7 +946,7 @@ def test_blend_file_linked_libraries_are_part_of_what_its_views_were_rendered_fr
     lib_dir.mkdir(), tex_dir.mkdir()
     tex = tex_dir / "paint.png"
     F.write_png(tex, np.full((8, 8, 3), (30, 60, 200), np.uint8))
-    mat = bpy.data.materials.new("paint")  # the second library: a material reading the image
+    mat = _material("paint")  # the second library: a material reading the image
     node = mat.node_tree.nodes.new("ShaderNodeTexImage")
     node.image = bpy.data.images.load(str(tex))
     bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")

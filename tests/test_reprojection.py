@@ -14,6 +14,7 @@ from scipy import ndimage
 
 from blender_mrvm.datasets.format import read_exr_parts
 from blender_mrvm.geometry import cameras as C
+from blender_mrvm.scene import compat
 
 CASES = [
     # (width, height, lens_mm, shift_x, shift_y, sensor_fit, pixel_aspect_x, pixel_aspect_y)
@@ -28,9 +29,7 @@ CASES = [
 
 def _emission_material(bpy):
     mat = bpy.data.materials.new("marker")
-    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
-        mat.use_nodes = True
-    nodes = mat.node_tree.nodes
+    nodes = compat.node_tree(mat).nodes
     nodes.clear()
     em = nodes.new("ShaderNodeEmission")
     em.inputs["Strength"].default_value = 5.0
@@ -90,15 +89,13 @@ def test_markers_project_within_half_pixel(bpy_empty, case):
         scene.collection.objects.link(ob)
 
     s = scene.render.image_settings
-    s.media_type = "MULTI_LAYER_IMAGE"
-    s.file_format = "OPEN_EXR_MULTILAYER"
+    compat.set_file_format(s, "OPEN_EXR_MULTILAYER")
     s.color_depth = "32"
     with tempfile.TemporaryDirectory() as tmp:
         scene.render.filepath = str(Path(tmp) / "markers.exr")
         bpy.ops.render.render(write_still=True)
-        parts = read_exr_parts(Path(tmp) / "markers.exr")
-    comb = next(v for k, v in parts.items() if k.endswith("Combined"))
-    img = next(a for k, a in comb.items() if k.endswith(".G")).astype(np.float64)
+        passes = compat.exr_passes(read_exr_parts(Path(tmp) / "markers.exr"))
+    img = passes["Combined"]["G"].astype(np.float64)
 
     expected, z = C.project(intr.K, w2c, pts)
     assert (z > 0).all()

@@ -51,6 +51,7 @@ def naive_loop(mesh: Path, out: Path, engine: str, res: int, views: int, samples
 
     from ..geometry import cameras as C
     from ..geometry import rigs
+    from ..scene import compat
     from ..scene import objects as O
     from ..scene.camera import apply_intrinsics, apply_pose
     from ..scene.render import RenderConfig, RenderSession
@@ -67,7 +68,8 @@ def naive_loop(mesh: Path, out: Path, engine: str, res: int, views: int, samples
         scene = session.scene
         apply_intrinsics(session.camera, scene, intr)
         s = scene.render.image_settings
-        s.media_type, s.file_format, s.color_depth = "IMAGE", "PNG", "8"
+        compat.set_file_format(s, "PNG")
+        s.color_depth = "8"
         scene.render.use_file_extension = True
         poses = rigs.rig_poses("sphere", views, rigs.framing_distance(0.5, intr.fov_x), seed=0)
         t0 = time.perf_counter()

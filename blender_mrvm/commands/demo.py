@@ -341,6 +341,7 @@ def _populate(scene, source: str, norm, centre, cam_dist: float) -> None:
 
     from ..geometry import cameras as C
     from ..scene import camera as scam
+    from ..scene import compat
     from ..scene import objects as O
 
     coll = bpy.data.collections.new("MRVM demo object")
@@ -355,9 +356,7 @@ def _populate(scene, source: str, norm, centre, cam_dist: float) -> None:
     sun_ob.rotation_euler = (math.radians(40), math.radians(10), math.radians(30))
     coll.objects.link(sun_ob)
     world = bpy.data.worlds.new("MRVM demo world")
-    if world.node_tree is None:
-        world.use_nodes = True
-    bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+    bg = next(n for n in compat.node_tree(world).nodes if n.type == "BACKGROUND")
     bg.inputs["Color"].default_value = (0.30, 0.32, 0.36, 1.0)
     bg.inputs["Strength"].default_value = 1.0
     scene.world = world
@@ -377,14 +376,13 @@ def _plane_frames(scene, coll) -> None:
     """A thin dark frame along each image plane's border, so the planes read as pictures in the render."""
     import bpy
 
+    from ..scene import compat
     from ..scene import image_planes as IP
 
     mat = bpy.data.materials.new("MRVM plane frame")
     mat.diffuse_color = (0.05, 0.05, 0.05, 1.0)
-    if mat.node_tree is not None:
-        bsdf = next((n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None)
-        if bsdf is not None:
-            bsdf.inputs["Base Color"].default_value = (0.05, 0.05, 0.05, 1.0)
+    bsdf = next(n for n in compat.node_tree(mat).nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Base Color"].default_value = (0.05, 0.05, 0.05, 1.0)
     for plane in [o for o in scene.objects if o.get(IP.PLANE_TAG)]:
         corners = [tuple(v.co) for v in list(plane.data.vertices)[:4]]
         size = max((plane.data.vertices[0].co - plane.data.vertices[2].co).length, 1e-6)
@@ -407,23 +405,29 @@ def render_scene_picture(path: Path, width: int = 640, height: int = 420, sample
     """Render the open scene from its camera to ``path`` (Cycles, CPU); the .blend is not changed."""
     import bpy
 
+    from ..scene import compat
     from ..scene.objects import quiet_stdout
 
     sc = bpy.context.scene
     r = sc.render
-    saved = (r.resolution_x, r.resolution_y, r.engine, r.filepath, r.image_settings.file_format)
+    saved = (r.resolution_x, r.resolution_y, r.engine, r.filepath)
+    fmt = r.image_settings
+    saved_format = (getattr(fmt, "media_type", None), fmt.file_format, fmt.color_mode)
     try:
         r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
         r.engine = "CYCLES"
         sc.cycles.device = "CPU"
         sc.cycles.samples = samples
         sc.cycles.use_denoising = False
-        r.image_settings.file_format = "PNG"
-        r.image_settings.color_mode = "RGB"
+        compat.set_file_format(fmt, "PNG")
+        fmt.color_mode = "RGB"
         r.filepath = str(Path(path).resolve())
         with quiet_stdout():
             bpy.ops.render.render(write_still=True)
     finally:
-        r.resolution_x, r.resolution_y, r.engine, r.filepath, r.image_settings.file_format = saved
+        r.resolution_x, r.resolution_y, r.engine, r.filepath = saved
+        if saved_format[0] is not None:
+            fmt.media_type = saved_format[0]
+        fmt.file_format, fmt.color_mode = saved_format[1:]
     return Path(path)
 

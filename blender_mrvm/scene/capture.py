@@ -29,6 +29,7 @@ import numpy as np
 from ..errors import CameraConventionError, InputError
 from ..geometry import cameras as C
 from . import camera as scam
+from . import compat
 
 # ---------------------------------------------------------------------------------------------
 # Import
@@ -131,9 +132,7 @@ def _emission_material(name: str, seed: int, density: float = 1.0) -> bpy.types.
     """A procedural noise x Voronoi texture, emitted (shading-independent colours)."""
     rng = np.random.default_rng(seed)
     mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:  # Blender < 5 creates materials without nodes
-        mat.use_nodes = True
-    nt = mat.node_tree
+    nt = compat.node_tree(mat)
     for n in list(nt.nodes):
         nt.nodes.remove(n)
     out = nt.nodes.new("ShaderNodeOutputMaterial")
@@ -191,7 +190,7 @@ def render_textured_ring(out_dir: Path, n_views: int = 24, width: int = 320, hei
             scene.render.threads_mode = "FIXED"
             scene.render.threads = threads
         scene.view_settings.view_transform = "Standard"
-        scene.render.image_settings.file_format = "PNG"
+        compat.set_file_format(scene.render.image_settings, "PNG")
         scene.render.image_settings.color_mode = "RGB"
         scene.render.film_transparent = False
         world = bpy.data.worlds.new("mrvm_capture_world")

@@ -35,6 +35,7 @@ from ..errors import InputError
 from ..geometry import cameras as C
 from ..geometry import paths as P
 from ..progress import Progress, ProgressGen
+from . import compat
 from . import objects as O
 from . import raster
 from .camera import apply_intrinsics, apply_pose, set_clip
@@ -220,9 +221,7 @@ def build_room(coll, rng: np.random.Generator, reach: float) -> dict:
 def build_lights(scene: bpy.types.Scene, coll, rng: np.random.Generator, room: dict) -> dict:
     """Sky, sun and an area light with drawn colour, strength and direction."""
     world = bpy.data.worlds.new("capture_world")
-    if world.node_tree is None:
-        world.use_nodes = True
-    bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+    bg = next(n for n in compat.node_tree(world).nodes if n.type == "BACKGROUND")
     sky = np.array([rng.uniform(0.55, 0.8), rng.uniform(0.65, 0.85), rng.uniform(0.8, 1.0)])
     sky_strength = float(rng.uniform(0.3, 0.9))
     bg.inputs["Color"].default_value = (*sky, 1.0)

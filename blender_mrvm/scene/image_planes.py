@@ -34,6 +34,7 @@ from ..datasets.format import atomic_write
 from ..errors import InputError, OutputError
 from ..geometry import cameras as C
 from . import camera as scam
+from . import compat
 from .objects import remove_new_data, safe_id, snapshot_data
 
 COLLECTION = "MRVM novel views"
@@ -405,9 +406,7 @@ def _material(name: str, image: bpy.types.Image, interpolation: str,
     """Shadeless image material: emission of the image colour, transparent where alpha is 0. With a
     ``semantic`` image, the colour is the semantic map's where the object's ``mrvm_show_semantic`` is 1."""
     mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:  # Blender < 5 creates materials without nodes
-        mat.use_nodes = True
-    nt = mat.node_tree
+    nt = compat.node_tree(mat)
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     tex = nt.nodes.new("ShaderNodeTexImage")

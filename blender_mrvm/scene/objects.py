@@ -29,6 +29,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..errors import InputError
+from . import compat
 
 # Formats Blender has no importer for (COLLADA left Blender in 5.0; it reads binary FBX only), read with the Open
 # Asset Import Library (the assimp-py package) where it is installed: :func:`_import_with_assimp`.
@@ -600,7 +601,7 @@ def _run_importer(path: Path, ext: str) -> None:
 def _append_blend_scene(path: Path) -> list:
     """Append a .blend's scene (the first by name) with its objects; return it (in a list) for
     :func:`_blend_rendered`, which keeps what a render of it shows."""
-    if bpy.data.filepath and Path(bpy.data.filepath).resolve() == Path(path).resolve():
+    if _is_open_file(path):
         raise InputError(f"{path} is the open file: render its objects with the source 'selected'")
     try:
         with bpy.data.libraries.load(str(path), link=False) as (src, dst):
@@ -942,7 +943,7 @@ def _assimp_mesh(m) -> bpy.types.Mesh | None:
 def _assimp_material(d: dict, path: Path) -> bpy.types.Material:
     """A Principled BSDF of an assimp material's diffuse colour, opacity and diffuse texture."""
     mat = bpy.data.materials.new(str(d.get("NAME") or "material"))
-    tree = mat.node_tree
+    tree = compat.node_tree(mat)
     bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
     rgba = d.get("COLOR_DIFFUSE") or d.get("COLOR_BASE")
     if rgba:
@@ -1074,10 +1075,11 @@ def _vertex_colour_material(attribute: str) -> bpy.types.Material:
     """A Principled BSDF whose base colour is the mesh's colour attribute ``attribute`` (the roughness of the
     default grey)."""
     mat = bpy.data.materials.new(f"MRVM_vertex_colours_{attribute}")
-    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
-    node = mat.node_tree.nodes.new("ShaderNodeVertexColor")
+    tree = compat.node_tree(mat)
+    bsdf = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    node = tree.nodes.new("ShaderNodeVertexColor")
     node.layer_name = attribute
-    mat.node_tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
+    tree.links.new(node.outputs["Color"], bsdf.inputs["Base Color"])
     bsdf.inputs["Roughness"].default_value = 0.6
     return mat
 
@@ -1144,11 +1146,9 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
                 if default is None:
                     default = bpy.data.materials.new("MRVM_default_grey")
                     default.diffuse_color = (0.45, 0.45, 0.45, 1.0)
-                    bsdf = next((n for n in default.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None) \
-                        if default.node_tree else None
-                    if bsdf is not None:
-                        bsdf.inputs["Base Color"].default_value = (0.45, 0.45, 0.45, 1.0)
-                        bsdf.inputs["Roughness"].default_value = 0.6
+                    bsdf = next(n for n in compat.node_tree(default).nodes if n.type == "BSDF_PRINCIPLED")
+                    bsdf.inputs["Base Color"].default_value = (0.45, 0.45, 0.45, 1.0)
+                    bsdf.inputs["Roughness"].default_value = 0.6
                 o.data.materials.clear()
                 o.data.materials.append(default)
         return new
@@ -1543,12 +1543,19 @@ def _fbx_texture_names(path: Path) -> list[str]:
 def _blend_image_files(path: Path) -> list[str]:
     """The image files a .blend uses and does not pack, relative to its folder where they lie under it (else
     absolute), sorted; its images are appended for a moment to read their paths, then removed."""
+    if _is_open_file(path):
+        return []  # the render's own reading refuses it
     with _borrowed():
         with bpy.data.libraries.load(str(path), link=False) as (src, dst):
             dst.images = list(src.images)
         return sorted({_name_beside(path, im.filepath, im.library) for im in dst.images
                        if im is not None and _external_image(im)})
     return []  # unreadable, or the open file itself: the render's own reading says so
+
+
+def _is_open_file(path: Path) -> bool:
+    """Whether ``path`` is the .blend open in this Blender (which it cannot read as a library)."""
+    return bool(bpy.data.filepath) and Path(bpy.data.filepath).resolve() == Path(path).resolve()
 
 
 class _borrowed:
@@ -1593,6 +1600,8 @@ def _blend_library_files(path: Path) -> list[str]:
     ``linked_files_hash`` is what it was before libraries were counted). Its scenes are linked for a moment to
     read them, then removed with every library entry that came along."""
     me = Path(path).resolve()
+    if _is_open_file(me):
+        return []  # the render's own reading refuses it (Blender 4.2 crashes linking the open file's scenes)
     with _borrowed():
         with bpy.data.libraries.load(str(path), link=True) as (src, dst):
             dst.scenes = list(src.scenes)

@@ -46,6 +46,7 @@ from ..errors import InputError, OutputError
 from ..geometry import cameras as C
 from ..geometry import rigs
 from ..progress import Progress, ProgressGen
+from . import compat
 from . import objects as O
 from . import raster
 from .camera import apply_intrinsics, apply_pose, new_camera, read_camera, set_clip
@@ -272,7 +273,7 @@ class RenderSession:
         if cfg.engine == "CYCLES":
             self._setup_cycles(self.scene, cfg.samples)
         else:
-            self.scene.render.engine = cfg.engine
+            compat.set_engine(self.scene, cfg.engine)
             self._setup_common(self.scene)
             if cfg.engine == "BLENDER_EEVEE":
                 self.scene.eevee.taa_render_samples = cfg.samples
@@ -294,8 +295,7 @@ class RenderSession:
         r.film_transparent = True
         r.use_file_extension = False
         s = r.image_settings
-        s.media_type = "MULTI_LAYER_IMAGE"
-        s.file_format = "OPEN_EXR_MULTILAYER"
+        compat.set_file_format(s, "OPEN_EXR_MULTILAYER")
         s.color_depth = "32"
         s.exr_codec = "NONE"
         sc.view_settings.view_transform = "Standard"
@@ -317,9 +317,7 @@ class RenderSession:
 
     def _setup_world_and_light(self) -> None:
         world = bpy.data.worlds.new("MRVM_world")
-        if world.node_tree is None:
-            world.use_nodes = True
-        bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+        bg = next(n for n in compat.node_tree(world).nodes if n.type == "BACKGROUND")
         bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
         bg.inputs["Strength"].default_value = 0.6
         self.scene.world = world
@@ -372,12 +370,7 @@ class RenderSession:
         scene = scene or self.scene
         with O.quiet_stdout():
             bpy.ops.render.render(write_still=True, scene=scene.name)
-        parts = F.read_exr_parts(Path(scene.render.filepath))
-        out: dict[str, dict[str, np.ndarray]] = {}
-        for name, chans in parts.items():
-            pass_name = name.split(".", 1)[1] if "." in name else name
-            out[pass_name] = {k.rsplit(".", 1)[-1]: v for k, v in chans.items()}
-        return out
+        return compat.exr_passes(F.read_exr_parts(Path(scene.render.filepath)))
 
 
 # --------------------------------------------------------------------------------------------

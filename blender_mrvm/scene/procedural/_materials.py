@@ -13,6 +13,8 @@ import colorsys
 import bpy
 import numpy as np
 
+from .. import compat
+
 # kind -> (hue range, saturation range, value range, roughness range, metallic, texture)
 # colours are drawn in HSV (value in display space) and converted to linear for the BSDF.
 KINDS: dict[str, tuple] = {
@@ -63,9 +65,7 @@ def make_material(name: str, kind: str, rng: np.random.Generator, pass_index: in
     mat.diffuse_color = (*base, 1.0)
     mat.metallic = float(metallic)
     mat.roughness = rough
-    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
-        mat.use_nodes = True
-    nt = mat.node_tree
+    nt = compat.node_tree(mat)
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")

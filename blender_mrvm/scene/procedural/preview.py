@@ -19,6 +19,7 @@ from ...errors import InputError
 from ...geometry import cameras as C
 from ...progress import Progress
 from .. import camera as scam
+from .. import compat
 from . import CATEGORIES, PART_LABELS, build
 
 VIEW_AZIMUTH_DEG = -35.0
@@ -51,7 +52,7 @@ def part_color(label: int) -> tuple[float, float, float]:
 def _setup_scene(scene, engine: str, size: int, samples: int):
     scene.render.resolution_x = scene.render.resolution_y = size
     scene.render.resolution_percentage = 100
-    scene.render.image_settings.file_format = "PNG"
+    compat.set_file_format(scene.render.image_settings, "PNG")
     scene.render.image_settings.color_mode = "RGB"
     scene.render.film_transparent = False
     scene.view_settings.view_transform = "Standard"
@@ -72,8 +73,7 @@ def _setup_scene(scene, engine: str, size: int, samples: int):
         scene.cycles.device = "CPU"
         scene.cycles.samples = samples
         scene.cycles.use_denoising = False
-        world.use_nodes = True if world.node_tree is None else True
-        bg = world.node_tree.nodes.get("Background")
+        bg = compat.node_tree(world).nodes.get("Background")
         if bg is not None:
             bg.inputs["Color"].default_value = (1, 1, 1, 1)
             bg.inputs["Strength"].default_value = 1.0
