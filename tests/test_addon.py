@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import subprocess
 import tomllib
 import zipfile
 from pathlib import Path
@@ -112,6 +113,74 @@ def test_extension_zip_bundles_wheels(tmp_path):
     manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
     assert manifest["wheels"] == ["./wheels/tinypkg-1.0-py3-none-any.whl"]
     assert (PACKAGE_DIR / "blender_manifest.toml").read_text() == before and not (PACKAGE_DIR / "wheels").exists()
+
+
+def _fake_wheel(folder: Path, python_tag: str, platform: str) -> Path:
+    w = folder / f"tinypkg-1.0-{python_tag}-{python_tag}-{platform}.whl"
+    with zipfile.ZipFile(w, "w") as z:
+        z.writestr("tinypkg/__init__.py", "")
+        z.writestr("tinypkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: tinypkg\nVersion: 1.0\n")
+        z.writestr("tinypkg-1.0.dist-info/WHEEL", f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: {python_tag}-"
+                                                  f"{python_tag}-{platform}\n")
+        z.writestr("tinypkg-1.0.dist-info/RECORD", "")
+    return w
+
+
+def test_bundled_wheels_let_every_supported_blender_install_the_extension(tmp_path, monkeypatch):
+    """Blender reads the Pythons an extension supports from its wheels' tags and refuses one whose wheels are for
+    none of its own. With wheels for Python 3.11 only (the zip before session 47), Blender 5.1 and later (Python
+    3.13) refused it; the build now fetches every Python of BLENDER_PYTHONS, and Blender's own check (bl_pkg) passes
+    for 4.2, 5.0 and 5.1. A --wheels folder without one of them is built with a warning naming it."""
+    import os
+    import sys
+    import types
+
+    import bpy
+
+    from blender_mrvm.commands import build_extension as B
+
+    sys.path.insert(0, os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core"))
+    try:
+        from bl_pkg.bl_extension_utils import pkg_manifest_params_compatible_or_error, python_versions_from_wheels
+    finally:
+        sys.path.pop(0)
+
+    asked = []
+
+    def fake_pip(cmd, **kw):  # what fetch_wheels asks the index for, without the index
+        py, plat = cmd[cmd.index("--python-version") + 1], cmd[cmd.index("--platform") + 1]
+        asked.append((py, plat))
+        _fake_wheel(Path(cmd[cmd.index("-d") + 1]), "cp3" + py.split(".")[1], plat)
+        return types.SimpleNamespace(returncode=0, stdout="", stderr="")
+
+    monkeypatch.setattr(B.subprocess, "run", fake_pip)
+    wheels = B.fetch_wheels(tmp_path / "cache")
+    monkeypatch.undo()
+    assert sorted(asked) == sorted((py, plat) for py in B.BLENDER_PYTHONS for plat in B.WHEEL_PLATFORMS)
+    assert B.wheel_pythons(wheels) == set(B.BLENDER_PYTHONS) == {"3.11", "3.13"}
+
+    def refusals(zip_path):
+        m = tomllib.loads(zipfile.ZipFile(zip_path).read("blender_manifest.toml").decode())
+        pythons = [".".join(map(str, v)) for v in python_versions_from_wheels(m["wheels"])]
+        return {blender: pkg_manifest_params_compatible_or_error(
+                    blender_version_min=m["blender_version_min"], blender_version_max="", platforms="",
+                    python_versions=pythons, this_platform="linux-x64", this_python_version=python,
+                    this_blender_version=blender, error_fn=print)
+                for blender, python in (((4, 2, 0), (3, 11, 9)), ((5, 0, 1), (3, 11, 13)), ((5, 1, 0), (3, 13, 2)))}
+
+    assert refusals(B.build(tmp_path / "all", wheels)) == {(4, 2, 0): None, (5, 0, 1): None, (5, 1, 0): None}
+    only_311 = [w for w in wheels if "-cp311-" in w.name]
+    said = refusals(B.build(tmp_path / "old", only_311))
+    assert said[(4, 2, 0)] is None and "3.13" in str(said[(5, 1, 0)])  # the check is real: 3.11 only is refused
+
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    for w in only_311:
+        (folder / w.name).write_bytes(w.read_bytes())
+    res = subprocess.run([sys.executable, "-m", "blender_mrvm", "build-extension", "--out", str(tmp_path / "d"),
+                          "--wheels", str(folder)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "warning: no wheel for Python 3.13" in res.stderr
 
 
 _INSTALL_AND_RENDER = """

@@ -40,28 +40,50 @@ def find_blender_ext() -> Path:
                     "install the bpy module or run `blender --command extension build` in blender_mrvm/")
 
 
-# Python wheels the extension bundles (Blender installs the one for its platform): assimp-py, with which
-# render-dataset reads COLLADA, ASCII FBX, 3DS and other formats Blender has no importer for. Blender 4.2 to 5.0 run
-# Python 3.11. The wheels are fetched from the package index at build time (never at run time) into a cache.
+# Python wheels the extension bundles (Blender installs the one for its platform and Python): assimp-py, with which
+# render-dataset reads COLLADA, ASCII FBX, 3DS and other formats Blender has no importer for. The wheels are fetched
+# from the package index at build time (never at run time) into a cache.
 BUNDLED_WHEELS = ("assimp-py==1.1.0",)
 WHEEL_PLATFORMS = ("win_amd64", "macosx_11_0_arm64", "manylinux2014_x86_64", "manylinux2014_aarch64")
+# The Pythons of the Blenders the extension installs into: 4.2 to 5.0 run Python 3.11, 5.1 and later 3.13. Blender
+# takes the Python versions an extension supports from its wheels' tags and refuses to install one whose wheels
+# are for none of its own ("This Python version (3.13) isn't compatible with (3.11)"), so every one is bundled.
+BLENDER_PYTHONS = ("3.11", "3.13")
 WHEEL_CACHE = Path(".cache") / "extension_wheels"
 
 
 def fetch_wheels(dest: Path) -> list[Path]:
-    """Download :data:`BUNDLED_WHEELS` for every platform in :data:`WHEEL_PLATFORMS` (Python 3.11) into ``dest``
-    (kept: a later build reuses them); MRVMError with pip's last line when the index cannot be reached."""
+    """Download :data:`BUNDLED_WHEELS` for every platform in :data:`WHEEL_PLATFORMS` and Python in
+    :data:`BLENDER_PYTHONS` into ``dest`` (kept: a later build reuses them); MRVMError with pip's last line when the
+    index cannot be reached."""
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     for req in BUNDLED_WHEELS:
-        for plat in WHEEL_PLATFORMS:
-            res = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-                                  "--python-version", "3.11", "--platform", plat, "-q", "-d", str(dest), req],
-                                 capture_output=True, text=True)
-            if res.returncode != 0:
-                said = (res.stderr or res.stdout).strip().splitlines() or ["pip failed"]
-                raise MRVMError(f"cannot download {req} for {plat}: {said[-1]}")
+        for py in BLENDER_PYTHONS:
+            for plat in WHEEL_PLATFORMS:
+                res = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
+                                      "--python-version", py, "--platform", plat, "-q", "-d", str(dest), req],
+                                     capture_output=True, text=True)
+                if res.returncode != 0:
+                    said = (res.stderr or res.stdout).strip().splitlines() or ["pip failed"]
+                    raise MRVMError(f"cannot download {req} for Python {py} on {plat}: {said[-1]}")
     return sorted(dest.glob("*.whl"))
+
+
+def wheel_pythons(wheels: list[Path]) -> set[str]:
+    """Which of :data:`BLENDER_PYTHONS` wheels' file names are for: a ``cp311`` wheel for 3.11, a stable-ABI
+    (``abi3``) one for its version and later, a pure ``py3`` one for every one."""
+    out: set[str] = set()
+    for w in wheels:
+        python_tag, abi_tag = w.name[:-4].split("-")[-3:-1]
+        for tag in python_tag.split("."):
+            if tag == "py3":
+                out.update(BLENDER_PYTHONS)
+            elif tag[:3] in ("cp3", "py3") and tag[3:].isdigit():
+                minor = int(tag[3:])
+                out.update(py for py in BLENDER_PYTHONS
+                           if int(py.split(".")[1]) == minor or abi_tag == "abi3" and int(py.split(".")[1]) > minor)
+    return out
 
 
 def build(out_dir: Path, wheels: list[Path] | None = None) -> Path:
@@ -130,6 +152,10 @@ def run(args) -> int:
         wheels = sorted(folder.glob("*.whl")) if folder.is_dir() else []
         if not wheels:
             raise MRVMError(f"--wheels {args.wheels}: not a folder of .whl files (or auto, or none)")
+    missing = [py for py in BLENDER_PYTHONS if wheels and py not in wheel_pythons(wheels)]
+    if missing:
+        print(f"warning: no wheel for Python {', '.join(missing)}: Blender refuses to install the extension where it "
+              "runs that Python (Python 3.11: Blender 4.2 to 5.0; 3.13: 5.1 and later)", file=sys.stderr)
     zip_path = build(Path(args.out), wheels)
     validate(zip_path)
     print(f"built {zip_path} ({zip_path.stat().st_size / 1024:.0f} KiB"
