@@ -115,14 +115,14 @@ def test_extension_zip_bundles_wheels(tmp_path):
     assert (PACKAGE_DIR / "blender_manifest.toml").read_text() == before and not (PACKAGE_DIR / "wheels").exists()
 
 
-def _fake_wheel(folder: Path, python_tag: str, platform: str) -> Path:
-    w = folder / f"tinypkg-1.0-{python_tag}-{python_tag}-{platform}.whl"
+def _fake_wheel(folder: Path, python_tag: str, platform: str, name: str = "tinypkg", version: str = "1.0") -> Path:
+    w = folder / f"{name}-{version}-{python_tag}-{python_tag}-{platform}.whl"
     with zipfile.ZipFile(w, "w") as z:
-        z.writestr("tinypkg/__init__.py", "")
-        z.writestr("tinypkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: tinypkg\nVersion: 1.0\n")
-        z.writestr("tinypkg-1.0.dist-info/WHEEL", f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: {python_tag}-"
-                                                  f"{python_tag}-{platform}\n")
-        z.writestr("tinypkg-1.0.dist-info/RECORD", "")
+        z.writestr(f"{name}/__init__.py", "")
+        z.writestr(f"{name}-{version}.dist-info/METADATA", f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+        z.writestr(f"{name}-{version}.dist-info/WHEEL", f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: {python_tag}-"
+                                                        f"{python_tag}-{platform}\n")
+        z.writestr(f"{name}-{version}.dist-info/RECORD", "")
     return w
 
 
@@ -148,15 +148,22 @@ def test_bundled_wheels_let_every_supported_blender_install_the_extension(tmp_pa
     asked = []
 
     def fake_pip(cmd, **kw):  # what fetch_wheels asks the index for, without the index
-        py, plat = cmd[cmd.index("--python-version") + 1], cmd[cmd.index("--platform") + 1]
-        asked.append((py, plat))
-        _fake_wheel(Path(cmd[cmd.index("-d") + 1]), "cp3" + py.split(".")[1], plat)
+        py, plat, req = cmd[cmd.index("--python-version") + 1], cmd[cmd.index("--platform") + 1], cmd[-1]
+        asked.append((req, py, plat))
+        name, version = req.split("==")
+        _fake_wheel(Path(cmd[cmd.index("-d") + 1]), "cp3" + py.split(".")[1], plat, name.replace("-", "_"), version)
         return types.SimpleNamespace(returncode=0, stdout="", stderr="")
 
+    cache = tmp_path / "cache"
+    (cache / "py3.11-win_amd64").mkdir(parents=True)
+    _fake_wheel(cache / "py3.11-win_amd64", "cp311", "win_amd64", "assimp_py", "0.9")  # pinned before: not bundled
+    _fake_wheel(cache, "cp311", "manylinux2014_x86_64", "assimp_py", "1.0")  # the cache's old layout: not bundled
     monkeypatch.setattr(B.subprocess, "run", fake_pip)
-    wheels = B.fetch_wheels(tmp_path / "cache")
+    wheels = B.fetch_wheels(cache)
     monkeypatch.undo()
-    assert sorted(asked) == sorted((py, plat) for py in B.BLENDER_PYTHONS for plat in B.WHEEL_PLATFORMS)
+    assert sorted(asked) == sorted((req, py, plat) for req in B.BUNDLED_WHEELS for py in B.BLENDER_PYTHONS
+                                   for plat in B.WHEEL_PLATFORMS)
+    assert len(wheels) == len(asked) and not [w for w in wheels if "-0.9-" in w.name or "2014" in w.name]
     assert B.wheel_pythons(wheels) == set(B.BLENDER_PYTHONS) == {"3.11", "3.13"}
 
     def refusals(zip_path):
@@ -222,6 +229,84 @@ def test_the_extension_zip_installs_into_this_blender_and_renders(tmp_path):
                          capture_output=True, text=True, env=env, cwd=home, timeout=300)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "rendered True 2" in res.stdout, res.stdout[-2000:]
+
+
+# Blender's own Python has numpy and a few packages of its own, none of the project venv's others. The test runs
+# Blender (as a module, in the venv) with the venv's other packages hidden, so what the extension runs inside
+# Blender must come from Blender or from the wheels the zip bundles (installed into the extensions' site-packages).
+_IN_BLENDERS_OWN_PYTHON = """
+import importlib.abc, importlib.machinery, json, sys
+from pathlib import Path
+zip_path, work = sys.argv[-2], Path(sys.argv[-1])
+HIDDEN = {"PIL", "OpenEXR", "Imath", "scipy", "trimesh", "torch", "pycolmap", "pillow_heif", "av", "safetensors",
+          "tqdm", "skimage", "pybullet", "assimp_py", "hypothesis", "pytest"}
+EXTENSIONS = str(work / "home")
+
+
+class Hide(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] not in HIDDEN:
+            return None
+        if path is None:  # a top-level package: only where the extension's wheels are installed
+            path = [p for p in sys.path if p.startswith(EXTENSIONS)]
+        spec = importlib.machinery.PathFinder.find_spec(name, path)
+        if spec is not None and (spec.origin or "").startswith(EXTENSIONS):
+            return spec  # a bundled wheel, installed with the extension
+        raise ModuleNotFoundError(f"No module named {name!r} (not in Blender's Python)", name=name)
+
+
+sys.meta_path.insert(0, Hide())
+import bpy
+assert bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
+                                                enable_on_install=True) == {"FINISHED"}
+import bl_ext.user_default.blender_mrvm as ext
+from bl_ext.user_default.blender_mrvm.datasets import format as F
+from bl_ext.user_default.blender_mrvm.scene import novel_views as NV
+bpy.ops.mesh.primitive_torus_add()
+props = bpy.context.scene.mrvm_dataset
+props.output_dir, props.views, props.resolution, props.samples = str(work / "ds"), 2, 24, 1
+assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}, props.status  # selected objects: EXR and PNG
+props.source, props.source_path = "PATH", str(work / "box.off")  # OFF: read with trimesh
+assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}, props.status
+for name in ("Torus", "box"):
+    ov = F.read_object(work / "ds" / "custom" / name)
+    depth = F.read_depth(work / "ds" / "custom" / name / "depth" / "000000.exr")
+    assert ov.meta["complete"] and ov.mask(0).any() and ((depth > 0) == (ov.mask(0) > 0)).all()
+r = bpy.context.scene.render
+r.resolution_x, r.resolution_y, r.resolution_percentage = 24, 24, 100  # the views' frame
+cams = NV.add_reference_cameras(bpy.context.scene, work / "ds" / "custom" / "box", (0, 1))
+folder, views = NV.export_scene_references(bpy.context.scene, cams, work / "refs")  # PNGs read and written
+assert views == (0, 1) and F.read_png(folder / "rgb" / "000001.png").shape[:2] == (24, 24)
+print("bundled", sorted(m for m in ("PIL", "OpenEXR", "trimesh", "assimp_py") if m in sys.modules))
+"""
+
+
+@pytest.mark.slow
+def test_the_extension_works_in_blenders_own_python(tmp_path):
+    """In an installed Blender the extension runs in Blender's own Python, which has none of the venv's packages
+    (the tests run Blender as a module in the venv, which hid this): Render Dataset from the panel stopped on
+    ``No module named 'OpenEXR'``. The zip now bundles openexr, pillow and trimesh with assimp-py; with the venv's
+    packages hidden, the operator renders selected objects and an OFF file, and reference cameras are read and
+    written. Needs the wheels: fetched from the package index once (.cache/extension_wheels), as set-up is."""
+    import os
+    import sys
+
+    from blender_mrvm.commands.build_extension import WHEEL_CACHE, build, fetch_wheels
+
+    wheels = fetch_wheels(ROOT / WHEEL_CACHE)
+    zip_path = build(tmp_path / "dist", wheels)
+    (tmp_path / "box.off").write_text("OFF\n8 6 0\n" + "".join(f"{x} {y} {z}\n" for x in (0, 1) for y in (0, 1)
+                                                              for z in (0, 1)) +
+                                      "4 0 1 3 2\n4 4 6 7 5\n4 0 4 5 1\n4 2 3 7 6\n4 0 2 6 4\n4 1 5 7 3\n")
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home / ".config"),
+           "BLENDER_USER_RESOURCES": str(home / "blender")}
+    env.pop("PYTHONPATH", None)
+    res = subprocess.run([sys.executable, "-c", _IN_BLENDERS_OWN_PYTHON, str(zip_path), str(tmp_path)],
+                         capture_output=True, text=True, env=env, cwd=home, timeout=600)
+    assert res.returncode == 0, res.stderr[-4000:]
+    assert "bundled ['OpenEXR', 'PIL', 'assimp_py', 'trimesh']" in res.stdout, res.stdout[-2000:]
 
 
 def test_relative_imports_only():

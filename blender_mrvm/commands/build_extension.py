@@ -40,11 +40,18 @@ def find_blender_ext() -> Path:
                     "install the bpy module or run `blender --command extension build` in blender_mrvm/")
 
 
-# Python wheels the extension bundles (Blender installs the one for its platform and Python): assimp-py, with which
-# render-dataset reads COLLADA, ASCII FBX, 3DS and other formats Blender has no importer for. The wheels are fetched
-# from the package index at build time (never at run time) into a cache.
-BUNDLED_WHEELS = ("assimp-py==1.1.0",)
-WHEEL_PLATFORMS = ("win_amd64", "macosx_11_0_arm64", "manylinux2014_x86_64", "manylinux2014_aarch64")
+# Python wheels the extension bundles (Blender installs the ones for its platform and Python), since what runs inside
+# Blender (render-dataset, image planes, the capture import) needs packages Blender's own Python does not have:
+# - openexr: the colour render is read from Blender's EXR, depth and normal maps are written as EXR;
+# - pillow: every PNG (views, masks, image planes);
+# - trimesh: OFF meshes (ModelNet's format; Blender has no importer);
+# - assimp-py: COLLADA, ASCII FBX, 3DS and other formats Blender has no importer for.
+# (scipy is optional there: without it an object's outline keeps every vertex.) The tests run Blender as a module in
+# the project's venv, which has them all; tests/test_addon.py installs the zip into a Blender whose Python lacks them.
+# The pins are the versions tested. The wheels are fetched from the package index at build time (never at run time)
+# into a cache. Linux wheels are manylinux_2_28 (glibc 2.28, which Blender 4.2 and later need anyway).
+BUNDLED_WHEELS = ("assimp-py==1.1.0", "openexr==3.5.3", "pillow==13.0.0", "trimesh==5.2.0")
+WHEEL_PLATFORMS = ("win_amd64", "macosx_11_0_arm64", "manylinux_2_28_x86_64", "manylinux_2_28_aarch64")
 # The Pythons of the Blenders the extension installs into: 4.2 to 5.0 run Python 3.11, 5.1 and later 3.13. Blender
 # takes the Python versions an extension supports from its wheels' tags and refuses to install one whose wheels
 # are for none of its own ("This Python version (3.13) isn't compatible with (3.11)"), so every one is bundled.
@@ -54,20 +61,31 @@ WHEEL_CACHE = Path(".cache") / "extension_wheels"
 
 def fetch_wheels(dest: Path) -> list[Path]:
     """Download :data:`BUNDLED_WHEELS` for every platform in :data:`WHEEL_PLATFORMS` and Python in
-    :data:`BLENDER_PYTHONS` into ``dest`` (kept: a later build reuses them); MRVMError with pip's last line when the
-    index cannot be reached."""
+    :data:`BLENDER_PYTHONS` into ``dest`` (a folder a Python and platform, kept: a later build reuses them) and return
+    them, one file a name; MRVMError with pip's last line when the index cannot be reached."""
     dest = Path(dest)
-    dest.mkdir(parents=True, exist_ok=True)
-    for req in BUNDLED_WHEELS:
-        for py in BLENDER_PYTHONS:
-            for plat in WHEEL_PLATFORMS:
+    found: dict[str, Path] = {}
+    for py in BLENDER_PYTHONS:
+        for plat in WHEEL_PLATFORMS:
+            folder = dest / f"py{py}-{plat}"
+            folder.mkdir(parents=True, exist_ok=True)
+            for req in BUNDLED_WHEELS:
                 res = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-                                      "--python-version", py, "--platform", plat, "-q", "-d", str(dest), req],
+                                      "--python-version", py, "--platform", plat, "-q", "-d", str(folder), req],
                                      capture_output=True, text=True)
                 if res.returncode != 0:
                     said = (res.stderr or res.stdout).strip().splitlines() or ["pip failed"]
                     raise MRVMError(f"cannot download {req} for Python {py} on {plat}: {said[-1]}")
-    return sorted(dest.glob("*.whl"))
+            for w in bundled_in(folder):  # a pure wheel (trimesh) is the same file for each: bundled once
+                found.setdefault(w.name, w)
+    return sorted(found.values(), key=lambda w: w.name)
+
+
+def bundled_in(folder: Path) -> list[Path]:
+    """The wheels of :data:`BUNDLED_WHEELS` (at their pinned versions) in ``folder``, sorted (a cache may also hold
+    wheels of versions pinned before)."""
+    stems = {req.split("==")[0].replace("-", "_").lower() + "-" + req.split("==")[1] + "-" for req in BUNDLED_WHEELS}
+    return sorted(w for w in Path(folder).glob("*.whl") if any(w.name.lower().startswith(st) for st in stems))
 
 
 def wheel_pythons(wheels: list[Path]) -> set[str]:
