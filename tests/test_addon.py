@@ -264,7 +264,7 @@ from bl_ext.user_default.blender_mrvm.datasets import format as F
 from bl_ext.user_default.blender_mrvm.scene import novel_views as NV
 bpy.ops.mesh.primitive_torus_add()
 props = bpy.context.scene.mrvm_dataset
-props.output_dir, props.views, props.resolution, props.samples = str(work / "ds"), 2, 24, 1
+props.output_dir, props.views, props.resolution, props.samples = str(work / "ds"), 2, 64, 1
 assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}, props.status  # selected objects: EXR and PNG
 props.source, props.source_path = "PATH", str(work / "box.off")  # OFF: read with trimesh
 assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}, props.status
@@ -273,10 +273,26 @@ for name in ("Torus", "box"):
     depth = F.read_depth(work / "ds" / "custom" / name / "depth" / "000000.exr")
     assert ov.meta["complete"] and ov.mask(0).any() and ((depth > 0) == (ov.mask(0) > 0)).all()
 r = bpy.context.scene.render
-r.resolution_x, r.resolution_y, r.resolution_percentage = 24, 24, 100  # the views' frame
+r.resolution_x, r.resolution_y, r.resolution_percentage = 64, 64, 100  # the views' frame
 cams = NV.add_reference_cameras(bpy.context.scene, work / "ds" / "custom" / "box", (0, 1))
 folder, views = NV.export_scene_references(bpy.context.scene, cams, work / "refs")  # PNGs read and written
-assert views == (0, 1) and F.read_png(folder / "rgb" / "000001.png").shape[:2] == (24, 24)
+assert views == (0, 1) and F.read_png(folder / "rgb" / "000001.png").shape[:2] == (64, 64)
+# Novel views from the panel: the worker (the venv's Python, which has torch) renders, Blender makes the plane.
+from bl_ext.user_default.blender_mrvm.scene import image_planes as IP
+bpy.context.preferences.addons["bl_ext.user_default.blender_mrvm"].preferences.python_path = sys.executable
+bpy.ops.wm.save_as_mainfile(filepath=str(work / "scene.blend"))
+scene = bpy.context.scene
+target = bpy.data.objects["MRVM reference 001"].copy()
+target.name = "Target"
+scene.collection.objects.link(target)
+for o in scene.objects:
+    o.select_set(o == target)
+p = scene.mrvm_novel_views
+p.reference_source, p.dataset_dir, p.reference_views = "DATASET", str(work / "ds" / "custom" / "box"), "0 1"
+p.target_source, p.plane_distance = "SELECTED", 1.0
+assert bpy.ops.mrvm.synthesize() == {"FINISHED"}, p.status
+(plane,) = IP.planes_of(target)
+assert tuple(bpy.data.images[plane["mrvm_image"]].size) == (64, 64)
 print("bundled", sorted(m for m in ("PIL", "OpenEXR", "trimesh", "assimp_py") if m in sys.modules))
 """
 
@@ -286,8 +302,9 @@ def test_the_extension_works_in_blenders_own_python(tmp_path):
     """In an installed Blender the extension runs in Blender's own Python, which has none of the venv's packages
     (the tests run Blender as a module in the venv, which hid this): Render Dataset from the panel stopped on
     ``No module named 'OpenEXR'``. The zip now bundles openexr, pillow and trimesh with assimp-py; with the venv's
-    packages hidden, the operator renders selected objects and an OFF file, and reference cameras are read and
-    written. Needs the wheels: fetched from the package index once (.cache/extension_wheels), as set-up is."""
+    packages hidden, the operator renders selected objects and an OFF file, reference cameras are read and written,
+    and a novel view is synthesized from the panel (the worker: the venv's Python) into an image plane. Needs the
+    wheels: fetched from the package index once (.cache/extension_wheels), as set-up is."""
     import os
     import sys
 
