@@ -148,10 +148,11 @@ def validate(path: Path) -> None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="dist", help="output folder for the zip (default: dist)")
     p.add_argument("--wheels", default="auto", metavar="auto|none|DIR",
-                   help="bundle assimp-py (COLLADA, ASCII FBX, 3DS, ... in render-dataset) for Windows, macOS and "
-                        f"Linux: auto (default) downloads the wheels into {WHEEL_CACHE} once and builds without "
-                        "them, with a warning, when the package index cannot be reached; none; or a folder of .whl "
-                        "files")
+                   help="bundle what the extension runs inside Blender and Blender's Python lacks (openexr, "
+                        "pillow, trimesh, assimp-py) for Windows, macOS and Linux, Python 3.11 and 3.13: auto "
+                        f"(default) downloads the wheels into {WHEEL_CACHE} once and builds without them, with a "
+                        "warning, when the package index cannot be reached; none (for a Blender whose Python has "
+                        "them); or a folder of .whl files")
 
 
 def run(args) -> int:
@@ -163,8 +164,9 @@ def run(args) -> int:
         try:
             wheels = fetch_wheels(WHEEL_CACHE)
         except MRVMError as e:
-            print(f"warning: {e}; the extension is built without assimp-py (render-dataset in Blender then names "
-                  "COLLADA, ASCII FBX and 3DS files with advice instead of reading them)", file=sys.stderr)
+            print(f"warning: {e}; the extension is built without its wheels, so inside a Blender whose Python "
+                  "lacks openexr and pillow (every installed Blender) Render Dataset and the image planes stop with "
+                  "'no module': build again where the index can be reached", file=sys.stderr)
     elif args.wheels != "none":
         folder = Path(args.wheels)
         wheels = sorted(folder.glob("*.whl")) if folder.is_dir() else []

@@ -18,6 +18,20 @@ from ..errors import MRVMError
 _PROGRESS_STEPS = 1000
 
 
+def unexpected_error(e: Exception) -> str:
+    """The panel's message for an error that is not an :class:`MRVMError` (whose message is the user's to read):
+    a module Blender's Python lacks says which, and why; anything else is named as a bug, its traceback printed to
+    Blender's console."""
+    if isinstance(e, ModuleNotFoundError) and e.name:
+        return (f"Blender's Python has no module {e.name.split('.')[0]!r}: this copy of the extension was built "
+                "without the packages it bundles (openexr, pillow, trimesh, assimp-py); build it with `python -m "
+                "blender_mrvm build-extension` where the package index can be reached, and install that zip")
+    import traceback
+
+    traceback.print_exception(e)
+    return f"unexpected error, a bug ({type(e).__name__}: {e}); the traceback is in Blender's system console"
+
+
 class ProgressOperator:
     props_attr: str = ""
     """Scene attribute of the PropertyGroup with running / progress / status."""
@@ -55,9 +69,9 @@ class ProgressOperator:
         try:
             gen, _ = self._begin(context)
             message = self.on_result(context, run_to_end(gen))
-        except MRVMError as e:
-            props.status = str(e)
-            self.report({"ERROR"}, str(e))
+        except (MRVMError, ModuleNotFoundError) as e:
+            props.status = str(e) if isinstance(e, MRVMError) else unexpected_error(e)
+            self.report({"ERROR"}, props.status)
             return {"CANCELLED"}
         props.status = message
         self.report({"INFO"}, message)
@@ -70,9 +84,9 @@ class ProgressOperator:
             return {"CANCELLED"}
         try:
             self._gen, first = self._begin(context)
-        except MRVMError as e:
-            props.status = str(e)
-            self.report({"ERROR"}, str(e))
+        except (MRVMError, ModuleNotFoundError) as e:
+            props.status = str(e) if isinstance(e, MRVMError) else unexpected_error(e)
+            self.report({"ERROR"}, props.status)
             return {"CANCELLED"}
         props.running, props.progress, props.status = True, first.fraction, first.message
         wm = context.window_manager
@@ -117,8 +131,12 @@ class ProgressOperator:
                 return self._finish(context, False, self.on_result(context, stop.value))
             except MRVMError as e:
                 return self._finish(context, True, str(e), "ERROR")
+            except Exception as e:  # the job must end: a running flag left set refuses every later run
+                return self._finish(context, True, unexpected_error(e), "ERROR")
         except MRVMError as e:
             return self._finish(context, True, str(e), "ERROR")
+        except Exception as e:  # the generator has ended with it; the timer and the progress bar end here
+            return self._finish(context, True, unexpected_error(e), "ERROR")
         props = self._props(context)
         count = f" ({ev.done}/{ev.total})" if ev.total else ""
         props.progress, props.status = ev.fraction, f"{ev.message}{count}, Esc to cancel"
