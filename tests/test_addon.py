@@ -190,6 +190,35 @@ def test_bundled_wheels_let_every_supported_blender_install_the_extension(tmp_pa
     assert "warning: no wheel for Python 3.13" in res.stderr
 
 
+def test_a_zip_a_platform_holds_that_platforms_wheels(tmp_path):
+    """build-extension --split-platforms: a zip each for Windows, macOS arm64 and Linux x64 / arm64, each with its own
+    platform's wheels and the pure ones, its manifest naming that platform and those wheels (what Blender reads)."""
+    from blender_mrvm.commands import build_extension as B
+
+    whl = tmp_path / "whl"
+    whl.mkdir()
+    wheels = [_fake_wheel(whl, py, plat, "binpkg") for py in ("cp311", "cp313")
+              for plat in ("win_amd64", "manylinux_2_28_x86_64")]
+    pure = whl / "purepkg-1.0-py3-none-any.whl"
+    with zipfile.ZipFile(pure, "w") as z:
+        z.writestr("purepkg/__init__.py", "")
+        z.writestr("purepkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: purepkg\nVersion: 1.0\n")
+        z.writestr("purepkg-1.0.dist-info/WHEEL", "Wheel-Version: 1.0\nRoot-Is-Purelib: true\nTag: py3-none-any\n")
+        z.writestr("purepkg-1.0.dist-info/RECORD", "")
+    zips = B.build_per_platform(tmp_path / "out", [*wheels, pure])
+    assert [z.name for z in zips] == [f"blender_mrvm-0.1.0-{p.replace('-', '_')}.zip" for p in B.BLENDER_PLATFORMS]
+    want = {"windows-x64": "win_amd64", "linux-x64": "manylinux_2_28_x86_64", "macos-arm64": None, "linux-arm64": None}
+    for z, platform in zip(zips, B.BLENDER_PLATFORMS):
+        B.validate(z)
+        archive = zipfile.ZipFile(z)
+        inside = sorted(n.split("/")[-1] for n in archive.namelist() if n.endswith(".whl"))
+        own = sorted(w.name for w in wheels if want[platform] and w.name.endswith(f"-{want[platform]}.whl"))
+        assert inside == sorted([*own, pure.name]), (platform, inside)
+        generated = tomllib.loads(archive.read("blender_manifest.toml").decode())["build"]["generated"]
+        assert generated["platforms"] == [platform]
+        assert sorted(w.split("/")[-1] for w in generated["wheels"]) == inside
+
+
 _INSTALL_AND_RENDER = """
 import json, sys
 from pathlib import Path

@@ -13,6 +13,7 @@ import importlib.util
 import os
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 from ..errors import MRVMError
@@ -52,6 +53,8 @@ def find_blender_ext() -> Path:
 # into a cache. Linux wheels are manylinux_2_28 (glibc 2.28, which Blender 4.2 and later need anyway).
 BUNDLED_WHEELS = ("assimp-py==1.1.0", "openexr==3.5.3", "pillow==13.0.0", "trimesh==5.2.0")
 WHEEL_PLATFORMS = ("win_amd64", "macosx_11_0_arm64", "manylinux_2_28_x86_64", "manylinux_2_28_aarch64")
+# Blender's names of those platforms (the manifest's ``platforms``), for a zip a platform (--split-platforms).
+BLENDER_PLATFORMS = ("windows-x64", "macos-arm64", "linux-x64", "linux-arm64")
 # The Pythons of the Blenders the extension installs into: 4.2 to 5.0 run Python 3.11, 5.1 and later 3.13. Blender
 # takes the Python versions an extension supports from its wheels' tags and refuses to install one whose wheels
 # are for none of its own ("This Python version (3.13) isn't compatible with (3.11)"), so every one is bundled.
@@ -107,6 +110,17 @@ def wheel_pythons(wheels: list[Path]) -> set[str]:
 def build(out_dir: Path, wheels: list[Path] | None = None) -> Path:
     """Build the extension zip into ``out_dir``; with ``wheels``, a staged copy of the package that bundles them
     (listed in its manifest's ``wheels``), the source folder itself otherwise."""
+    return _build(out_dir, wheels, ())[0]
+
+
+def build_per_platform(out_dir: Path, wheels: list[Path]) -> list[Path]:
+    """One zip a platform of :data:`BLENDER_PLATFORMS` (Blender's ``build --split-platforms``): each holds that
+    platform's wheels and the pure ones, and its manifest names that platform only, so a download is about a
+    quarter of the one zip's."""
+    return _build(out_dir, wheels, BLENDER_PLATFORMS)
+
+
+def _build(out_dir: Path, wheels: list[Path] | None, platforms: tuple[str, ...]) -> list[Path]:
     import shutil
     import tempfile
     import tomllib
@@ -114,28 +128,35 @@ def build(out_dir: Path, wheels: list[Path] | None = None) -> Path:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tool = find_blender_ext()
+    split = ["--split-platforms"] if platforms else []
     with tempfile.TemporaryDirectory() as tmp:
         source = PACKAGE_DIR
-        if wheels:
+        if wheels or platforms:
             source = Path(tmp) / PACKAGE_DIR.name
             shutil.copytree(PACKAGE_DIR, source, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-            (source / "wheels").mkdir()
-            for w in wheels:
-                shutil.copy2(w, source / "wheels" / Path(w).name)
-            listed = ", ".join(f'"./wheels/{Path(w).name}"' for w in sorted(wheels, key=lambda w: Path(w).name))
+            lines = ""
+            if wheels:
+                (source / "wheels").mkdir()
+                for w in wheels:
+                    shutil.copy2(w, source / "wheels" / Path(w).name)
+                listed = ", ".join(f'"./wheels/{Path(w).name}"' for w in sorted(wheels, key=lambda w: Path(w).name))
+                lines += f"wheels = [{listed}]\n"
+            if platforms:
+                lines += "platforms = [" + ", ".join(f'"{p}"' for p in platforms) + "]\n"
             text = (source / "blender_manifest.toml").read_text()
-            first_table = text.index("\n[") + 1  # a top-level key, so before the first [table]
-            (source / "blender_manifest.toml").write_text(
-                f"{text[:first_table]}wheels = [{listed}]\n\n{text[first_table:]}")
+            first_table = text.index("\n[") + 1  # top-level keys, so before the first [table]
+            (source / "blender_manifest.toml").write_text(f"{text[:first_table]}{lines}\n{text[first_table:]}")
         res = subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(source),
-                              "--output-dir", str(out_dir)], capture_output=True, text=True)
+                              "--output-dir", str(out_dir), *split], capture_output=True, text=True)
     if res.returncode != 0:
         raise MRVMError(f"extension build failed: {(res.stdout + res.stderr).strip().splitlines()[-1]}")
     manifest = tomllib.loads((PACKAGE_DIR / "blender_manifest.toml").read_text())
-    zip_path = out_dir / f"{manifest['id']}-{manifest['version']}.zip"
-    if not zip_path.is_file():
-        raise MRVMError(f"extension build did not produce {zip_path}")
-    return zip_path
+    stem = f"{manifest['id']}-{manifest['version']}"
+    zips = [out_dir / f"{stem}-{p.replace('-', '_')}.zip" for p in platforms] or [out_dir / f"{stem}.zip"]
+    for z in zips:
+        if not z.is_file():
+            raise MRVMError(f"extension build did not produce {z}")
+    return zips
 
 
 def validate(path: Path) -> None:
@@ -153,6 +174,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"(default) downloads the wheels into {WHEEL_CACHE} once and builds without them, with a "
                         "warning, when the package index cannot be reached; none (for a Blender whose Python has "
                         "them); or a folder of .whl files")
+    p.add_argument("--split-platforms", action="store_true",
+                   help="one zip a platform (Windows x64, macOS arm64, Linux x64 and arm64), each with its own "
+                        "wheels only: about a quarter of the one zip's size; a Blender installs only its own")
 
 
 def run(args) -> int:
@@ -176,9 +200,16 @@ def run(args) -> int:
     if missing:
         print(f"warning: no wheel for Python {', '.join(missing)}: Blender refuses to install the extension where it "
               "runs that Python (Python 3.11: Blender 4.2 to 5.0; 3.13: 5.1 and later)", file=sys.stderr)
-    zip_path = build(Path(args.out), wheels)
-    validate(zip_path)
-    print(f"built {zip_path} ({zip_path.stat().st_size / 1024:.0f} KiB"
-          f"{f', {len(wheels)} wheels' if wheels else ''}); install it with "
-          "Edit > Preferences > Get Extensions > Install from Disk")
+    if args.split_platforms:
+        zips = build_per_platform(Path(args.out), wheels)
+    else:
+        zips = [build(Path(args.out), wheels)]
+    for z in zips:
+        validate(z)
+        import tomllib
+
+        m = tomllib.loads(zipfile.ZipFile(z).read("blender_manifest.toml").decode())
+        n = len(m.get("build", {}).get("generated", {}).get("wheels", m.get("wheels", [])))  # a platform's own
+        print(f"built {z} ({z.stat().st_size / 1024:.0f} KiB{f', {n} wheels' if n else ''})")
+    print("install it with Edit > Preferences > Get Extensions > Install from Disk")
     return 0
