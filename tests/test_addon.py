@@ -322,6 +322,14 @@ p.target_source, p.plane_distance = "SELECTED", 1.0
 assert bpy.ops.mrvm.synthesize() == {"FINISHED"}, p.status
 (plane,) = IP.planes_of(target)
 assert tuple(bpy.data.images[plane["mrvm_image"]].size) == (64, 64)
+# Poses of photos from the panel: pycolmap in the worker, the cameras and points imported in Blender.
+from bl_ext.user_default.blender_mrvm.scene.capture import render_textured_ring
+render_textured_ring(work / "ring", n_views=24, width=320, height=240, samples=4)
+c = scene.mrvm_capture
+c.images_dir, c.output_dir = str(work / "ring" / "images"), str(work / "cap")
+assert bpy.ops.mrvm.recover_poses() == {"FINISHED"}, c.status
+cams = [o for o in bpy.data.collections["Capture cap"].all_objects if o.type == "CAMERA"]
+assert len(cams) >= 12 and all(o.data.background_images[0].image for o in cams), c.status
 print("bundled", sorted(m for m in ("PIL", "OpenEXR", "trimesh", "assimp_py") if m in sys.modules))
 """
 
@@ -332,8 +340,9 @@ def test_the_extension_works_in_blenders_own_python(tmp_path):
     (the tests run Blender as a module in the venv, which hid this): Render Dataset from the panel stopped on
     ``No module named 'OpenEXR'``. The zip now bundles openexr, pillow and trimesh with assimp-py; with the venv's
     packages hidden, the operator renders selected objects and an OFF file, reference cameras are read and written,
-    and a novel view is synthesized from the panel (the worker: the venv's Python) into an image plane. Needs the
-    wheels: fetched from the package index once (.cache/extension_wheels), as set-up is."""
+    a novel view is synthesized from the panel (the worker: the venv's Python) into an image plane, and the poses of
+    24 photos are recovered (pycolmap in the worker) and imported as cameras. Needs the wheels: fetched from the
+    package index once (.cache/extension_wheels), as set-up is."""
     import os
     import sys
 
