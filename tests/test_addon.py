@@ -322,6 +322,15 @@ p.target_source, p.plane_distance = "SELECTED", 1.0
 assert bpy.ops.mrvm.synthesize() == {"FINISHED"}, p.status
 (plane,) = IP.planes_of(target)
 assert tuple(bpy.data.images[plane["mrvm_image"]].size) == (64, 64)
+# Sem2NeRF from the panel, from a library object's mask: the generator in the worker, the planes in Blender.
+props.source, props.library_category, props.library_count, props.library_seed = "LIBRARY", "chair", 1, 3
+props.views, props.output_dir = 1, str(work / "lib")
+assert bpy.ops.mrvm.render_dataset() == {"FINISHED"}, props.status
+q = scene.mrvm_sem2nerf
+q.mask_source, q.mask_path = "FILE", str(work / "lib" / "chair" / "chair_000003" / "mask" / "000000.png")
+q.viewpoint, q.target_source, q.orbit_count, q.output_dir = "DATASET", "ORBIT", 2, str(work / "s2n")
+assert bpy.ops.mrvm.sem2nerf() == {"FINISHED"}, q.status
+assert len([o for o in bpy.data.collections["MRVM Sem2NeRF"].all_objects if o.type == "MESH"]) == 2, q.status
 # Poses of photos from the panel: pycolmap in the worker, the cameras and points imported in Blender.
 from bl_ext.user_default.blender_mrvm.scene.capture import render_textured_ring
 render_textured_ring(work / "ring", n_views=24, width=320, height=240, samples=4)
@@ -340,8 +349,9 @@ def test_the_extension_works_in_blenders_own_python(tmp_path):
     (the tests run Blender as a module in the venv, which hid this): Render Dataset from the panel stopped on
     ``No module named 'OpenEXR'``. The zip now bundles openexr, pillow and trimesh with assimp-py; with the venv's
     packages hidden, the operator renders selected objects and an OFF file, reference cameras are read and written,
-    a novel view is synthesized from the panel (the worker: the venv's Python) into an image plane, and the poses of
-    24 photos are recovered (pycolmap in the worker) and imported as cameras. Needs the wheels: fetched from the
+    a novel view is synthesized from the panel (the worker: the venv's Python) into an image plane, Sem2NeRF makes
+    two views of a library chair's mask, and the poses of 24 photos are recovered (pycolmap in the worker) and
+    imported as cameras. Needs the wheels: fetched from the
     package index once (.cache/extension_wheels), as set-up is."""
     import os
     import sys
