@@ -11,7 +11,10 @@
 # docs/blender_versions.md has the results.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-BPY=${1:?usage: scripts/test_blender_version.sh BPY_VERSION, e.g. 4.2.23}
+if [ $# -ne 1 ] || [ -z "$1" ]; then
+  echo "error: usage: scripts/test_blender_version.sh BPY_VERSION (a bpy wheel's version, e.g. 4.2.23)" >&2; exit 2
+fi
+BPY=$1
 PY=${PY:-.venv/bin/python}
 VENV=.venv-bpy$BPY
 if [ ! -f "$VENV/.installed-stamp" ]; then

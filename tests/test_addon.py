@@ -93,18 +93,29 @@ def test_extension_zip(tmp_path):
     assert manifest["version"] == tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
 
 
+def _fake_wheel(folder: Path, python_tag: str = "py3", platform: str = "any", name: str = "tinypkg",
+                version: str = "1.0") -> Path:
+    """A minimal wheel: ``cp311`` + a platform for a binary one (abi tag = python tag), ``py3`` + ``any`` for a pure
+    one (abi ``none``)."""
+    abi = "none" if python_tag == "py3" else python_tag
+    tag = f"{python_tag}-{abi}-{platform}"
+    w = folder / f"{name}-{version}-{tag}.whl"
+    with zipfile.ZipFile(w, "w") as z:
+        z.writestr(f"{name}/__init__.py", "")
+        z.writestr(f"{name}-{version}.dist-info/METADATA", f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+        z.writestr(f"{name}-{version}.dist-info/WHEEL", f"Wheel-Version: 1.0\nRoot-Is-Purelib: {str(abi == 'none').lower()}"
+                                                        f"\nTag: {tag}\n")
+        z.writestr(f"{name}-{version}.dist-info/RECORD", "")
+    return w
+
+
 def test_extension_zip_bundles_wheels(tmp_path):
     """With wheels (build-extension --wheels DIR, or the downloaded assimp-py ones), the zip holds them under wheels/
     and its manifest lists them, so Blender installs them; the package folder itself is left as it was."""
     from blender_mrvm.commands.build_extension import PACKAGE_DIR, build, validate
 
-    wheel = tmp_path / "whl" / "tinypkg-1.0-py3-none-any.whl"
-    wheel.parent.mkdir()
-    with zipfile.ZipFile(wheel, "w") as z:
-        z.writestr("tinypkg/__init__.py", "")
-        z.writestr("tinypkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: tinypkg\nVersion: 1.0\n")
-        z.writestr("tinypkg-1.0.dist-info/WHEEL", "Wheel-Version: 1.0\nRoot-Is-Purelib: true\nTag: py3-none-any\n")
-        z.writestr("tinypkg-1.0.dist-info/RECORD", "")
+    (tmp_path / "whl").mkdir()
+    wheel = _fake_wheel(tmp_path / "whl")
     before = (PACKAGE_DIR / "blender_manifest.toml").read_text()
     zip_path = build(tmp_path / "out", [wheel])
     validate(zip_path)
@@ -115,15 +126,6 @@ def test_extension_zip_bundles_wheels(tmp_path):
     assert (PACKAGE_DIR / "blender_manifest.toml").read_text() == before and not (PACKAGE_DIR / "wheels").exists()
 
 
-def _fake_wheel(folder: Path, python_tag: str, platform: str, name: str = "tinypkg", version: str = "1.0") -> Path:
-    w = folder / f"{name}-{version}-{python_tag}-{python_tag}-{platform}.whl"
-    with zipfile.ZipFile(w, "w") as z:
-        z.writestr(f"{name}/__init__.py", "")
-        z.writestr(f"{name}-{version}.dist-info/METADATA", f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
-        z.writestr(f"{name}-{version}.dist-info/WHEEL", f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: {python_tag}-"
-                                                        f"{python_tag}-{platform}\n")
-        z.writestr(f"{name}-{version}.dist-info/RECORD", "")
-    return w
 
 
 def test_bundled_wheels_let_every_supported_blender_install_the_extension(tmp_path, monkeypatch):
@@ -199,12 +201,7 @@ def test_a_zip_a_platform_holds_that_platforms_wheels(tmp_path):
     whl.mkdir()
     wheels = [_fake_wheel(whl, py, plat, "binpkg") for py in ("cp311", "cp313")
               for plat in ("win_amd64", "manylinux_2_28_x86_64")]
-    pure = whl / "purepkg-1.0-py3-none-any.whl"
-    with zipfile.ZipFile(pure, "w") as z:
-        z.writestr("purepkg/__init__.py", "")
-        z.writestr("purepkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: purepkg\nVersion: 1.0\n")
-        z.writestr("purepkg-1.0.dist-info/WHEEL", "Wheel-Version: 1.0\nRoot-Is-Purelib: true\nTag: py3-none-any\n")
-        z.writestr("purepkg-1.0.dist-info/RECORD", "")
+    pure = _fake_wheel(whl, name="purepkg")
     zips = B.build_per_platform(tmp_path / "out", [*wheels, pure])
     assert [z.name for z in zips] == [f"blender_mrvm-0.1.0-{p.replace('-', '_')}.zip" for p in B.BLENDER_PLATFORMS]
     want = {"windows-x64": "win_amd64", "linux-x64": "manylinux_2_28_x86_64", "macos-arm64": None, "linux-arm64": None}

@@ -13,6 +13,7 @@ import importlib.util
 import os
 import subprocess
 import sys
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -123,7 +124,6 @@ def build_per_platform(out_dir: Path, wheels: list[Path]) -> list[Path]:
 def _build(out_dir: Path, wheels: list[Path] | None, platforms: tuple[str, ...]) -> list[Path]:
     import shutil
     import tempfile
-    import tomllib
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -206,8 +206,6 @@ def run(args) -> int:
         zips = [build(Path(args.out), wheels)]
     for z in zips:
         validate(z)
-        import tomllib
-
         m = tomllib.loads(zipfile.ZipFile(z).read("blender_manifest.toml").decode())
         n = len(m.get("build", {}).get("generated", {}).get("wheels", m.get("wheels", [])))  # a platform's own
         print(f"built {z} ({z.stat().st_size / 1024:.0f} KiB{f', {n} wheels' if n else ''})")

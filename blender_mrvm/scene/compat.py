@@ -1,6 +1,6 @@
 """What differs between the Blender versions the extension supports: 4.2 LTS to 5.0.
 
-The manifest says ``blender_version_min = "4.2.0"``. The API the scene layer uses changed in three places
+The manifest says ``blender_version_min = "4.2.0"``. The API the scene layer uses changed in four places
 between 4.2 and 5.0; each one has a helper here, so the rest of the code is written once:
 
 - the EEVEE engine is ``BLENDER_EEVEE_NEXT`` in 4.2-4.5 and ``BLENDER_EEVEE`` again in 5.0 (:func:`set_engine`;

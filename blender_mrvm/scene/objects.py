@@ -1550,7 +1550,7 @@ def _blend_image_files(path: Path) -> list[str]:
             dst.images = list(src.images)
         return sorted({_name_beside(path, im.filepath, im.library) for im in dst.images
                        if im is not None and _external_image(im)})
-    return []  # unreadable, or the open file itself: the render's own reading says so
+    return []  # unreadable: the render's own reading says so
 
 
 def _is_open_file(path: Path) -> bool:
@@ -1613,7 +1613,7 @@ def _blend_library_files(path: Path) -> list[str]:
         names |= {_name_beside(path, im.filepath, im.library) for im in bpy.data.images
                   if im.library is not None and im.library.as_pointer() in inside and _external_image(im)}
         return sorted(names)
-    return []  # unreadable, or the open file itself: the render's own reading says so
+    return []  # unreadable: the render's own reading says so
 
 
 def _links_from(lib, me: Path) -> bool:
