@@ -5,9 +5,6 @@
 # The venv .venv-bpy$BPY holds that bpy and every other package at the main venv's versions (made once, ~1 min,
 # a 350 MB wheel); the project is installed editable, so the tests run the working tree. Pass criterion: the
 # JUnit report (the bpy 4.x modules can crash or stall while the interpreter exits, after the tests ran).
-# Left out, with the reason (under 4.x; 5.1+ below): tests whose pycolmap thresholds are tuned to the synthetic capture's procedural
-# texture as Blender 5.0 draws it (4.x hashes noise and Voronoi differently: another texture of the same kind, on
-# which SfM registers 5 of 8 photos or finds the focal length 2-3 % off); they test pose recovery, not Blender.
 # docs/blender_versions.md has the results.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -56,23 +53,22 @@ if [ ! -f "$VENV/.installed-stamp" ]; then
   touch "$VENV/.installed-stamp"
 fi
 TESTS=$(grep -l "import bpy\|bpy_empty\|empty_scene\|(addon\|, addon" tests/test_*.py)
+# Left out, with the reason: pose-recovery tests of distorted lenses on the synthetic capture (the ring), whose
+# thresholds were tuned on the ring as 5.0 renders it. 4.x hashes its noise and Voronoi textures differently
+# (another texture of the same kind); 5.1+ draws 5.0's texture, but its Cycles noise differs a little (0.0002 of 255
+# a PNG pixel on average, up to 6 of 255 in the tests' JPEGs). On these 8-10 small photos that is enough to move
+# pycolmap: under 4.2 the exported images' median distortion residual is 1.507 against a bound of 1.5; under 5.1 the
+# per-photo SIMPLE_RADIAL cameras come out mirrored and the OPENCV fit misses its bound; under 5.3 one residual is
+# 0.93 px against 0.8. Since session 48 a mapping that leaves photos out is run again from the focal guess, which
+# brought back five tests that were left out here before (docs/blender_versions.md).
 if [ $PY313 = 1 ]; then
-  # 5.1+ draws the same texture as 5.0, but its Cycles noise differs (0.0002 of 255 a PNG pixel on average, up to
-  # 6 of 255 in the tests' JPEGs). On these photo sets of the ring that tips pycolmap's incremental mapping: under
-  # 5.3 10 photos of an arc register 6 (two models, focal lengths 5-13 % off), under 5.1 9 of 10; other mapping
-  # seeds register all 10 on the 5.3 set. They sit near a cliff of the mapper, not of Blender (docs/blender_versions.md)
   DESELECT=(
-    "tests/test_capture.py::test_phone_photos_in_heic_and_webp_are_read"
-    "tests/test_capture.py::test_portrait_phone_photos_keep_the_scene_upright[6]"
     "tests/test_capture_undistort.py::test_simple_radial_per_photo_cameras_undistort_to_one_size"
     "tests/test_capture_undistort.py::test_opencv_exported_images_are_undistorted"
   )
 else
   DESELECT=(
-    "tests/test_capture.py::test_phone_photos_in_heic_and_webp_are_read"
-    "tests/test_capture_undistort.py::test_opencv_lens_poses_and_pinhole_output"
     "tests/test_capture_undistort.py::test_opencv_exported_images_are_undistorted"
-    "tests/test_faults.py::test_recover_poses_resumes_finished_stages"
   )
 fi
 [ "$BPY" = 5.0.1 ] && DESELECT=()
