@@ -23,7 +23,8 @@ class CaptureConfig:
     single_camera: bool = False
     """One shared camera for all photos; off by default: COLMAP verifies shared-camera pairs ~2x slower (CPU)."""
     estimate_focal: bool = True
-    """A shared camera gets its initial focal length from the view graph (GLOMAP calibration) instead of COLMAP's 1.2 x width guess."""
+    """A shared camera gets its initial focal length from the view graph (GLOMAP calibration) instead of COLMAP's 1.2 x width guess.
+    A mapping from it that leaves photos out is run again from the guess, and the one placing more photos kept."""
     matcher: str = "auto"
     """auto, exhaustive or sequential; auto = sequential for numbered frames beyond exhaustive_max_images."""
     exhaustive_max_images: int = 30
