@@ -53,28 +53,24 @@ if [ ! -f "$VENV/.installed-stamp" ]; then
   touch "$VENV/.installed-stamp"
 fi
 TESTS=$(grep -l "import bpy\|bpy_empty\|empty_scene\|(addon\|, addon" tests/test_*.py)
-# Left out, with the reason: pose-recovery tests of distorted lenses on the synthetic capture (the ring), whose
-# thresholds were tuned on the ring as 5.0 renders it. 4.x hashes its noise and Voronoi textures differently
-# (another texture of the same kind); 5.1+ draws 5.0's texture, but its Cycles noise differs a little (0.0002 of 255
-# a PNG pixel on average, up to 6 of 255 in the tests' JPEGs). On these 8-10 small photos that is enough to move
-# pycolmap: under 4.2 the exported images' median distortion residual is 1.507 against a bound of 1.5; under 5.1 the
-# per-photo SIMPLE_RADIAL cameras come out mirrored and the OPENCV fit misses its bound; under 5.3 one residual is
-# 0.93 px against 0.8. Since session 48 a mapping that leaves photos out is run again from the focal guess, which
-# brought back five tests that were left out here before (docs/blender_versions.md).
-if [ $PY313 = 1 ]; then
-  DESELECT=(
-    "tests/test_capture_undistort.py::test_simple_radial_per_photo_cameras_undistort_to_one_size"
-    "tests/test_capture_undistort.py::test_opencv_exported_images_are_undistorted"
-  )
-else
-  DESELECT=(
-    "tests/test_capture_undistort.py::test_opencv_exported_images_are_undistorted"
-  )
+# Left out under every bpy but the pinned 5.0.1, with the reason: the pose-recovery tests on the synthetic capture
+# (the ring; tests/test_capture*.py and one resume test), but for the two whose subject is Blender's side (its
+# cameras project like COLMAP's; the operator adds the cameras). Their subject is pycolmap in the worker Python, and
+# their bounds were set on the ring as 5.0 renders it. Other Blenders render it a little differently (4.x hashes its
+# noise and Voronoi textures otherwise; 5.1+ has other Cycles noise, 0.0002 of 255 a pixel on average), and on
+# 8-12 photos of 320 x 240 that moves pycolmap across those bounds, differently from run to run (pycolmap's
+# threads): seen under 4.2, 4.4, 5.1 and 5.3, 1 to 7 of them a run. One such failure was a fault of recover-poses
+# (the mapping kept a focal-length start 13 % off), fixed in session 48 (docs/blender_versions.md).
+DESELECT=()
+if [ "$BPY" != 5.0.1 ]; then
+  TESTS="$(echo "$TESTS" | grep -v -x -e tests/test_capture.py -e tests/test_capture_undistort.py)
+tests/test_capture.py::test_blender_cameras_project_like_colmap
+tests/test_capture.py::test_recover_poses_operator_creates_cameras"
+  DESELECT=("tests/test_faults.py::test_recover_poses_resumes_finished_stages")
 fi
-[ "$BPY" = 5.0.1 ] && DESELECT=()
 REPORT=$VENV/junit.xml
 rm -f "$REPORT"
-echo "Blender tests under bpy $BPY ($(echo $TESTS | wc -w) files, ${#DESELECT[@]} left out)"
+echo "Blender tests under bpy $BPY ($(echo $TESTS | wc -w) files or tests, ${#DESELECT[@]} more left out)"
 set +e
 MRVM_REQUIRE_WEIGHTS=1 timeout 1800 "$VENV/bin/python" -m pytest -q -p no:cacheprovider --junitxml="$REPORT" \
   "${DESELECT[@]/#/--deselect=}" $TESTS

@@ -446,6 +446,9 @@ def test_a_mapping_that_leaves_photos_out_is_run_again_from_the_focal_guess(ring
     ring's 10 portrait photos got a start 13 % off, and the mapping split them into models of 6 and 5 with that
     focal length. A mapping that leaves photos out is run again from the database as matching left it (COLMAP's
     1.2 x width guess), and the one that places more is kept. Here the view graph's start is made half the truth."""
+    import sqlite3
+    from contextlib import closing
+
     import pycolmap
 
     real = pycolmap.calibrate_view_graph
@@ -469,6 +472,10 @@ def test_a_mapping_that_leaves_photos_out_is_run_again_from_the_focal_guess(ring
     assert second == {"focal_start": "1.2 x width guess", "registered": 10, "models": 1}
     assert len(res.registered) == 10 and meta["colmap_model"].startswith("colmap/sparse_guess/")
     assert meta["focal_from_view_graph"] is False
+    assert sorted(p.name for p in (tmp_path / "out" / "colmap").glob("*.db")) == ["database.db"]  # the kept one's
+    with closing(sqlite3.connect(tmp_path / "out" / "colmap" / "database.db")) as con:
+        (focal,) = con.execute("select params from cameras").fetchone()
+    assert np.frombuffer(focal)[0] == 1.2 * W  # the guess it started from, not the view graph's half
     f_true = truth["views"][0]["K"][0][0]
     assert abs(res.intrinsics[0].fx - f_true) < 0.02 * f_true
     # A mapping that places every photo is not run twice; a second one that places no more (3 photos of noise

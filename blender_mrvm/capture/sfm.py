@@ -595,9 +595,10 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         idx2, rec2 = largest(recs2)
         tries.append({"focal_start": "1.2 x width guess", "registered": rec2.num_reg_images() if rec2 else 0,
                       "models": len(recs2)})
-        if tries[1]["registered"] > tries[0]["registered"]:  # kept: the model in sparse_guess/, from that database
+        if tries[1]["registered"] > tries[0]["registered"]:  # kept: the model in sparse_guess/, and its database
             recs, best_idx, rec, sparse = recs2, idx2, rec2, work / "sparse_guess"
             focal_from_view_graph = False
+            guess_db.replace(db_path)  # colmap/database.db is the database of the kept model, as after one mapping
         else:  # the first mapping stays: nothing of the second is left to mislead
             guess_db.unlink()
             shutil.rmtree(work / "sparse_guess")
