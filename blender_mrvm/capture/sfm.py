@@ -585,10 +585,10 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
               "registered": rec.num_reg_images() if rec else 0, "models": len(recs)}]
     matched = stages.snapshot_of("match")
     if focal_from_view_graph and tries[0]["registered"] < len(names) and matched.is_file():
-        # The view graph's focal length is a start that the mapping can rarely leave: 13 % off on 10 photos of an
-        # arc, the mapping split them into two models of 6 and 5 and kept the wrong focal length; COLMAP's 1.2 x
-        # width guess placed all 10 with it within 1 % (docs/blender_versions.md). So a mapping that leaves photos
-        # out is run again from the database as matching left it (before the calibration), and the better kept.
+        # The mapping seldom moves far from its focal-length start: from a view-graph estimate 13 % off, 10 photos
+        # of an arc split into models of 6 and 5 that kept it; from COLMAP's 1.2 x width guess all 10 were placed,
+        # the focal length within 1 % (docs/blender_versions.md). So a mapping that leaves photos out is run again
+        # from the database as matching left it (before the calibration), and the one placing more is kept.
         guess_db = work / "database.guess.db"
         shutil.copyfile(matched, guess_db)
         recs2 = yield from mapping(guess_db, work / "sparse_guess", "mapping again from the 1.2 x width focal guess")
