@@ -478,8 +478,10 @@ def test_a_mapping_that_leaves_photos_out_is_run_again_from_the_focal_guess(ring
     assert np.frombuffer(focal)[0] == 1.2 * W  # the guess it started from, not the view graph's half
     f_true = truth["views"][0]["K"][0][0]
     assert abs(res.intrinsics[0].fx - f_true) < 0.02 * f_true
-    # A mapping that places every photo is not run twice; a second one that places no more (3 photos of noise
-    # among them) leaves nothing behind, and the first is kept.
+    # With the view graph's own start: a mapping that places every photo is not run twice. With 3 photos of noise
+    # among them both run; the second places no more (the noise cannot register), so it leaves nothing behind and
+    # the first is kept. (pycolmap's threaded mapping does not repeat exactly: should the first place fewer of the
+    # 10, the second is kept, as it should be.)
     monkeypatch.setattr(pycolmap, "calibrate_view_graph", real)
     _run(d, tmp_path / "out2")
     assert [m["focal_start"] for m in json.loads((tmp_path / "out2" / "meta.json").read_text())["mappings"]] == [
@@ -487,10 +489,13 @@ def test_a_mapping_that_leaves_photos_out_is_run_again_from_the_focal_guess(ring
     _noise(d, 3, seed=5)
     res = _run(d, tmp_path / "out3")
     meta = json.loads((tmp_path / "out3" / "meta.json").read_text())
-    assert len(res.registered) == 10 and [m["registered"] for m in meta["mappings"]] == [10, 10]
-    assert meta["colmap_model"].startswith("colmap/sparse/") and meta["focal_from_view_graph"] is True
-    assert not (tmp_path / "out3" / "colmap" / "sparse_guess").exists()
-    assert not (tmp_path / "out3" / "colmap" / "database.guess.db").exists()
+    first, second = (m["registered"] for m in meta["mappings"])
+    assert len(res.registered) == second == 10
+    kept_second = second > first
+    assert meta["colmap_model"].startswith("colmap/sparse_guess/" if kept_second else "colmap/sparse/")
+    assert meta["focal_from_view_graph"] is not kept_second
+    assert (tmp_path / "out3" / "colmap" / "sparse_guess").exists() is kept_second
+    assert sorted(p.name for p in (tmp_path / "out3" / "colmap").glob("*.db")) == ["database.db"]
 
 
 def test_output_not_overwritten_without_force(ring, tmp_path, capsys):
