@@ -331,7 +331,7 @@ class StageLog:
         if isinstance(log, dict) and log.get("stamp") == stamp:
             done = [s for s in RESUMABLE_STAGES if s in log.get("done", [])]
             done = done[:next((i for i, s in enumerate(RESUMABLE_STAGES) if s not in done), len(done))]
-            snap = self._snapshot(done[-1]) if done else None
+            snap = self.snapshot(done[-1]) if done else None
             if snap is not None and snap.is_file():
                 for p in list(self.work.iterdir()):  # everything but the snapshot and the log
                     if p not in (snap, self.path):
@@ -344,27 +344,24 @@ class StageLog:
             self.work.mkdir(parents=True, exist_ok=True)
             self._write()
 
-    def _snapshot(self, stage: str) -> Path:
-        return self.work / f"database.{stage}.db"
-
-    def snapshot_of(self, stage: str) -> Path:
+    def snapshot(self, stage: str) -> Path:
         """The database as ``stage`` left it (until :meth:`close`); check that it exists."""
-        return self._snapshot(stage)
+        return self.work / f"database.{stage}.db"
 
     def finish(self, stage: str) -> None:
         """Record a finished stage (snapshot first, then the log: a kill in between loses only the stage)."""
         from ..datasets.format import atomic_write
 
-        atomic_write(self._snapshot(stage), lambda tmp: shutil.copyfile(self.work / "database.db", tmp))
+        atomic_write(self.snapshot(stage), lambda tmp: shutil.copyfile(self.work / "database.db", tmp))
         for old in self.done:
-            self._snapshot(old).unlink(missing_ok=True)
+            self.snapshot(old).unlink(missing_ok=True)
         self.done.add(stage)
         self._write()
 
     def close(self) -> None:
         """The run finished: its snapshots are not needed any more (the log stays, as a record)."""
         for stage in RESUMABLE_STAGES:
-            self._snapshot(stage).unlink(missing_ok=True)
+            self.snapshot(stage).unlink(missing_ok=True)
 
     def _write(self) -> None:
         from ..datasets.format import atomic_write_json
@@ -583,7 +580,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     best_idx, rec = largest(recs)
     tries = [{"focal_start": "view graph" if focal_from_view_graph else "1.2 x width guess",
               "registered": rec.num_reg_images() if rec else 0, "models": len(recs)}]
-    matched = stages.snapshot_of("match")
+    matched = stages.snapshot("match")
     if focal_from_view_graph and tries[0]["registered"] < len(names) and matched.is_file():
         # The mapping seldom moves far from its focal-length start: from a view-graph estimate 13 % off, 10 photos
         # of an arc split into models of 6 and 5 that kept it; from COLMAP's 1.2 x width guess all 10 were placed,
