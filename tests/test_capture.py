@@ -60,6 +60,74 @@ def test_synthetic_ring_poses_match_truth(recovered):
     assert res.cpu_timings["extract"] > 0.0  # pycolmap's worker threads count: process CPU time, all threads
 
 
+def _turned(rec, degrees: float, seed: int = 0):
+    """``rec`` with each camera turned ``degrees`` about a random axis through its centre (centres kept)."""
+    import pycolmap
+
+    rng = np.random.default_rng(seed)
+    for frame in rec.frames.values():
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        a = np.radians(degrees)
+        turn = np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+        frame.rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(turn), np.zeros(3)) * frame.rig_from_world
+    return rec
+
+
+def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
+    """A model can place every photo and still be wrong (docs/capture_check/): the kept model is checked against its
+    photo pairs' own relative rotations, and a median disagreement over 1.5 degrees is reported as suspect."""
+    import pycolmap
+
+    from blender_mrvm.capture.check import SUSPECT_MEDIAN_DEG, pair_rotation_check, warning
+
+    res, truth, _ = recovered
+    meta = json.loads((res.out_dir / "meta.json").read_text())
+    check = meta["pose_check"]
+    assert check == res.pose_check and check["suspect"] is False and res.warnings == []
+    assert check["pairs"] >= N_VIEWS and check["median_disagreement_deg"] < 1.0 and len(check["worst"]) == 3
+    assert "check" in res.timings
+    # The same model with every camera turned 8 degrees, its centres and points kept: most pairs disagree.
+    model, db = res.out_dir / meta["colmap_model"], res.out_dir / "colmap" / "database.db"
+    wrong = pair_rotation_check(_turned(pycolmap.Reconstruction(str(model)), 8.0), db)
+    assert wrong["suspect"] is True and wrong["pairs"] == check["pairs"]
+    assert wrong["median_disagreement_deg"] > SUSPECT_MEDIAN_DEG and wrong["share_over_5deg"] > 0.5
+    assert {a for a, b, d in wrong["worst"]} <= set(res.registered) and wrong["worst"][0][2] > 8.0
+    text = warning(wrong)
+    assert "may be wrong" in text and f"{wrong['median_disagreement_deg']:.1f} degrees" in text
+    # A model half a degree off everywhere is under the threshold: not suspect.
+    near = pair_rotation_check(_turned(pycolmap.Reconstruction(str(model)), 0.5), db)
+    assert near["suspect"] is False and warning(near) is None
+
+
+def test_a_suspect_model_is_reported_by_the_cli_and_the_panel(ring, tmp_path, capsys, monkeypatch, empty_scene):
+    import bpy
+
+    from blender_mrvm.capture import sfm
+    from blender_mrvm.cli import main
+    from blender_mrvm.operators.capture import _import
+
+    suspect = {"pairs": 20, "min_inliers": 30, "median_disagreement_deg": 9.5, "share_over_5deg": 0.8,
+               "worst": [["000.png", "004.png", 41.0]], "threshold_deg": 1.5, "suspect": True}
+    monkeypatch.setattr(sfm, "pair_rotation_check", lambda rec, db, seed=0: dict(suspect))
+    d = _copy(ring[0], tmp_path / "in", range(0, 6))
+    assert main(["recover-poses", "--images", str(d), "--out", str(tmp_path / "cap"), "--threads", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the recovered poses may be wrong: 20 photo pairs" in err and "9.5 degrees" in err
+    assert json.loads((tmp_path / "cap" / "meta.json").read_text())["pose_check"] == suspect
+    message, warned = _import(bpy.context, tmp_path / "cap")  # what the panel's Recover Poses reports
+    assert message.startswith("Recovered 6/6 photos") and "may be wrong" in warned
+
+    def fails(rec, db, seed=0):
+        raise ValueError("[ransac.h:80] Check failed")
+
+    monkeypatch.setattr(sfm, "pair_rotation_check", fails)  # a check that fails does not lose the capture
+    res = _run(d, tmp_path / "cap2")
+    assert len(res.registered) == 6 and res.warnings == []
+    assert json.loads((tmp_path / "cap2" / "meta.json").read_text())["pose_check"]["error"].startswith("ValueError")
+
+
 def test_capture_folder_is_our_dataset_format(recovered):
     from blender_mrvm.datasets import format as F
 
@@ -572,7 +640,7 @@ def test_sift_first_octave_rule():
 
 
 def test_bench_gives_every_method_the_same_photos():
-    from blender_mrvm.bench.capture import subset_names, summarize
+    from blender_mrvm.bench.capture import STAGES, subset_names, summarize
 
     truth = {"views": [{"name": f"{i:03d}.png"} for i in range(40)]}
     assert subset_names(truth, 10, "arc") == [f"{i:03d}.png" for i in range(10)]
@@ -581,7 +649,7 @@ def test_bench_gives_every_method_the_same_photos():
     with pytest.raises(ValueError):
         subset_names(truth, 41)
     base = dict(images=40, width=960, height=540, subset="arc", matcher="x", max_features=1, sift_first_octave=0,
-                **{f"{s}_s": 1.0 for s in ("scan", "extract", "match", "map", "undistort", "export")},
+                **{f"{s}_s": 1.0 for s in STAGES},
                 registered="40/40", median_rot_deg=0.1, median_centre_pct_radius=0.1, load_1min=1.0)
     runs = [base | {"method": "pycolmap_default", "total_s": t, "total_cpu_s": 2 * t} for t in (30.0, 10.0, 20.0)]
     runs += [base | {"method": "ours", "total_s": t, "total_cpu_s": t, "median_rot_deg": r}

@@ -42,7 +42,7 @@ import numpy as np
 
 from . import write_csv
 
-STAGES = ("scan", "extract", "match", "map", "undistort", "export")
+STAGES = ("scan", "extract", "match", "map", "check", "undistort", "export")
 METHODS = ("ours", "ours_exhaustive", "pycolmap_default")
 
 

@@ -42,6 +42,8 @@ from ..errors import Cancelled, InputError, OutputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
+from .check import pair_rotation_check
+from .check import warning as check_warning
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
 from ..datasets.format import remove_entries
@@ -79,6 +81,14 @@ class CaptureResult:
     """Output poses (normalized world), one per registered photo."""
     intrinsics: list[C.Intrinsics] = field(default_factory=list)
     """Output (undistorted) intrinsics, one per registered photo."""
+    pose_check: dict = field(default_factory=dict)
+    """The kept model against its photo pairs (:func:`capture.check.pair_rotation_check`; ``meta.json``'s)."""
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the user should know about the result (one line each)."""
+        w = check_warning(self.pose_check)
+        return [w] if w else []
 
     def summary(self) -> str:
         t = ", ".join(f"{k} {v:.1f}s" for k, v in self.timings.items())
@@ -618,6 +628,14 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
                          f"partial model kept in {model_dir}; not registered: {shown}")
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
 
+    # 4b. check the model against its photo pairs (a model can place every photo and be wrong)
+    t, c = time.perf_counter(), time.process_time()
+    try:
+        pose_check = pair_rotation_check(rec, db_path, seed=cfg.seed)
+    except (ValueError, RuntimeError) as e:  # pycolmap's checks: a diagnostic that fails must not lose the capture
+        pose_check = {"error": f"{type(e).__name__}: {e}", "suspect": False}
+    timings["check"], cpu_timings["check"] = time.perf_counter() - t, time.process_time() - c
+
     # 5. undistort
     image_root, und_model = photo_dir, None
     if cfg.has_distortion:
@@ -686,6 +704,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "colmap_model": str(model_dir.relative_to(out_dir)),
         # each mapping run: its focal length's start, photos registered in its largest model, models it made
         "mappings": tries,
+        # the kept model against its photo pairs' own relative rotations (capture/check.py); suspect: likely wrong
+        "pose_check": pose_check,
         # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),
     }
@@ -701,7 +721,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
     return CaptureResult(out_dir, reg_photos, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
-                         cpu_timings, c2ws, intrs)
+                         cpu_timings, c2ws, intrs, pose_check)
 
 
 def undistort_options(cameras: list) -> Any:

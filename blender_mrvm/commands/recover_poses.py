@@ -11,6 +11,7 @@ and matching that finished with the same photos and settings are not redone (col
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -86,4 +87,6 @@ def run(args: argparse.Namespace) -> int:
     if res.unregistered:
         shown = ", ".join(res.unregistered[:5]) + (", ..." if len(res.unregistered) > 5 else "")
         print(f"not registered ({len(res.unregistered)}): {shown}")
+    for w in res.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     return 0

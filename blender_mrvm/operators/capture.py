@@ -55,17 +55,20 @@ def run_capture(context, images: Path, out: Path, cfg):
     return out
 
 
-def _import(context, out: Path) -> str:
+def _import(context, out: Path) -> tuple[str, str | None]:
+    """Import the capture; its message, and the check's warning (None when the poses look right)."""
     import json
 
+    from ..capture.check import warning
     from ..scene.capture import import_capture
 
     meta = json.loads((out / "meta.json").read_text())
     made = import_capture(out, context.scene, collection_name=f"Capture {out.name}")
     n = len(made["cameras"])
     what = "video frames" if meta.get("video") else "photos"
-    return (f"Recovered {meta['registered']}/{meta['total']} {what} into {out}; {n} cameras and "
-            f"{meta['num_points']} points in collection {made['collection'].name!r}")
+    message = (f"Recovered {meta['registered']}/{meta['total']} {what} into {out}; {n} cameras and "
+               f"{meta['num_points']} points in collection {made['collection'].name!r}")
+    return message, warning(meta.get("pose_check") or {})
 
 
 class MRVM_OT_recover_poses(ProgressOperator, bpy.types.Operator):
@@ -85,7 +88,11 @@ class MRVM_OT_recover_poses(ProgressOperator, bpy.types.Operator):
         return run_capture(context, images, out, cfg)
 
     def on_result(self, context, out: Path) -> str:
-        return _import(context, out)
+        message, warned = _import(context, out)
+        if warned:  # in the Info log as a warning, and in the panel's status line
+            self.report({"WARNING"}, warned)
+            message += f"; warning: {warned}"
+        return message
 
 
 classes = (MRVM_OT_recover_poses,)
