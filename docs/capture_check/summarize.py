@@ -13,6 +13,14 @@ def reg(m):
     return m.get("registered", 0)
 
 
+def sets(prefix):
+    """(set letter, rows) of each results/<prefix>_<set>.jsonl there is."""
+    for s in "abc":
+        f = res / f"{prefix}_{s}.jsonl"
+        if f.is_file():
+            yield s.upper(), [json.loads(x) for x in f.open()]
+
+
 POLICIES = {
     "shipped: view graph; the guess when photos are left out, the one placing more kept":
         lambda r: r["guess"] if reg(r["vg"]) < r["n"] and reg(r["guess"]) > reg(r["vg"]) else r["vg"],
@@ -25,11 +33,7 @@ POLICIES = {
 }
 print("| set | policy | all placed, within 1 degree | of which arcs | ring12 | photos placed |")
 print("|---|---|---|---|---|---|")
-for s in "abc":
-    f = res / f"mappings_{s}.jsonl"
-    if not f.is_file():
-        continue
-    rows = [json.loads(x) for x in f.open()]
+for s, rows in sets("mappings"):
     for name, pick in POLICIES.items():
         kept = [pick(r) for r in rows]
         ok = [reg(m) == r["n"] and m.get("rot_med", 1e9) < 1 for m, r in zip(kept, rows)]
@@ -37,23 +41,19 @@ for s in "abc":
         ring = sum(o for o, r in zip(ok, rows) if r["subset"] == "ring12")
         placed = sum(reg(m) for m in kept) / sum(r["n"] for r in rows)
         n_arcs = sum(r["subset"] != "ring12" for r in rows)
-        print(f"| {s.upper()} | {name} | {sum(ok)} of {len(rows)} | {arcs} of {n_arcs} "
+        print(f"| {s} | {name} | {sum(ok)} of {len(rows)} | {arcs} of {n_arcs} "
               f"| {ring} of {sum(r['subset'] == 'ring12' for r in rows)} | {placed:.3f} |")
 print()
 print("| set | statistic, threshold | models kept | right (within 1 degree) flagged | largest median of a right one "
       "| over 10 degrees flagged | 3-10 degrees flagged | slowest check |")
 print("|---|---|---|---|---|---|---|---|")
-for s in "abc":
-    f = res / f"check_{s}.jsonl"
-    if not f.is_file():
-        continue
-    rows = [json.loads(x) for x in f.open()]
+for s, rows in sets("check"):
     for key, thr in (("all", 3.0), ("general", 1.5)):
         def flag(r):
             return r[key]["median"] is not None and r[key]["median"] > thr
         right = [r for r in rows if r["rot_med"] < 1]
         far = [r for r in rows if r["rot_med"] > 10]
         mid = [r for r in rows if 3 < r["rot_med"] <= 10]
-        print(f"| {s.upper()} | {key}, {thr} | {len(rows)} | {sum(map(flag, right))} of {len(right)} "
+        print(f"| {s} | {key}, {thr} | {len(rows)} | {sum(map(flag, right))} of {len(right)} "
               f"| {max(r[key]['median'] or 0 for r in right):.2f} | {sum(map(flag, far))} of {len(far)} "
               f"| {sum(map(flag, mid))} of {len(mid)} | {max(r[key]['seconds'] for r in rows):.2f} s |")
