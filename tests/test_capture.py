@@ -75,12 +75,28 @@ def _turned(rec, degrees: float, seed: int = 0):
     return rec
 
 
-def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
-    """A model can place every photo and still be wrong (docs/capture_check/): the kept model is checked against its
-    photo pairs' own relative rotations, and a median disagreement over 1.5 degrees is reported as suspect."""
+def _moved(rec, fraction: float, seed: int = 0):
+    """``rec`` with each camera's centre moved ``fraction`` of the cameras' spread in a random direction (turns kept)."""
     import pycolmap
 
-    from blender_mrvm.capture.check import SUSPECT_MEDIAN_DEG, pair_rotation_check, warning
+    rng = np.random.default_rng(seed)
+    frames = list(rec.frames.values())
+    centres = np.array([-f.rig_from_world.rotation.matrix().T @ f.rig_from_world.translation for f in frames])
+    spread = float(np.median(np.linalg.norm(centres - centres.mean(0), axis=1)))
+    for frame, c in zip(frames, centres):
+        r = frame.rig_from_world.rotation.matrix()
+        step = rng.normal(size=3)
+        c = c + fraction * spread * step / np.linalg.norm(step)
+        frame.rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(r), -r @ c)
+    return rec
+
+
+def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
+    """A model can place every photo and still be wrong (docs/capture_check/): the kept model is checked against its
+    photo pairs' own relative poses; a median disagreement over 1.5 degrees is reported as suspect."""
+    import pycolmap
+
+    from blender_mrvm.capture.check import SUSPECT_MEDIAN_DEG, pair_pose_check, warning
 
     res, truth, _ = recovered
     meta = json.loads((res.out_dir / "meta.json").read_text())
@@ -90,14 +106,20 @@ def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
     assert "check" in res.timings
     # The same model with every camera turned 8 degrees, its centres and points kept: most pairs disagree.
     model, db = res.out_dir / meta["colmap_model"], res.out_dir / "colmap" / "database.db"
-    wrong = pair_rotation_check(_turned(pycolmap.Reconstruction(str(model)), 8.0), db)
+    wrong = pair_pose_check(_turned(pycolmap.Reconstruction(str(model)), 8.0), db)
     assert wrong["suspect"] is True and wrong["pairs"] == check["pairs"]
     assert wrong["median_disagreement_deg"] > SUSPECT_MEDIAN_DEG and wrong["share_over_5deg"] > 0.5
-    assert {a for a, b, d in wrong["worst"]} <= set(res.registered) and wrong["worst"][0][2] > 8.0
+    assert {w[0] for w in wrong["worst"]} <= set(res.registered) and max(wrong["worst"][0][2:]) > 8.0
+    assert wrong["median_direction_deg"] > SUSPECT_MEDIAN_DEG and check["median_direction_deg"] < 1.0
     text = warning(wrong)
-    assert "may be wrong" in text and f"{wrong['median_disagreement_deg']:.1f} degrees" in text
+    assert "may be wrong" in text and f"{wrong['median_disagreement_deg']:.1f} degrees in rotation" in text
+    # Every camera turned right but moved (a third of the cameras' spread): the directions between them say so.
+    moved = pair_pose_check(_moved(pycolmap.Reconstruction(str(model)), 0.3), db)
+    assert moved["median_disagreement_deg"] < 1.0 and moved["median_direction_deg"] > SUSPECT_MEDIAN_DEG
+    assert moved["suspect"] is True and "in the direction between the cameras" in warning(moved)
+    assert pair_pose_check(_moved(pycolmap.Reconstruction(str(model)), 0.3), db, directions=False)["suspect"] is False
     # A model half a degree off everywhere is under the threshold: not suspect.
-    near = pair_rotation_check(_turned(pycolmap.Reconstruction(str(model)), 0.5), db)
+    near = pair_pose_check(_turned(pycolmap.Reconstruction(str(model)), 0.5), db)
     assert near["suspect"] is False and warning(near) is None
 
 
@@ -110,7 +132,7 @@ def test_a_suspect_model_is_reported_by_the_cli_and_the_panel(ring, tmp_path, ca
 
     suspect = {"pairs": 20, "min_inliers": 30, "median_disagreement_deg": 9.5, "share_over_5deg": 0.8,
                "worst": [["000.png", "004.png", 41.0]], "threshold_deg": 1.5, "suspect": True}
-    monkeypatch.setattr(sfm, "pair_rotation_check", lambda rec, db, seed=0: dict(suspect))
+    monkeypatch.setattr(sfm, "pair_pose_check", lambda rec, db, seed=0: dict(suspect))
     d = _copy(ring[0], tmp_path / "in", range(0, 6))
     assert main(["recover-poses", "--images", str(d), "--out", str(tmp_path / "cap"), "--threads", "2"]) == 0
     err = capsys.readouterr().err
@@ -122,7 +144,7 @@ def test_a_suspect_model_is_reported_by_the_cli_and_the_panel(ring, tmp_path, ca
     def fails(rec, db, seed=0):
         raise ValueError("[ransac.h:80] Check failed")
 
-    monkeypatch.setattr(sfm, "pair_rotation_check", fails)  # a check that fails does not lose the capture
+    monkeypatch.setattr(sfm, "pair_pose_check", fails)  # a check that fails does not lose the capture
     res = _run(d, tmp_path / "cap2")
     assert len(res.registered) == 6 and res.warnings == []
     assert json.loads((tmp_path / "cap2" / "meta.json").read_text())["pose_check"]["error"].startswith("ValueError")

@@ -3,8 +3,9 @@
 Incremental mapping can place every photo and still be wrong: a ring of photos taken too far apart, or an arc
 whose two halves were joined at a wrong angle, comes out as one model with a small reprojection error whose
 cameras are tens of degrees off (`docs/capture_check/`). Each verified photo pair says how the two cameras turn
-relative to each other (its matches alone, re-estimated with the model's cameras); a correct model agrees with
-most pairs to a fraction of a degree, a wrong one disagrees with most of them by degrees. Single pairs can
+relative to each other and in which direction the second stands from the first (its matches alone, re-estimated
+with the model's cameras); a correct model agrees with most pairs to a fraction of a degree, a wrong one disagrees
+with most of them by degrees. Single pairs can
 disagree in a correct model, so the check reads the median over the pairs, and only over pairs that COLMAP's
 verification found in general position (CALIBRATED or UNCALIBRATED): a pair whose matches lie on one plane (the
 ground seen from photos 100 degrees apart) re-estimates about 90 degrees off in a right model, as a plane's
@@ -23,20 +24,31 @@ from .align import rotation_angle_deg
 MIN_INLIERS = 30
 """Pairs with fewer verified matches are left out (their own relative pose is too loose to judge a model by)."""
 SUSPECT_MEDIAN_DEG = 1.5
-"""Median disagreement above which the poses are reported as suspect. Chosen on 160 synthetic captures with known
-poses and confirmed on 80 others by a rule written first (`docs/capture_check/`): no model within 1 degree of the
-truth went over 0.71 degrees; 19 of 25 models more than 10 degrees off went over 1.5."""
+"""Median disagreement (of the rotations, or of the directions) above which the poses are reported as suspect. Set
+on synthetic captures with known poses, each step confirmed on a set rendered after its rule was written
+(`docs/capture_check/RULE.md`): over 320 photo sets, no model within 1 degree of the truth went over 0.99 degrees
+(234 models) and 27 of 34 models more than 10 degrees off went over 1.5."""
 MIN_PAIRS = 3
 """Fewer pairs give no verdict (a model of two or three photos is its pairs)."""
+CHECK_DIRECTIONS = True
+"""Also judge the directions between the cameras' centres (the relative translations, up to scale): 27 instead of
+25 of those 34 models flagged, none of the right ones."""
 
 
-def pair_rotation_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
-                        general_only: bool = True) -> dict:
-    """Compare the relative rotation of every verified pair of placed photos in ``db_path`` (at least
-    ``min_inliers`` inlier matches; in general position unless ``general_only`` is False) with the model
-    ``rec``'s. Returns what ``meta.json`` records as
-    ``pose_check``: the pairs compared, the median and the share over 5 degrees of their disagreement, the
-    three worst pairs, the threshold and ``suspect`` (median over :data:`SUSPECT_MEDIAN_DEG`)."""
+def _direction_angle_deg(t_a: np.ndarray, t_b: np.ndarray) -> float:
+    """Angle between two translations' directions (their lengths, a model's scale, do not count)."""
+    c = float(np.dot(t_a, t_b) / max(np.linalg.norm(t_a) * np.linalg.norm(t_b), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def pair_pose_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
+                        general_only: bool = True, directions: bool = CHECK_DIRECTIONS) -> dict:
+    """Compare the relative pose of every verified pair of placed photos in ``db_path`` (at least ``min_inliers``
+    inlier matches; in general position unless ``general_only`` is False) with the model ``rec``'s: the angle
+    between the two relative rotations, and between the two directions from the first camera's centre to the
+    second's. Returns what ``meta.json`` records as ``pose_check``: the pairs compared, the median of each angle,
+    the share of rotations over 5 degrees, the three worst pairs, the threshold and ``suspect`` (the rotations'
+    median, or with ``directions`` either median, over :data:`SUSPECT_MEDIAN_DEG`)."""
     import pycolmap
 
     ransac = pycolmap.RANSACOptions()
@@ -46,7 +58,7 @@ def pair_rotation_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS,
     placed = set(rec.reg_image_ids())
     cfg = pycolmap.TwoViewGeometryConfiguration
     general = {int(cfg.CALIBRATED), int(cfg.UNCALIBRATED)}
-    angles: list[tuple[float, str, str]] = []
+    angles: list[tuple[float, float, str, str]] = []  # (rotation, direction, photo a, photo b)
     keypoints: dict[int, np.ndarray] = {}
     db = pycolmap.Database.open(Path(db_path))
     try:
@@ -66,26 +78,36 @@ def pair_rotation_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS,
                                                   rec.cameras[im_b.camera_id], keypoints[b][matches[:, 1]], ransac)
             if est is None:
                 continue
-            r_pair = est["cam2_from_cam1"].rotation.matrix()
-            r_model = (im_b.cam_from_world() * im_a.cam_from_world().inverse()).rotation.matrix()
-            angles.append((rotation_angle_deg(r_pair @ r_model.T), im_a.name, im_b.name))
+            pair = est["cam2_from_cam1"]
+            model = im_b.cam_from_world() * im_a.cam_from_world().inverse()
+            angles.append((rotation_angle_deg(pair.rotation.matrix() @ model.rotation.matrix().T),
+                           _direction_angle_deg(np.asarray(pair.translation), np.asarray(model.translation)),
+                           im_a.name, im_b.name))
     finally:
         db.close()
-    deg = np.array([x[0] for x in angles])
-    median = float(np.median(deg)) if len(deg) >= MIN_PAIRS else None
-    worst = sorted(angles, reverse=True)[:3]
+    rot = np.array([x[0] for x in angles])
+    dirs = np.array([x[1] for x in angles])
+    enough = len(angles) >= MIN_PAIRS
+    median = float(np.median(rot)) if enough else None
+    median_dir = float(np.median(dirs)) if enough else None
+    suspect = enough and (median > SUSPECT_MEDIAN_DEG or (directions and median_dir > SUSPECT_MEDIAN_DEG))
+    worst = sorted(angles, key=lambda x: -max(x[0], x[1]))[:3]
     return {"pairs": len(angles), "min_inliers": min_inliers,
             "median_disagreement_deg": None if median is None else round(median, 3),
-            "share_over_5deg": round(float((deg > 5.0).mean()), 3) if len(deg) else None,
-            "worst": [[a, b, round(d, 2)] for d, a, b in worst],
-            "threshold_deg": SUSPECT_MEDIAN_DEG, "suspect": median is not None and median > SUSPECT_MEDIAN_DEG}
+            "median_direction_deg": None if median_dir is None else round(median_dir, 3),
+            "share_over_5deg": round(float((rot > 5.0).mean()), 3) if len(rot) else None,
+            "worst": [[a, b, round(r, 2), round(d, 2)] for r, d, a, b in worst],
+            "threshold_deg": SUSPECT_MEDIAN_DEG, "directions_checked": bool(directions), "suspect": bool(suspect)}
 
 
 def warning(check: dict) -> str | None:
     """The one-line warning for a suspect check, else None."""
     if not check.get("suspect"):
         return None
+    direction = check.get("median_direction_deg")
+    how = f"{check['median_disagreement_deg']:.1f} degrees in rotation"
+    if check.get("directions_checked") and direction is not None:
+        how += f" and {direction:.1f} in the direction between the cameras"
     return (f"the recovered poses may be wrong: {check['pairs']} photo pairs' own geometry disagrees with the "
-            f"model by a median of {check['median_disagreement_deg']:.1f} degrees (right models: under 1). Photos "
-            f"taken closer together (more overlap between neighbours) help; meta.json's pose_check names the "
-            f"worst pairs")
+            f"model by a median of {how} (right models: under 1). Photos taken closer together (more overlap "
+            f"between neighbours) help; meta.json's pose_check names the worst pairs")

@@ -42,7 +42,7 @@ from ..errors import Cancelled, InputError, OutputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
-from .check import pair_rotation_check
+from .check import pair_pose_check
 from .check import warning as check_warning
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
@@ -82,7 +82,7 @@ class CaptureResult:
     intrinsics: list[C.Intrinsics] = field(default_factory=list)
     """Output (undistorted) intrinsics, one per registered photo."""
     pose_check: dict = field(default_factory=dict)
-    """The kept model against its photo pairs (:func:`capture.check.pair_rotation_check`; ``meta.json``'s)."""
+    """The kept model against its photo pairs (:func:`capture.check.pair_pose_check`; ``meta.json``'s)."""
 
     @property
     def warnings(self) -> list[str]:
@@ -631,7 +631,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     # 4b. check the model against its photo pairs (a model can place every photo and be wrong)
     t, c = time.perf_counter(), time.process_time()
     try:
-        pose_check = pair_rotation_check(rec, db_path, seed=cfg.seed)
+        pose_check = pair_pose_check(rec, db_path, seed=cfg.seed)
     except (ValueError, RuntimeError) as e:  # pycolmap's checks: a diagnostic that fails must not lose the capture
         pose_check = {"error": f"{type(e).__name__}: {e}", "suspect": False}
     timings["check"], cpu_timings["check"] = time.perf_counter() - t, time.process_time() - c
@@ -704,7 +704,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         "colmap_model": str(model_dir.relative_to(out_dir)),
         # each mapping run: its focal length's start, photos registered in its largest model, models it made
         "mappings": tries,
-        # the kept model against its photo pairs' own relative rotations (capture/check.py); suspect: likely wrong
+        # the kept model against its photo pairs' own relative poses (capture/check.py); suspect: likely wrong
         "pose_check": pose_check,
         # The model whose (pinhole) cameras and 2D points match rgb/ (the undistorted one, when undistorted).
         "colmap_export_model": str((und_model or model_dir).relative_to(out_dir)),

@@ -1,6 +1,6 @@
 """The product's pose check (blender_mrvm/capture/check.py) on each subset's kept model, beside its error against
-the truth. Both statistics: over every verified pair ("all") and over pairs COLMAP verified as CALIBRATED or
-UNCALIBRATED ("general", the shipped one).
+the truth. Over every verified pair ("all") and over pairs COLMAP verified as CALIBRATED or UNCALIBRATED
+("general", the shipped one); each with the rotations' median and the directions' (between the cameras' centres).
 
     PYTHONPATH=$PWD .venv/bin/python docs/capture_check/check_eval.py WORK SCENES OUT.jsonl
 """
@@ -13,7 +13,7 @@ import numpy as np
 import pycolmap
 
 from blender_mrvm.capture import align
-from blender_mrvm.capture.check import pair_rotation_check
+from blender_mrvm.capture.check import pair_pose_check
 from blender_mrvm.geometry import cameras as C
 
 work, scenes, out = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
@@ -32,7 +32,7 @@ with open(out, "w") as fh:
                "rot_med": round(e.median_rotation_deg, 2)}
         for key, general in (("all", False), ("general", True)):
             t = time.perf_counter()
-            c = pair_rotation_check(rec, cap / "colmap" / "database.db", general_only=general)
+            c = pair_pose_check(rec, cap / "colmap" / "database.db", general_only=general)
             row[key] = {"pairs": c["pairs"], "median": c["median_disagreement_deg"],
-                        "seconds": round(time.perf_counter() - t, 3)}
+                        "direction": c["median_direction_deg"], "seconds": round(time.perf_counter() - t, 3)}
         fh.write(json.dumps(row) + "\n")

@@ -15,7 +15,7 @@ def reg(m):
 
 def sets(prefix):
     """(set letter, rows) of each results/<prefix>_<set>.jsonl there is."""
-    for s in "abc":
+    for s in "abcd":
         f = res / f"{prefix}_{s}.jsonl"
         if f.is_file():
             yield s.upper(), [json.loads(x) for x in f.open()]
@@ -48,12 +48,15 @@ print("| set | statistic, threshold | models kept | right (within 1 degree) flag
       "| over 10 degrees flagged | 3-10 degrees flagged | slowest check |")
 print("|---|---|---|---|---|---|---|---|")
 for s, rows in sets("check"):
-    for key, thr in (("all", 3.0), ("general", 1.5)):
+    for key, thr, dirs in (("all", 3.0, False), ("general", 1.5, False), ("general", 1.5, True)):
         def flag(r):
-            return r[key]["median"] is not None and r[key]["median"] > thr
+            m, d = r[key]["median"], r[key].get("direction")
+            return m is not None and (m > thr or (dirs and d is not None and d > thr))
         right = [r for r in rows if r["rot_med"] < 1]
         far = [r for r in rows if r["rot_med"] > 10]
         mid = [r for r in rows if 3 < r["rot_med"] <= 10]
-        print(f"| {s} | {key}, {thr} | {len(rows)} | {sum(map(flag, right))} of {len(right)} "
-              f"| {max(r[key]['median'] or 0 for r in right):.2f} | {sum(map(flag, far))} of {len(far)} "
+        largest = max(max(r[key]["median"] or 0, r[key].get("direction") or 0 if dirs else 0) for r in right)
+        name = f"{key}{' + directions' if dirs else ''}, {thr}"
+        print(f"| {s} | {name} | {len(rows)} | {sum(map(flag, right))} of {len(right)} "
+              f"| {largest:.2f} | {sum(map(flag, far))} of {len(far)} "
               f"| {sum(map(flag, mid))} of {len(mid)} | {max(r[key]['seconds'] for r in rows):.2f} s |")
