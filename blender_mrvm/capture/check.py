@@ -5,11 +5,10 @@ whose two halves were joined at a wrong angle, comes out as one model with a sma
 cameras are tens of degrees off (`docs/capture_check/`). Each verified photo pair says how the two cameras turn
 relative to each other and in which direction the second stands from the first (its matches alone, re-estimated
 with the model's cameras); a correct model agrees with most pairs to a fraction of a degree, a wrong one disagrees
-with most of them by degrees. Single pairs can
-disagree in a correct model, so the check reads the median over the pairs, and only over pairs that COLMAP's
-verification found in general position (CALIBRATED or UNCALIBRATED): a pair whose matches lie on one plane (the
-ground seen from photos 100 degrees apart) re-estimates about 90 degrees off in a right model, as a plane's
-matches admit more than one relative pose.
+with most of them by degrees. Single pairs can disagree in a correct model, so the check reads the median over the
+pairs, and only over pairs that COLMAP's verification found in general position (CALIBRATED or UNCALIBRATED): a
+pair whose matches lie on one plane (the ground seen from photos 100 degrees apart) re-estimates about 90 degrees
+off in a right model, as a plane's matches admit more than one relative pose.
 """
 
 from __future__ import annotations
@@ -42,7 +41,7 @@ def _direction_angle_deg(t_a: np.ndarray, t_b: np.ndarray) -> float:
 
 
 def pair_pose_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
-                        general_only: bool = True, directions: bool = CHECK_DIRECTIONS) -> dict:
+                    general_only: bool = True, directions: bool = CHECK_DIRECTIONS) -> dict:
     """Compare the relative pose of every verified pair of placed photos in ``db_path`` (at least ``min_inliers``
     inlier matches; in general position unless ``general_only`` is False) with the model ``rec``'s: the angle
     between the two relative rotations, and between the two directions from the first camera's centre to the

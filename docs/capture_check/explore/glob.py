@@ -3,7 +3,7 @@ import json, shutil, sys, time
 from pathlib import Path
 import numpy as np, pycolmap
 from blender_mrvm.capture import align
-from blender_mrvm.capture.check import pair_rotation_check
+from blender_mrvm.capture.check import pair_pose_check
 from blender_mrvm.geometry import cameras as C
 pycolmap.logging.minloglevel = 2
 subs = sys.argv[1].split(",")
@@ -28,6 +28,6 @@ for work, scenes in [("work", "scenes"), ("work_b", "scenes_b")]:
             if not recs: res.append(f"{start}: 0"); continue
             rec = max(recs.values(), key=lambda r: r.num_reg_images()); ids = list(rec.reg_image_ids())
             rot = align.pose_errors([C.c2w_opencv_from_w2c(rec.images[i].cam_from_world().matrix()) for i in ids], [truth[rec.images[i].name] for i in ids]).median_rotation_deg if len(ids) >= 3 else float("nan")
-            c = pair_rotation_check(rec, db)
+            c = pair_pose_check(rec, db)
             res.append(f"{start}: {len(ids)}/{n} {rot:.2f}deg chk {c['median_disagreement_deg']} {dt:.1f}s")
         print(d.parent.name, d.name, " | ".join(res), flush=True)
