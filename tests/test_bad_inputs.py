@@ -555,6 +555,21 @@ BENCH = [
     # --out naming a file: refused before measuring (it had raised FileExistsError after the whole bench)
     Case("tracebacks", ["bench", name, "--out", "{w}/a_file"], "bench output folder")
     for name in ("model", "train", "profile", "threads", "render", "capture")
+] + [
+    # counts below their minimum or not numbers: tracebacks (ValueError, UnboundLocalError, a failed subprocess) or,
+    # for `bench capture --sizes 0`, an empty CSV with exit 0 (session 50)
+    Case("tracebacks", ["bench", "model", "--views", "0", "--out", "{new}"], "--views: each must be at least 1"),
+    Case("tracebacks", ["bench", "model", "--sizes", "64,x", "--out", "{new}"], "expected comma-separated whole"),
+    Case("tracebacks", ["bench", "model", "--repeats", "0", "--out", "{new}"], "--repeats must be at least 1"),
+    Case("tracebacks", ["bench", "profile", "--views", "0", "--out", "{new}"], "--views must be at least 1"),
+    Case("tracebacks", ["bench", "threads", "--threads", "0", "--out", "{new}"], "--threads: each must be at least 1"),
+    Case("tracebacks", ["bench", "capture", "--sizes", "0", "--out", "{new}"], "--sizes: each must be at least 3"),
+    Case("tracebacks", ["bench", "capture", "--sizes", "50", "--out", "{new}"], "--sizes: each must be at most 40"),
+    Case("tracebacks", ["bench", "capture", "--methods", "nope", "--out", "{new}"], "--methods: unknown"),
+    Case("tracebacks", ["bench", "render", "--resolutions", "0", "--out", "{new}"], "--resolutions: each must be"),
+    Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--objects", "0", "--out", "{new}"],
+         "--objects must be at least 1"),
+    Case("tracebacks", ["sem2nerf", "bench", "--size", "0", "--out", "{new}"], "--size must be at least 8"),
 ]
 
 # `sem2nerf eval` wrote eval.json and eval_grid.png into any --out only after the whole evaluation (session 29):

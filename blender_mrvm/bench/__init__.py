@@ -6,6 +6,35 @@ import csv
 from pathlib import Path
 
 
+def whole_numbers(text: str, flag: str, minimum: int = 1, maximum: int | None = None) -> list[int]:
+    """A comma-separated list of whole numbers given on the command line (``--sizes 64,128``), each within
+    [``minimum``, ``maximum``]; an :class:`InputError` naming ``flag`` otherwise, before anything is measured."""
+    from ..errors import InputError
+
+    items = [t.strip() for t in str(text).split(",") if t.strip()]
+    try:
+        values = [int(t) for t in items]
+    except ValueError:
+        raise InputError(f"{flag}: expected comma-separated whole numbers, got {text!r}") from None
+    if not values:
+        raise InputError(f"{flag}: none given")
+    if any(v < minimum for v in values):
+        raise InputError(f"{flag}: each must be at least {minimum}, got {text}")
+    if maximum is not None and any(v > maximum for v in values):
+        raise InputError(f"{flag}: each must be at most {maximum}, got {text}")
+    return values
+
+
+def at_least(args, **minimums: int) -> None:
+    """Refuse integer options below their minimum, every one named in one line (``at_least(args, repeats=1)``)."""
+    from ..errors import InputError
+
+    low = [f"--{k.replace('_', '-')} must be at least {m} (got {getattr(args, k)})"
+           for k, m in minimums.items() if getattr(args, k) < m]
+    if low:
+        raise InputError("; ".join(low))
+
+
 def write_csv(path: Path, rows: list[dict], fields: list[str] | None = None, quiet: bool = False) -> Path:
     """Write benchmark rows (dicts with the same keys) as CSV and say where."""
     path = Path(path)

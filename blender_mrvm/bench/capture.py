@@ -210,18 +210,25 @@ def summarize(runs: list[dict]) -> list[dict]:
 
 
 def run(args) -> int:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from ..errors import InputError
+    from . import at_least, whole_numbers
+
+    at_least(args, views=3, width=16, height=16, samples=1, repeats=1)
+    if args.threads != -1 and args.threads < 1:
+        raise InputError(f"--threads must be -1 (all) or at least 1 (got {args.threads})")
+    sizes = whole_numbers(args.sizes, "--sizes", minimum=3, maximum=args.views)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in RUNNERS]
-    if unknown:
-        raise SystemExit(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(RUNNERS)}")
+    if unknown or not methods:
+        raise InputError(f"--methods: unknown or none ({', '.join(unknown)}); choose from {', '.join(RUNNERS)}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
     truth = _render(out, args)
     print(f"ring of {args.views} views at {args.width}x{args.height} ready ({time.perf_counter() - t:.0f}s)")
     runs: list[dict] = []
     runs_path, summary_path = out / "bench_capture_runs.csv", out / "bench_capture.csv"
-    for n in (int(s) for s in args.sizes.split(",")):
+    for n in sizes:
         images = out / "capture_subsets" / f"{args.subset}{n}"
         _subset(truth, n, images, args.subset)
         for rep in range(args.repeats):

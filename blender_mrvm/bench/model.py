@@ -69,7 +69,10 @@ def run(args) -> int:
     from ..geometry import cameras
     from ..models import registry
     from ..synthesis.views import resolve_device
+    from . import at_least, whole_numbers
 
+    at_least(args, repeats=1, threads=1, workers=1, chunk=0, ref_size=0)
+    sizes, view_counts = whole_numbers(args.sizes, "--sizes"), whole_numbers(args.views, "--views")
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     device = str(resolve_device(args.device))
     precisions = [s.strip() for s in args.precisions.split(",") if s.strip()]
@@ -98,9 +101,9 @@ def run(args) -> int:
         if mode:
             registry.compile_networks(model, None if mode == "default" else mode)
         nets = {prec: for_precision(model, prec) for prec in precisions}  # int8: one copy with int8 linear layers
-        for size in [int(s) for s in args.sizes.split(",")]:
+        for size in sizes:
             intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
-            for nv in [int(v) for v in args.views.split(",")]:
+            for nv in view_counts:
                 rs = args.ref_size or size
                 refs = np.random.default_rng(0).random((nv, rs, rs, 3)).astype(np.float32)
                 rintr = [intr.resized(rs, rs)] * nv

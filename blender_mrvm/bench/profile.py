@@ -104,8 +104,10 @@ def run(args) -> int:
 
     from ..geometry import cameras
     from ..models import registry
+    from . import at_least
     from .model import ref_eyes
 
+    at_least(args, size=1, views=1, threads=1)
     torch.set_num_threads(args.threads)
     rows = []
     eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5])]

@@ -102,10 +102,10 @@ def run(args) -> int:
     import os
     import platform
 
-    from ..errors import InputError
+    from . import at_least, whole_numbers
 
-    if args.repeats < 1 or args.views < 1:
-        raise InputError("--repeats and --views must be at least 1")
+    at_least(args, repeats=1, views=1, eevee_views=1, samples=1)
+    resolutions = whole_numbers(args.resolutions, "--resolutions")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -117,7 +117,7 @@ def run(args) -> int:
         mesh = _mesh(tmp)
         for engine in [e.strip().upper() for e in args.engines.split(",") if e.strip()]:
             views = args.eevee_views if engine == "BLENDER_EEVEE" else args.views
-            for res in [int(r) for r in args.resolutions.split(",")]:
+            for res in resolutions:
                 for rep in range(args.repeats):
                     vps = {}
                     for method, fn, outputs in (methods if rep % 2 == 0 else methods[::-1]):

@@ -64,7 +64,10 @@ def _one(policy: str, threads: int, args) -> float:
 
 
 def run(args) -> int:
-    threads = [int(t) for t in args.threads.split(",") if t.strip()]
+    from . import at_least, whole_numbers
+
+    at_least(args, size=1, views=1, competitors=0, repeats=1)
+    threads = whole_numbers(args.threads, "--threads")
     rows = []
     for busy in (0, args.competitors):
         procs = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]

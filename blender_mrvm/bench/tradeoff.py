@@ -334,7 +334,9 @@ def run(args) -> int:
     from ..models.config import merge
     from ..synthesis import load_checkpoint
     from ..models.pretrained import resolve_checkpoint
+    from . import at_least
 
+    at_least(args, objects=1, targets=1, size=1, repeats=1, threads=1, workers=1)
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     axes = parse_axes(args.axes)
     lpips = None

@@ -184,9 +184,11 @@ def run(args) -> int:
         print(json.dumps(res["overall"]))
         return 0
     if cmd == "bench":
+        from ..bench import at_least
         from ..guards import check_folder_writable
         from ..models.sem2nerf.inputs import bench
 
+        at_least(args, size=8, repeats=1)
         check_folder_writable(Path(args.out), "bench output folder")
         res = bench(Path(args.out), size=args.size, repeats=args.repeats)
         print(json.dumps({k: round(v, 3) for k, v in res.items()}))
