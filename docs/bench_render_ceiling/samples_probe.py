@@ -16,7 +16,6 @@ A fresh scene per configuration (with persistent data, Cycles keeps a scene's fi
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import platform
 import shutil
@@ -28,6 +27,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+from blender_mrvm.bench import write_csv
 from blender_mrvm.bench.render import _mesh
 from blender_mrvm.progress import run_to_end
 from blender_mrvm.scene import render as R
@@ -115,10 +115,7 @@ def main() -> int:
             rows.append(row)
             print(row, flush=True)
             shutil.rmtree(d)
-    with open(a.csv, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(Path(a.csv), rows)
     return 0
 
 
