@@ -40,14 +40,12 @@ def _direction_angle_deg(t_a: np.ndarray, t_b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def pair_pose_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
-                    general_only: bool = True, directions: bool = CHECK_DIRECTIONS) -> dict:
-    """Compare the relative pose of every verified pair of placed photos in ``db_path`` (at least ``min_inliers``
-    inlier matches; in general position unless ``general_only`` is False) with the model ``rec``'s: the angle
-    between the two relative rotations, and between the two directions from the first camera's centre to the
-    second's. Returns what ``meta.json`` records as ``pose_check``: the pairs compared, the median of each angle,
-    the share of rotations over 5 degrees, the three worst pairs, the threshold and ``suspect`` (the rotations'
-    median, or with ``directions`` either median, over :data:`SUSPECT_MEDIAN_DEG`)."""
+def pair_angles(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
+                general_only: bool = True) -> list[tuple[float, float, str, str]]:
+    """``(rotation, direction, photo a, photo b)`` for every verified pair of placed photos in ``db_path`` (at least
+    ``min_inliers`` inlier matches; in general position unless ``general_only`` is False): the angle between the
+    pair's own relative rotation (re-estimated from its matches with the model's cameras) and the model ``rec``'s,
+    and between the two directions from the first camera's centre to the second's, in degrees."""
     import pycolmap
 
     ransac = pycolmap.RANSACOptions()
@@ -57,7 +55,7 @@ def pair_pose_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, see
     placed = set(rec.reg_image_ids())
     cfg = pycolmap.TwoViewGeometryConfiguration
     general = {int(cfg.CALIBRATED), int(cfg.UNCALIBRATED)}
-    angles: list[tuple[float, float, str, str]] = []  # (rotation, direction, photo a, photo b)
+    angles: list[tuple[float, float, str, str]] = []
     keypoints: dict[int, np.ndarray] = {}
     db = pycolmap.Database.open(Path(db_path))
     try:
@@ -84,6 +82,18 @@ def pair_pose_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, see
                            im_a.name, im_b.name))
     finally:
         db.close()
+    return angles
+
+
+def pair_pose_check(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
+                    general_only: bool = True, directions: bool = CHECK_DIRECTIONS) -> dict:
+    """Compare the relative pose of every verified pair of placed photos in ``db_path`` (at least ``min_inliers``
+    inlier matches; in general position unless ``general_only`` is False) with the model ``rec``'s: the angle
+    between the two relative rotations, and between the two directions from the first camera's centre to the
+    second's (:func:`pair_angles`). Returns what ``meta.json`` records as ``pose_check``: the pairs compared, the
+    median of each angle, the share of rotations over 5 degrees, the three worst pairs, the threshold and
+    ``suspect`` (the rotations' median, or with ``directions`` either median, over :data:`SUSPECT_MEDIAN_DEG`)."""
+    angles = pair_angles(rec, db_path, min_inliers, seed, general_only)
     rot = np.array([x[0] for x in angles])
     dirs = np.array([x[1] for x in angles])
     enough = len(angles) >= MIN_PAIRS
