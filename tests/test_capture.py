@@ -91,6 +91,24 @@ def _moved(rec, fraction: float, seed: int = 0):
     return rec
 
 
+def _jointed(rec, names: set[str], degrees: float):
+    """``rec`` with the photos ``names`` moved together, turned ``degrees`` about the vertical through the cameras'
+    centre (the normal of their ring): two parts each right within themselves, joined at a wrong angle."""
+    import pycolmap
+
+    frames = {rec.images[i].name: rec.frames[rec.images[i].frame_id] for i in rec.reg_image_ids()}
+    centres = np.array([-f.rig_from_world.rotation.matrix().T @ f.rig_from_world.translation for f in frames.values()])
+    c = centres.mean(0)
+    axis = np.linalg.svd(centres - c)[2][2]
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = np.radians(degrees)
+    turn = np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+    back = pycolmap.Rigid3d(pycolmap.Rotation3d(turn.T), c - turn.T @ c)  # world point -> where it was before
+    for name in names:
+        frames[name].rig_from_world = frames[name].rig_from_world * back
+    return rec
+
+
 def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
     """A model can place every photo and still be wrong (docs/capture_check/): the kept model is checked against its
     photo pairs' own relative poses; a median disagreement over 1.5 degrees is reported as suspect."""
@@ -117,7 +135,20 @@ def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
     moved = pair_pose_check(_moved(pycolmap.Reconstruction(str(model)), 0.3), db)
     assert moved["median_disagreement_deg"] < 1.0 and moved["median_direction_deg"] > SUSPECT_MEDIAN_DEG
     assert moved["suspect"] is True and "in the direction between the cameras" in warning(moved)
-    assert pair_pose_check(_moved(pycolmap.Reconstruction(str(model)), 0.3), db, directions=False)["suspect"] is False
+    assert pair_pose_check(_moved(pycolmap.Reconstruction(str(model)), 0.3), db, directions=False,
+                           split_check=False)["suspect"] is False
+    # Four neighbouring photos of the 24 turned 20 degrees together: the pairs within each part agree, so both
+    # medians stay low, but every pair across the two joints disagrees: split (RULE.md's fourth rule).
+    block = set(sorted(res.registered)[8:12])
+    joint = pair_pose_check(_jointed(pycolmap.Reconstruction(str(model)), block, 20.0), db)
+    assert joint["median_disagreement_deg"] < SUSPECT_MEDIAN_DEG and joint["median_direction_deg"] < SUSPECT_MEDIAN_DEG
+    assert joint["split_pieces"] >= 1 and joint["suspect"] is True and check["split_pieces"] == 0
+    assert "wrong joint" in warning(joint)
+    assert pair_pose_check(_jointed(pycolmap.Reconstruction(str(model)), block, 20.0), db,
+                           split_check=False)["suspect"] is False
+    # The same block turned 1 degree: every pair still agrees within 5 degrees, nothing is split.
+    slight = pair_pose_check(_jointed(pycolmap.Reconstruction(str(model)), block, 1.0), db)
+    assert slight["split_pieces"] == 0 and slight["suspect"] is False
     # A model half a degree off everywhere is under the threshold: not suspect.
     near = pair_pose_check(_turned(pycolmap.Reconstruction(str(model)), 0.5), db)
     assert near["suspect"] is False and warning(near) is None
