@@ -12,11 +12,11 @@ from blender_mrvm.capture.config import CaptureConfig
 from blender_mrvm.errors import InputError
 from blender_mrvm.geometry import cameras as C
 from blender_mrvm.progress import run_to_end
+from photo_sets import SUBSETS, copy_subset  # noqa: E402  (beside this script)
 
 sfm.StageLog.close = lambda self: None  # keep database.match.db
 scenes, work, out_csv = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
 threads = int(sys.argv[4]) if len(sys.argv) > 4 else 1
-SUBSETS = {"arc8": range(12, 20), "arc10": range(0, 10), "arc14": range(5, 19), "ring12": range(0, 24, 2)}
 
 
 def mapit(db, imgs, truth, n):
@@ -45,11 +45,7 @@ for sd in sorted(scenes.glob("scene*")):
     truth = {v["name"]: np.array(v["c2w_opencv"]) for v in tj["views"]}
     f_true = tj["views"][0]["K"][0][0]
     for sub, idx in SUBSETS.items():
-        d = work / sd.name / sub
-        shutil.rmtree(d, ignore_errors=True)
-        (d / "images").mkdir(parents=True)
-        for i in idx:
-            shutil.copy(sd / "images" / f"{i:03d}.png", d / "images")
+        d = copy_subset(sd, work, sub)
         cfg = CaptureConfig(num_threads=threads, single_camera=True)
         try:
             run_to_end(sfm.recover_poses(d / "images", d / "cap", cfg))

@@ -12,9 +12,11 @@ from blender_mrvm.capture.config import CaptureConfig
 from blender_mrvm.errors import InputError
 from blender_mrvm.geometry import cameras as C
 from blender_mrvm.progress import run_to_end
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from photo_sets import SUBSETS, copy_subset  # noqa: E402  (docs/capture_check/)
 pycolmap.logging.minloglevel = 2
 scenes, work, out = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
-SUBSETS = {"arc8": range(12, 20), "arc10": range(0, 10), "arc14": range(5, 19), "ring12": range(0, 24, 2)}
 T = 5.0
 
 
@@ -33,7 +35,7 @@ def judge(rec, db, truth):
     ids = list(rec.reg_image_ids()); names = [rec.images[i].name for i in ids]
     rot = align.pose_errors([C.c2w_opencv_from_w2c(rec.images[i].cam_from_world().matrix()) for i in ids],
                             [truth[n] for n in names]).median_rotation_deg
-    c = pair_pose_check(rec, db)
+    c = pair_pose_check(rec, db, split_check=False)  # the medians alone; the split is computed here
     ang = pair_angles(rec, db)
     split = pieces(names, [(a, b) for r, d, a, b in ang if max(r, d) <= T]) - pieces(names, [(a, b) for r, d, a, b in ang])
     return {"placed": len(ids), "rot": round(rot, 2), "pairs": c["pairs"], "rmed": c["median_disagreement_deg"],
@@ -46,11 +48,7 @@ with open(out, "w") as fh:
         tj = json.loads((sd / "truth.json").read_text())
         truth = {v["name"]: np.array(v["c2w_opencv"]) for v in tj["views"]}
         for sub, idx in SUBSETS.items():
-            d = work / sd.name / sub
-            shutil.rmtree(d, ignore_errors=True)
-            (d / "images").mkdir(parents=True)
-            for i in idx:
-                shutil.copy(sd / "images" / f"{i:03d}.png", d / "images")
+            d = copy_subset(sd, work, sub)
             row = {"scene": sd.name, "subset": sub, "n": len(idx)}
             t = time.perf_counter()
             try:

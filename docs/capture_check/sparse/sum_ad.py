@@ -1,6 +1,6 @@
 import json, sys
 for s in sys.argv[1:]:
-    try: rows=[json.loads(l) for l in open(f'/tmp/mb/confirm_{s}.jsonl')]
+    try: rows=[json.loads(l) for l in open(f'docs/capture_check/results/confirm_{s}.jsonl')]
     except FileNotFoundError: continue
     fix=lambda k: k|{'medians_suspect': bool(k['pairs']>=3 and ((k['rmed'] or 0)>1.5 or (k['tmed'] or 0)>1.5)), 'rule4_suspect': bool(k['pairs']>=3 and ((k['rmed'] or 0)>1.5 or (k['tmed'] or 0)>1.5 or k['split']>0))}
     kept=[fix(r['kept'])|{'scene':r['scene'],'subset':r['subset']} for r in rows if 'rot' in r['kept']]
