@@ -8,7 +8,9 @@ with the model's cameras); a correct model agrees with most pairs to a fraction 
 with most of them by degrees. Single pairs can disagree in a correct model, so the check reads the median over the
 pairs, and only over pairs that COLMAP's verification found in general position (CALIBRATED or UNCALIBRATED): a
 pair whose matches lie on one plane (the ground seen from photos 100 degrees apart) re-estimates about 90 degrees
-off in a right model, as a plane's matches admit more than one relative pose.
+off in a right model, as a plane's matches admit more than one relative pose. A model made of two parts joined at a
+wrong angle keeps low medians (the pairs across the joint are few), so the check also asks whether the pairs that
+agree with the model still join its photos as all the pairs do (:data:`SPLIT_AGREE_DEG`).
 """
 
 from __future__ import annotations
