@@ -569,7 +569,7 @@ BENCH = [
     Case("tracebacks", ["bench", "render", "--resolutions", "0", "--out", "{new}"], "--resolutions: each must be"),
     Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--objects", "0", "--out", "{new}"],
          "--objects must be at least 1"),
-    Case("tracebacks", ["sem2nerf", "bench", "--size", "0", "--out", "{new}"], "--size must be at least 8"),
+    Case("tracebacks", ["sem2nerf", "bench", "--size", "0", "--out", "{new}"], "--size must be at least 1"),
 ]
 
 # `sem2nerf eval` wrote eval.json and eval_grid.png into any --out only after the whole evaluation (session 29):

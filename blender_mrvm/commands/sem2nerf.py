@@ -188,7 +188,7 @@ def run(args) -> int:
         from ..guards import check_folder_writable
         from ..models.sem2nerf.inputs import bench
 
-        at_least(args, size=8, repeats=1)
+        at_least(args, size=1, repeats=1)
         check_folder_writable(Path(args.out), "bench output folder")
         res = bench(Path(args.out), size=args.size, repeats=args.repeats)
         print(json.dumps({k: round(v, 3) for k, v in res.items()}))
