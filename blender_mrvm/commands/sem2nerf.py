@@ -80,7 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
     r.add_argument("--quality", default="full", help="full (as trained) or preview: half the samples per ray, about "
-                   "1.9x faster for -0.13 dB at equal LPIPS (bench tradeoff, README 'Speed against accuracy')")
+                   "1.9x faster for -0.13 dB at equal LPIPS (bench tradeoff, docs/guide/speed.md)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
     e.add_argument("--checkpoint", required=True, help="Sem2NeRF checkpoint, or shipped:sem2nerf")

@@ -57,7 +57,7 @@ FIGURES = {
                     "at 128 px, 1.9 at 256 px through synthesize",
 }
 """What the panel shows of each shipped model: measured quality and speed (RECIPE.md has the details; the
-object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, README "Speed against accuracy";
+object models' speed is ``bench tradeoff --workers 2`` on the idle 2-core box, docs/guide/speed.md;
 the capture model's a median of 3 held-out room views at 128 px with 2 chunk workers, session 10)."""
 
 
@@ -158,8 +158,8 @@ def auto_model(c2ws, intrinsics, bbox, framing_known: bool = True, gpu: bool = F
                background: str = "white") -> tuple[str, str]:
     """``shipped:auto``: (the shipped model for these references and cameras, one line saying why). References
     that show a whole scene (``background`` 'scene': a recovered or rendered capture) get GPNR for rooms and
-    captures (``gpnr_captures``: +6.1 dB over the objects-on-white model on held-out rooms, README). Objects on
-    white get the default model when every camera (references and targets) sits within
+    captures (``gpnr_captures``: +6.1 dB over the objects-on-white model on held-out rooms,
+    docs/guide/model_kinds.md). Objects on white get the default model when every camera (references and targets) sits within
     :data:`TURNTABLE_TOLERANCE` of its training turntable; otherwise, on a GPU (``gpu``), the quality model
     (``mrvm_quality``: 0.5-1.3 dB better than the any-view model off the turntable on the library's objects, level
     with it on real meshes (docs/real_meshes/), many times slower on a CPU), else the any-view model

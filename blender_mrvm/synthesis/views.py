@@ -102,14 +102,14 @@ class SynthesisConfig:
     """References per target: each target is rendered from its ``nearest`` nearest references (by camera
     direction and distance, :func:`nearest_views`); 0 = every reference when the model takes that many
     (``max_ref_views``, 10), else each view's :data:`DENSE_NEAREST` (5) nearest. A speed/accuracy knob
-    (README, "Many references")."""
+    (docs/guide/novel_views.md, "Many references")."""
     reproject: str = "auto"
     """Lay the references' own colours over each view where they see its surface, through the model's depth
     (``models/reproject.py``; each reference used is rendered once more for its depth): ``on``, ``off``, or
     ``auto`` (the default): on when each view is rendered from its nearest of more references (a dense capture,
     where a reference sits close to every view) by a model that predicts its colours at ``quality`` full, off
     otherwise, for GPNR, whose colour already is a blend of the references', and at ``preview`` (it about doubles
-    the time of a view: README, "Many references")."""
+    the time of a view: docs/guide/novel_views.md, "Many references")."""
 
     compile: bool = False
     """``torch.compile`` the model's networks (not the image encoder; ``models.registry.compile_networks``) once
