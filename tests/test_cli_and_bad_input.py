@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -130,6 +131,28 @@ def test_help_lists_commands(capsys):
     out = capsys.readouterr().out
     for cmd in ("render-dataset", "build-extension", "bench", "demo"):
         assert cmd in out
+
+
+def _parsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _parsers(sub, path + (name,))
+
+
+def test_every_commands_help_formats():
+    """`--help` of every command and subcommand prints (argparse expands each help string with `%`: a bare `%`
+    in one made `synthesize --help` raise TypeError, and nothing ran the help of every command)."""
+    from blender_mrvm.cli import build_parser
+
+    seen = []
+    for path, parser in _parsers(build_parser()):
+        text = parser.format_help()
+        assert text.startswith("usage:"), path
+        seen.append(" ".join(path))
+    assert {"synthesize", "bench tradeoff", "sem2nerf render", "render-dataset"} <= set(seen), seen
+    assert len(seen) >= 20, seen
 
 
 @pytest.mark.slow

@@ -27,7 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(default: all, at most 500; with more than a view uses, each view takes its nearest, --nearest)")
     p.add_argument("--nearest", type=int, default=0, metavar="K",
                    help="render each view from its K nearest references (by direction and distance; fewer is faster, "
-                   "README 'Many references'); 0 (default) = every reference when there are at most 10, else the 5 nearest")
+                   "docs/guide/novel_views.md, 'Many references'); 0 (default) = every reference when there are "
+                   "at most 10, else the 5 nearest")
     p.add_argument("--reproject", choices=("auto", "on", "off"), default="auto",
                    help="lay the references' own colours over each view where they see its surface, through the model's "
                    "depth (each reference used is rendered once more): auto (default) = on when each view is rendered "
@@ -44,8 +45,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: shipped:auto, the shipped NeRFormer+MRVM model that fits the cameras: the default model on its 30-degree training turntable, else the any-view model on a CPU and the quality model on a GPU; synthesis.json's model_choice says which)")
     p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda (default auto)")
     p.add_argument("--compile", action="store_true",
-                   help="torch.compile the model's networks first (experimental: on an H100 not yet faster through "
-                        "synthesize than eager, the first view paying ~30 s of compilation; minutes on a CPU; README)")
+                   help="torch.compile the model's networks first (on an H100 1.2x faster through synthesize than "
+                        "eager after a first view of ~30 s; on a CPU about a tenth faster after minutes of compiling; "
+                        "docs/guide/speed.md)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--depth", action="store_true", default=None, help="also write depth maps (EXR); "
                    "default: as targets.json says")
