@@ -154,6 +154,55 @@ def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
     assert near["suspect"] is False and warning(near) is None
 
 
+def test_how_far_apart_the_photos_are_is_measured_and_named_when_too_far(recovered, ring, tmp_path, monkeypatch):
+    """RULE.md's fifth rule: the photos' spacing (each photo's turn to the one it shares the most matches with,
+    median) from the match database, with the mapping's own focal length; 22.5 degrees or more is named in the
+    error or the warning with what to do."""
+    import pycolmap
+
+    from blender_mrvm.capture import sfm
+    from blender_mrvm.capture.check import SPARSE_SPACING_DEG, photo_spacing, spacing_advice, spacing_camera, warning
+
+    res, truth, _ = recovered
+    meta = json.loads((res.out_dir / "meta.json").read_text())
+    model = pycolmap.Reconstruction(str(res.out_dir / meta["colmap_model"]))
+    dense = photo_spacing(res.out_dir / "colmap" / "database.db", spacing_camera(model))
+    assert 14.0 < dense["spacing_deg"] < 16.0 and dense["focal_from"] == "model"  # 24 photos 15 degrees apart
+    assert dense["photos"] == N_VIEWS and dense["unmatched"] == [] and spacing_advice(dense) == ""
+    K = np.array(truth["views"][0]["K"])
+    true_camera = pycolmap.Camera(model="SIMPLE_PINHOLE", width=W, height=H, params=[K[0, 0], K[0, 2], K[1, 2]])
+    assert spacing_camera(None) is None and abs(dense["spacing_deg"] - photo_spacing(
+        res.out_dir / "colmap" / "database.db", true_camera)["spacing_deg"]) < 0.5
+
+    # Every other photo: 12 photos 30 degrees apart, the rings that rarely map (docs/capture_check/). Here the
+    # mapping places 7 of them, and the check flags the model; the warning says how far apart they are.
+    d = _copy(ring[0], tmp_path / "in", range(0, N_VIEWS, 2))
+    sparse = _run(d, tmp_path / "out")
+    assert len(sparse.registered) < 12 and sparse.pose_check["suspect"] is True
+    assert 27.0 < sparse.pose_check["photo_spacing_deg"] < 33.0
+    assert 27.0 < photo_spacing(tmp_path / "out" / "colmap" / "database.db", true_camera)["spacing_deg"] < 33.0
+    text = warning(sparse.pose_check)
+    assert f"about {sparse.pose_check['photo_spacing_deg']:.0f} degrees apart" in text and "10-15 degrees" in text
+    # Asked for all 12, the mapping's error says the same.
+    with pytest.raises(InputError, match=r"registered only \d+ of 12 images \(need 12\): neighbouring photos are "
+                                         r"about (2[89]|3[0-2]) degrees apart .* take one every 10-15 degrees; "
+                                         r"partial model kept in"):
+        _run(d, tmp_path / "out_all", CaptureConfig(num_threads=2, single_camera=True, min_registered_fraction=1.0))
+    # Without a model of 3 photos there is no focal length to trust, so no figure; nor below the threshold.
+    assert spacing_advice({"spacing_deg": 30.0, "focal_from": "database", "unmatched": []}) == ""
+    assert spacing_advice({"spacing_deg": SPARSE_SPACING_DEG - 0.1, "focal_from": "model", "unmatched": []}) == ""
+    assert "about 22 degrees" in spacing_advice({"spacing_deg": SPARSE_SPACING_DEG, "focal_from": "model"})
+    # Every third photo (45 degrees apart), one camera a photo: no pair to start from, so no model and no figure,
+    # but the error says what usually causes it.
+    with pytest.raises(InputError, match=r"no image pair to start from \(too little overlap or baseline; photos "
+                                         r"taken more than about 20 degrees apart .* take one every 10-15 degrees\)"):
+        _run(_copy(ring[0], tmp_path / "in45", range(0, N_VIEWS, 3)), tmp_path / "out45", CaptureConfig(num_threads=2))
+    # A diagnosis that fails loses nothing: the error is the same without it.
+    monkeypatch.setattr(sfm, "photo_spacing", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken")))
+    with pytest.raises(InputError, match=r"registered only \d+ of 12 images \(need 12\); partial model kept in"):
+        _run(d, tmp_path / "out_all2", CaptureConfig(num_threads=2, single_camera=True, min_registered_fraction=1.0))
+
+
 def test_a_suspect_model_is_reported_by_the_cli_and_the_panel(ring, tmp_path, capsys, monkeypatch, empty_scene):
     import bpy
 
@@ -168,7 +217,10 @@ def test_a_suspect_model_is_reported_by_the_cli_and_the_panel(ring, tmp_path, ca
     assert main(["recover-poses", "--images", str(d), "--out", str(tmp_path / "cap"), "--threads", "2"]) == 0
     err = capsys.readouterr().err
     assert "warning: the recovered poses may be wrong: 20 photo pairs" in err and "9.5 degrees" in err
-    assert json.loads((tmp_path / "cap" / "meta.json").read_text())["pose_check"] == suspect
+    recorded = json.loads((tmp_path / "cap" / "meta.json").read_text())["pose_check"]
+    # a suspect check also says how far apart the photos are: 15 degrees here, so no advice about it
+    assert {k: v for k, v in recorded.items() if k != "photo_spacing_deg"} == suspect
+    assert 13.0 < recorded["photo_spacing_deg"] < 17.0 and "degrees apart" not in err
     message, warned = _import(bpy.context, tmp_path / "cap")  # what the panel's Recover Poses reports
     assert message.startswith("Recovered 6/6 photos") and "may be wrong" in warned
 
@@ -550,9 +602,11 @@ def test_no_overlap(tmp_path):
 def test_too_few_registered_keeps_partial_model(ring, tmp_path):
     d = _copy(ring[0], tmp_path / "in", [0, 1, 2, 3])
     _noise(d, 5, seed=3)
-    with pytest.raises(InputError, match=r"registered only 4 of 9 images \(need 5\); partial model kept in") as ei:
+    with pytest.raises(InputError, match=r"registered only 4 of 9 images \(need 5\): 5 photo\(s\) share too few "
+                       r"matches with every other photo .*: noise0.png, noise1.png, noise2.png, \.\.\.; partial "
+                       r"model kept in") as ei:
         _run(d, tmp_path / "out")
-    assert "noise0.png" in str(ei.value)
+    assert "noise0.png" in str(ei.value) and "degrees apart" not in str(ei.value)  # 4 photos 15 degrees apart
     rep = json.loads((tmp_path / "out" / "colmap" / "report.json").read_text())
     assert rep["registered"] == ["000.png", "001.png", "002.png", "003.png"] and len(rep["unregistered"]) == 5
     assert Path(rep["model"]).is_dir() and not (tmp_path / "out" / "transforms.json").exists()

@@ -42,7 +42,7 @@ from ..errors import Cancelled, InputError, OutputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
-from .check import pair_pose_check
+from .check import pair_pose_check, photo_spacing, spacing_advice, spacing_camera
 from .check import warning as check_warning
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
@@ -94,6 +94,17 @@ class CaptureResult:
         t = ", ".join(f"{k} {v:.1f}s" for k, v in self.timings.items())
         return (f"registered {len(self.registered)}/{self.total} images, {self.num_points} points, "
                 f"reprojection {self.mean_reprojection_error:.2f}px, {self.matcher} matching; {t}")
+
+
+def _diagnosis(db_path: Path, rec: Any, renamed: dict[str, str], seed: int) -> str:
+    """Why a mapping may have left photos out, as a clause for its error line ('' when nothing is found): photos
+    taken too far apart, or photos that match no other (:func:`check.spacing_advice`). A diagnosis that fails says
+    nothing, so the error itself is never lost."""
+    try:
+        advice = spacing_advice(photo_spacing(db_path, spacing_camera(rec), seed=seed), renamed)
+    except (ValueError, RuntimeError, OSError):
+        return ""
+    return f": {advice}" if advice else ""
 
 
 def natural_key(name: str) -> list:
@@ -612,8 +623,11 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     timings["map"], cpu_timings["map"] = time.perf_counter() - t, time.process_time() - c
     if not recs:
         _write_report(work, names, [], None, timings, tries)
-        raise InputError(f"mapping found no image pair to start from (too little overlap or baseline); "
-                         f"database kept in {db_path}")
+        # (no model, so no focal length to measure the spacing with: on set G of docs/capture_check/, 17 of 20
+        # rings of photos 40 degrees apart stopped here)
+        raise InputError(f"mapping found no image pair to start from (too little overlap or baseline; photos taken "
+                         f"more than about 20 degrees apart round an object often stop here: take one every 10-15 "
+                         f"degrees){_diagnosis(db_path, None, renamed, cfg.seed)}; database kept in {db_path}")
     reg_names = sorted((rec.images[i].name for i in rec.reg_image_ids()), key=natural_key)  # as pycolmap reads them
     reg_photos = [renamed.get(n, n) for n in reg_names]
     model_dir = sparse / str(best_idx)
@@ -624,8 +638,9 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     if len(reg_names) < need:
         missing = [n for n in names if n not in set(reg_photos)]
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
-        raise InputError(f"mapping registered only {len(reg_names)} of {len(names)} images (need {need}); "
-                         f"partial model kept in {model_dir}; not registered: {shown}")
+        raise InputError(f"mapping registered only {len(reg_names)} of {len(names)} images (need {need})"
+                         f"{_diagnosis(db_path, rec, renamed, cfg.seed)}; partial model kept in {model_dir}; "
+                         f"not registered: {shown}")
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
 
     # 4b. check the model against its photo pairs (a model can place every photo and be wrong)
@@ -634,6 +649,11 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         pose_check = pair_pose_check(rec, db_path, seed=cfg.seed)
     except (ValueError, RuntimeError) as e:  # pycolmap's checks: a diagnostic that fails must not lose the capture
         pose_check = {"error": f"{type(e).__name__}: {e}", "suspect": False}
+    if pose_check.get("suspect"):  # say whether the photos were taken too far apart (the usual cause)
+        try:
+            pose_check["photo_spacing_deg"] = photo_spacing(db_path, spacing_camera(rec), seed=cfg.seed)["spacing_deg"]
+        except (ValueError, RuntimeError):
+            pass
     timings["check"], cpu_timings["check"] = time.perf_counter() - t, time.process_time() - c
 
     # 5. undistort
