@@ -197,6 +197,22 @@ def test_how_far_apart_the_photos_are_is_measured_and_named_when_too_far(recover
     with pytest.raises(InputError, match=r"no image pair to start from \(too little overlap or baseline; photos "
                                          r"taken more than about 20 degrees apart .* take one every 10-15 degrees\)"):
         _run(_copy(ring[0], tmp_path / "in45", range(0, N_VIEWS, 3)), tmp_path / "out45", CaptureConfig(num_threads=2))
+    # The same photos as a phone writes them, JPEGs with a 35 mm focal length in their EXIF: no model, or one of 2
+    # photos (the mapping's threads decide), too few to trust its focal length; the photos' own measures the spacing
+    # (COLMAP reads it as each camera's prior).
+    from PIL import Image
+
+    exif_dir = tmp_path / "in45_exif"
+    exif_dir.mkdir()
+    for i in range(0, N_VIEWS, 3):
+        ex = Image.Exif()
+        ex[0x010F], ex[0x0110] = "TestMake", "TestModel"
+        ex.get_ifd(0x8769)[0xA405] = int(round(K[0, 0] / max(W, H) * 36))  # FocalLengthIn35mmFilm
+        Image.open(ring[0] / f"{i:03d}.png").convert("RGB").save(exif_dir / f"{i:03d}.jpg", quality=95, exif=ex)
+    with pytest.raises(InputError, match=r"(no image pair to start from \(too little overlap or baseline\)|registered "
+                                         r"only [0-2] of 8 images \(need 4\)): neighbouring photos are about "
+                                         r"(4[0-9]|50) degrees apart"):
+        _run(exif_dir, tmp_path / "out45_exif", CaptureConfig(num_threads=2))
     # A diagnosis that fails loses nothing: the error is the same without it.
     monkeypatch.setattr(sfm, "photo_spacing", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("broken")))
     with pytest.raises(InputError, match=r"registered only \d+ of 12 images \(need 12\); partial model kept in"):

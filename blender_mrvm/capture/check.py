@@ -156,8 +156,9 @@ the camera of the model the mapping made: every arc 13.0-19.1 degrees, every rin
 def spacing_camera(rec: Any) -> Any | None:
     """One pinhole camera for every photo, from a model that placed at least 3 (the median focal length of its
     cameras; its first camera's size and principal point), or None. A model's focal length is what makes
-    :func:`photo_spacing`'s angles right: the database's cameras hold a guess (1.2 x the width without EXIF) that was
-    0.5-2.5x the truth on the synthetic sets, which moves the angles about as much."""
+    :func:`photo_spacing`'s angles right: without EXIF the database's cameras hold a guess (1.2 x the width) that was
+    0.5-2.5x the truth on the synthetic sets, which moves the angles about as much (and the view graph's calibration
+    was 0.54-2.47x on their rings)."""
     import pycolmap
 
     if rec is None or rec.num_reg_images() < 3 or not rec.cameras:
@@ -174,7 +175,10 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
     its camera turns to reach the photo it shares the most verified matches with (their relative pose estimated with
     ``camera`` for every photo, see :func:`spacing_camera`; the database's own cameras without one), and the median
     over the photos. Also the photos that share fewer than ``min_inliers`` verified matches with every other photo.
-    Returns ``{"spacing_deg": median or None, "focal_from": "model" or "database", "photos": n, "unmatched": [names]}``."""
+    Returns ``{"spacing_deg": median or None, "focal_from": ..., "photos": n, "unmatched": [names]}``, where
+    ``focal_from`` is "model" (``camera`` given), "exif" (every camera of the database holds a prior focal length,
+    which feature extraction reads from the photos' EXIF; the view graph's calibration sets one too, so "exif" is
+    only true of a database as extraction and matching left it) or "database" (COLMAP's 1.2 x width guess)."""
     import pycolmap
 
     from .align import rotation_angle_deg
@@ -187,6 +191,7 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
     db = pycolmap.Database.open(Path(db_path))
     try:
         cams = {c.camera_id: c for c in db.read_all_cameras()}
+        all_prior = bool(cams) and all(c.has_prior_focal_length for c in cams.values())
         images = {im.image_id: im for im in db.read_all_images()}
         keypoints: dict[int, np.ndarray] = {}
         pair_ids, geometries = db.read_two_view_geometries()
@@ -213,7 +218,7 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
         db.close()
     turns = [t for _, t in best.values()]
     return {"spacing_deg": round(float(np.median(turns)), 1) if turns else None,
-            "focal_from": "model" if camera is not None else "database", "photos": len(images),
+            "focal_from": "model" if camera is not None else ("exif" if all_prior else "database"), "photos": len(images),
             "unmatched": sorted((im.name for i, im in images.items() if i not in best), key=str.lower)}
 
 
@@ -222,7 +227,7 @@ def spacing_advice(spacing: dict, rename: dict[str, str] | None = None) -> str:
     a clause to end an error or warning line with. ``rename`` maps the database's names to the user's photos."""
     parts = []
     deg = spacing.get("spacing_deg")
-    if deg is not None and deg >= SPARSE_SPACING_DEG and spacing.get("focal_from") == "model":
+    if deg is not None and deg >= SPARSE_SPACING_DEG and spacing.get("focal_from") in ("model", "exif"):
         parts.append(f"neighbouring photos are about {deg:.0f} degrees apart (median over the photos of the turn to "
                      "the one each shares the most matches with), too far for mapping, which needs points seen in "
                      "three photos: take one every 10-15 degrees")

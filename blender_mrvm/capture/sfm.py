@@ -96,12 +96,20 @@ class CaptureResult:
                 f"reprojection {self.mean_reprojection_error:.2f}px, {self.matcher} matching; {t}")
 
 
-def _diagnosis(db_path: Path, rec: Any, renamed: dict[str, str], seed: int) -> str:
+def _diagnosis(db_path: Path, rec: Any, renamed: dict[str, str], seed: int, match_db: Path | None = None) -> str:
     """Why a mapping may have left photos out, as a clause for its error line ('' when nothing is found): photos
-    taken too far apart, or photos that match no other (:func:`check.spacing_advice`). A diagnosis that fails says
-    nothing, so the error itself is never lost."""
+    taken too far apart, or photos that match no other (:func:`check.spacing_advice`). The spacing's focal length is
+    the model's (3 photos or more), else the photos' EXIF as ``match_db`` (the database as matching left it) holds
+    it. A diagnosis that fails says nothing, so the error itself is never lost."""
     try:
-        advice = spacing_advice(photo_spacing(db_path, spacing_camera(rec), seed=seed), renamed)
+        camera = spacing_camera(rec)
+        if camera is None and match_db is not None:
+            spacing = photo_spacing(match_db, None, seed=seed)
+        else:
+            spacing = photo_spacing(db_path, camera, seed=seed)
+            if camera is None:
+                spacing["focal_from"] = "database"  # a calibrated database's prior is not the photos' EXIF
+        advice = spacing_advice(spacing, renamed)
     except (ValueError, RuntimeError, OSError):
         return ""
     return f": {advice}" if advice else ""
@@ -623,11 +631,14 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     timings["map"], cpu_timings["map"] = time.perf_counter() - t, time.process_time() - c
     if not recs:
         _write_report(work, names, [], None, timings, tries)
-        # (no model, so no focal length to measure the spacing with: on set G of docs/capture_check/, 17 of 20
-        # rings of photos 40 degrees apart stopped here)
-        raise InputError(f"mapping found no image pair to start from (too little overlap or baseline; photos taken "
-                         f"more than about 20 degrees apart round an object often stop here: take one every 10-15 "
-                         f"degrees){_diagnosis(db_path, None, renamed, cfg.seed)}; database kept in {db_path}")
+        # (no model: the spacing is measured only with the photos' EXIF focal length; without it, the usual cause is
+        # named in words: on set G of docs/capture_check/, 17 of 20 rings of photos 40 degrees apart stopped here)
+        diagnosis = _diagnosis(db_path, None, renamed, cfg.seed, matched if matched.is_file() else None)
+        usual = "" if "degrees apart" in diagnosis else (
+            "; photos taken more than about 20 degrees apart round an object often stop here: take one every 10-15 "
+            "degrees")
+        raise InputError(f"mapping found no image pair to start from (too little overlap or baseline{usual})"
+                         f"{diagnosis}; database kept in {db_path}")
     reg_names = sorted((rec.images[i].name for i in rec.reg_image_ids()), key=natural_key)  # as pycolmap reads them
     reg_photos = [renamed.get(n, n) for n in reg_names]
     model_dir = sparse / str(best_idx)
@@ -639,7 +650,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         missing = [n for n in names if n not in set(reg_photos)]
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise InputError(f"mapping registered only {len(reg_names)} of {len(names)} images (need {need})"
-                         f"{_diagnosis(db_path, rec, renamed, cfg.seed)}; partial model kept in {model_dir}; "
+                         f"{_diagnosis(db_path, rec, renamed, cfg.seed, matched if matched.is_file() else None)}; "
+                         f"partial model kept in {model_dir}; "
                          f"not registered: {shown}")
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
 
