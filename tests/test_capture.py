@@ -154,6 +154,47 @@ def test_the_pose_check_passes_a_right_model_and_flags_a_wrong_one(recovered):
     assert near["suspect"] is False and warning(near) is None
 
 
+def test_far_pairs_do_not_judge_the_directions_or_the_joints(monkeypatch):
+    """RULE.md's sixth rule: a far pair's own direction is loose (in right models of set G, 29 degrees median beyond
+    60 degrees of turn), so the directions' median and the split are judged by the pairs that turn less than
+    NEAR_TURN_DEG; the rotations' median keeps every pair."""
+    from types import SimpleNamespace
+
+    from blender_mrvm.capture import check
+
+    names = [f"{i:03d}.png" for i in range(6)]
+    rec = SimpleNamespace(reg_image_ids=lambda: list(range(6)),
+                          images={i: SimpleNamespace(name=n) for i, n in enumerate(names)})
+
+    def run(pairs):
+        monkeypatch.setattr(check, "pair_angles", lambda *a, **k: list(pairs))
+        return check.pair_pose_check(rec, Path("unused.db"))
+
+    # photos 0-2 and 3-5, each part joined by agreeing neighbours 15 degrees apart
+    inside = [(0.3, 0.4, names[i], names[i + 1], 15.0) for i in (0, 1, 3, 4)]
+    # far pairs (70 degrees) whose directions disagree a lot, one of them the only bridge between the parts
+    far = [(0.5, 25.0, names[0], names[4], 70.0), (0.6, 30.0, names[1], names[5], 70.0),
+           (0.4, 12.0, names[2], names[5], 70.0)]
+    right = run(inside + far)
+    assert right["suspect"] is False and right["near_pairs"] == 4 and right["split_pieces"] == 0
+    assert right["median_direction_deg"] < 1.0  # judged by the 4 near pairs; over all 7 it would be 12
+    # the same pairs turning 30 degrees are judged: the bridge disagrees by 12 (over SPLIT_AGREE_DEG), a wrong joint
+    near = [(r, d, a, b, 30.0) for r, d, a, b, _ in far]
+    wrong = run(inside + near)
+    assert wrong["suspect"] is True and wrong["near_pairs"] == 7 and wrong["split_pieces"] == 1
+    # directions 3 degrees off on most pairs: suspect when those pairs are near, not when they are far
+    skew = [(0.4, 3.0, names[a], names[b], 30.0) for a, b in ((0, 2), (3, 5), (1, 2), (4, 5), (2, 3))]
+    assert run(inside + skew)["median_direction_deg"] == 3.0 and run(inside + skew)["suspect"] is True
+    skew_far = [(r, d, a, b, 70.0) for r, d, a, b, _ in skew]
+    assert run(inside + skew_far)["median_direction_deg"] == 0.4 and run(inside + skew_far)["suspect"] is False
+    # a near bridge disagreeing by 12 degrees (over SPLIT_AGREE_DEG) splits the model even at low medians
+    joint = run(inside + [(0.3, 0.4, names[0], names[2], 30.0), (0.3, 12.0, names[2], names[3], 15.0)])
+    assert joint["split_pieces"] == 1 and joint["suspect"] is True and joint["median_direction_deg"] < 1.0
+    # fewer than 3 near pairs: every pair is judged
+    few = run([(0.3, 0.4, names[0], names[1], 15.0)] + far)
+    assert few["near_pairs"] == 1 and few["median_direction_deg"] > 10 and few["suspect"] is True
+
+
 def test_how_far_apart_the_photos_are_is_measured_and_named_when_too_far(recovered, ring, tmp_path, monkeypatch):
     """RULE.md's fifth rule: the photos' spacing (each photo's turn to the one it shares the most matches with,
     median) from the match database, with the mapping's own focal length; 22.5 degrees or more is named in the
