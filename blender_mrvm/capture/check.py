@@ -76,6 +76,28 @@ def _direction_angle_deg(t_a: np.ndarray, t_b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
+def _pair_pose_estimator(db: Any, seed: int):
+    """``estimate(camera_a, camera_b, a, b, matches)``: a verified pair's own relative pose (pycolmap's estimate, or
+    None) from its inlier matches, the database's keypoints read once per photo."""
+    import pycolmap
+
+    ransac = pycolmap.RANSACOptions()
+    ransac.max_error = 4.0  # pixels; the pairs' inliers were verified at COLMAP's 4 px
+    ransac.min_num_trials = 100  # verified inliers converge at once; COLMAP's floor of 1000 made this 8x slower
+    ransac.random_seed = seed
+    keypoints: dict[int, np.ndarray] = {}
+
+    def points(i: int) -> np.ndarray:
+        if i not in keypoints:
+            keypoints[i] = np.asarray(db.read_keypoints(i))[:, :2].astype(np.float64)
+        return keypoints[i]
+
+    def estimate(camera_a, camera_b, a: int, b: int, matches: np.ndarray):
+        return pycolmap.estimate_relative_pose(camera_a, points(a)[matches[:, 0]], camera_b, points(b)[matches[:, 1]],
+                                               ransac)
+    return estimate
+
+
 def pair_angles(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: int = 0,
                 general_only: bool = True, turns: bool = False) -> list[tuple]:
     """``(rotation, direction, photo a, photo b)`` for every verified pair of placed photos in ``db_path`` (at least
@@ -85,17 +107,13 @@ def pair_angles(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: i
     tuple also ends with the pair's turn in the model (the angle of its relative rotation), in degrees."""
     import pycolmap
 
-    ransac = pycolmap.RANSACOptions()
-    ransac.max_error = 4.0  # pixels; the pairs' inliers were verified at COLMAP's 4 px
-    ransac.min_num_trials = 100  # verified inliers converge at once; COLMAP's floor of 1000 made this 8x slower
-    ransac.random_seed = seed
     placed = set(rec.reg_image_ids())
     cfg = pycolmap.TwoViewGeometryConfiguration
     general = {int(cfg.CALIBRATED), int(cfg.UNCALIBRATED)}
     angles: list[tuple[float, float, str, str]] = []
-    keypoints: dict[int, np.ndarray] = {}
     db = pycolmap.Database.open(Path(db_path))
     try:
+        estimate = _pair_pose_estimator(db, seed)
         pair_ids, geometries = db.read_two_view_geometries()
         for pair_id, geometry in zip(pair_ids, geometries):
             a, b = pycolmap.pair_id_to_image_pair(pair_id)
@@ -104,12 +122,8 @@ def pair_angles(rec: Any, db_path: Path, min_inliers: int = MIN_INLIERS, seed: i
                 continue
             if general_only and int(geometry.config) not in general:
                 continue
-            for i in (a, b):
-                if i not in keypoints:
-                    keypoints[i] = np.asarray(db.read_keypoints(i))[:, :2].astype(np.float64)
             im_a, im_b = rec.images[a], rec.images[b]
-            est = pycolmap.estimate_relative_pose(rec.cameras[im_a.camera_id], keypoints[a][matches[:, 0]],
-                                                  rec.cameras[im_b.camera_id], keypoints[b][matches[:, 1]], ransac)
+            est = estimate(rec.cameras[im_a.camera_id], rec.cameras[im_b.camera_id], a, b, matches)
             if est is None:
                 continue
             pair = est["cam2_from_cam1"]
@@ -195,19 +209,13 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
     only true of a database as extraction and matching left it) or "database" (COLMAP's 1.2 x width guess)."""
     import pycolmap
 
-    from .align import rotation_angle_deg
-
-    ransac = pycolmap.RANSACOptions()
-    ransac.max_error = 4.0
-    ransac.min_num_trials = 100
-    ransac.random_seed = seed
     best: dict[int, tuple[int, float]] = {}  # image id -> (inliers, turn in degrees) of its best-matched pair
     db = pycolmap.Database.open(Path(db_path))
     try:
         cams = {c.camera_id: c for c in db.read_all_cameras()}
         all_prior = bool(cams) and all(c.has_prior_focal_length for c in cams.values())
         images = {im.image_id: im for im in db.read_all_images()}
-        keypoints: dict[int, np.ndarray] = {}
+        estimate = _pair_pose_estimator(db, seed)
         pair_ids, geometries = db.read_two_view_geometries()
         for pair_id, geometry in zip(pair_ids, geometries):
             a, b = pycolmap.pair_id_to_image_pair(pair_id)
@@ -216,12 +224,7 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
                 continue
             if min(best.get(a, (0,))[0], best.get(b, (0,))[0]) >= len(matches):
                 continue  # neither photo's best pair: no pose to estimate
-            for i in (a, b):
-                if i not in keypoints:
-                    keypoints[i] = np.asarray(db.read_keypoints(i))[:, :2].astype(np.float64)
-            est = pycolmap.estimate_relative_pose(camera or cams[images[a].camera_id], keypoints[a][matches[:, 0]],
-                                                  camera or cams[images[b].camera_id], keypoints[b][matches[:, 1]],
-                                                  ransac)
+            est = estimate(camera or cams[images[a].camera_id], camera or cams[images[b].camera_id], a, b, matches)
             if est is None:
                 continue
             turn = rotation_angle_deg(est["cam2_from_cam1"].rotation.matrix())
@@ -236,12 +239,19 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
             "unmatched": sorted((im.name for i, im in images.items() if i not in best), key=str.lower)}
 
 
+def spacing_named(spacing: dict) -> bool:
+    """Whether :func:`photo_spacing` found the photos too far apart with a focal length to trust (the model's or the
+    photos' EXIF): what :func:`spacing_advice` names with a figure."""
+    deg = spacing.get("spacing_deg")
+    return deg is not None and deg >= SPARSE_SPACING_DEG and spacing.get("focal_from") in ("model", "exif")
+
+
 def spacing_advice(spacing: dict, rename: dict[str, str] | None = None) -> str:
     """What a user can do about photos :func:`photo_spacing` found too far apart or unmatched ('' when nothing):
     a clause to end an error or warning line with. ``rename`` maps the database's names to the user's photos."""
     parts = []
     deg = spacing.get("spacing_deg")
-    if deg is not None and deg >= SPARSE_SPACING_DEG and spacing.get("focal_from") in ("model", "exif"):
+    if spacing_named(spacing):
         parts.append(f"neighbouring photos are about {deg:.0f} degrees apart (median over the photos of the turn to "
                      "the one each shares the most matches with), too far for mapping, which needs points seen in "
                      "three photos: take one every 10-15 degrees")

@@ -42,7 +42,7 @@ from ..errors import Cancelled, InputError, OutputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
-from .check import pair_pose_check, photo_spacing, spacing_advice, spacing_camera
+from .check import pair_pose_check, photo_spacing, spacing_advice, spacing_camera, spacing_named
 from .check import warning as check_warning
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
@@ -96,11 +96,13 @@ class CaptureResult:
                 f"reprojection {self.mean_reprojection_error:.2f}px, {self.matcher} matching; {t}")
 
 
-def _diagnosis(db_path: Path, rec: Any, renamed: dict[str, str], seed: int, match_db: Path | None = None) -> str:
-    """Why a mapping may have left photos out, as a clause for its error line ('' when nothing is found): photos
-    taken too far apart, or photos that match no other (:func:`check.spacing_advice`). The spacing's focal length is
-    the model's (3 photos or more), else the photos' EXIF as ``match_db`` (the database as matching left it) holds
-    it. A diagnosis that fails says nothing, so the error itself is never lost."""
+def _diagnosis(db_path: Path, rec: Any, renamed: dict[str, str], seed: int,
+               match_db: Path | None = None) -> tuple[str, bool]:
+    """Why a mapping may have left photos out: a clause for its error line ('' when nothing is found), and whether it
+    names how far apart the photos are. Photos taken too far apart, or photos that match no other
+    (:func:`check.spacing_advice`). The spacing's focal length is the model's (3 photos or more), else the photos'
+    EXIF as ``match_db`` (the database as matching left it) holds it. A diagnosis that fails says nothing, so the
+    error itself is never lost."""
     try:
         camera = spacing_camera(rec)
         if camera is None and match_db is not None:
@@ -111,8 +113,8 @@ def _diagnosis(db_path: Path, rec: Any, renamed: dict[str, str], seed: int, matc
                 spacing["focal_from"] = "database"  # a calibrated database's prior is not the photos' EXIF
         advice = spacing_advice(spacing, renamed)
     except (ValueError, RuntimeError, OSError):
-        return ""
-    return f": {advice}" if advice else ""
+        return "", False
+    return (f": {advice}" if advice else ""), spacing_named(spacing)
 
 
 def natural_key(name: str) -> list:
@@ -629,12 +631,13 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
             guess_db.unlink()
             shutil.rmtree(work / "sparse_guess")
     timings["map"], cpu_timings["map"] = time.perf_counter() - t, time.process_time() - c
+    match_db = matched if matched.is_file() else None  # the database as matching left it: the photos' EXIF priors
     if not recs:
         _write_report(work, names, [], None, timings, tries)
         # (no model: the spacing is measured only with the photos' EXIF focal length; without it, the usual cause is
         # named in words: on set G of docs/capture_check/, 17 of 20 rings of photos 40 degrees apart stopped here)
-        diagnosis = _diagnosis(db_path, None, renamed, cfg.seed, matched if matched.is_file() else None)
-        usual = "" if "degrees apart" in diagnosis else (
+        diagnosis, named = _diagnosis(db_path, None, renamed, cfg.seed, match_db)
+        usual = "" if named else (
             "; photos taken more than about 20 degrees apart round an object often stop here: take one every 10-15 "
             "degrees")
         raise InputError(f"mapping found no image pair to start from (too little overlap or baseline{usual})"
@@ -650,7 +653,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
         missing = [n for n in names if n not in set(reg_photos)]
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise InputError(f"mapping registered only {len(reg_names)} of {len(names)} images (need {need})"
-                         f"{_diagnosis(db_path, rec, renamed, cfg.seed, matched if matched.is_file() else None)}; "
+                         f"{_diagnosis(db_path, rec, renamed, cfg.seed, match_db)[0]}; "
                          f"partial model kept in {model_dir}; "
                          f"not registered: {shown}")
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
