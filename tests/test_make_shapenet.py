@@ -75,3 +75,18 @@ def test_tiny_unseen_set_renders_with_splits_and_part_masks(bpy_empty, tmp_path)
     ids.discard(0)
     assert ids and all(PART_LABELS[i].startswith("chair/") for i in ids)
     assert {str(i) for i in ids} <= set(meta["labels"])
+
+    # --force renders every split again at the new settings (it reached the first split only: the test split's
+    # objects were refused with "use --force" on every rerun)
+    code = main(["make-shapenet", "--setting", "unseen", "--objects-per-category", "1", "--views", "4",
+                 "--resolution", "12", "--samples", "1", "--force", "--out", str(out)])
+    assert code == 0
+    assert json.loads((out / "bench" / "bench_000000" / "meta.json").read_text())["settings"]["resolution"] == [12, 12]
+    assert len(read_split(out, "test")) == 10
+    # Another setting into the same folder: the finished objects move to the splits this plan gives them (they
+    # kept their old split, so the unseen protocol's test categories were trained on, or the other way round)
+    code = main(["make-shapenet", "--setting", "all", "--objects-per-category", "1", "--views", "4",
+                 "--resolution", "12", "--samples", "1", "--out", str(out)])
+    assert code == 0
+    assert len(read_split(out, "train")) == 13 and read_split(out, "test") == []
+    assert json.loads((out / "bench" / "bench_000000" / "meta.json").read_text())["split"] == "train"

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from blender_mrvm.datasets import format as F
+from blender_mrvm.errors import InputError
 from blender_mrvm.geometry import cameras as C
 from blender_mrvm.progress import run_to_end
 from tests.helpers import depth_consistency, write_mesh
@@ -338,6 +339,84 @@ def test_resume_refuses_views_of_a_changed_source(tmp_path, bpy_empty):
     del meta["source_hash"]
     meta_path.write_text(json.dumps(meta))
     assert _render(**kw).views_skipped == 2
+
+
+def test_a_resume_follows_the_run_where_no_pixel_changes(tmp_path, bpy_empty):
+    """The split, the spelling of the mesh's path and float rounding of the settings change no pixel: a finished
+    object resumes (it was refused, and --force deleted its views), and its record follows the run."""
+    from blender_mrvm.datasets.loaders import load_dataset
+
+    mesh = write_mesh(tmp_path / "m" / "thing.ply")
+    kw = dict(out=tmp_path / "d", views=2, resolution=(16, 16), samples=1, fov_deg=40.0)
+    _render(sources=(str(mesh),), split="train", **kw)
+    meta_path = tmp_path / "d" / "custom" / "thing" / "meta.json"
+    respelled = str(tmp_path / "m" / ".." / "m" / "thing.ply")
+    s = _render(sources=(respelled,), split="test", **{**kw, "fov_deg": 39.99999883637168})  # the panel's 40
+    assert (s.views_rendered, s.views_skipped) == (0, 2)
+    meta = json.loads(meta_path.read_text())
+    assert meta["source"] == respelled and meta["split"] == "test"
+    assert F.read_split(tmp_path / "d", "test") == ["custom/thing"] and F.read_split(tmp_path / "d", "train") == []
+    assert any("now in 'test'" in w for w in s.warnings)
+    # an object of the split started after the lists were written (an interrupted run, a failed shard) is found
+    other = tmp_path / "d" / "custom" / "other"
+    shutil.copytree(meta_path.parent, other)
+    (other / "meta.json").write_text(json.dumps({**meta, "object_id": "other", "complete": False}))
+    with pytest.raises(InputError, match="half-rendered.*custom/other"):
+        load_dataset(tmp_path / "d", "test")
+
+
+def test_scene_cameras_and_selected_materials_are_part_of_what_views_were_rendered_from(tmp_path, bpy_empty):
+    """Another set of scene cameras is another dataset, and a selected object's changed material makes its views
+    stale: both resumed before, mixing views of the two (or keeping the old ones whole)."""
+    import bpy
+
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.camera import apply_pose, new_camera
+
+    scene = bpy_empty
+    bpy.ops.mesh.primitive_monkey_add()
+    monkey = bpy.context.active_object
+    mat = _material("paint")
+    monkey.data.materials.append(mat)
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Base Color"].default_value = (0.8, 0.1, 0.1, 1.0)
+    cams = []
+    for k, eye in enumerate([(6, 1, 2), (1, 6, 1)]):
+        cams.append(new_camera(f"Cam{k}", scene.collection))
+        apply_pose(cams[-1], C.look_at_opencv(eye, target=(0.0, 0.0, 0.0)))
+    kw = dict(out=tmp_path / "d", sources=("selected",), rig="scene", resolution=(16, 16), samples=1)
+    _render(**kw)
+    assert _render(**kw).views_skipped == 2, "nothing changed: resumed"
+    apply_pose(cams[1], C.look_at_opencv((1, 6, 3), target=(0.0, 0.0, 0.0)))
+    with pytest.raises(OutputError, match="other settings.*scene_cameras"):
+        _render(**kw)
+    apply_pose(cams[1], C.look_at_opencv((1, 6, 1), target=(0.0, 0.0, 0.0)))
+    assert _render(**kw).views_skipped == 2, "the same cameras again"
+    bsdf.inputs["Base Color"].default_value = (0.1, 0.1, 0.8, 1.0)
+    with pytest.raises(OutputError, match="materials"):
+        _render(**kw)
+    s = _render(**kw, force=True)
+    assert s.views_rendered == 2
+    # a dataset rendered before either was kept still resumes
+    root, obj = tmp_path / "d" / F.ROOT_MANIFEST, tmp_path / "d" / "custom" / "Suzanne" / "meta.json"
+    for path in (root, obj):
+        rec = json.loads(path.read_text())
+        del rec["settings"]["scene_cameras"]
+        rec.pop("appearance_hash", None)
+        path.write_text(json.dumps(rec))
+    assert _render(**kw).views_skipped == 2
+
+
+def test_shards_starting_into_one_new_folder_do_not_refuse_each_other(tmp_path):
+    """The other shard's write probe or half-written manifest in a new folder is not 'another dataset's files'."""
+    from blender_mrvm.scene.render import RenderConfig, prepare_output
+
+    out = tmp_path / "d"
+    out.mkdir()
+    (out / ".write-test-abc123").write_text("")
+    (out / f".{F.ROOT_MANIFEST}.x1y2.json").write_text("{")
+    prepare_output(RenderConfig(out=out, sources=("procedural:chair:0",), shard=(1, 2)))
+    assert (out / F.ROOT_MANIFEST).is_file()
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "1e30"])

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 UNSEEN_TRAIN = ("airplane", "car", "chair")
@@ -146,16 +147,17 @@ def render_configs(args) -> list[tuple[str, object]]:
     shard = parse_shard(args.shard)
     cams = camera_settings(args)
     groups = plan(args.setting, args.objects_per_category, args.seed)
-    out, force, cfgs = Path(args.out), args.force, []
+    out, cfgs = Path(args.out), []
     for split, sources in groups.items():
         if not sources:
             continue
+        # --force for every group: each split's objects rendered with other settings are rendered again (the
+        # first group's run has claimed the folder; objects already rendered with these settings are kept)
         cfg = RenderConfig(out=out, sources=tuple(sources), views=args.views,
                            resolution=(args.resolution, args.resolution), engine=args.engine, samples=args.samples,
-                           seed=args.seed, shard=shard, force=force, split=split, **cams)
+                           seed=args.seed, shard=shard, force=args.force, split=split, **cams)
         cfg.validate()
         cfgs.append((split, cfg))
-        force = False  # the first group has claimed (or been allowed into) the folder
     return cfgs
 
 
@@ -173,7 +175,8 @@ def protocol_rig(cams: dict) -> dict:
 def run(args) -> int:
     from ..datasets import format as F
     from ..progress import run_with_tqdm
-    from ..scene.render import render_dataset
+    from ..scene.objects import resolve_sources
+    from ..scene.render import render_dataset, write_splits
 
     cams = camera_settings(args)
     cfgs = render_configs(args)
@@ -184,6 +187,16 @@ def run(args) -> int:
     for split, cfg in cfgs:
         summary = run_with_tqdm(render_dataset(cfg), desc=f"{args.setting}/{split}", unit="view")
         total_views += summary.views_rendered
+        for w in summary.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+    # The splits are this plan's objects: objects of an earlier plan in the same folder (more objects a category,
+    # another setting) stay on disk but out of the lists, so the protocol's categories hold
+    planned = {spec.key for spec in resolve_sources(tuple(sum(groups.values(), [])), None, [])}
+    lists = write_splits(out, only=planned)
+    others = sum(1 for p in out.glob("*/*/meta.json")) - sum(len(v) for v in lists.values())
+    if others > 0:
+        print(f"note: {others} object folder(s) in {out} are not part of this plan (an earlier run's, or not "
+              "finished yet in another shard) and are left out of the split lists", file=sys.stderr)
     splits_dir = out / "splits"
     splits_dir.mkdir(parents=True, exist_ok=True)
     test_ids = F.read_split(out, "test") if (splits_dir / "test.lst").exists() else []

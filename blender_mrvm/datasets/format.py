@@ -21,6 +21,7 @@ temporary name and renamed, and the pose (written last) is the view's commit poi
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -441,3 +442,33 @@ def read_object(obj_dir: Path) -> ObjectViews:
     poses = [read_srn_pose(view_paths(obj_dir, i)["pose"]) for i in idx]
     per_view = [by_view.get(i, intr) for i in idx]
     return ObjectViews(obj_dir, meta, intr, poses, idx, per_view)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What makes two renders of an object one dataset (render-dataset's resume and overwrite checks, the loaders)
+# ---------------------------------------------------------------------------------------------------------------
+
+SETTINGS_ADDED_LATER = ("scene_cameras",)
+"""Settings that newer versions record: a dataset rendered before one was kept (its settings lack it) still resumes."""
+
+
+def _same_setting(a, b) -> bool:
+    """Equal, numbers to float rounding (the panel's angles are float32: 40 degrees reads 39.99999883637168; a scene
+    camera's pose read again moves by ~1e-7)."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same_setting(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return (isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool)
+                and not isinstance(b, bool) and math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-5))
+    return a == b
+
+
+def differing_settings(old: dict, new: dict) -> list[str]:
+    """The keys whose values differ between a dataset's recorded settings and this run's (:func:`settings_match`)."""
+    return [k for k in sorted(set(old) | set(new))
+            if not (k in SETTINGS_ADDED_LATER and k not in old) and not _same_setting(old.get(k), new.get(k))]
+
+
+def settings_match(old, new: dict) -> bool:
+    """Whether views rendered with the recorded settings ``old`` belong with this run's ``new`` ones."""
+    return isinstance(old, dict) and not differing_settings(old, new)

@@ -335,6 +335,22 @@ def unfinished_objects(root: Path, split: str) -> tuple[list[str], int]:
     entries = F.read_split(root, split)
     dirs = {f"{p.parent.parent.name}/{p.parent.name}": p.parent for p in root.glob("*/*/meta.json")}
     names = entries or sorted(dirs)
+    if entries:  # objects of this split started after the lists were written (an interrupted run, a failed shard)
+        try:
+            settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
+        except (OSError, ValueError, AttributeError):
+            settings = None
+        listed = set(entries)
+        for key, d in sorted(dirs.items()):
+            if key in listed:
+                continue
+            try:
+                meta = json.loads((d / "meta.json").read_text())
+            except (OSError, ValueError):
+                continue
+            if (isinstance(meta, dict) and meta.get("split") == split and meta.get("complete") is False
+                    and F.settings_match(meta.get("settings"), settings or {})):
+                names = [*names, key]
     bad = []
     for e in names:
         d = dirs.get(e) or next((v for k, v in dirs.items() if k.split("/")[1] == e), None)

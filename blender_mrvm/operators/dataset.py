@@ -39,8 +39,14 @@ def config_from_props(context) -> "RenderConfig":  # noqa: F821
         raise MRVMError("save the .blend first or choose an absolute output folder (// is relative to the .blend)")
     return RenderConfig(out=Path(bpy.path.abspath(out)), sources=sources, rig=p.rig, views=p.views,
                         resolution=(p.resolution, p.resolution), engine=p.engine, samples=p.samples,
-                        rgba=p.rgba, fov_deg=math.degrees(p.fov), elevation_deg=math.degrees(p.elevation),
+                        rgba=p.rgba, fov_deg=_degrees(p.fov), elevation_deg=_degrees(p.elevation),
                         seed=p.seed, force=p.force, skip_bad_meshes=p.source == "PATH" and p.skip_bad_meshes)
+
+
+def _degrees(angle: float) -> float:
+    """A float32 angle property in degrees as typed: 40 degrees, not 39.99999883637168 (the dataset's settings read
+    the same from the panel and the CLI)."""
+    return round(math.degrees(angle), 5)
 
 
 class MRVM_OT_render_dataset(ProgressOperator, bpy.types.Operator):

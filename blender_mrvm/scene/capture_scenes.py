@@ -336,7 +336,7 @@ def _render_scene(cfg: CaptureConfig, k: int, scene_id: str, split: str, tmpdir:
             old = json.loads(meta_path.read_text())
         except ValueError:
             old = {}
-        if old.get("settings") == settings and old.get("complete") and \
+        if F.settings_match(old.get("settings"), settings) and old.get("complete") and \
                 all(view_intact(obj_dir, v) for v in range(old.get("n_views", -1))):
             for v in range(old["n_views"]):
                 summary.views_skipped += 1

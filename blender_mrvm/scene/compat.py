@@ -8,7 +8,8 @@ between 4.2 and 5.0; each one has a helper here, so the rest of the code is writ
 - an image format has a ``media_type`` to set before its file format only from 5.0 (:func:`set_file_format`);
 - a multi-layer EXR holds one part per pass from 5.0, and one part with ``layer.pass.channel`` names before
   (:func:`exr_passes`);
-- new materials and worlds have a node tree from 5.0, and none before (:func:`node_tree`).
+- new materials and worlds have a node tree from 5.0, and none before (:func:`node_tree`), and ``use_nodes`` is
+  deprecated in 5.0 (:func:`uses_nodes`).
 
 ``tests/test_blender_versions.py`` runs under any of them; ``make test-blender BPY=4.2.23`` runs the Blender tests
 against another Blender (docs/blender_versions.md).
@@ -64,6 +65,16 @@ def exr_passes(parts: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, n
 
 # Blender < 5.0's short EXR names of passes -> 5.0's.
 _PASS_NAMES = {"IndexOB": "Object Index", "IndexMA": "Material Index"}
+
+
+def uses_nodes(idblock) -> bool:
+    """Whether a material or world renders from its node tree: always from 5.0 (``use_nodes`` is deprecated there,
+    and reading it warns), where ``use_nodes`` says before."""
+    import bpy
+
+    if bpy.app.version >= (5, 0, 0):
+        return idblock.node_tree is not None
+    return bool(idblock.use_nodes)
 
 
 def node_tree(idblock):

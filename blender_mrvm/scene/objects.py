@@ -1305,7 +1305,8 @@ def source_fingerprint(spec: ObjectSpec) -> str:
 
     Mesh files: their bytes (and an OBJ's material libraries beside it); inside a zip archive, the archive's bytes.
     Procedural objects: the
-    full generator parameters. Selected objects: their evaluated geometry, placement and materials.
+    full generator parameters. Selected objects: their evaluated geometry, placement and material names (their
+    materials themselves, UVs and colours: :func:`appearance_fingerprint`).
     """
     import hashlib
 
@@ -1339,6 +1340,101 @@ def source_fingerprint(spec: ObjectSpec) -> str:
                 h.update(co.tobytes() + lv.tobytes())
                 h.update(repr([m.name if m else "" for m in me.materials]).encode())
             h.update(np.array(src.matrix_world, dtype=np.float32).tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+_NODE_LAYOUT = frozenset({"location", "location_absolute", "width", "height", "dimensions", "select", "hide",
+                          "show_options", "show_preview", "show_texture", "label", "color", "use_custom_color",
+                          "warning_propagation", "color_tag", "bl_description", "bl_icon", "bl_label", "bl_idname",
+                          "bl_static_type", "bl_width_default", "bl_width_min", "bl_width_max", "bl_height_default",
+                          "bl_height_min", "bl_height_max", "type", "name", "rna_type"})
+"""Node properties that place or label a node in the editor and change no render."""
+
+
+def _plain(v):
+    """An RNA value as plain, hashable data (arrays and matrices as nested tuples)."""
+    if isinstance(v, (str, int, float, bool)) or v is None:
+        return v
+    try:
+        return tuple(_plain(x) for x in v)
+    except TypeError:
+        return repr(v)
+
+
+_NOT_LOOKS = frozenset({"paint_active_slot", "paint_clone_slot", "preview_render_type", "use_preview_world",
+                        "use_nodes"})
+"""Material properties of the editor (texture painting, the preview sphere) that change no render, and ``use_nodes``
+(read through ``compat.uses_nodes``: deprecated in 5.0)."""
+
+
+def _rna_values(struct) -> list:
+    """``struct``'s own settings: (name, value) of its properties that are plain values (not links to other data),
+    without an ID's bookkeeping (users, session ids: they differ between sessions and copies)."""
+    skip = _NODE_LAYOUT | _NOT_LOOKS | {p.identifier for p in bpy.types.ID.bl_rna.properties}
+    out = []
+    for prop in struct.bl_rna.properties:
+        pid = prop.identifier
+        if pid in skip or prop.type in ("POINTER", "COLLECTION"):
+            continue
+        try:
+            out.append((pid, _plain(getattr(struct, pid))))
+        except (AttributeError, TypeError, RuntimeError):
+            continue
+    return out
+
+
+def _material_description(mat, seen: set[int]) -> list:
+    """What a material renders from: its settings, and its node tree's nodes, their settings and inputs, and the
+    links between them (node groups followed; the image files are :func:`rendered_images_fingerprint`'s)."""
+    if mat is None:
+        return [None]
+    desc: list = [mat.name, _rna_values(mat)]
+
+    def tree(t):
+        if t is None or t.as_pointer() in seen:
+            return
+        seen.add(t.as_pointer())
+        for n in sorted(t.nodes, key=lambda n: n.name):
+            img = getattr(n, "image", None)
+            desc.append((n.name, n.bl_idname, _rna_values(n), img.name if img is not None else None,
+                         [(i.identifier, _plain(getattr(i, "default_value", None))) for i in n.inputs]))
+            if getattr(n, "node_tree", None) is not None:
+                desc.append(("group", n.name, n.node_tree.name))
+                tree(n.node_tree)
+        desc.append(sorted((lk.from_node.name, lk.from_socket.identifier, lk.to_node.name, lk.to_socket.identifier,
+                            lk.is_muted) for lk in t.links))
+
+    desc.append(compat.uses_nodes(mat))
+    tree(mat.node_tree if compat.uses_nodes(mat) else None)
+    return desc
+
+
+def appearance_fingerprint(spec: ObjectSpec) -> str | None:
+    """Selected objects' looks beyond their geometry, as a hash: their materials (settings, node trees), UV maps,
+    colour attributes and object colour; ``None`` for other sources, whose files hold all of it
+    (:func:`source_fingerprint`). Kept beside it so datasets rendered before it was kept still resume."""
+    if spec.kind != "selected":
+        return None
+    import hashlib
+
+    h = hashlib.sha256()
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    seen: set[int] = set()
+    for name in spec.names:
+        src = bpy.data.objects.get(name)
+        if src is None:
+            raise InputError(f"object {name!r} no longer exists")
+        h.update(repr([(slot.link, _material_description(slot.material, seen)) for slot in src.material_slots]
+                      + [_plain(src.color)]).encode())
+        with evaluated_mesh(src.evaluated_get(depsgraph)) as me:
+            for uv in me.uv_layers:
+                a = np.empty(len(uv.data) * 2, dtype=np.float32)
+                uv.data.foreach_get("uv", a)
+                h.update(uv.name.encode() + b"\0" + a.tobytes())
+            for attr in getattr(me, "color_attributes", ()):
+                a = np.empty(len(attr.data) * 4, dtype=np.float32)
+                attr.data.foreach_get("color", a)
+                h.update(attr.name.encode() + attr.domain.encode() + b"\0" + a.tobytes())
     return "sha256:" + h.hexdigest()
 
 

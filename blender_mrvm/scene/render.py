@@ -34,7 +34,7 @@ import tempfile
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import bpy
@@ -104,6 +104,9 @@ class RenderConfig:
     """Skip a mesh file that cannot be read or is refused (no faces, NaN coordinates, ...) and go on with the next,
     naming it in the summary's warnings, instead of stopping at it (a folder of thousands of meshes). Not a
     dataset setting: it changes no render."""
+    scene_cameras: tuple | None = None
+    """The scene rig's cameras (names, intrinsics at the dataset's resolution, poses: ``_cameras_record``), which
+    ``render_dataset`` fills in from the scene: another set of cameras is another dataset. Not a user option."""
 
     def validate(self) -> None:
         w, h = self.resolution
@@ -154,6 +157,8 @@ class RenderConfig:
              "rgba": self.rgba, "fov_deg": self.fov_deg,
              "elevation_deg": self.elevation_deg if self.rig == "turntable" else None,
              "seed": self.seed}
+        if self.rig == "scene" and self.scene_cameras is not None:
+            d["scene_cameras"] = [list(c) for c in self.scene_cameras]
         if self.fov_range_deg is not None:  # only then: settings of earlier datasets stay byte-identical
             d.update({"fov_range_deg": list(self.fov_range_deg), "distance_range": list(self.distance_range),
                       "camera_seed": "per object"})
@@ -183,8 +188,16 @@ class RenderSummary:
 # --------------------------------------------------------------------------------------------
 
 def _settings_diff(a: dict, b: dict) -> str:
-    keys = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
-    return ", ".join(f"{k} {a.get(k)} != {b.get(k)}" for k in keys[:3])
+    def value(v, k):
+        return f"{len(v)} cameras" if k == "scene_cameras" and isinstance(v, list) else v
+
+    return ", ".join(f"{k} {value(a.get(k), k)} != {value(b.get(k), k)}" for k in F.differing_settings(a, b)[:3])
+
+
+def _own_temporary(name: str) -> bool:
+    """A file this code writes for a moment in a dataset root: the write probe, the manifest's atomic write (another
+    shard starting into the same new folder at the same time has them there)."""
+    return name.startswith((".write-test-", f".{F.ROOT_MANIFEST}."))
 
 
 def prepare_output(cfg: RenderConfig) -> None:
@@ -206,11 +219,11 @@ def prepare_output(cfg: RenderConfig) -> None:
             old = json.loads(manifest.read_text())
         except (OSError, ValueError):
             old = {}
-        if old.get("settings") != settings and not cfg.force:
+        if not F.settings_match(old.get("settings"), settings) and not cfg.force:
             raise OutputError(f"{out} holds a dataset rendered with other settings "
-                              f"({_settings_diff(old.get('settings', {}), settings)}); "
+                              f"({_settings_diff(old.get('settings') or {}, settings)}); "
                               "use --force to overwrite it or choose another folder")
-    elif any(p.name != F.ROOT_MANIFEST for p in out.iterdir()) and not cfg.force:
+    elif any(p.name != F.ROOT_MANIFEST and not _own_temporary(p.name) for p in out.iterdir()) and not cfg.force:
         raise OutputError(f"{out} is not empty and holds no blender_mrvm dataset; "
                           "use --force to write into it or choose an empty folder")
     F.atomic_write_json(manifest, {"format": "blender_mrvm dataset", "format_version": F.FORMAT_VERSION,
@@ -230,9 +243,9 @@ def assign_split(cfg: RenderConfig, key: str) -> str:
     return "train" if u < tr else ("val" if u < tr + va else "test")
 
 
-def write_splits(root: Path, settings: dict | None = None) -> dict[str, list[str]]:
+def write_splits(root: Path, settings: dict | None = None, only: set[str] | None = None) -> dict[str, list[str]]:
     """Rewrite ``splits/*.lst`` from the finished objects on disk that match ``settings`` (default: the
-    root manifest's)."""
+    root manifest's); ``only``: of these objects (``category/object_id``) alone."""
     root = Path(root)
     if settings is None:
         settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
@@ -242,8 +255,10 @@ def write_splits(root: Path, settings: dict | None = None) -> dict[str, list[str
             meta = json.loads(meta_path.read_text())
         except ValueError:
             continue
-        if meta.get("complete") and meta.get("settings") == settings and meta.get("split") in splits:
-            splits[meta["split"]].append(f"{meta['category']}/{meta['object_id']}")
+        key = f"{meta.get('category')}/{meta.get('object_id')}"
+        if (meta.get("complete") and F.settings_match(meta.get("settings"), settings) and meta.get("split") in splits
+                and (only is None or key in only)):
+            splits[meta["split"]].append(key)
     for s, entries in splits.items():
         F.write_split(root, s, entries)
     return splits
@@ -495,6 +510,16 @@ class _Writer:
 # Cameras of an object
 # --------------------------------------------------------------------------------------------
 
+def _cameras_record(scene_cams: list[tuple[C.Intrinsics, np.ndarray, str]]) -> tuple:
+    """The scene rig's cameras as the dataset's settings record them: per camera its name, intrinsics at the dataset's
+    resolution (fx, fy, cx, cy, width, height) and pose (the top 3 rows of camera-to-world), to 6 decimals. Numbers,
+    not a hash: a camera read again after Blender evaluates the scene moves by ~1e-7, which settings comparisons
+    allow (``format.settings_match``) and a hash would not."""
+    return tuple((name, *(round(float(x), 6) + 0.0 for x in [intr.fx, intr.fy, intr.cx, intr.cy, intr.width,
+                                                               intr.height, *np.asarray(c2w)[:3].ravel()]))
+                 for intr, c2w, name in scene_cams)
+
+
 def _scene_cameras(user_scene: bpy.types.Scene, cfg: RenderConfig) -> list[tuple[C.Intrinsics, np.ndarray, str]]:
     cams = sorted((o for o in user_scene.objects if o.type == "CAMERA"), key=lambda o: o.name)
     if not cams:
@@ -576,7 +601,9 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
     passed_over: list[str] = []
     specs = shard_specs(O.resolve_sources(tuple(cfg.sources), cfg.category, passed_over), cfg.shard)
     scene_cams = _scene_cameras(user_scene, cfg) if cfg.rig == "scene" else None
-    fresh = not Path(cfg.out).exists()
+    if scene_cams is not None:
+        cfg = replace(cfg, scene_cameras=_cameras_record(scene_cams))
+    fresh = not Path(cfg.out).exists() and cfg.shard[1] == 1  # (another shard may be starting into it too)
     prepare_output(cfg)
     n_views = len(scene_cams) if scene_cams else cfg.views
     total = len(specs) * n_views
@@ -627,25 +654,37 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     meta_path = obj_dir / "meta.json"
     source_hash = O.source_fingerprint(spec)
     linked_hash = O.linked_files_fingerprint(spec)
+    looks_hash = O.appearance_fingerprint(spec)
     old = None
     if meta_path.exists():
         try:
             old = json.loads(meta_path.read_text())
         except ValueError:
             old = {}
-        if old.get("settings") != settings or old.get("source") != spec.describe():
+        # the same source: as described, or the same bytes under another spelling of its path (relative, absolute,
+        # from another folder: a resume from the panel of a render started in a shell)
+        same_source = old.get("source") == spec.describe() or (
+            spec.kind == "file" and old.get("source_hash") == source_hash and old.get("category") == spec.category)
+        if not F.settings_match(old.get("settings"), settings) or not same_source:
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds another render of {spec.key} "
                                   f"({old.get('source')}); use --force to overwrite it")
             shutil.rmtree(obj_dir)
         elif (old.get("source_hash") not in (None, source_hash)  # None: rendered before hashes were kept
-              or old.get("linked_files_hash") not in (None, linked_hash)):
+              or old.get("linked_files_hash") not in (None, linked_hash)
+              or old.get("appearance_hash") not in (None, looks_hash)):
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} as it was before it changed "
-                                  "(its content, or a texture, buffer or linked .blend file it names, differs from "
-                                  "what they were rendered from); use --force to render it again")
+                                  "(its content, its materials, or a texture, buffer or linked .blend file it names, "
+                                  "differs from what they were rendered from); use --force to render it again")
             shutil.rmtree(obj_dir)
         elif old.get("complete") and all(view_intact(obj_dir, i) for i in range(old.get("n_views", -1))):
+            update = {"split": assign_split(cfg, spec.key), "source": spec.describe()}
+            if any(old.get(k) != v for k, v in update.items()):  # neither changes a pixel: the record follows the run
+                if old.get("split") != update["split"]:
+                    summary.warnings.append(f"{spec.key}: finished before in split {old.get('split')!r}, now in "
+                                            f"{update['split']!r} as this run assigns")
+                F.atomic_write_json(meta_path, {**old, **update})
             for i in range(old["n_views"]):
                 summary.views_skipped += 1
                 yield f"{spec.key}: view {i + 1}/{old['n_views']} (done before)"
@@ -747,6 +786,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             "category": spec.category, "object_id": spec.object_id, "source": spec.describe(),
             "source_hash": source_hash,
             **({"linked_files_hash": linked_hash} if linked_hash is not None else {}),
+            **({"appearance_hash": looks_hash} if looks_hash is not None else {}),
             "rendered_images_hash": images_hash,  # None: its materials read no image file
             "split": split, "settings": settings, "n_views": len(poses), "complete": False,
             "normalization": {"matrix": norm.tolist(), "scale": float(norm[0, 0]),
