@@ -563,9 +563,7 @@ def test_opacity_loss_by_default_on_our_renders(tmp_path, data):
     assert t.opacity_weight == OPACITY_WEIGHT == 0.1
     _, t = load_run_config(cfg, {"data": str(tmp_path / "srn_like"), "out_dir": str(tmp_path / "new")})
     assert t.opacity_weight == 0.0  # not our format: no masks to learn from
-    old = tmp_path / "old"
-    old.mkdir()
-    (old / "config.json").write_text(json.dumps({"train": {"opacity_weight": 0.0}}))
+    old = _holds_run(tmp_path / "old", {"opacity_weight": 0.0})
     _, t = load_run_config(cfg, {"data": str(root), "out_dir": str(old)})
     assert t.opacity_weight == 0.0  # resumes as it began
     cfg.write_text(json.dumps({"train": {"iterations": 2, "opacity_weight": 0.5}}))
@@ -725,9 +723,7 @@ def test_a_fine_tune_can_keep_the_losses_its_checkpoint_was_trained_with(tmp_pat
     own = load_run_config(tmp_path / "own.json")[1]
     assert own.depth_weight == 0.0 and own.lpips_weight == 1.0
     # a run folder begun without them (its config.json) resumes as it began
-    (tmp_path / "old").mkdir()
-    (tmp_path / "old" / "config.json").write_text(json.dumps({"model": {}, "train": {"lpips_weight": 0.0,
-                                                                                     "depth_weight": 0.0}}))
+    _holds_run(tmp_path / "old", {"lpips_weight": 0.0, "depth_weight": 0.0})
     t = cfg(ours, out="old")
     assert t.lpips_weight == 0.0 and t.depth_weight == 0.0
     # a new run has no checkpoint to keep the losses of; a checkpoint that cannot be read gives nothing
@@ -739,3 +735,150 @@ def test_a_fine_tune_can_keep_the_losses_its_checkpoint_was_trained_with(tmp_pat
     (tmp_path / "bad.json").write_text(json.dumps({"train": {"keep_init_losses": "yes"}}))
     with pytest.raises(InputError, match="keep_init_losses"):
         load_run_config(tmp_path / "bad.json")
+
+
+def _holds_run(folder: Path, train: dict) -> Path:
+    """A run folder that holds a run (metrics) whose config.json recorded ``train``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.json").write_text(json.dumps({"model": {}, "train": train}))
+    (folder / "metrics.jsonl").write_text(json.dumps({"step": 1, "loss": 0.5}) + "\n")
+    return folder
+
+
+def test_a_run_started_over_takes_nothing_from_the_run_it_replaces(tmp_path, data):
+    """`train --no-resume --force` (the panel's "Replace the run") starts a new run: its opacity and kept losses are
+    a new run's (the default, the checkpoint's), never those the replaced run recorded; a folder that holds no run
+    (a config.json alone) gives nothing either. Resuming keeps what the run recorded."""
+    from blender_mrvm.cli import main
+    from blender_mrvm.training.config import OPACITY_WEIGHT
+
+    root, _ = data
+    old = _holds_run(tmp_path / "old", {"opacity_weight": 0.0, "lpips_weight": 0.0, "depth_weight": 0.0})
+    over = {"data": str(root), "out_dir": str(old)}
+    assert load_run_config(None, over)[1].opacity_weight == 0.0  # resumes as it began
+    assert load_run_config(None, over, resume=False)[1].opacity_weight == OPACITY_WEIGHT
+    keep = {**over, "init_checkpoint": "shipped", "keep_init_losses": True, "iterations": 100}
+    t = load_run_config(None, keep)[1]
+    assert t.lpips_weight == 0.0 and t.depth_weight == 0.0  # the run's own
+    t = load_run_config(None, keep, resume=False)[1]
+    assert t.lpips_weight == 1.0 and t.depth_weight == 0.1  # the shipped checkpoint's
+    (old / "metrics.jsonl").unlink()  # a config.json alone: no run to continue
+    assert load_run_config(None, over)[1].opacity_weight == OPACITY_WEIGHT
+    # through the command line: a run begun without the opacity loss, started over with a config naming none
+    cfg = tmp_path / "c.json"
+    tiny = {"preset": "fast", "overrides": TINY}
+    small = {"iterations": 1, "rays_per_object": 16, "objects_per_step": 1, "threads": 1, "max_ref_views": 2}
+    cfg.write_text(json.dumps({"model": tiny, "train": {**small, "opacity_weight": 0.0}}))
+    run = ["train", "--data", str(root), "--out", str(tmp_path / "a")]
+    assert main([*run, "--config", str(cfg)]) == 0
+    cfg.write_text(json.dumps({"model": tiny, "train": small}))
+    assert main([*run, "--config", str(cfg), "--no-resume", "--force"]) == 0
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["train"]["opacity_weight"] == OPACITY_WEIGHT
+
+
+def test_a_resume_with_a_damaged_config_json_keeps_the_losses_it_began_with(tmp_path, data, monkeypatch):
+    """config.json is written atomically; when it is damaged or gone anyway, a resumed run takes what it began with
+    from its newest checkpoint's train_config (never 0 for the opacity loss, nor the kept losses dropped); with
+    neither readable, the defaults of a new run."""
+    from blender_mrvm.cli import main
+    from blender_mrvm.models.model import GeneralizableNeRF
+    from blender_mrvm.training import trainer
+    from blender_mrvm.training.config import OPACITY_WEIGHT
+
+    root, _ = data
+    run = tmp_path / "run"
+    began = {"opacity_weight": 0.3, "lpips_weight": 0.0, "depth_weight": 0.05}
+    mcfg = model_config("fast", TINY)
+    ckpt.save_checkpoint(run, 1, GeneralizableNeRF(mcfg), mcfg, None, {"train_config": json.dumps(began)})
+    _holds_run(run, began)
+    keep = {"data": str(root), "out_dir": str(run), "init_checkpoint": "shipped", "keep_init_losses": True}
+    for damage in ("", "{\"model\": {}, \"tr", None):
+        if damage is None:
+            (run / "config.json").unlink()
+        else:
+            (run / "config.json").write_text(damage)
+        t = load_run_config(None, keep)[1]
+        assert (t.opacity_weight, t.lpips_weight, t.depth_weight) == (0.3, 0.0, 0.05), damage
+    (run / "config.json").write_text("")
+    for ck in (run / "checkpoints").glob("step_*"):
+        (ck / ckpt.MODEL_FILE).write_bytes(b"torn")
+    t = load_run_config(None, keep)[1]
+    assert t.opacity_weight == OPACITY_WEIGHT and t.lpips_weight == 1.0  # a new run's: the default, the shipped's
+    # end to end: 1 step, config.json emptied, resumed to 2: the opacity loss is still trained
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"model": {"preset": "fast", "overrides": TINY},
+                               "train": {"rays_per_object": 16, "objects_per_step": 1, "threads": 1,
+                                         "max_ref_views": 2, "log_every": 1}}))
+    written = []
+    real = trainer.atomic_write_text
+    monkeypatch.setattr(trainer, "atomic_write_text", lambda p, text: (written.append(Path(p).name), real(p, text)))
+    e = ["train", "--config", str(cfg), "--data", str(root), "--out", str(tmp_path / "e")]
+    assert main([*e, "--iterations", "1"]) == 0
+    assert written == ["config.json"]  # never a torn file
+    (tmp_path / "e" / "config.json").write_text("")
+    assert main([*e, "--iterations", "2"]) == 0
+    assert json.loads((tmp_path / "e" / "config.json").read_text())["train"]["opacity_weight"] == OPACITY_WEIGHT
+    lines = [json.loads(x) for x in (tmp_path / "e" / "metrics.jsonl").read_text().splitlines()]
+    assert [x["step"] for x in lines] == [1, 2] and lines[1]["opacity"] > 0
+
+
+def test_model_kind_with_init_fine_tunes_the_checkpoints_own_model(tmp_path, data):
+    """`--model gpnr --init X` (or a model section naming only its kind and overrides) fine-tunes X's own model
+    config, as without --model, not the kind's default preset; a kind that is not the checkpoint's is an
+    InputError naming it."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models import registry
+
+    root, _ = data
+    own = registry.build_config("gpnr", "balanced", {"n_samples": 12, "depth_spacing": "linear"})
+    ckpt.save_checkpoint(tmp_path / "gb", 1, registry.build_model(own, load_pretrained=False), own, None)
+    over = {"data": str(root), "out_dir": str(tmp_path / "ft"), "init_checkpoint": str(tmp_path / "gb")}
+    assert load_run_config(None, over)[0] == own
+    assert load_run_config(None, over, kind="gpnr")[0] == own
+    assert load_run_config(None, over, kind="GPNR")[0] == own  # (an alias or another spelling of the kind)
+    p = tmp_path / "run.json"
+    p.write_text(json.dumps({"model": {"kind": "gpnr", "overrides": {"near": 0.3}}}))
+    m = load_run_config(p, over)[0]
+    assert m == replace(own, near=0.3)
+    with pytest.raises(InputError, match=r"--model nerformer_mrvm names a nerformer_mrvm model, but init_checkpoint "
+                                         r".* holds a gpnr model; drop --model"):
+        load_run_config(None, over, kind="nerformer_mrvm")
+    p.write_text(json.dumps({"model": {"kind": "nerformer_mrvm"}}))
+    with pytest.raises(InputError, match="the config's model section .* holds a gpnr model"):
+        load_run_config(p, over)
+    assert load_run_config(None, over, kind="gpnr", preset="fast")[0].name == "fast"  # a preset named: that one
+
+
+def test_min_ref_views_above_an_objects_views_is_refused_before_training(tmp_path, data):
+    """An object with no more views than train.min_ref_views cannot give that many references and a target: the run
+    is refused naming it (not numpy's 'low >= high' at the first draw, after config.json and metrics.jsonl were
+    written). train.ref_views_per 'step' documents that such an object takes what it has."""
+    from blender_mrvm.errors import InputError
+
+    root, scenes = data  # 5 views an object
+    _, tcfg = _cfgs(tmp_path / "run", root, min_ref_views=4, max_ref_views=4)
+    RayBatcher(scenes, tcfg, 0.05, seed=0).draw(False)  # 4 references and a target
+    bad = replace(tcfg, min_ref_views=5, max_ref_views=6)
+    with pytest.raises(InputError, match=r"train.min_ref_views is 5: every training object needs at least 6 views "
+                                         r"\(the references and a target\), and 2 have fewer: spheres/obj000 \(5 views\), "):
+        run_to_end(train(model_config("fast", TINY), bad, scenes=scenes))
+    assert not (tmp_path / "run").exists()
+    step = RayBatcher(scenes, replace(bad, ref_views_per="step"), 0.05, seed=0)
+    assert step.draw(False, 5)["n_refs"] == 4
+
+
+def test_a_resume_below_its_step_is_refused_and_a_finished_run_reports_its_step(tmp_path, data):
+    """A run resumed with fewer iterations than its checkpoint's step is refused before anything is written (it
+    had reported that step count and recorded it in config.json though the model is further on); with exactly its
+    step it trains nothing and reports the step it is at."""
+    from blender_mrvm.errors import InputError
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "run", root, iterations=2, ckpt_every=2)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir() if p.is_file()}
+    with pytest.raises(InputError, match=r"is at step 2 \(step_0000002\), past train.iterations \(1\): raise it"):
+        run_to_end(train(mcfg, replace(tcfg, iterations=1), scenes=scenes))
+    assert {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir() if p.is_file()} == before
+    s = run_to_end(train(mcfg, tcfg, scenes=scenes))
+    assert s["step"] == 2 and s["resumed_from"] == 2 and s["checkpoint"] is None

@@ -84,3 +84,23 @@ def test_train_then_eval_commands(tmp_path, capsys):
     assert main(["eval", "--checkpoint", str(tmp_path / "run"), "--data", str(data), "--input-views", "7",
                  "--no-lpips", "--out", str(tmp_path / "ev2")]) == 2
     assert "no view(s) [7]" in capsys.readouterr().err
+
+
+def test_compare_reports_says_which_mean_it_reports():
+    """compare.json's ``diff`` is the mean over objects of each object's mean difference (the unit of its standard
+    error, as published); ``diff_views`` the mean over the common views: they differ when objects have different
+    numbers of views."""
+    from blender_mrvm.training.evaluate import compare_reports
+
+    def rep(rows):
+        return {"views": [{"category": "c", "object": o, "view": v, "psnr": p, "ssim": 0.5, "lpips": 0.1}
+                          for o, v, p in rows]}
+
+    a = rep([("o1", 0, 21.0), ("o1", 1, 21.0), ("o1", 2, 21.0), ("o2", 0, 17.0)])
+    b = rep([("o1", 0, 20.0), ("o1", 1, 20.0), ("o1", 2, 20.0), ("o2", 0, 20.0)])
+    psnr = compare_reports(a, b)["overall"]["psnr"]
+    assert psnr["diff"] == pytest.approx((1.0 - 3.0) / 2)  # per object: o1 +1, o2 -3
+    assert psnr["diff_views"] == pytest.approx((3 * 1.0 - 3.0) / 4)
+    assert psnr["objects"] == 2 and compare_reports(a, b)["overall"]["views"] == 4
+    doc = compare_reports.__doc__
+    assert "mean over objects of each object's mean difference" in doc and "``diff_views``" in doc

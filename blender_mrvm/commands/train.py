@@ -19,7 +19,8 @@ from pathlib import Path
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, default=None, help="run config JSON ({'model': ..., 'train': ...})")
     p.add_argument("--model", dest="kind", default=None,
-                   help="model kind when the config names none: nerformer_mrvm (default) or gpnr")
+                   help="model kind when the config names none: nerformer_mrvm (default) or gpnr (with --init: "
+                        "the checkpoint's own model, which must be of this kind)")
     p.add_argument("--preset", default=None,
                    help="model preset (fast, balanced, accurate, ...) when the config names none")
     p.add_argument("--data", action="append", default=None, metavar="ROOT",
@@ -69,7 +70,7 @@ def run(args) -> int:
                                                "lpips_weight": args.lpips_weight, "depth_weight": args.depth_weight,
                                                "keep_init_losses": args.keep_init_losses,
                                                "compile": args.compile},
-                                  kind=args.kind, preset=args.preset)
+                                  kind=args.kind, preset=args.preset, resume=not args.no_resume)
     from ..training.config import data_roots
 
     if not data_roots(tcfg):

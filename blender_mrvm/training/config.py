@@ -62,7 +62,8 @@ class TrainConfig:
     rays_per_object: int = 256
     """Target rays sampled per object per step."""
     min_ref_views: int = 1
-    """Fewest reference views drawn per object."""
+    """Fewest reference views drawn per object: every training object needs one view more (a target), or the run
+    is refused naming it (with ``ref_views_per`` 'step' an object with fewer views takes what it has)."""
     max_ref_views: int = 3
     """Most reference views drawn per object (random 1..K)."""
     ref_views_per: str = "object"
@@ -147,10 +148,15 @@ class TrainConfig:
 
 
 def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
-                    kind: str | None = None, preset: str | None = None) -> tuple[Any, TrainConfig]:
+                    kind: str | None = None, preset: str | None = None,
+                    resume: bool = True) -> tuple[Any, TrainConfig]:
     """Read a run-config JSON (or none) and apply ``overrides`` to the train section. ``kind`` and
     ``preset`` (the command line's ``--model`` and ``--preset``) choose the model where the config names
-    none; naming another kind or preset beside a config that names its own is an InputError."""
+    none; naming another kind or preset beside a config that names its own is an InputError. Fine-tuning
+    (``init_checkpoint``) with no preset or full model config named trains the checkpoint's own model (with the
+    section's overrides); a kind named beside it (``--model``, the section's ``kind``) must be the checkpoint's.
+    ``resume`` (False for ``train --no-resume``): whether the run continues the run its folder holds; one that
+    starts over takes nothing from the folder's records (:func:`recorded_train`)."""
     data: dict[str, Any] = {}
     if path is not None:
         path = Path(path)
@@ -185,8 +191,8 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     if tcfg.keep_init_losses and not tcfg.init_checkpoint:
         raise InputError("keep_init_losses (--keep-losses) keeps the losses of the checkpoint a run fine-tunes: give "
                          "it one (--init shipped, or train.init_checkpoint), or drop it")
-    tcfg = finetune_policy(tcfg, set(section) | set(given))
-    tcfg = data_policy(tcfg, set(section) | set(given))
+    tcfg = finetune_policy(tcfg, set(section) | set(given), resume)
+    tcfg = data_policy(tcfg, set(section) | set(given), resume)
     validate(tcfg)
     from ..models import registry
 
@@ -197,13 +203,17 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     k = named_kind or kind
     if "config" in m:  # a full config (as saved in a checkpoint)
         mcfg = registry.config_from_dict(k, m["config"])
-    elif set(m) <= {"overrides"} and tcfg.init_checkpoint and not kind:  # fine-tuning: the checkpoint's own model
+    elif set(m) <= {"kind", "overrides"} and tcfg.init_checkpoint:  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
+        theirs, want = registry.kind_of(mcfg), named_kind or (registry.kind(kind).name if kind else None)
+        if want and want != theirs:
+            who = (f"the config's model section (kind {m['kind']!r})" if named_kind else f"--model {kind}")
+            raise InputError(f"{who} names a {want} model, but init_checkpoint {tcfg.init_checkpoint} holds a "
+                             f"{theirs} model; drop {'it' if named_kind else '--model'} to fine-tune the "
+                             f"checkpoint's own model, or start from a {want} checkpoint")
         if m.get("overrides"):  # settings that keep the weights' shapes, or more transformer blocks (grown from it)
-            from ..models import registry as _reg
-
             mcfg = merge(mcfg, m["overrides"])
-            _reg.validate(mcfg)
+            registry.validate(mcfg)
     else:
         mcfg = registry.build_config(k, m.get("preset", preset), m.get("overrides"))
     return mcfg, tcfg
@@ -239,29 +249,51 @@ def default_opacity_weight(roots) -> float:
     return OPACITY_WEIGHT if roots and all((Path(r) / ROOT_MANIFEST).is_file() for r in roots) else 0.0
 
 
-def data_policy(tcfg: TrainConfig, named: set[str] = frozenset()) -> TrainConfig:
+def data_policy(tcfg: TrainConfig, named: set[str] = frozenset(), resume: bool = True) -> TrainConfig:
     """``tcfg`` with the opacity loss its data call for (:func:`default_opacity_weight`) when ``opacity_weight``
-    is not in ``named``; a run folder that already holds a run keeps the value its ``config.json`` recorded
-    (runs started before this default resume as they began). The one owner of the rule: the CLI's ``train``
+    is not in ``named``; a run that continues the run its folder holds (``resume``) keeps the value that run
+    recorded (:func:`recorded_train`: runs started before this default resume as they began); a run that starts
+    over, or whose records cannot be read, gets the default. The one owner of the rule: the CLI's ``train``
     and the panel's new runs both go through it."""
     if "opacity_weight" in named:
         return tcfg
-    rec = recorded_train(tcfg.out_dir)
-    if rec is not None:  # a damaged run folder ({}): the trainer's resume rules speak for it
-        w = rec.get("opacity_weight", 0.0)
-        return replace(tcfg, opacity_weight=float(w)) if isinstance(w, (int, float)) and w >= 0 else tcfg
+    rec = recorded_train(tcfg.out_dir, resume)
+    if rec:
+        w = rec.get("opacity_weight", 0.0)  # (a record without it: a run begun before the field, without the loss)
+        if isinstance(w, (int, float)) and not isinstance(w, bool) and math.isfinite(w) and w >= 0:
+            return replace(tcfg, opacity_weight=float(w))
     return replace(tcfg, opacity_weight=default_opacity_weight(data_roots(tcfg)))
 
 
-def recorded_train(out_dir: str | Path) -> dict[str, Any] | None:
-    """The train section a run folder's ``config.json`` recorded: None when the folder holds no run, {} when the
-    file cannot be read as one (the policies keep a run as it began: :func:`data_policy`, :func:`checkpoint_losses`)."""
-    recorded = Path(out_dir) / "config.json"
-    if not recorded.is_file():
+def recorded_train(out_dir: str | Path, resume: bool = True) -> dict[str, Any] | None:
+    """The train section of the run a new start continues, as it recorded it: None when the start begins a run
+    (not ``resume``, as ``train --no-resume``, or a folder that holds no run: ``run_folder.holds_run``; a
+    ``config.json`` alone is what a run refused at its first step left); else its ``config.json``'s, or, when
+    that file is missing or cannot be read (a damaged disk), the ``train_config`` its newest checkpoint recorded;
+    {} when neither can be read. The policies keep a continued run as it began (:func:`data_policy`,
+    :func:`checkpoint_losses`) and give {} their defaults, as a new run."""
+    from .run_folder import holds_run
+
+    if not resume or not holds_run(Path(out_dir)):
         return None
     try:
-        rec = json.loads(recorded.read_text()).get("train", {})
+        rec = json.loads((Path(out_dir) / "config.json").read_text()).get("train")
+        if isinstance(rec, dict) and rec:
+            return rec
     except (OSError, ValueError, AttributeError):
+        pass
+    return _checkpoint_train(Path(out_dir))
+
+
+def _checkpoint_train(run_dir: Path) -> dict[str, Any]:
+    """The ``train_config`` the newest whole checkpoint of ``run_dir`` recorded in its metadata; {} when there
+    is none or it cannot be read."""
+    from ..models.checkpoint_files import MODEL_FILE, find_checkpoint, read_header_meta
+
+    try:
+        ck = find_checkpoint(run_dir / "checkpoints")
+        rec = json.loads(read_header_meta(ck / MODEL_FILE).get("train_config") or "{}") if ck else {}
+    except (InputError, OSError, ValueError):
         return {}
     return rec if isinstance(rec, dict) else {}
 
@@ -273,14 +305,16 @@ views as their PSNR rises (RECIPE.md "Fine-tuning the shipped model on your obje
 the data are our renders (they have depth maps); settings a run config names itself win."""
 
 
-def checkpoint_losses(tcfg: TrainConfig) -> dict[str, Any]:
+def checkpoint_losses(tcfg: TrainConfig, resume: bool = True) -> dict[str, Any]:
     """The :data:`FINETUNE_KEEPS_LOSSES` settings recorded in ``tcfg.init_checkpoint`` (its ``train_config``) that
-    this run's data allow, or those its run folder recorded when it already holds a run (a run resumes with the
-    losses it began with); {} when there are none or they cannot be read (the trainer then says what is wrong)."""
+    this run's data allow, or those of the run it continues (``resume`` into a folder that holds a run: a run
+    resumes with the losses it began with; :func:`recorded_train`); {} when there are none or they cannot be read
+    (the trainer then says what is wrong). A run that starts over (``--no-resume --force``) takes the checkpoint's,
+    never those of the run it replaces."""
     from ..models.checkpoint_files import checked_header
 
-    rec = recorded_train(tcfg.out_dir)  # a run folder that holds a run keeps the losses it began with
-    if rec is None:
+    rec = recorded_train(tcfg.out_dir, resume)  # a run continued keeps the losses it began with
+    if not rec:  # a new run, or one whose records are unreadable: the checkpoint it fine-tunes
         try:
             rec = json.loads(checked_header(resolve_init_checkpoint(str(tcfg.init_checkpoint)))[1]
                              .get("train_config") or "{}")
@@ -299,17 +333,18 @@ def checkpoint_losses(tcfg: TrainConfig) -> dict[str, Any]:
     return out
 
 
-def finetune_policy(tcfg: TrainConfig, named: set[str] = frozenset()) -> TrainConfig:
+def finetune_policy(tcfg: TrainConfig, named: set[str] = frozenset(), resume: bool = True) -> TrainConfig:
     """``tcfg`` with the fine-tuning policy (:data:`FINETUNE`; with ``keep_init_losses``, also the losses the
-    checkpoint was trained with: :data:`FINETUNE_KEEPS_LOSSES`) applied to the settings not in ``named``, when it
-    fine-tunes a checkpoint; unchanged otherwise. The one owner of the policy: the CLI's ``train --init`` and the
-    panel's "Start from" both go through it."""
+    checkpoint was trained with: :data:`FINETUNE_KEEPS_LOSSES`, or, continuing a run (``resume``), those it
+    began with: :func:`checkpoint_losses`) applied to the settings not in ``named``, when it fine-tunes a
+    checkpoint; unchanged otherwise. The one owner of the policy: the CLI's ``train --init`` and the panel's
+    "Start from" both go through it."""
     if not tcfg.init_checkpoint:
         return tcfg
     pol = dict(FINETUNE)
     pol["lr_warmup"] = min(FINETUNE["lr_warmup"], max(1, tcfg.iterations // 10))
     if tcfg.keep_init_losses:
-        pol.update(checkpoint_losses(tcfg))
+        pol.update(checkpoint_losses(tcfg, resume))
     return replace(tcfg, **{k: v for k, v in pol.items() if k not in named})
 
 

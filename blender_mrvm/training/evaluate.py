@@ -526,9 +526,11 @@ def markdown_table(report: dict) -> str:
 def compare_reports(a: dict, b: dict) -> dict:
     """Paired difference a - b of two evaluations of the same views (``eval.json`` dicts with 'views').
 
-    Per metric: the mean difference over the common views, and its standard error computed over
-    objects (the views of one object are correlated, so the object is the unit), overall and per
-    category; ``wins``: share of objects on which a is better (higher PSNR/SSIM, lower LPIPS)."""
+    Per metric, overall and per category, the object is the unit (the views of one object are correlated):
+    ``diff`` is the mean over objects of each object's mean difference over its common views (every object
+    counts alike, however many views it has), ``se_objects`` its standard error over objects, ``wins`` the share
+    of objects on which a is better (higher PSNR/SSIM, lower LPIPS); ``diff_views`` is the mean difference over
+    the common views themselves (the two differ when objects have different numbers of views)."""
     key = lambda r: (r["category"], r["object"], r["view"])  # noqa: E731
     va, vb = {key(r): r for r in a["views"]}, {key(r): r for r in b["views"]}
     common = sorted(set(va) & set(vb))
@@ -548,7 +550,8 @@ def compare_reports(a: dict, b: dict) -> dict:
             d = np.array([np.mean(v) for v in per_obj.values()])
             se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else None
             better = d < 0 if m in LOWER_IS_BETTER else d > 0
-            out[m] = {"diff": float(d.mean()), "se_objects": se, "objects": len(d), "wins": float(better.mean())}
+            out[m] = {"diff": float(d.mean()), "se_objects": se, "objects": len(d), "wins": float(better.mean()),
+                      "diff_views": float(np.mean([x for v in per_obj.values() for x in v]))}
         return out
 
     cats = sorted({k[0] for k in common})

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..datasets.format import atomic_write_text
 from ..datasets.loaders import ObjectScene, load_dataset
 from ..errors import InputError
 from ..geometry.cameras import axis_cosines
@@ -114,6 +115,13 @@ class RayBatcher:
         for s in scenes:
             if len(s) < 2:
                 raise InputError(f"object {s.category}/{s.name} has {len(s)} view(s); training needs >= 2")
+        few = [s for s in scenes if len(s) <= cfg.min_ref_views]
+        if few and cfg.ref_views_per == "object":  # ('step': an object with fewer views takes what it has)
+            named = ", ".join(f"{s.category}/{s.name} ({len(s)} views)" for s in few[:3]) + (", ..." if few[3:] else "")
+            raise InputError(f"train.min_ref_views is {cfg.min_ref_views}: every training object needs at least "
+                             f"{cfg.min_ref_views + 1} views (the references and a target), and {len(few)} "
+                             f"{'has' if len(few) == 1 else 'have'} fewer: {named}; lower train.min_ref_views or "
+                             "leave those objects out")
         self.scenes = scenes
         self.weights = weights
         self.nearest = bool(nearest)
@@ -280,9 +288,13 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
         if state.get("world_size", 1) != dd.world:
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
                              f"resume with the same number (got {dd.world})")
+        start = int(state["step"])
+        if start > cfg.iterations:  # before anything is written: config.json would record steps never trained
+            raise InputError(f"the run in {run_dir} is at step {start} ({found.name}), past train.iterations "
+                             f"({cfg.iterations}): raise it (--iterations, the panel's Iterations) to {start} or more "
+                             "to continue the run, or start it over (--no-resume --force)")
         opt.load_state_dict(state["optimizer"])
         _set_rng_state(batcher, gen, state["rng"][dd.rank])
-        start = int(state["step"])
     else:
         if cfg.init_checkpoint:
             init_from, added = init_weights(model, model_cfg, cfg.init_checkpoint, device)
@@ -295,7 +307,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
         registry.compile_networks(model)  # after the weights are in place (compiling keeps the state dict's keys)
     if dd.main:
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.json").write_text(json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
+        # atomic: a torn config.json would lose what the run began with (training.config.recorded_train)
+        atomic_write_text(run_dir / "config.json", json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
     image_size = train_image_size(scenes)
     bbox_steps = int(round(cfg.bbox_sampling_frac * cfg.iterations))
     object_batch = cfg.object_batch if model.supports_object_batch else 1
@@ -392,6 +405,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     finally:
         if log:
             log.close()
+    # the model's step: a resume past train.iterations was refused above
     return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
             "resumed_from": start, "initialized_from": str(init_from) if init_from else None,
             "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
