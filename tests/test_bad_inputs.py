@@ -148,6 +148,15 @@ def world(tmp_path_factory):
     truncate(next(dl.glob("checkpoints/step_*/model.safetensors")), 0.3)
     (dl / "checkpoints" / "latest").write_text("step_0099999\n")
     (bad / "targets_bad.json").write_text("[1, 2")
+    good = json.loads((w / "targets.json").read_text())
+    row, row2 = good["targets"]
+    for name, doc in (("list", [1, 2]), ("version", {**good, "version": "1.0"}),
+                      ("w0", {**good, "targets": [{**row, "w": 0}]}),
+                      ("huge", {**good, "targets": [{**row, "w": 100000, "h": 100000}]}),
+                      ("fneg", {**good, "targets": [{**row, "fl_x": -5.0}]}),
+                      ("dup", {**good, "targets": [row, {**row2, "name": row["name"]}]}),
+                      ("mixed", {**good, "targets": [row, {**row2, "w": 24, "cx": 12.0}]})):  # 16x16 and 24x16
+        (bad / f"targets_{name}.json").write_text(json.dumps(doc))
     (bad / "eval_bad.json").write_text("{\"overall\": ")
     (bad / "eval_list.json").write_text("[1, 2, 3]")
     (bad / "eval_noviews.json").write_text(json.dumps({"overall": {"psnr": 1}}))
@@ -239,6 +248,9 @@ TRAIN = [
     _t("train.ref_views_per must be 'object' or 'step'", train={"ref_views_per": "batch"}),
     _t("need 1 <= min_ref_views <= max_ref_views", train={"min_ref_views": 0}),
     _t("need 1 <= min_ref_views <= max_ref_views", train={"min_ref_views": 3, "max_ref_views": 2}),
+    _t("train.min_ref_views is 5: every training object needs at least 6 views (the references and a target), and 2 "
+       "have fewer: spheres/obj000 (5 views)", train={"min_ref_views": 5, "max_ref_views": 5}),  # not numpy's low >= high
+    _t("--model gpnr names a gpnr model, but init_checkpoint", ["--model", "gpnr", "--init", "{w}/ck"]),
     _t("train.data_format must be", train={"data_format": "colmap"}),
     _t("train.split is empty", train={"split": " "}),
     _t("train.split must be a string", train={"split": 3}),
@@ -338,6 +350,16 @@ SYNTH = [
     _s("view 99 does not exist", ["--target-views", "99"]),
     _s("targets file", ["--targets", "{w}/nope.json"]),
     _s("targets", ["--targets", "{w}/bad/targets_bad.json"]),
+    _s("targets_list.json is not a targets file", ["--targets", "{w}/bad/targets_list.json"]),
+    _s("targets_version.json is not a targets file", ["--targets", "{w}/bad/targets_version.json"]),
+    _s("target 0 ('view 002'): w must be between 1 and 8192 pixels, got 0",
+       ["--targets", "{w}/bad/targets_w0.json"]),
+    _s("w must be between 1 and 8192 pixels, got 100000", ["--targets", "{w}/bad/targets_huge.json"]),
+    _s("fl_x must be a positive focal length", ["--targets", "{w}/bad/targets_fneg.json"], cls="silent-garbage"),
+    _s("two targets are named 'view 002'", ["--targets", "{w}/bad/targets_dup.json", "--blend", "{new}/s.blend"],
+       cls="data-loss"),
+    _s("the targets have different frame shapes (24x16 and 16x16)",
+       ["--targets", "{w}/bad/targets_mixed.json", "--blend", "{new}/s.blend"], cls="data-loss"),
     _s("reference folder", targets=True, base=_refs("{w}/nope")),
     _s("is not an object folder", base=_refs("{w}/emptydir")),
     _s("the pose holds NaN", base=_refs("{w}/bad/nanpose"), cls="silent-garbage"),

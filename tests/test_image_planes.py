@@ -314,3 +314,33 @@ def test_file_names_never_overwrite_another_planes_image(empty_scene, tmp_path):
     # Rebuilding a camera's plane reuses its own file name.
     IP.build_image_planes(scene, [IP.NovelView("Cam_1", _test_image(40, 28, 3))], cfg)
     assert sorted(p.name for p in tmp_path.glob("*.png")) == ["Cam_1.png", "Cam_1_1.png"]
+
+
+def test_blend_files_sharing_a_folder_keep_their_own_images(empty_scene, tmp_path):
+    """Two .blend files saved in one folder, each with a camera "Camera" and the default image folder: the second
+    one's plane takes a new file name, so reopening the first still shows its own image; rebuilding a plane in the
+    first file reuses its file."""
+    import bpy
+
+    from blender_mrvm.scene import image_planes as IP
+
+    def build(blend: Path, seed: int) -> Path:
+        bpy.ops.wm.read_homefile(use_empty=True)
+        scene = bpy.context.scene
+        _scene_camera(scene, "Camera", CAMERAS["shifted"])
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+        IP.build_image_planes(bpy.context.scene, [IP.NovelView("Camera", _test_image(40, 28, seed))],
+                              IP.PlaneConfig(distance=1.0))
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+        return Path(bpy.path.abspath(bpy.data.images["MRVM Camera"].filepath))
+
+    a = build(tmp_path / "chair_A.blend", 1)
+    b = build(tmp_path / "table_B.blend", 2)
+    assert (a.name, b.name) == ("Camera.png", "Camera_1.png") and a.parent == b.parent == tmp_path / "mrvm_novel_views"
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "chair_A.blend"))
+    img = bpy.data.images["MRVM Camera"]
+    assert Path(bpy.path.abspath(img.filepath)) == a and _images_equal(img, _test_image(40, 28, 1)) <= 0.51
+    IP.build_image_planes(bpy.context.scene, [IP.NovelView("Camera", _test_image(40, 28, 3))],
+                          IP.PlaneConfig(distance=1.0))
+    assert sorted(p.name for p in a.parent.iterdir()) == ["Camera.png", "Camera_1.png"]
+    assert _images_equal(bpy.data.images["MRVM Camera"], _test_image(40, 28, 3)) <= 0.51

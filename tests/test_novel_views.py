@@ -334,6 +334,29 @@ def ready(empty_scene, tmp_path, prefs):
     return scene
 
 
+def test_orbit_cameras_see_planes_nearer_than_a_new_cameras_clip_start(ready, tmp_path):
+    """An orbit's plane distance under a new camera's default clip start (0.1): the plan takes it, and the
+    cameras created with the results clip nearer still, so the import succeeds and each shows its plane."""
+    import bpy
+
+    from blender_mrvm.operators import synthesize as S
+    from blender_mrvm.scene import image_planes as IP
+    from blender_mrvm.scene import novel_views as NV
+
+    p = ready.mrvm_novel_views
+    p.target_source, p.orbit_count, p.plane_distance = "ORBIT", 2, 0.05
+    job = S.plan_from_props(bpy.context)
+    out = tmp_path / "job" / "out"
+    for i, t in enumerate(job.targets):
+        _png(out / t.rgb_path(i), seed=i)
+    NV.import_results(ready, list(job.targets), out, job.planes)
+    for t in job.targets:
+        cam = bpy.data.objects[t.name]
+        assert cam.data.clip_start < 0.05 < cam.data.clip_end
+        (plane,) = IP.planes_of(cam)
+        assert _corner_error(ready, cam, plane) < 0.5 and np.isclose(plane["mrvm_distance"], 0.05)
+
+
 def _fails(msg: str):
     """Run the operator; it must report ``msg`` as its error and leave the scene as it was."""
     import bpy

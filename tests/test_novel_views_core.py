@@ -67,6 +67,41 @@ def test_targets_round_trip(tmp_path):
         read_targets(tmp_path / "other.json")
 
 
+
+def test_read_targets_checks_every_value(tmp_path):
+    """A value the synthesis cannot use is one InputError naming the target and the field, never a traceback, a
+    huge allocation or a silently mirrored image; two targets of one name are refused (each names a camera)."""
+    k = Intrinsics(40.0, 40.0, 16.0, 12.0, 32, 24)
+    good = json.loads(write_targets(tmp_path / "good.json", [Target("A", k, orbit_poses(1, 2.0)[0])]).read_text())
+    row = good["targets"][0]
+
+    def fails(doc, msg):
+        (tmp_path / "t.json").write_text(json.dumps(doc))
+        with pytest.raises(InputError, match=msg):
+            read_targets(tmp_path / "t.json")
+
+    fails([1, 2], "not a targets file")
+    fails({**good, "version": "1.0"}, "not a targets file")
+    fails({**good, "targets": {"A": row}}, "'targets' must be a list")
+    for key, value, msg in (("w", 0, r"target 0 \('A'\): w must be between 1 and 8192 pixels, got 0"),
+                            ("h", 100000, "h must be between 1 and 8192 pixels"),
+                            ("w", 32.5, "w must be a whole number"),
+                            ("fl_x", -5, "fl_x must be a positive focal length"),
+                            ("fl_y", 0, "fl_y must be a positive focal length"),
+                            ("cx", float("nan"), "cx must be a finite number"),
+                            ("cy", "12", "cy must be a finite number"),
+                            ("c2w_opencv", [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "c2w_opencv must be a finite 4x4"),
+                            ("c2w_opencv", [[float("inf")] * 4] * 4, "c2w_opencv must be a finite 4x4"),
+                            ("c2w_opencv", "eye", "c2w_opencv must be a finite 4x4"),
+                            ("generated", "yes", "generated must be true or false"),
+                            ("name", "", "name must be a non-empty text")):
+        fails({**good, "targets": [{**row, key: value}]}, msg)
+    fails({**good, "targets": [row, {**row, "rgb": "rgb/000001.png"}]}, "two targets are named 'A'")
+    three_by_four = {**row, "c2w_opencv": row["c2w_opencv"][:3]}
+    (tmp_path / "t.json").write_text(json.dumps({**good, "targets": [three_by_four]}))
+    (back,), _ = read_targets(tmp_path / "t.json")
+    assert np.array_equal(back.c2w_opencv, np.asarray(row["c2w_opencv"]))
+
 def test_parse_views():
     assert parse_views("0 1") == (0, 1)
     assert parse_views(" 3, 5,7 ") == (3, 5, 7)

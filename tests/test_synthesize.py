@@ -283,6 +283,110 @@ def test_blend_has_cameras_and_planes_on_their_frusta(setup, tmp_path, addon):
         bpy.ops.wm.read_homefile(use_empty=True)
 
 
+def _blend_args(root, obj, ck, out, blend, targets=None, *extra):
+    args = _args(root, obj, ck, out, "--blend", str(blend), *extra)
+    if targets is not None:
+        args[args.index("--targets") + 1] = str(targets)
+    return args
+
+
+def test_blend_problems_leave_nothing_written(setup, tmp_path, capsys):
+    """--blend's problems are errors with nothing written: targets of two frame shapes before anything is
+    synthesized; one found after (no plane distance: the object's centre is behind every camera) before the
+    views move into --out. No folder the run created stays."""
+    root, obj, ck, tg = setup
+    k = tg[0].intrinsics
+    mixed = write_targets(tmp_path / "mixed.json", [tg[0], Target("wide", C.Intrinsics(k.fx, k.fy, 12.0, 8.0, 24, 16),
+                                                                 tg[1].c2w_opencv)])
+    away = tg[0].c2w_opencv.copy()
+    away[:3, [0, 2]] *= -1.0  # turned round: looks away from the object
+    behind = write_targets(tmp_path / "behind.json", [Target("away", k, away)])
+    for targets, msg in ((mixed, "the targets have different frame shapes (24x16 and 16x16)"),
+                         (behind, "behind every target camera")):
+        assert main(_blend_args(root, obj, ck, tmp_path / "new" / "out", tmp_path / "b" / "s.blend", targets)) == 2
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error:")]
+        assert len(err) == 1 and msg in err[0], err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["behind.json", "mixed.json"]
+
+
+@pytest.mark.slow
+def test_blend_takes_the_targets_frame_and_pixel_aspect(setup, tmp_path, capsys, addon, monkeypatch):
+    """The .blend renders the targets' frame with their pixel aspect (references with fy = 1.01 fx, as COLMAP
+    PINHOLE captures have, and their orbit); reference cameras of another frame shape are left out with a note;
+    the reference images are found when the .blend is opened from another folder."""
+    import shutil
+
+    import bpy
+
+    from blender_mrvm.scene import camera as scam
+
+    root, obj, ck, tg = setup
+    refs = tmp_path / "refs"
+    shutil.copytree(obj, refs)
+    meta = json.loads((refs / "meta.json").read_text())
+    k = F.read_object(obj).intrinsics
+    meta["intrinsics"] = {"fl_x": k.fx, "fl_y": 1.01 * k.fx, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height}
+    (refs / "meta.json").write_text(json.dumps(meta))
+    monkeypatch.chdir(tmp_path)
+    base = ["synthesize", "--references", "refs", "--views", "0,1", "--checkpoint", str(ck), "--device", "cpu",
+            "--threads", "1"]
+    assert main(base + ["--orbit", "2", "--out", "o", "--blend", "a/s.blend"]) == 0
+    wide = write_targets(tmp_path / "wide.json", [Target("wide", C.Intrinsics(k.fx, k.fx, 12.0, 8.0, 24, 16),
+                                                         tg[0].c2w_opencv)])
+    capsys.readouterr()
+    assert main(base + ["--targets", str(wide), "--out", "w", "--blend", "b/s.blend"]) == 0
+    assert "note: reference views 0, 1 left out of s.blend" in capsys.readouterr().err
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "a" / "s.blend"))
+        scene = bpy.context.scene
+        assert np.isclose(scene.render.pixel_aspect_x / scene.render.pixel_aspect_y, 1.01)
+        cams = sorted((o for o in scene.objects if o.type == "CAMERA"), key=lambda o: o.name)
+        assert [c.name for c in cams] == ["MRVM reference 000", "MRVM reference 001", "orbit 000", "orbit 001"]
+        for cam in cams:
+            intr, _ = scam.read_camera(cam, scene)
+            assert (intr.width, intr.height) == (16, 16) and np.isclose(intr.fy / intr.fx, 1.01, rtol=1e-5)
+        for cam in cams[:2]:
+            assert Path(bpy.path.abspath(cam.data.background_images[0].image.filepath)).is_file()
+        bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "b" / "s.blend"))
+        scene = bpy.context.scene
+        assert (scene.render.resolution_x, scene.render.resolution_y) == (24, 16)
+        assert [o.name for o in scene.objects if o.type == "CAMERA"] == ["wide"]
+    finally:
+        bpy.ops.wm.read_homefile(use_empty=True)
+
+
+@pytest.mark.slow
+def test_blend_replaces_an_existing_file_only_once_it_is_complete(setup, tmp_path, addon):
+    """A .blend that fails (a view missing) leaves the existing file, its images and the folders as they were,
+    with no temporary or backup file; --force over it replaces it, a rerun reusing its images' names."""
+    import bpy
+
+    from blender_mrvm.scene.novel_views import write_blend
+
+    root, obj, ck, tg = setup
+    out = tmp_path / "out"
+    assert main(_args(root, obj, ck, out)) == 0
+    (out / "rgb" / "000001.png").rename(tmp_path / "kept.png")
+    blend = tmp_path / "s.blend"
+    blend.write_bytes(b"the user's scene")
+    for path in (tmp_path / "new" / "s.blend", blend):
+        with pytest.raises(InputError, match="wrote no image for 'view 003'"):
+            write_blend(path, out / "targets.json", out, plane_distance=0.7)
+    assert blend.read_bytes() == b"the user's scene"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.png", "out", "s.blend"]
+    (tmp_path / "kept.png").rename(out / "rgb" / "000001.png")
+    try:
+        for run in ("o1", "o2"):
+            assert main(_args(root, obj, ck, tmp_path / run, "--blend", str(blend), "--force")) == 0
+            assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"out", "s.blend", "s_novel_views", "o1", run})
+            assert sorted(p.name for p in (tmp_path / "s_novel_views").iterdir()) == [
+                "view_002.png", "view_002_depth.exr", "view_003.png", "view_003_depth.exr", "wide.png", "wide_depth.exr"]
+        assert bpy.data.filepath == str(blend) and len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 5
+    finally:
+        bpy.ops.wm.read_homefile(use_empty=True)
+
 def test_orbit_and_target_views_without_a_targets_file(setup, tmp_path, capsys):
     from blender_mrvm.datasets.novel_views import read_targets
 
@@ -309,6 +413,19 @@ def test_orbit_and_target_views_without_a_targets_file(setup, tmp_path, capsys):
     assert main(base + ["--target-views", "7", "--out", str(tmp_path / "w")]) == 2
     assert "view 7 does not exist" in capsys.readouterr().err and not (tmp_path / "w").exists()
 
+
+def test_orbit_size_scales_both_focal_lengths_alike(setup):
+    """--orbit-size on references of another aspect ratio and non-square pixels: one scale for fx and fy (the
+    pixels keep their shape), the principal point at the new frame's centre."""
+    root, obj, ck, tg = setup
+    k = C.Intrinsics(90.0, 90.9, 51.0, 27.0, 100, 56)
+    refs = dataclasses.replace(S.load_references(obj, (0, 1)), intrinsics=[k, k])
+    (t,) = S.orbit_targets(refs, 1, size=64)
+    i = t.intrinsics
+    assert (i.width, i.height, i.cx, i.cy) == (64, 36, 32.0, 18.0)
+    assert np.isclose(i.fx, 0.64 * k.fx) and np.isclose(i.fy / i.fx, k.fy / k.fx)
+    (t,) = S.orbit_targets(refs, 1)  # the references' own size
+    assert (t.intrinsics.fx, t.intrinsics.fy, t.intrinsics.cx, t.intrinsics.cy) == (90.0, 90.9, 50.0, 28.0)
 
 def test_gpnr_checkpoint_synthesizes_through_the_same_command(setup, tmp_path, capsys):
     """A GPNR checkpoint goes through ``synthesize`` like any other kind; given more references than it

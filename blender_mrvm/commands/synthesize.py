@@ -73,7 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..training.adapt import add_arguments as add_adapt_arguments
 
     add_adapt_arguments(p)
-    p.add_argument("--blend", type=Path, default=None, help="also write a .blend with the cameras and image planes")
+    p.add_argument("--blend", type=Path, default=None, help="also write a .blend with the cameras and image planes "
+                   "(the targets must share one frame shape; reference cameras of another are left out, with a note)")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds files and replace "
                    "an existing --blend file (never the reference folder)")
     p.add_argument("--plane-distance", type=float, default=None,
@@ -89,7 +90,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from .. import validation as V
-    from ..guards import check_new_file
+    from ..guards import check_folder_writable, check_new_file
     from ..synthesis.views import _check_out
 
     views = parse_views(" ".join(args.views)) if args.views else ()
@@ -115,21 +116,34 @@ def run(args) -> int:
     if args.blend is not None:
         _check_blend_path(args.blend)
         check_new_file(args.blend, args.force, ".blend file")
+        check_folder_writable(args.blend.resolve().parent, "folder of the .blend file")
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="mrvm_targets_") as tmp:
         targets = args.targets if args.targets is not None else _make_targets(args, views, bbox, Path(tmp))
         cfg = replace(cfg, targets=targets)
-        summary = run_with_tqdm(synthesize_views(cfg), desc="synthesize", unit="ray")
+        blend = _blend_writer(args, targets) if args.blend is not None else None
+        summary = run_with_tqdm(synthesize_views(cfg, blend), desc="synthesize", unit="ray")
     if args.blend is not None:
-        from ..scene.novel_views import write_blend
-
-        blend = write_blend(args.blend, args.out / "targets.json", args.out, references=args.references,
-                            reference_views=tuple(int(v) for v in summary.references[1]),
-                            plane_distance=args.plane_distance, bbox=summary.bbox)
-        print(f"wrote {blend}")
+        print(f"wrote {args.blend.resolve()}")
     print(json_line(summary))
     return 0
+
+
+def _blend_writer(args, targets: Path):
+    """Check, before anything is synthesized, that the targets make one .blend
+    (``scene.novel_views.blend_frame``); return the step that writes it from the finished views, which
+    ``synthesize_views`` runs before they move into --out (an error there leaves nothing written)."""
+    from ..datasets.novel_views import read_targets
+    from ..scene.novel_views import blend_frame, write_blend
+
+    blend_frame(read_targets(targets)[0])
+
+    def write(folder: Path, summary) -> None:
+        write_blend(args.blend, targets, folder, references=args.references,
+                    reference_views=tuple(int(v) for v in summary.references[1]),
+                    plane_distance=args.plane_distance, bbox=summary.bbox)
+    return write
 
 
 def _make_targets(args, views, bbox, tmp: Path) -> Path:

@@ -17,6 +17,7 @@ dataset format (a render, a recovered capture, or scene cameras exported by the 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry.cameras import Intrinsics, as_pose
+from ..validation import check_image_side
 from .format import atomic_write_json
 
 
@@ -104,24 +106,67 @@ def write_targets(path: Path, targets: list[Target], depth: bool = False) -> Pat
 
 
 def read_targets(path: Path) -> tuple[list[Target], bool]:
-    """``(targets, depth wanted)`` from ``targets.json``; InputError naming what is wrong."""
+    """``(targets, depth wanted)`` from ``targets.json``; InputError naming what is wrong (the target and
+    the field): sizes of 1 to ``validation.MAX_IMAGE_SIDE`` pixels, finite positive focal lengths, a finite
+    principal point and pose, names unique (each names one Blender camera)."""
     path = Path(path)
     try:
         d = json.loads(path.read_text())
     except FileNotFoundError:
         raise InputError(f"targets file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"cannot read targets file {path}: {e}") from None
     except ValueError as e:
         raise InputError(f"{path} is not JSON: {e}") from None
-    if d.get("format") != TARGETS_FORMAT or int(d.get("version", 0)) > TARGETS_VERSION:
+    version = d.get("version", 0) if isinstance(d, dict) else None
+    if (not isinstance(d, dict) or d.get("format") != TARGETS_FORMAT or isinstance(version, bool)
+            or not isinstance(version, int) or version > TARGETS_VERSION):
         raise InputError(f"{path} is not a targets file of version <= {TARGETS_VERSION}")
-    out = []
-    for i, r in enumerate(d.get("targets", [])):
-        try:
-            k = Intrinsics(float(r["fl_x"]), float(r["fl_y"]), float(r["cx"]), float(r["cy"]), int(r["w"]), int(r["h"]))
-            out.append(Target(str(r["name"]), k, as_pose(np.asarray(r["c2w_opencv"], dtype=np.float64)),
-                              bool(r.get("generated", False))))
-        except (KeyError, TypeError, ValueError) as e:
-            raise InputError(f"{path}: target {i} is malformed ({e})") from None
+    rows = d.get("targets", [])
+    if not isinstance(rows, list):
+        raise InputError(f"{path}: 'targets' must be a list of targets")
+    out: list[Target] = []
+    for i, r in enumerate(rows):
+        t = _target_of_row(path, i, r)
+        if any(o.name == t.name for o in out):
+            raise InputError(f"{path}: two targets are named {t.name!r}; target names must be unique "
+                             "(each names one Blender camera)")
+        out.append(t)
     if not out:
         raise InputError(f"{path} lists no targets")
     return out, bool(d.get("depth", False))
+
+
+def _target_of_row(path: Path, i: int, r) -> Target:
+    """Target ``i`` of a targets file, each value checked; InputError naming the target and the field."""
+    if not isinstance(r, dict):
+        raise InputError(f"{path}: target {i} is malformed (not an object)")
+    name = r.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{path}: target {i} is malformed (its name must be a non-empty text)")
+    what = f"{path}: target {i} ({name!r})"
+    try:
+        for key in ("w", "h"):
+            check_image_side(f"{what}: {key}", r[key])
+        vals = {}
+        for key in ("fl_x", "fl_y", "cx", "cy"):
+            v = r[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise InputError(f"{what}: {key} must be a finite number, got {v!r}")
+            if key.startswith("fl_") and v <= 0:
+                raise InputError(f"{what}: {key} must be a positive focal length in pixels, got {v!r}")
+            vals[key] = float(v)
+        try:
+            pose = np.asarray(r["c2w_opencv"], dtype=np.float64)
+        except (TypeError, ValueError):
+            pose = None
+        if pose is None or pose.shape not in ((4, 4), (3, 4)) or not np.isfinite(pose).all() or (
+                pose.shape == (4, 4) and not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0])):
+            raise InputError(f"{what}: c2w_opencv must be a finite 4x4 (or 3x4) camera-to-world matrix")
+        generated = r.get("generated", False)
+        if not isinstance(generated, bool):
+            raise InputError(f"{what}: generated must be true or false, got {generated!r}")
+    except KeyError as e:
+        raise InputError(f"{path}: target {i} is malformed ({name!r} has no {e.args[0]!r})") from None
+    k = Intrinsics(vals["fl_x"], vals["fl_y"], vals["cx"], vals["cy"], r["w"], r["h"])
+    return Target(name, k, as_pose(pose), generated)

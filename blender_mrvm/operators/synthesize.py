@@ -155,6 +155,8 @@ def plan_from_props(context) -> SynthesisJob:
     cfg = IP.PlaneConfig(distance=p.plane_distance, pack=p.output == "PACK", folder=p.output_dir).validate()
     if not cfg.pack:
         IP.output_folder(cfg)  # "//" needs a saved .blend
+    # The user's cameras must see their planes; generated (orbit) cameras get a clip range around the
+    # distance when they are created (scene.novel_views.import_results).
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,

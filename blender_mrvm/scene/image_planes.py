@@ -12,7 +12,9 @@ and invisible to shadow / diffuse / glossy / transmission rays, so it neither li
 scene.
 
 Images are written as PNG (depth as EXR and a semantic map as ``<stem>_semantic.png`` when given) into a folder (default ``//mrvm_novel_views``
-next to the .blend; paths are stored relative to the .blend) or packed into the .blend. Everything is
+next to the .blend; paths are stored relative to the .blend; a file already there is never written over
+unless it is an image of a plane being replaced, since several .blend files may share the folder) or packed
+into the .blend. Everything is
 created in the collection "MRVM novel views". Building is a transaction: on any error every
 datablock and file it created is removed and every file it replaced is restored.
 """
@@ -76,6 +78,11 @@ class PlaneConfig:
     """Remove earlier planes of the same cameras once the new ones are built."""
     interpolation: str = "Linear"
     """Image texture interpolation (Linear, Closest, Cubic)."""
+    own_folder: bool = False
+    """``folder`` belongs to this .blend alone (``scene.novel_views.write_blend`` replacing a .blend and its
+    ``<stem>_novel_views/``): files there of the cameras' names are replaced. Otherwise a file already in the
+    folder is never written over unless it is an image of a plane this build replaces: another .blend saved in
+    the same folder may show it (a new file name is taken instead)."""
 
     def validate(self) -> "PlaneConfig":
         if not (np.isfinite(self.distance) and self.distance > 0):
@@ -319,17 +326,23 @@ def ensure_collection(scene: bpy.types.Scene, name: str, txn: Transaction) -> bp
     return coll
 
 
-def _image_paths_in_use(exclude: list[bpy.types.Object]) -> set[str]:
-    """Resolved file paths of the images in the file, except those of the planes in ``exclude``."""
-    skip = set()
-    for o in exclude:
+def _plane_image_names(planes: list[bpy.types.Object]) -> set[str]:
+    """Names of the images ``planes`` show or carry (colour, semantic map, depth)."""
+    names = set()
+    for o in planes:
         for s in o.material_slots:
             if s.material and s.material.node_tree:
-                skip |= {n.image.name for n in s.material.node_tree.nodes if n.type == "TEX_IMAGE" and n.image}
-        skip.add(o.get("mrvm_depth_image", ""))
+                names |= {n.image.name for n in s.material.node_tree.nodes if n.type == "TEX_IMAGE" and n.image}
+        names.add(o.get("mrvm_depth_image", ""))
+    return names
+
+
+def _image_paths(inside: bool, planes: list[bpy.types.Object]) -> set[str]:
+    """Resolved file paths of the file's images that ``planes`` show (``inside``) or that they do not."""
+    names = _plane_image_names(planes)
     out = set()
     for img in bpy.data.images:
-        if img.name in skip or not img.filepath or img.packed_file is not None:
+        if (img.name in names) != inside or not img.filepath or img.packed_file is not None:
             continue
         try:
             out.add(str(Path(bpy.path.abspath(img.filepath, library=img.library)).resolve()))
@@ -338,20 +351,28 @@ def _image_paths_in_use(exclude: list[bpy.types.Object]) -> set[str]:
     return out
 
 
-def _unique_stems(cameras: list[str], folder: Path | None, in_use: set[str]) -> list[str]:
-    """File stems per camera: distinct within the run and not a file another image of the .blend shows."""
-    taken: set[str] = set()
+def _unique_stems(cameras: list[str], folder: Path | None, old: list[bpy.types.Object], own_folder: bool) -> list[str]:
+    """File stems per camera, distinct within the run, that overwrite no file but those of the ``old`` planes
+    this build replaces: not a file another image of the .blend shows, nor (unless ``own_folder``) a file
+    already on disk, which another .blend in the folder may show."""
+    in_use, replaced = _image_paths(False, old), _image_paths(True, old)
+
+    def taken(p: Path) -> bool:
+        p = str(p.resolve())
+        return p in in_use or (not own_folder and p not in replaced and os.path.lexists(p))
+
+    used: set[str] = set()
     out = []
     for name in cameras:
         base, k = safe_id(name), 0
         while True:
             s = base if k == 0 else f"{base}_{k}"
-            clash = folder is not None and any(str((folder / f"{s}{ext}").resolve()) in in_use
+            clash = folder is not None and any(taken(folder / f"{s}{ext}")
                                                for ext in (".png", "_depth.exr", "_semantic.png"))
-            if s not in taken and not clash:
+            if s not in used and not clash:
                 break
             k += 1
-        taken.add(s)
+        used.add(s)
         out.append(s)
     return out
 
@@ -501,7 +522,7 @@ def _remove_planes(objs: list[bpy.types.Object]) -> None:
 
 def check_clip_range(cameras, distance: float) -> None:
     """InputError when ``distance`` lies outside the clip range of one of ``cameras`` (None entries:
-    cameras still to be created, skipped)."""
+    cameras still to be created, skipped: ``scene.novel_views`` gives them a clip range around it)."""
     for cam in cameras:
         if cam is not None and not (cam.data.clip_start < distance < cam.data.clip_end):
             raise InputError(f"plane distance {distance:g} is outside camera {cam.name!r}'s clip range "
@@ -546,7 +567,7 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
         old = [p for c in cams for p in planes_of(c)] if cfg.replace else []
         work = t.tmpdir() if cfg.pack else None
         planes, images, files = [], [], []
-        stems = _unique_stems([c.name for c in cams], folder, _image_paths_in_use(old))
+        stems = _unique_stems([c.name for c in cams], folder, old, cfg.own_folder)
         for v, cam, intr, stem in zip(views, cams, intrs, stems):
             png = _write_png(t, v.rgba, (work or folder) / f"{stem}.png")
             stored = (f"{stored_folder.rstrip('/')}/{stem}.png" if cfg.pack else _blend_path(png))

@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 from typing import Callable
@@ -28,7 +30,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..datasets.novel_views import Target, blend_images_folder
-from ..errors import InputError
+from ..errors import CameraConventionError, InputError
 from ..geometry import cameras as C
 from . import camera as scam
 from . import image_planes as IP
@@ -165,8 +167,34 @@ def orbit_targets(scene: bpy.types.Scene, count: int, radius: float, elevation: 
     return [Target(n, intr, p, generated=True) for n, p in zip(names, poses)]
 
 
-def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection) -> bpy.types.Object:
-    """A camera that renders exactly ``t.intrinsics`` (at any scale) from ``t.c2w_opencv``."""
+def _same_view(intr: C.Intrinsics, k: C.Intrinsics) -> bool:
+    """Whether a camera that renders ``intr`` shows the view ``k``: the same field of view, pixel shape and
+    principal point, at any scale (the sides within a pixel of ``k``'s aspect ratio)."""
+    same = np.allclose([intr.fx / intr.width, intr.fy / intr.fx, intr.cx / intr.width, intr.cy / intr.height],
+                       [k.fx / k.width, k.fy / k.fx, k.cx / k.width, k.cy / k.height], rtol=1e-6, atol=1e-9)
+    return bool(same) and abs(k.height - intr.height * k.width / intr.width) <= 1.0
+
+
+def fits_frame(k: C.Intrinsics, frame: C.BlenderCamera) -> bool:
+    """Whether a camera made for the view ``k`` (:func:`_create_camera`) shows it in a scene that renders
+    ``frame``'s size and pixel aspect (a scene has one frame shape for all its cameras)."""
+    try:
+        bc = C.blender_from_intrinsics(k)
+    except CameraConventionError:
+        return False
+    return _same_view(C.intrinsics_from_blender(dataclasses.replace(
+        bc, resolution_x=frame.resolution_x, resolution_y=frame.resolution_y,
+        pixel_aspect_x=frame.pixel_aspect_x, pixel_aspect_y=frame.pixel_aspect_y)), k)
+
+
+def _shape(k: C.Intrinsics) -> str:
+    return f"{k.width}x{k.height}" + ("" if math.isclose(k.fx, k.fy, rel_tol=1e-6) else f", fy/fx {k.fy / k.fx:.4g}")
+
+
+def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection,
+                   plane_distance: float | None = None) -> bpy.types.Object:
+    """A camera that renders exactly ``t.intrinsics`` (at any scale) from ``t.c2w_opencv``; with a
+    ``plane_distance``, its clip range reaches past it (the camera sees its image plane)."""
     cam = scam.new_camera(t.name, coll)
     if cam.name != t.name:
         raise InputError(f"an object named {t.name!r} already exists")
@@ -175,13 +203,16 @@ def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection
     d.type, d.lens_unit = "PERSP", "MILLIMETERS"
     d.sensor_fit, d.sensor_width, d.sensor_height = bc.sensor_fit, bc.sensor_width, bc.sensor_height
     d.lens, d.shift_x, d.shift_y = bc.lens, bc.shift_x, bc.shift_y
+    if plane_distance is not None:
+        d.clip_start = min(d.clip_start, plane_distance / 2.0)
+        d.clip_end = max(d.clip_end, plane_distance * 2.0)
     cam.matrix_world = Matrix(C.blender_from_opencv(t.c2w_opencv).tolist())
     intr, _ = scam.read_camera(cam, scene)
-    k = t.intrinsics
-    same = np.allclose([intr.fx / intr.width, intr.fy / intr.fx, intr.cx / intr.width, intr.cy / intr.height],
-                       [k.fx / k.width, k.fy / k.fx, k.cx / k.width, k.cy / k.height], rtol=1e-6, atol=1e-9)
-    if not same or abs(k.height - intr.height * k.width / intr.width) > 1.0:
-        raise InputError(f"camera {t.name!r}: the scene's render size or pixel aspect changed since synthesis started")
+    if not _same_view(intr, t.intrinsics):
+        r = scene.render
+        raise InputError(f"camera {t.name!r}: its view ({_shape(t.intrinsics)}) does not fit the scene's frame "
+                         f"({intr.width}x{intr.height} px, pixel aspect {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g}); "
+                         "set the render size and pixel aspect it was synthesized at")
     return cam
 
 
@@ -190,12 +221,13 @@ def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection
 # ---------------------------------------------------------------------------------------------
 
 def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path, cfg: IP.PlaneConfig,
-                   depth: bool = False, semantic: bool = False) -> IP.PlaneResult:
-    """Create generated cameras and one image plane per target from the worker's ``out_dir`` (with
-    ``semantic``, each plane also carries the target's semantic map, ``Target.semantic_path``).
+                   depth: bool = False, semantic: bool = False, txn: IP.Transaction | None = None) -> IP.PlaneResult:
+    """Create generated cameras (their clip range reaches past the plane distance) and one image plane per
+    target from the worker's ``out_dir`` (with ``semantic``, each plane also carries the target's semantic
+    map, ``Target.semantic_path``).
 
     All or nothing: a missing or unreadable result, or any other error, leaves the scene and the
-    output folder as they were.
+    output folder as they were (with an outer ``txn``, its owner commits or rolls back).
     """
     out_dir = Path(out_dir)
     for i, t in enumerate(targets):
@@ -205,11 +237,11 @@ def import_results(scene: bpy.types.Scene, targets: list[Target], out_dir: Path,
             raise InputError(f"the worker wrote no depth map for {t.name!r} ({out_dir / t.depth_path(i)})")
         if semantic and not (out_dir / t.semantic_path(i)).is_file():
             raise InputError(f"the worker wrote no semantic map for {t.name!r} ({out_dir / t.semantic_path(i)})")
-    with IP.transaction() as txn:
+    with IP.transaction(txn) as txn:
         coll = IP.ensure_collection(scene, cfg.collection, txn)
         for t in targets:
             if t.generated:
-                _create_camera(scene, t, coll)
+                _create_camera(scene, t, coll, cfg.distance)
             elif bpy.data.objects.get(t.name) is None:
                 raise InputError(f"target camera {t.name!r} was removed while synthesizing")
         views = [IP.NovelView(t.name, out_dir / t.rgb_path(i), out_dir / t.depth_path(i) if depth else None,
@@ -236,8 +268,42 @@ def default_plane_distance(targets: list[Target], bbox) -> float:
     return 0.5 * float(np.median(z))
 
 
+def blend_frame(targets: list[Target]) -> C.BlenderCamera:
+    """The render frame of a .blend of ``targets`` (the largest target's size and pixel aspect; its
+    ``resolution_*`` and ``pixel_aspect_*`` are what matter); InputError when a target is no Blender camera
+    or the targets cannot share one frame. Needs no scene: ``synthesize --blend`` asks before synthesizing."""
+    for t in targets:
+        try:
+            C.blender_from_intrinsics(t.intrinsics)
+        except CameraConventionError as e:
+            raise InputError(f"target {t.name!r} cannot be a Blender camera: {e}") from None
+    big = max(targets, key=lambda t: (t.intrinsics.width, t.intrinsics.height))
+    frame = C.blender_from_intrinsics(big.intrinsics)
+    for t in targets:
+        if not fits_frame(t.intrinsics, frame):
+            raise InputError(f"the targets have different frame shapes ({_shape(big.intrinsics)} and "
+                             f"{_shape(t.intrinsics)}); a Blender scene has one frame shape (aspect ratio and "
+                             "pixel aspect): write them into separate .blend files")
+    return frame
+
+
+def reference_views_in_frame(folder: Path, views: tuple[int, ...],
+                             frame: C.BlenderCamera) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """(the reference ``views`` of an object folder a scene of ``frame`` shows, those it cannot: another
+    aspect ratio or pixel aspect)."""
+    from ..datasets.format import read_object
+
+    ov = read_object(Path(folder))
+    pos = {v: k for k, v in enumerate(ov.indices)}
+    fits = {v: fits_frame(ov.intrinsics_per_view[pos[v]] if ov.intrinsics_per_view else ov.intrinsics, frame)
+            for v in views}
+    return tuple(v for v in views if fits[v]), tuple(v for v in views if not fits[v])
+
+
 def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int, ...]) -> list[bpy.types.Object]:
-    """Cameras of reference ``views`` of an object folder, each showing its image as background image."""
+    """Cameras of reference ``views`` of an object folder, each showing its image (by its absolute path,
+    so the .blend opens from anywhere) as background image; InputError for a view the scene's frame cannot
+    show (:func:`reference_views_in_frame` says which)."""
     from ..datasets.format import read_object, view_paths
 
     ov = read_object(Path(folder))
@@ -250,7 +316,7 @@ def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int
         k = pos[v]
         intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
         cam = _create_camera(scene, Target(f"MRVM reference {v:03d}", intr, ov.c2w_opencv[k], True), coll)
-        img = bpy.data.images.load(str(view_paths(Path(folder), v)["rgb"]), check_existing=True)
+        img = bpy.data.images.load(str(view_paths(Path(folder), v)["rgb"].resolve()), check_existing=True)
         bg = cam.data.background_images.new()
         bg.image = img
         cam.data.show_background_images = True
@@ -261,52 +327,74 @@ def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int
 def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references: Path | None = None,
                 reference_views: tuple[int, ...] = (), plane_distance: float | None = None, bbox=None,
                 populate: Callable[[bpy.types.Scene], None] | None = None) -> Path:
-    """A new .blend (the current file is replaced) with a camera and an image plane per target of a
-    finished synthesis (``out_dir``), the reference cameras (their images as background images), and
-    whatever ``populate(scene)`` adds; images next to it in ``<stem>_novel_views/``. On an error the
-    .blend and the image folder are removed again (when this call created them)."""
+    """A new .blend (the current file is replaced, then opened from it) with a camera and an image plane per
+    target of a finished synthesis (``out_dir``) in the targets' frame (:func:`blend_frame`), the reference
+    cameras that frame shows (their images as background images; a note names those left out), and
+    whatever ``populate(scene)`` adds; images next to it in ``<stem>_novel_views/``, which a replaced .blend
+    leaves to it.
+
+    All or nothing: the .blend is built in a temporary file beside it and moved into place at the end, so an
+    error leaves an existing .blend, its images and the folders as they were."""
     from ..datasets.novel_views import read_targets
+    from ..synthesis.views import make_folder, remove_new_folders
+    from .objects import quiet_stdout
 
     blend_path = Path(blend_path).resolve()
     targets, depth = read_targets(Path(targets_json))
+    frame = blend_frame(targets)
     out_dir = Path(out_dir)
     depth = depth and all((out_dir / t.depth_path(i)).is_file() for i, t in enumerate(targets))
     if plane_distance is None:
         if bbox is None:
             raise InputError("give a plane distance or the object's box")
         plane_distance = default_plane_distance(targets, bbox)
-    sizes = {(t.intrinsics.width, t.intrinsics.height) for t in targets}
-    w, h = max(sizes)
-    for tw, th in sizes:
-        if abs(th * w / tw - h) > 1.0:
-            raise InputError(f"the targets have different aspect ratios ({w}x{h} and {tw}x{th}); a Blender scene "
-                             "has one frame shape: write them into separate .blend files")
+    shown: tuple[int, ...] = ()
+    if references is not None and reference_views:
+        shown, skipped = reference_views_in_frame(Path(references), tuple(reference_views), frame)
+        if skipped:
+            print(f"note: reference view{'s' if len(skipped) > 1 else ''} {', '.join(map(str, skipped))} left out of "
+                  f"{blend_path.name}: a Blender scene has one frame shape, the targets' "
+                  f"({_shape(C.intrinsics_from_blender(frame))}), and theirs differs", file=sys.stderr)
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
-    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
+    r = scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = frame.resolution_x, frame.resolution_y, 100
+    r.pixel_aspect_x, r.pixel_aspect_y = frame.pixel_aspect_x, frame.pixel_aspect_y
     scene.view_settings.view_transform = "Standard"  # the planes show the images' true colours
-    existed = blend_path.exists()
+    replacing = blend_path.exists()
     folder = blend_images_folder(blend_path)
     folder_existed = folder.exists()
+    partial = blend_path.with_name(f".{blend_path.stem}.partial-{os.getpid()}.blend")
+    made: list[Path] = []
+
+    def remove_partial() -> None:
+        partial.unlink(missing_ok=True)
+        Path(str(partial) + "1").unlink(missing_ok=True)  # Blender's backup of the first save
+
     try:
-        blend_path.parent.mkdir(parents=True, exist_ok=True)
-        bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))  # "//" paths resolve next to it from here on
-        scene = bpy.context.scene
-        gen = [dataclasses.replace(t, generated=True) for t in targets]
-        cfg = IP.PlaneConfig(distance=float(plane_distance), folder=f"//{folder.name}")
-        import_results(scene, gen, out_dir, cfg, depth=depth)
-        if references is not None and reference_views:
-            add_reference_cameras(scene, Path(references), tuple(reference_views))
-        scene.camera = bpy.data.objects[gen[0].name]
-        if populate is not None:
-            populate(scene)
-        bpy.ops.wm.save_as_mainfile(filepath=str(blend_path))
+        made = make_folder(blend_path.parent)
+        with IP.transaction() as txn:  # images written over are restored on an error
+            with quiet_stdout():  # "//" paths resolve next to the .blend from here on
+                bpy.ops.wm.save_as_mainfile(filepath=str(partial), check_existing=False)
+            scene = bpy.context.scene
+            gen = [dataclasses.replace(t, generated=True) for t in targets]
+            cfg = IP.PlaneConfig(distance=float(plane_distance), folder=f"//{folder.name}", own_folder=replacing)
+            import_results(scene, gen, out_dir, cfg, depth=depth, txn=txn)
+            if shown:
+                add_reference_cameras(scene, Path(references), shown)
+            scene.camera = bpy.data.objects[gen[0].name]
+            if populate is not None:
+                populate(scene)
+            with quiet_stdout():
+                bpy.ops.wm.save_as_mainfile(filepath=str(partial), check_existing=False)
+            os.replace(partial, blend_path)
     except BaseException:
-        if not existed:
-            blend_path.unlink(missing_ok=True)
-            Path(str(blend_path) + "1").unlink(missing_ok=True)
+        remove_partial()
         if not folder_existed:
             shutil.rmtree(folder, ignore_errors=True)
+        remove_new_folders(made)
         raise
-    Path(str(blend_path) + "1").unlink(missing_ok=True)  # Blender's backup of the first save
+    remove_partial()
+    with quiet_stdout():
+        bpy.ops.wm.open_mainfile(filepath=str(blend_path))
     return blend_path

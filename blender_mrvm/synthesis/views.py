@@ -18,7 +18,7 @@ runs that command in the worker process). :func:`synthesize_views` is a progress
    the accumulated opacity is below one half), plus ``synthesis.json`` (what was run) and a copy of
    ``targets.json`` (the cameras). Everything is
    written into a temporary folder beside ``out`` and moved into place at the end: an error or a
-   cancel leaves ``out`` as it was.
+   cancel leaves ``out`` as it was, and no folder the run created.
 
 The object's box (the model clips rays to it and works in the box's normalised frame) comes from
 the reference folder: ``meta.json`` ``bbox`` (renders), ``bound_radius``, a normalised capture (its
@@ -35,7 +35,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -560,8 +560,35 @@ def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
     check_folder_writable(out)
 
 
-def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
-    """Progress generator (events in rays); returns a :class:`SynthesisSummary`. See the module doc."""
+def make_folder(path: Path) -> list[Path]:
+    """Create the folder ``path`` with its missing parents; return the folders this call created (outermost
+    first) for :func:`remove_new_folders` to take back when the command fails."""
+    path = Path(path)
+    missing, p = [], path
+    while not p.exists() and p.parent != p:
+        missing.append(p)
+        p = p.parent
+    path.mkdir(parents=True, exist_ok=True)
+    return missing[::-1]
+
+
+def remove_new_folders(folders: Sequence[Path]) -> None:
+    """Remove the folders :func:`make_folder` created, innermost first, those that are empty (a failed
+    command leaves no empty folder behind; what anyone put there since stays)."""
+    for p in reversed(list(folders)):
+        try:
+            p.rmdir()
+        except OSError:
+            return
+
+
+def synthesize_views(cfg: SynthesisConfig, before_move: Callable[[Path, SynthesisSummary], None] | None = None
+                     ) -> ProgressGen:
+    """Progress generator (events in rays); returns a :class:`SynthesisSummary`. See the module doc.
+
+    ``before_move(folder, summary)`` runs when every file is written into the temporary folder, before it
+    moves into ``out`` (``synthesize --blend`` builds its .blend there): an error it raises leaves ``out``
+    as it was, like any other."""
     from ..threads import render_workers
 
     t0 = time.perf_counter()
@@ -696,10 +723,11 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         return geometry[k]
 
     base = out.parent if str(out.parent) else Path(".")
-    base.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=base))
+    made = make_folder(base)
+    tmp = None
     done = 0
     try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=base))
         for i, t in enumerate(targets):
             ts = time.perf_counter()
             geo, lend = [], []
@@ -732,10 +760,14 @@ def synthesize_views(cfg: SynthesisConfig) -> ProgressGen:
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg, cfg))
         if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
             shutil.copyfile(cfg.targets, tmp / "targets.json")  # the cameras, beside their images
+        if before_move is not None:
+            before_move(tmp, summary)
         F.move_into(tmp, out)
     finally:
-        if tmp.exists():
+        if tmp is not None and tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+        if not out.exists():  # failed or cancelled: no folder of this run stays
+            remove_new_folders(made)
     yield Progress(total, total, f"{len(targets)} view{'s' if len(targets) != 1 else ''} written")
     return summary
 
@@ -815,7 +847,11 @@ def orbit_targets(refs: References, count: int, elevation_deg: float = 20.0, rad
                   size: int = 0) -> list[Target]:
     """``count`` targets on a circle around the object's box centre, looking at it, with the first
     reference's field of view (unshifted) at ``size`` pixels on the longer side (0 = the references' size).
-    ``radius`` defaults to the references' median distance from the centre."""
+    ``radius`` defaults to the references' median distance from the centre.
+
+    Both focal lengths scale by the one factor ``size / longer side`` (the pixels keep the reference's
+    shape even where rounding the sides changes the aspect ratio a little); the principal point is the
+    new frame's centre."""
     from ..geometry.rigs import orbit_poses
 
     centre = 0.5 * (np.asarray(refs.bbox[0]) + np.asarray(refs.bbox[1]))
@@ -823,8 +859,8 @@ def orbit_targets(refs: References, count: int, elevation_deg: float = 20.0, rad
         radius = float(np.median([np.linalg.norm(c[:3, 3] - centre) for c in refs.c2w]))
     k = refs.intrinsics[0]
     w, h = reference_shape(k, size)
-    k = k.resized(w, h)
-    intr = C.Intrinsics(k.fx, k.fy, w / 2.0, h / 2.0, w, h)  # unshifted
+    s = size / max(k.width, k.height) if size > 0 else 1.0
+    intr = C.Intrinsics(k.fx * s, k.fy * s, w / 2.0, h / 2.0, w, h)  # unshifted
     poses = orbit_poses(count, radius, elevation_deg, centre)
     return [Target(f"orbit {i:03d}", intr, p, generated=True) for i, p in enumerate(poses)]
 
