@@ -646,6 +646,66 @@ def test_unreadable_and_mixed_size(ring, tmp_path):
         _run(d, tmp_path / "out")
 
 
+def _write_png16(path: Path, rgb: np.ndarray) -> None:
+    """A 16-bit RGB PNG (Pillow writes none): IHDR with bit depth 16, colour type 2, unfiltered big-endian rows."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    h, w = rgb.shape[:2]
+    rows = b"".join(b"\x00" + rgb[y].astype(">u2").tobytes() for y in range(h))
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+def test_16_bit_photos_huge_photos_and_a_file_for_the_folder(ring, tmp_path):
+    """16-bit greyscale photos came out as white rgb/ images (Pillow's conversion clips at 255) and 16-bit RGB ones
+    were copied as 16-bit; a photo over Pillow's 179 MP 'decompression bomb' limit (a 200 MP phone's) ended in a
+    traceback; a file given for the folder was said not to exist."""
+    from PIL import Image
+
+    d = tmp_path / "g16"
+    d.mkdir()
+    for i in range(5):
+        grey = np.asarray(Image.open(ring[0] / f"{i:03d}.png").convert("L")).astype(np.uint16) * 257
+        Image.fromarray(grey).save(d / f"{i:03d}.png")  # mode I;16
+    res = _run(d, tmp_path / "out")
+    assert len(res.registered) == 5
+    rgb = np.asarray(Image.open(tmp_path / "out" / "rgb" / "000000.png"))
+    first = np.asarray(Image.open(ring[0] / f"{res.registered[0]}").convert("L")).astype(float)
+    assert rgb.dtype == np.uint8 and rgb.shape == (H, W, 3) and abs(rgb.mean() - first.mean()) < 1.0
+    rgb16 = _copy(ring[0], tmp_path / "rgb16", [0, 1, 2, 3, 4])
+    for f in rgb16.iterdir():  # 16-bit RGB PNGs (Pillow opens them as 8-bit RGB)
+        _write_png16(f, np.asarray(Image.open(f).convert("RGB")).astype(np.uint16) * 257)
+    _run(rgb16, tmp_path / "out16")
+    assert Image.open(tmp_path / "out16" / "rgb" / "000000.png").mode == "RGB"
+    from blender_mrvm.capture.export import png_bit_depth
+
+    assert png_bit_depth(tmp_path / "out16" / "rgb" / "000000.png") == 8
+    big = _copy(ring[0], tmp_path / "big", [0, 1, 2])
+    Image.new("1", (16320, 12240)).save(big / "IMG_200MP.png")
+    with pytest.raises(InputError, match=r"images differ in size: IMG_200MP\.png is 16320x12240"):
+        _run(big, tmp_path / "out_big")
+    with pytest.raises(InputError, match=r"is a file, neither a folder of photos nor a video"):
+        _run(big / "000.png", tmp_path / "out_file")
+
+
+def test_a_folder_of_the_users_own_files_of_our_names_is_not_a_run_to_resume(ring, tmp_path):
+    """A folder without meta.json whose entries all bore the names recover-poses writes (a user's own frames/, a
+    COLMAP workspace colmap/, a scan's points.ply) was taken for an unfinished run and wiped without --force."""
+    d = _copy(ring[0], tmp_path / "in", [0, 1, 2, 3, 4])
+    out = tmp_path / "mine"
+    (out / "frames").mkdir(parents=True)
+    (out / "frames" / "notes.txt").write_text("my frames")
+    (out / "points.ply").write_text("ply my lidar scan")
+    with pytest.raises(OutputError, match=r"already holds files \(frames, points\.ply\).*--force"):
+        _run(d, out)
+    assert (out / "frames" / "notes.txt").read_text() == "my frames"
+    assert (out / "points.ply").read_text() == "ply my lidar scan"
+
+
 def test_no_overlap(tmp_path):
     d = tmp_path / "in"
     d.mkdir()

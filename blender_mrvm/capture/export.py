@@ -30,7 +30,39 @@ from ..datasets import format as F
 from ..errors import InputError
 from ..geometry.cameras import Intrinsics
 
-OUTPUT_ENTRIES = ("rgb", "pose", "intrinsics.txt", "transforms.json", "meta.json", "points.ply", "colmap", "frames")
+RUN_MARKER = ".recover-poses"
+"""The file ``recover-poses`` writes first into its output folder: what tells a run of its own, stopped before
+``meta.json`` (written last), from a folder of the user's that only holds files of the same names."""
+OUTPUT_ENTRIES = ("rgb", "pose", "intrinsics.txt", "transforms.json", "meta.json", "points.ply", "colmap", "frames",
+                  RUN_MARKER)
+
+
+def open_photo(path: Path):
+    """``PIL.Image.open`` for the user's own photos, at any size: Pillow refuses images over 179 megapixels as a
+    possible 'decompression bomb', and a 200 MP phone photo is one (pycolmap reads it at ``max_image_size``)."""
+    from PIL import Image
+
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+    try:
+        return Image.open(path)
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+
+
+def photo_rgb8(im) -> np.ndarray:
+    """A photo's pixels as 8-bit RGB (what ``rgb/`` holds): 16- and 32-bit greyscale scaled down from the 16-bit
+    range (Pillow's own conversion clips them at 255: a white image), the rest as Pillow converts them."""
+    if im.mode in ("I", "I;16", "I;16L", "I;16B", "I;16N", "F"):
+        grey = np.clip(np.asarray(im, dtype=np.float64) / 257.0, 0, 255).round().astype(np.uint8)
+        return np.repeat(grey[..., None], 3, axis=2)
+    return np.asarray(im.convert("RGB"))
+
+
+def png_bit_depth(path: Path) -> int | None:
+    """A PNG file's bit depth per channel from its header (IHDR), or None when it is not a PNG."""
+    with open(path, "rb") as f:
+        head = f.read(25)
+    return head[24] if len(head) == 25 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR" else None
 
 
 @dataclass
@@ -86,21 +118,19 @@ def read_points_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def write_capture(out_dir: Path, views: list[CaptureView], xyz: np.ndarray, rgb: np.ndarray,
                   meta: dict[str, Any]) -> None:
     """Write the capture folder (images, poses, intrinsics, transforms.json, points, meta last)."""
-    from PIL import Image
-
     out_dir = Path(out_dir)
     frames = []
     for i, v in enumerate(views):
         name = F.view_name(i)
         dst = out_dir / "rgb" / f"{name}.png"
-        with Image.open(v.image_path) as im:
+        with open_photo(v.image_path) as im:
             if im.size != (v.intrinsics.width, v.intrinsics.height):
                 raise InputError(f"{v.image_path}: image is {im.size[0]}x{im.size[1]}, its camera says "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
-            if im.format == "PNG" and im.mode == "RGB":  # already what rgb/ holds: copy the bytes
+            if im.format == "PNG" and im.mode == "RGB" and png_bit_depth(v.image_path) == 8:  # what rgb/ holds
                 F.atomic_write(dst, lambda tmp, src=v.image_path: shutil.copyfile(src, tmp))
-            else:
-                F.write_png(dst, np.asarray(im.convert("RGB")), compress_level=1)  # photos: 5x faster, 20 % larger
+            else:  # (a 16-bit PNG opens as RGB too, but is not 8-bit on disk)
+                F.write_png(dst, photo_rgb8(im), compress_level=1)  # photos: 5x faster, 20 % larger
         F.write_srn_pose(out_dir / "pose" / f"{name}.txt", v.c2w_opencv)
         k = v.intrinsics
         frames.append({"file_path": f"rgb/{name}.png", "c2w_opencv": v.c2w_opencv, "original_name": v.original_name,

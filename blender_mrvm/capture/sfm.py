@@ -47,7 +47,7 @@ from .check import warning as check_warning
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
 from ..datasets.format import remove_entries
-from .export import OUTPUT_ENTRIES, CaptureView, write_capture
+from .export import OUTPUT_ENTRIES, RUN_MARKER, CaptureView, open_photo, photo_rgb8, write_capture
 
 POLL_S = 0.1
 FORMAT_VERSION = 1
@@ -124,6 +124,10 @@ def natural_key(name: str) -> list:
 def list_images(images_dir: Path) -> list[str]:
     """Photo file names in ``images_dir`` (not recursive), in natural order."""
     images_dir = Path(images_dir)
+    if images_dir.is_file():
+        raise InputError(f"{images_dir} is a file, neither a folder of photos nor a video recover-poses reads "
+                         f"({', '.join(VIDEO_EXTENSIONS)}); give the folder of photos, or convert the video to one "
+                         "of these")
     if not images_dir.is_dir():
         raise InputError(f"image folder {images_dir} does not exist")
     names = [p.name for p in images_dir.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS]
@@ -163,14 +167,14 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
                          f"{_other_files_hint(images_dir)}")
     if len(names) > 2 and cfg.allow_pair and cfg.min_images > 2:
         pass  # a pair flag with more images simply runs the normal path
-    from PIL import Image, UnidentifiedImageError
+    from PIL import UnidentifiedImageError
 
     if any(Path(n).suffix.lower() in (".heic", ".heif") for n in names):
         _heif_opener(images_dir)
     sizes: dict[tuple[int, int], list[str]] = {}
     for n in names:
         try:
-            with Image.open(images_dir / n) as im:
+            with open_photo(images_dir / n) as im:
                 im.load()
                 sizes.setdefault(im.size, []).append(n)
         except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
@@ -249,9 +253,9 @@ def readable_photos(images_dir: Path, names: list[str], work: Path, turned: list
     for i, n in enumerate(names):
         if n in todo:
             new = converted_name(n, names)
-            with Image.open(images_dir / n) as im:
+            with open_photo(images_dir / n) as im:
                 exif = im.getexif()
-                rgb = im.convert("RGB")
+                rgb = Image.fromarray(photo_rgb8(im))
             if n in turned:
                 rgb = rgb.transpose(Image.Transpose.ROTATE_90)  # counter-clockwise: to the common size
             if Path(n).suffix.lower() in (".heic", ".heif"):
@@ -276,10 +280,8 @@ def photo_orientation(path: Path) -> int:
     """A photo's EXIF orientation (1 when it has none; HEIF's pixels come turned already)."""
     if path.suffix.lower() in (".heic", ".heif"):
         return 1
-    from PIL import Image
-
     try:
-        with Image.open(path) as im:
+        with open_photo(path) as im:
             value = im.getexif().get(0x0112, 1)
     except (OSError, ValueError, SyntaxError):
         return 1
@@ -321,14 +323,19 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
         raise OutputError(f"output {out_dir} exists and is not a folder")
     if out.is_dir():
         present = sorted(p.name for p in out.iterdir())
-        unfinished = present and set(present) <= set(OUTPUT_ENTRIES) and "meta.json" not in present
+        # ours and stopped before meta.json (written last): its marker says so, not names alone (a folder of the
+        # user's own frames/, colmap/ or points.ply was wiped as one)
+        unfinished = (present and set(present) <= set(OUTPUT_ENTRIES) and "meta.json" not in present
+                      and RUN_MARKER in present)
         if present:
             if not force and not unfinished:
-                shown = ", ".join(present[:3]) + (", ..." if len(present) > 3 else "")
+                named = [n for n in present if n != RUN_MARKER]
+                shown = ", ".join(named[:3]) + (", ..." if len(named) > 3 else "")
                 raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force to overwrite")
             keep = {"colmap"} if unfinished and not force else set()  # a failed or killed run: resume its stages
             remove_entries(out, [e for e in OUTPUT_ENTRIES if e not in keep])
     out.mkdir(parents=True, exist_ok=True)
+    (out / RUN_MARKER).write_text("a recover-poses run's output folder\n")
 
 
 RESUMABLE_STAGES = ("extract", "match")
