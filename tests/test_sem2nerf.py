@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 import pytest
 import torch
@@ -147,6 +149,46 @@ def test_bench_writes_csv(tmp_path):
     assert text[0].startswith("builder,size")
     assert {"one_hot", "contour_map", "distance_field", "build_inputs"} <= set(res)
     assert len(text) == 1 + len(res)
+
+
+def test_palette_mask_png_reads_as_grey_values_not_indices(tmp_path):
+    """A palette PNG with grey entries holds the ids its greys show (not its palette indices, which np.asarray
+    gives); one with coloured entries (a quantised semantic_color map) is refused."""
+    from PIL import Image
+
+    from blender_mrvm.models.sem2nerf.render import colorize, read_mask_png
+
+    m = np.zeros((8, 8), np.uint8)
+    m[2:4], m[4:6], m[6:] = 1, 3, 7
+    vals = np.unique(m)
+    im = Image.fromarray(np.searchsorted(vals, m).astype(np.uint8), "P")  # indices 0..3
+    im.putpalette([int(v) for v in vals for _ in range(3)])
+    im.save(tmp_path / "grey.png")
+    assert np.array_equal(read_mask_png(tmp_path / "grey.png"), m)
+    Image.fromarray(colorize(m)).quantize(8).save(tmp_path / "colours.png")
+    with pytest.raises(InputError, match="palette image with coloured entries.*8-bit greyscale"):
+        read_mask_png(tmp_path / "colours.png")
+
+
+def test_colour_of_an_unknown_label_is_not_read_as_a_known_one():
+    """The colour of id 8 lies within the tolerance of id 100's: with 100 known and 8 not, it reads as 8 (which
+    the mask check names), not as 100; colours a step off still read as their known labels, also labels 7 apart."""
+    from blender_mrvm.models.sem2nerf.render import check_input_mask, colorize, mask_from_rgba, palette
+
+    assert np.abs(np.subtract(palette(8), palette(100))).max() <= 24
+    labels = (0, 3, 53, 65, 100, 149)
+    m = np.zeros((8, 8), np.uint8)
+    m[1], m[2], m[3], m[4], m[5] = 8, 65, 3, 53, 149
+    assert sorted(np.unique(mask_from_rgba(colorize(m), labels, "COLORS", "img"))) == [0, 3, 8, 53, 65, 149]
+    info = types.SimpleNamespace(size=8, labels=labels, names=tuple(map(str, labels)))
+    with pytest.raises(InputError, match=r"label id\(s\) \[8\] are not known"):
+        check_input_mask(mask_from_rgba(colorize(m), labels, "COLORS", "img"), info, "img")
+    m[1] = 100
+    off = np.clip(colorize(m).astype(int) + 1, 0, 255).astype(np.uint8)  # every channel a step off
+    off[0] = 250  # near white: background
+    assert np.array_equal(mask_from_rgba(off, labels, "COLORS", "img"), m)
+    every = np.arange(256, dtype=np.uint8)[None]
+    assert np.array_equal(mask_from_rgba(colorize(every), labels, "COLORS", "img"), every)
 
 
 # ------------------------------------------------------------------------------------------- model

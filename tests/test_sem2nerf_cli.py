@@ -44,6 +44,10 @@ def test_cli_train_one_step(tmp_path, trained):
                "--iterations", "1", "--patch-size", "8", "--lpips-weight", "0", "--threads", "1"])
     assert rc == 0
     assert (tmp_path / "r" / "checkpoints" / "latest").read_text().strip() == "step_0000001"
+    again = ["sem2nerf", "train", "--data", str(data), "--out", str(tmp_path / "r"), "--preset", "fast",
+             "--iterations", "1", "--patch-size", "8", "--lpips-weight", "0", "--threads", "1", "--no-resume"]
+    assert main(again) == 2, "--no-resume on a folder holding a run needs --force"
+    assert main([*again, "--force"]) == 0
 
 
 def test_render_views_semantics_edit_blend(tmp_path, trained):
@@ -113,7 +117,7 @@ def test_render_quality_preview_halves_the_samples(tmp_path, trained):
 
 
 @pytest.mark.parametrize("case", ["unknown_label", "empty", "size", "no_pose", "rgb_mask", "bad_edit",
-                                  "edit_absent", "not_sem2nerf"])
+                                  "edit_absent", "not_sem2nerf", "huge_seed"])
 def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, case):
     run, _, obj = trained
     mask = obj / "mask" / "000000.png"
@@ -152,6 +156,9 @@ def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, cas
         DF.write_png(mask, np.where(m > 0, known[0], 0).astype(np.uint8))
         edit = ["--edit", f"{known[1]}:0"]
         match = "not in the mask"
+    elif case == "huge_seed":  # past torch's 64-bit seeds: was a traceback
+        edit = ["--style-seed", "99999999999999999999999"]
+        match = "--style-seed 99999999999999999999999: a seed must lie in 0 .. 18446744073709551615"
     else:
         ckpt = str(tmp_path)
         match = "no checkpoint"
@@ -163,6 +170,23 @@ def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, cas
     assert len(err) == 1 and err[0].startswith("error: ") and match in err[0]
     assert not out.exists()
     assert not any(p.name.startswith(".out") for p in tmp_path.iterdir())
+
+
+def test_render_never_writes_over_its_input_object(tmp_path, trained, capsys):
+    """--out naming the object folder (or the folder) the mask and pose come from is refused whatever --force
+    says: its rgb/ ground truth and pose/ files would be replaced by the render's own."""
+    import shutil
+
+    run, _, obj = trained
+    shutil.copytree(obj, tmp_path / "obj")
+    before = {p: p.read_bytes() for p in (tmp_path / "obj").rglob("*") if p.is_file()}
+    args = ["sem2nerf", "render", "--checkpoint", str(run), "--mask", str(tmp_path / "obj" / "mask" / "000000.png"),
+            "--pose", str(tmp_path / "obj" / "pose" / "000000.txt"), "--views", "1", "--threads", "1", "--force"]
+    for out, what in ((tmp_path / "obj", "mask's object"), (tmp_path / "obj" / "pose", "pose's")):
+        assert main([*args, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and f"is the {what} folder" in err[0], err
+    assert {p: p.read_bytes() for p in (tmp_path / "obj").rglob("*") if p.is_file()} == before
 
 
 def test_eval_writes_metrics(tmp_path, trained):

@@ -233,3 +233,33 @@ def test_a_run_closed_between_checkpoints_keeps_its_steps(data, tmp_path, capsys
     assert "stopped after step 2 of 5" in capsys.readouterr().err
     s = run_to_end(T.train(T.train_config(**{**cfg.__dict__, "iterations": 3}), resume=True))
     assert s["step"] == 3 and (out / "checkpoints" / "latest").read_text().strip() == "step_0000003"
+
+
+def test_no_resume_refuses_a_run_unless_forced_and_resume_drops_metrics_past_its_checkpoint(data, tmp_path):
+    """Without resume a folder holding a run is refused (nothing touched); with force the old run is removed first,
+    so its later checkpoints cannot outrank the new run's and metrics.jsonl holds the new run's steps only. A
+    resume drops the metrics a run wrote past the checkpoint it resumes from."""
+    from blender_mrvm.models.checkpoint_files import find_checkpoint
+
+    out = tmp_path / "run"
+
+    def cfg(**kw):
+        base = dict(data=str(data), out_dir=str(out), preset="fast", model_overrides=TINY_MODEL, iterations=4,
+                    objects_per_step=1, patch_size=4, lpips_weight=0.0, checkpoint_every=2, log_every=1, threads=1)
+        return T.train_config(**{**base, **kw})
+
+    def steps():
+        return [json.loads(x)["step"] for x in (out / "metrics.jsonl").read_text().splitlines()]
+
+    run_to_end(T.train(cfg(), resume=False))
+    import shutil
+
+    shutil.rmtree(out / "checkpoints" / "step_0000004")  # killed after its metrics, before its checkpoint
+    assert run_to_end(T.train(cfg(), resume=True))["resumed_from"] and steps() == [1, 2, 3, 4]
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with pytest.raises(InputError, match="holds a run .checkpoints up to step 4.*--force"):
+        run_to_end(T.train(cfg(iterations=2, checkpoint_every=1, seed=5), resume=False))
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    run_to_end(T.train(cfg(iterations=2, checkpoint_every=1, seed=5), resume=False, force=True))
+    assert sorted(p.name for p in (out / "checkpoints").glob("step_*")) == ["step_0000001", "step_0000002"]
+    assert find_checkpoint(out).name == "step_0000002" and steps() == [1, 2]

@@ -54,7 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     t.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     t.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    t.add_argument("--no-resume", action="store_true", help="start from scratch even if the run folder has a checkpoint")
+    t.add_argument("--no-resume", action="store_true", help="start from scratch; a run folder that holds a run "
+                   "needs --force too (its checkpoints and metrics are then removed)")
+    t.add_argument("--force", action="store_true", help="with --no-resume: start over in a run folder that holds a run")
 
     r = sub.add_parser("render", help="free-viewpoint images + semantic maps from one part mask and its camera")
     r.add_argument("--checkpoint", required=True,
@@ -153,8 +155,8 @@ def run(args) -> int:
                              checkpoint_every=args.checkpoint_every, seed=args.seed, threads=args.threads,
                              device=args.device, init_checkpoint=args.init,
                              **({"code_lr": args.code_lr} if args.code_lr is not None else {}))
-        summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume), desc="sem2nerf train", unit="step",
-                                between_units=True)
+        summary = run_with_tqdm(T.train(cfg, resume=not args.no_resume, force=args.force), desc="sem2nerf train",
+                                unit="step", between_units=True)
         print(json.dumps(summary))
         return 0
     if cmd == "render":

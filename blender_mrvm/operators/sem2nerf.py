@@ -76,15 +76,10 @@ def _path_setting(raw: str, what: str) -> Path:
     return _abspath(raw)
 
 
-def plan_from_props(context) -> Sem2NeRFJob:
-    """Check the Sem2NeRF settings and the scene; no side effects. MRVMError on bad input."""
-    from ..models.sem2nerf import render as R
-    from ..scene import image_planes as IP
-    from ..scene import sem2nerf as S
-
-    p = context.scene.mrvm_sem2nerf
-    scene = context.scene
+def checkpoint_from_props(p):
+    """The header of the panel's Sem2NeRF checkpoint (empty = the shipped model); MRVMError when it is none."""
     from ..models.pretrained import shipped_or_none
+    from ..models.sem2nerf import render as R
 
     shipped = shipped_or_none("sem2nerf")
     if not p.checkpoint.strip() and shipped is not None:
@@ -93,7 +88,18 @@ def plan_from_props(context) -> Sem2NeRFJob:
         ck = _path_setting(p.checkpoint, "a Sem2NeRF checkpoint (trained with `python -m blender_mrvm sem2nerf train`)")
     if not ck.exists():
         raise InputError(f"checkpoint {ck} does not exist")
-    info = R.checkpoint_info(ck)
+    return R.checkpoint_info(ck)
+
+
+def plan_from_props(context) -> Sem2NeRFJob:
+    """Check the Sem2NeRF settings and the scene; no side effects. MRVMError on bad input."""
+    from ..models.sem2nerf import render as R
+    from ..scene import image_planes as IP
+    from ..scene import sem2nerf as S
+
+    p = context.scene.mrvm_sem2nerf
+    scene = context.scene
+    info = checkpoint_from_props(p)
     # The mask and its viewpoint
     if p.mask_source == "FILE":
         path = _path_setting(p.mask_path, "the mask file (a dataset's mask/NNNNNN.png)")
@@ -135,7 +141,7 @@ def prepare(context, job: Sem2NeRFJob):
 
     pr = P.get(context)
     interp = choose_interpreter(pr.python_path if pr else "")
-    require(interp, ("torch", "safetensors", "numpy", "PIL"))
+    require(interp, ("torch", "safetensors", "numpy", "PIL", "scipy"))  # scipy: the mask's inputs (build_inputs)
     return interp
 
 
@@ -203,12 +209,15 @@ class MRVM_OT_sem2nerf_paint_mask(bpy.types.Operator):
     def execute(self, context):
         from ..errors import MRVMError
         from ..models.sem2nerf import render as R
+        from ..models.sem2nerf.inputs import check_mask
         from ..scene.sem2nerf import new_mask_image
 
         p = context.scene.mrvm_sem2nerf
         try:
             path = _path_setting(p.mask_path, "the mask file (a dataset's mask/NNNNNN.png)")
-            img = new_mask_image(f"{path.parent.parent.name} {path.stem}", R.colorize(R.read_mask_png(path)))
+            # labels the checkpoint does not know would be painted in colours that read back as no label or another
+            mask = check_mask(R.read_mask_png(path), checkpoint_from_props(p).labels, f"mask {path}")
+            img = new_mask_image(f"{path.parent.parent.name} {path.stem}", R.colorize(mask))
         except MRVMError as e:
             p.status = str(e)
             self.report({"ERROR"}, str(e))

@@ -328,8 +328,13 @@ def _normalized_rays(intr, c2w, px: np.ndarray, box: float):
     return make_rays(intr, normalize_pose(c2w, np.zeros(3), box), px, box=1.0)
 
 
-def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObject] | None = None):
-    """Progress generator: trains, writes checkpoints and metrics.jsonl; returns a summary dict."""
+def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObject] | None = None,
+          force: bool = False):
+    """Progress generator: trains, writes checkpoints and metrics.jsonl; returns a summary dict.
+
+    ``resume``: continue from the run folder's newest checkpoint (its metrics past that step are dropped).
+    Without it, a run folder that holds a run is refused unless ``force``, which removes that run first
+    (``run_folder.resume_point``, as ``train --no-resume --force``)."""
     from ..models.checkpoint_files import STATE_FILE, find_checkpoint
     from ..models.sem2nerf.config import sem2nerf_config
     from ..models.sem2nerf.inputs import build_inputs, to_index
@@ -406,6 +411,12 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         from ..models.metrics import LPIPS
 
         lp = LPIPS().to(dev)
+    from . import run_folder
+
+    if resume:  # the metrics a killed run wrote past its checkpoint are written again below
+        run_folder.trim_metrics(out / "metrics.jsonl", start)
+    else:  # never mixed with an old run's checkpoints and metrics: refused, or (force) removed first
+        run_folder.resume_point(out, resume=False, force=force)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps({"train": {k: v for k, v in cfg.__dict__.items()},
                                                  "labels": list(labels), "label_names": list(names)},

@@ -61,7 +61,8 @@ class RenderRequest:
     blend_steps: int = 5
     """Images along the blend (ends included)."""
     force: bool = False
-    """Write into a non-empty output folder (files of the same name are replaced)."""
+    """Write into a non-empty output folder (files of the same name are replaced); never into the folder of the
+    mask or pose, or the dataset object holding them (:func:`input_folders`)."""
     threads: int = 0
     """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
     device: str = "cpu"
@@ -74,6 +75,10 @@ class RenderRequest:
     """... by this factor in [0, 1] (0 = the style above, 1 = the seed's)."""
     quality: str = "full"
     """``full`` (as trained) or ``preview`` (half the samples per ray: ``models.registry.quality_overrides``)."""
+
+
+SEED_MAX = 2**64 - 1
+"""The largest style seed (``torch.Generator.manual_seed`` takes 64 bits)."""
 
 
 def palette(label_id: int) -> tuple[int, int, int]:
@@ -132,19 +137,38 @@ def orbit_poses(c2w: np.ndarray, n: int) -> list[np.ndarray]:
 
 
 def read_mask_png(path: Path) -> np.ndarray:
+    """A mask PNG's (H, W) uint8 part ids; InputError for a missing or unreadable file, several channels, more
+    than 8 bits, or a palette image whose colours are not grey (a palette image with grey entries, which an
+    editor may save a greyscale mask as, is read as those grey values, never as its palette indices)."""
+    from PIL import Image
+
     from ...datasets import format as DF
 
     if not Path(path).is_file():
         raise InputError(f"mask {path} does not exist")
     try:
+        with Image.open(path) as im:
+            mode, pal = im.mode, im.getpalette("RGB") if im.mode == "P" else None
         m = np.asarray(DF.read_png(Path(path)))
     except Exception as e:  # noqa: BLE001 - any decoder failure is the user's file
         raise InputError(f"mask {path} is not a readable PNG: {type(e).__name__}") from None
+    if mode == "P":  # np.asarray gives its palette indices; PA (indices + alpha) is refused below as 2 channels
+        m = _palette_greys(m, pal, f"mask {path}")
     if m.ndim != 2:
         raise InputError(f"mask {path} has {m.shape[-1]} channels; expected a single-channel part-id image")
     if m.dtype != np.uint8:
         raise InputError(f"mask {path} is {m.dtype}; expected 8-bit part ids")
     return m
+
+
+def _palette_greys(index: np.ndarray, pal: list | None, where: str) -> np.ndarray:
+    """The grey values a palette image's pixels show (its part ids); InputError when a used entry is coloured."""
+    lut = np.asarray(pal or [], np.int64).reshape(-1, 3)
+    used = np.flatnonzero(np.bincount(index.ravel(), minlength=256))
+    if used.size and (used[-1] >= len(lut) or (lut[used] != lut[used, :1]).any()):
+        raise InputError(f"{where} is a palette image with coloured entries, not part ids; save it as 8-bit "
+                         "greyscale (value = part id)")
+    return lut[index, 0].astype(np.uint8) if used.size else index.astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -221,9 +245,11 @@ COLOR_TOLERANCE = 24
 def mask_from_rgba(rgba: np.ndarray, labels: tuple[int, ...], encoding: str, where: str) -> np.ndarray:
     """(H, W, 3|4) uint8 image -> (H, W) uint8 part ids. Pixels with alpha < 128 are background.
 
-    COLORS: each colour is read as the nearest known label's colour within :data:`COLOR_TOLERANCE`,
-    else as any other id whose colour it is (so an unknown label is named), else InputError. IDS: the
-    grey value is the id (the image must be grey). Labels are checked by :func:`check_input_mask`.
+    COLORS: each colour is read as the id (0..255) whose colour (:func:`palette`; white and black for
+    background) is nearest, within :data:`COLOR_TOLERANCE`, a known label winning a tie; so a colour of a label
+    the checkpoint does not know reads as that label, which the check names, never as a known label whose
+    colour is a few steps away. A colour near none is an InputError. IDS: the grey value is the id (the image
+    must be grey). Labels are checked by :func:`check_input_mask`.
     """
     img = np.asarray(rgba)
     if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8:
@@ -241,18 +267,13 @@ def mask_from_rgba(rgba: np.ndarray, labels: tuple[int, ...], encoding: str, whe
     packed = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
     uniq, inv = np.unique(packed, return_inverse=True)
     cols = np.stack([(uniq >> 16) & 255, (uniq >> 8) & 255, uniq & 255], -1)
-    known = [0, *[int(v) for v in labels if v != 0]]
-    table = {0: [(255, 255, 255), (0, 0, 0)]}
-    for v in range(1, 256):
-        table.setdefault(v, []).append(palette(v))
-    ids = np.full(len(uniq), -1, np.int64)
-    for pool in (known, range(256)):  # known labels first; then name the unknown id a colour is
-        ref_ids = np.array([v for v in pool for _ in table[v]])
-        refs = np.array([c for v in pool for c in table[v]], np.int32)
-        dist = np.abs(cols[:, None, :] - refs[None]).max(-1)
-        best = dist.argmin(1)
-        ok = (ids < 0) & (dist[np.arange(len(uniq)), best] <= COLOR_TOLERANCE)
-        ids[ok] = ref_ids[best[ok]]
+    ref_ids = np.array([0, 0, *range(1, 256)])
+    refs = np.array([(255, 255, 255), (0, 0, 0), *[palette(v) for v in range(1, 256)]], np.int32)
+    dist = np.abs(cols[:, None, :] - refs[None]).max(-1)
+    # a known label wins a tie: half a step more for the others
+    dist2 = 2 * dist + ~np.isin(ref_ids, [0, *labels])[None]
+    best = dist2.argmin(1)
+    ids = np.where(dist[np.arange(len(uniq)), best] <= COLOR_TOLERANCE, ref_ids[best], -1)
     out = ids[inv.reshape(packed.shape)]
     bad = (out < 0) & ~clear
     if bad.any():
@@ -278,15 +299,32 @@ class Prepared:
     """(intrinsics, OpenCV camera-to-world) of every view to render."""
 
 
+def input_folders(mask: Path, pose: Path) -> dict[str, Path]:
+    """The folders the output must not be: those holding the mask and the pose and, for a dataset object's
+    ``mask/NNNNNN.png`` or ``pose/NNNNNN.txt``, the object folder, whose ``rgb/`` and ``pose/`` files the
+    render's own would replace."""
+    folders = {"mask's": mask.parent, "pose's": pose.parent}
+    for what, p, sub in (("mask's object", mask, "mask"), ("pose's object", pose, "pose")):
+        if p.parent.name == sub:
+            folders[what] = p.parent.parent
+    return folders
+
+
 def prepare(req: RenderRequest) -> Prepared:
     """Every check that needs no torch; InputError / OutputError naming the first problem."""
+    from ...guards import check_not_input
+
     out = Path(req.out)
+    check_not_input(out, input_folders(Path(req.mask), Path(req.pose)))  # whatever --force says
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not req.force)):
         raise OutputError(f"output {out} exists and is not an empty folder (use --force to write into it)")
     if req.views < 1 or req.blend_steps < 2:
         raise InputError("--views must be >= 1 and --blend-steps >= 2")
     if not 0.0 <= req.mix <= 1.0:
         raise InputError("--mix must lie in [0, 1]")
+    for flag, seed in (("--style-seed", req.style_seed), ("--mix-seed", req.mix_seed), ("--blend", req.blend)):
+        if seed is not None and not 0 <= seed <= SEED_MAX:
+            raise InputError(f"{flag} {seed}: a seed must lie in 0 .. {SEED_MAX}")
     from ..registry import QUALITY_LEVELS
 
     if req.quality not in QUALITY_LEVELS:
