@@ -7,6 +7,7 @@ a group into the frozen dataclass config of the core function with a ``to_config
 from __future__ import annotations
 
 import bpy
+from bpy.app.handlers import persistent
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from .scene.procedural._registry import CATEGORIES
@@ -312,7 +313,8 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     ], default="COLORS")
     edits: StringProperty(name="Relabel", default="",
                           description="Label edits applied to the mask first, e.g. '2:0' (part 2 becomes background) "
-                                      "or 'arm:seat'; several separated by commas")
+                                      "or 'chair/arm:chair/seat' (label names as the panel lists them); several "
+                                      "separated by commas")
     viewpoint: EnumProperty(name="Viewpoint", items=[
         ("DATASET", "Dataset pose", "The mask's own pose and intrinsics in its dataset (pose/NNNNNN.txt)"),
         ("CAMERA", "Scene camera", "A camera of the scene sees the mask"),
@@ -359,14 +361,31 @@ SCENE_PROPERTIES = {
 classes = tuple(SCENE_PROPERTIES.values())
 
 
+@persistent
+def end_jobs_of_loaded_file(*_args) -> None:
+    """``load_post``: no job runs in a file just opened. A section's ``running``, ``progress`` and ``status`` are
+    saved in the .blend despite SKIP_SAVE (which keeps them out of presets, not out of files), so a file saved
+    while a job ran would open with that section showing a progress bar and refusing to start ("already
+    running"); each such section is set idle again, in every scene."""
+    for scene in bpy.data.scenes:
+        for name in SCENE_PROPERTIES:
+            group = getattr(scene, name, None)
+            if group is not None and group.running:
+                group.running, group.progress, group.status = False, 0.0, ""
+
+
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     for name, cls in SCENE_PROPERTIES.items():
         setattr(bpy.types.Scene, name, PointerProperty(type=cls))
+    if end_jobs_of_loaded_file not in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.append(end_jobs_of_loaded_file)
 
 
 def unregister() -> None:
+    while end_jobs_of_loaded_file in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(end_jobs_of_loaded_file)
     for name in SCENE_PROPERTIES:
         if hasattr(bpy.types.Scene, name):
             delattr(bpy.types.Scene, name)

@@ -41,6 +41,7 @@ DEPENDENCIES: tuple[tuple[str, str, str], ...] = (
     ("safetensors", "safetensors>=0.4", "model checkpoints"),
     ("numpy", "numpy>=1.24,<2", "everything"),
     ("PIL", "pillow>=10", "PNG images"),
+    ("scipy", "scipy>=1.11", "Sem2NeRF's mask inputs and the references' visual hull"),
     ("OpenEXR", "openexr>=3.3", "depth and normal maps (EXR)"),
     ("pycolmap", "pycolmap==4.2.1", "recovering the poses of photos"),
     ("pillow_heif", "pillow-heif>=1.0", "HEIC photos (an iPhone's default) to recover poses from"),
@@ -114,18 +115,20 @@ class Interpreter:
 _probe_cache: dict[tuple[str, float], dict] = {}
 
 
-def probe(python: str, timeout: float = 30.0) -> dict:
+def probe(python: str, timeout: float = 30.0, needs: tuple[str, ...] = ()) -> dict:
     """``{"python": version, "modules": {name: version or None}}`` for ``python`` (cached per file).
 
-    Uses ``find_spec`` (nothing is imported, so it takes well under a second). Raises
-    :class:`InputError` when the interpreter cannot run.
+    Uses ``find_spec`` (nothing is imported, so it takes well under a second). A cached report that lacks one
+    of ``needs`` is not trusted: installing a package (as the error message says) changes nothing the cache
+    key sees, so that interpreter is probed again. Raises :class:`InputError` when the interpreter cannot run.
     """
     p = Path(python)
     if not p.is_file():
         raise InputError(f"worker Python {python} does not exist")
     key = (str(p), p.stat().st_mtime)
-    if key in _probe_cache:
-        return _probe_cache[key]
+    cached = _probe_cache.get(key)
+    if cached is not None and all(cached["modules"].get(m) for m in needs):
+        return cached
     try:
         cp = subprocess.run([str(p), "-c", _PROBE, *[m for m, _, _ in DEPENDENCIES]], capture_output=True, text=True,
                             timeout=timeout, env=_clean_env(), stdin=subprocess.DEVNULL)
@@ -146,7 +149,7 @@ def clear_probe_cache() -> None:
 
 def missing(python: str, needs: tuple[str, ...] = ("torch",)) -> list[str]:
     """Import names of ``needs`` that ``python`` lacks."""
-    mods = probe(python)["modules"]
+    mods = probe(python, needs=needs)["modules"]
     return [m for m in needs if not mods.get(m)]
 
 

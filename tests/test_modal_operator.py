@@ -75,6 +75,8 @@ class Job(ProgressOperator):
         return gen()
 
     def on_result(self, context, result):
+        self.result_scene = context.scene
+        assert context.window_manager is not None  # the rest of the context is the window's
         return f"done with {result}"
 
 
@@ -150,3 +152,43 @@ def test_an_unexpected_error_ends_the_job_so_the_next_run_starts():
     # scripts (execute): a missing module reads the same; other errors still raise to the script
     ctx, op = make_context(), Job(fail_at=0, error=ModuleNotFoundError("No module named 'PIL'", name="PIL"))
     assert op.execute(ctx) == {"CANCELLED"} and "no module 'PIL'" in op.reports[-1][1]
+
+
+def test_a_job_ends_in_the_scene_it_was_started_in():
+    """The user shows another scene while the job runs: the job's progress, its end and its result stay with the
+    scene it was started in (before, that scene stayed "running" and the result went to the one shown)."""
+    ctx, op = make_context(), Job()
+    a = ctx.scene
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"}
+    b = ctx.scene = SimpleNamespace(job=SimpleNamespace(running=False, progress=0.0, status=""))
+    assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"} and a.job.status.startswith("step 1") and b.job.status == ""
+    while op.modal(ctx, TIMER) == {"RUNNING_MODAL"}:
+        pass
+    assert not a.job.running and a.job.status == "done with result" and op.result_scene is a
+    assert b.job.status == "" and not b.job.running
+    ctx.scene = a
+    assert Job().invoke(ctx, None) == {"RUNNING_MODAL"}  # not "already running"
+
+
+def test_a_job_whose_scene_was_deleted_is_cancelled(empty_scene):
+    """A real scene: deleted while its job runs, the job is cancelled (generator closed, timer and progress bar
+    ended) without touching the scene shown; one reallocated (undo) is found again by its session_uid."""
+    import bpy
+
+    job_scene = bpy.data.scenes.new("Job scene")
+    ctx = make_context()
+    ctx.scene = job_scene
+    op = Job(n=5)
+    op.props_attr = "mrvm_sem2nerf"
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"} and job_scene.mrvm_sem2nerf.running
+    ctx.scene = empty_scene
+    assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"}
+    stale = bpy.data.scenes.new("Stale")
+    op._scene, op._scene_uid = stale, job_scene.session_uid
+    bpy.data.scenes.remove(stale)
+    assert op._job_scene(ctx) == job_scene  # found again by its session_uid
+    bpy.data.scenes.remove(job_scene)
+    assert op.modal(ctx, TIMER) == {"CANCELLED"} and op.closed
+    assert op.reports[-1] == ("WARNING", "Test job cancelled: the scene it was started in was deleted")
+    assert ctx.window_manager.calls[-1] == ("end",) and not empty_scene.mrvm_sem2nerf.running
+    assert empty_scene.mrvm_sem2nerf.status == ""

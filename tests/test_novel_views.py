@@ -214,7 +214,7 @@ def test_dependency_status_in_preferences(empty_scene, prefs, bare_python):
     prefs.python_path = bare_python
     rep = P.dependency_status()
     assert rep.interpreter.source == "preferences"
-    assert rep.missing == ["torch", "safetensors", "numpy", "PIL", "OpenEXR", "pycolmap", "pillow_heif", "av"]
+    assert rep.missing == ["torch", "safetensors", "numpy", "PIL", "scipy", "OpenEXR", "pycolmap", "pillow_heif", "av"]
     log = _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO"))
     labels = _labels(log)
     assert "torch: missing (needed for training and novel-view synthesis)" in labels
@@ -648,4 +648,4 @@ def test_operator_bad_input(ready, tmp_path, prefs, bare_python):
     p.plane_distance = 1.0
     # torch missing in the worker Python.
     prefs.python_path = bare_python
-    _fails("torch, safetensors, numpy, PIL missing in the worker Python")
+    _fails("torch, safetensors, numpy, PIL, scipy missing in the worker Python")

@@ -242,6 +242,12 @@ def test_open_mask_for_painting_and_relabel(s2n, tmp_path):
     p.mask_source, p.mask_path = "FILE", str(tmp_path / "missing.png")
     with pytest.raises(RuntimeError, match="does not exist"):
         bpy.ops.mrvm.sem2nerf_paint_mask()
+    # a label the checkpoint does not know is refused, not painted in a colour that reads back as another label
+    DF.write_png(tmp_path / "unknown.png", np.where(m > 0, 200, 0).astype(np.uint8))
+    p.mask_path, images = str(tmp_path / "unknown.png"), len(bpy.data.images)
+    with pytest.raises(RuntimeError, match=r"label id\(s\) \[200\] are not known"):
+        bpy.ops.mrvm.sem2nerf_paint_mask()
+    assert len(bpy.data.images) == images and p.mask_source == "FILE"
 
 
 def test_escape_stops_the_worker_and_adds_nothing(s2n, monkeypatch):
@@ -354,3 +360,77 @@ def test_bad_input_one_line_nothing_created_or_written(s2n, tmp_path, case):
     assert _state() == before, "nothing created"
     assert not s2n.planes.exists() and not list(s2n.jobs.iterdir()), "nothing written"
     assert not p.running and p.status
+
+
+def test_a_file_saved_during_a_job_opens_with_no_job_running(empty_scene, tmp_path):
+    """running / progress / status are saved in the .blend (SKIP_SAVE does not keep scene properties out of it): the
+    add-on's load_post handler sets every section of every scene idle, so the panel can start a job again."""
+    import bpy
+
+    from blender_mrvm.props import SCENE_PROPERTIES
+
+    other = bpy.data.scenes.new("Other")
+    for scene in (empty_scene, other):
+        for name in SCENE_PROPERTIES:
+            g = getattr(scene, name)
+            g.running, g.progress, g.status = True, 0.5, "view 1/2, Esc to cancel"
+    done = empty_scene.mrvm_dataset
+    done.running, done.progress, done.status = False, 0.0, "Dataset written"  # a finished job's message stays
+    names = (empty_scene.name, other.name)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "saved.blend"))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "saved.blend"))
+    for scene in (bpy.data.scenes[n] for n in names):
+        for name in SCENE_PROPERTIES:
+            g = getattr(scene, name)
+            assert not g.running and g.progress == 0.0, (scene.name, name)
+            assert g.status in ("", "Dataset written"), (scene.name, name, g.status)
+    assert bpy.data.scenes[names[0]].mrvm_dataset.status == "Dataset written"
+
+
+def test_a_worker_python_without_scipy_is_refused_up_front(s2n, tmp_path, monkeypatch):
+    """Sem2NeRF's mask inputs (build_inputs) need scipy: a worker Python lacking it is named with its install
+    command before the job starts, not a failure in the worker."""
+    import sys
+
+    import bpy
+
+    from blender_mrvm import worker as W
+
+    py = tmp_path / "python"
+    mods = {"torch": "2.13.0", "safetensors": "0.4.5", "numpy": "1.26.4", "PIL": "11.0", "scipy": None}
+    py.write_text(f"#!{sys.executable}\nimport json\nprint(json.dumps({{'python': '3.11.0', 'modules': {mods!r}}}))\n")
+    py.chmod(0o755)
+    monkeypatch.setattr(W, "choose_interpreter", lambda *a, **k: W.Interpreter(str(py), "preferences"))
+    W.clear_probe_cache()
+    before = _state()
+    with pytest.raises(RuntimeError, match='scipy missing in the worker Python .*pip install "scipy>=1.11"'):
+        bpy.ops.mrvm.sem2nerf()
+    assert _state() == before and not list(s2n.jobs.iterdir())
+    W.clear_probe_cache()
+
+
+def test_relabel_examples_work_with_the_shipped_checkpoint(addon):
+    """The Relabel examples of the panel's tooltip and of docs/guide/sem2nerf.md name labels of the shipped
+    checkpoint (whose names are category/part: 'arm:seat' was refused)."""
+    import re
+    from pathlib import Path
+
+    import bpy
+
+    from blender_mrvm.models.pretrained import shipped_or_none
+    from blender_mrvm.models.sem2nerf.render import checkpoint_info, parse_edit
+
+    ck = shipped_or_none("sem2nerf")
+    if ck is None:
+        pytest.skip("this copy ships no Sem2NeRF model")
+    info = checkpoint_info(ck)
+    tip = bpy.types.Scene.bl_rna.properties["mrvm_sem2nerf"].fixed_type.properties["edits"].description
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "sem2nerf.md").read_text()
+    start = doc.index("*Relabel*")
+    relabel = doc[start:doc.index("`--edit`", start)]
+    examples = re.findall(r"'([^' ]+:[^' ]+)'", tip) + re.findall(r"`([^` ]+:[^` ]+)`", relabel)
+    assert len(examples) == 4 and any(not e[0].isdigit() for e in examples), examples
+    for e in examples:
+        src, dst = parse_edit(e, info.labels, info.names)
+        assert src in info.labels and dst in info.labels

@@ -184,6 +184,27 @@ def test_probe_and_install_hint(bare_python):
         W.probe("/nonexistent/python")
 
 
+@pytest.mark.skipif(os.name == "nt", reason="the fake interpreter is a script with a #! line")
+def test_a_package_installed_after_a_probe_is_seen(tmp_path):
+    """Installing torch (as the error says) changes no interpreter mtime, the probe cache's key: a cached report
+    lacking what is needed is probed again, so the next press no longer says torch is missing; a report that has
+    everything needed is reused without starting a process."""
+    py = tmp_path / "python"
+    py.write_text(f"#!{sys.executable}\nimport json, pathlib\np = pathlib.Path({str(tmp_path)!r})\n"
+                  "with open(p / 'runs', 'a') as f:\n    f.write('x')\n"
+                  "v = (p / 'torch').read_text() if (p / 'torch').exists() else None\n"
+                  "print(json.dumps({'python': '3.11.0', 'modules': {'torch': v, 'numpy': '1.26.4'}}))\n")
+    py.chmod(0o755)
+    W.clear_probe_cache()
+    with pytest.raises(InputError, match="torch missing"):
+        W.require(W.Interpreter(str(py), "preferences"), ("torch",))
+    (tmp_path / "torch").write_text("2.13.0")  # pip install torch
+    W.require(W.Interpreter(str(py), "preferences"), ("torch",))
+    runs = (tmp_path / "runs").read_text()
+    assert W.missing(str(py), ("torch", "numpy")) == [] and (tmp_path / "runs").read_text() == runs
+    W.clear_probe_cache()
+
+
 def test_missing_dependency_in_the_child_is_one_line(bare_python, tmp_path):
     gen = W.run_worker("render-dataset", [*RENDER, "--out", tmp_path / "o"], bare_python)
     with pytest.raises(W.WorkerError) as ei:

@@ -9,6 +9,10 @@
 A subclass names the PropertyGroup on the scene that holds ``running``, ``progress`` and
 ``status`` (``props_attr``), starts its generator (``start``) and turns the generator's result into
 scene changes and a message (``on_result``, on the main thread).
+
+A job belongs to the scene it was started in: the window may show another scene by the time it ends,
+so its progress, its end and its result go to that scene (``on_result`` gets a context whose ``scene``
+is the job's), never to the scene shown then.
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ from __future__ import annotations
 from ..errors import MRVMError
 
 _PROGRESS_STEPS = 1000
+_GONE = object()
+"""``ProgressOperator._scene`` once the job's scene was deleted."""
 
 
 def unexpected_error(e: Exception) -> str:
@@ -43,6 +49,9 @@ class ProgressOperator:
 
     _gen = None
     _timer = None
+    _scene = None
+    """The scene the modal job was started in (None: ``context.scene``)."""
+    _scene_uid = None
 
     # -- to implement ---------------------------------------------------------------------
     def start(self, context):
@@ -54,8 +63,29 @@ class ProgressOperator:
         raise NotImplementedError
 
     # -- shared machinery ---------------------------------------------------------------
+    def _job_scene(self, context):
+        """The scene the job runs for: the one it was started in (found again by its ``session_uid`` when undo
+        reallocated it), or None when that scene was deleted; ``context.scene`` outside a modal job."""
+        if self._scene is None:
+            return context.scene
+        if self._scene is _GONE:
+            return None
+        try:
+            getattr(self._scene, self.props_attr)  # a scene removed (or reallocated by undo) raises ReferenceError
+        except ReferenceError:
+            import bpy
+
+            self._scene = next((s for s in bpy.data.scenes if s.session_uid == self._scene_uid), _GONE)
+        return None if self._scene is _GONE else self._scene
+
+    def _job_context(self, context):
+        """``context`` with the job's scene as ``context.scene`` (what ``on_result`` is given)."""
+        scene = self._job_scene(context)
+        return context if scene is None or scene is getattr(context, "scene", None) else _SceneContext(context, scene)
+
     def _props(self, context):
-        return getattr(context.scene, self.props_attr)
+        scene = self._job_scene(context)
+        return getattr(scene, self.props_attr) if scene is not None else None
 
     def _begin(self, context):
         gen = self.start(context)
@@ -89,6 +119,7 @@ class ProgressOperator:
             self.report({"ERROR"}, props.status)
             return {"CANCELLED"}
         props.running, props.progress, props.status = True, first.fraction, first.message
+        self._scene, self._scene_uid = context.scene, getattr(context.scene, "session_uid", None)
         wm = context.window_manager
         wm.progress_begin(0, _PROGRESS_STEPS)
         self._timer = wm.event_timer_add(self.timer_interval, window=context.window)
@@ -104,8 +135,9 @@ class ProgressOperator:
         if context.workspace:
             context.workspace.status_text_set(None)
         props = self._props(context)
-        props.running = False
-        props.status = message
+        if props is not None:  # None: the job's scene was deleted
+            props.running = False
+            props.status = message
         self.report({level}, message)
         _redraw(context)
         return {"CANCELLED"} if cancelled else {"FINISHED"}
@@ -124,11 +156,15 @@ class ProgressOperator:
             return self._finish(context, True, self._cancel_message(), "WARNING")
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
+        if self._props(context) is None:
+            self._gen.close()
+            return self._finish(context, True, f"{self.job_name} cancelled: the scene it was started in was deleted",
+                                "WARNING")
         try:
             ev = next(self._gen)
         except StopIteration as stop:
             try:
-                return self._finish(context, False, self.on_result(context, stop.value))
+                return self._finish(context, False, self.on_result(self._job_context(context), stop.value))
             except MRVMError as e:
                 return self._finish(context, True, str(e), "ERROR")
             except Exception as e:  # the job must end: a running flag left set refuses every later run
@@ -145,6 +181,16 @@ class ProgressOperator:
             context.workspace.status_text_set(f"MRVM: {props.status}")
         _redraw(context, "VIEW_3D")
         return {"RUNNING_MODAL"}
+
+
+class _SceneContext:
+    """A context whose ``scene`` is another one (the job's); everything else is the context's."""
+
+    def __init__(self, context, scene):
+        self._context, self.scene = context, scene
+
+    def __getattr__(self, name):
+        return getattr(self._context, name)
 
 
 def _redraw(context, area_type: str | None = None) -> None:

@@ -171,7 +171,7 @@ def prepare(context, job: SynthesisJob):
 
     pr = P.get(context)
     interp = choose_interpreter(pr.python_path if pr else "")
-    require(interp, ("torch", "safetensors", "numpy", "PIL"))
+    require(interp, ("torch", "safetensors", "numpy", "PIL", "scipy"))  # scipy: the references' visual hull
     if not model_available():
         raise MRVMError("novel-view synthesis is not available in this version yet: the worker has no "
                         f"`{SYNTH_COMMAND}` command (the trained model has not landed)")
