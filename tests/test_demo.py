@@ -19,7 +19,7 @@ torch.set_num_threads(1)
 HAVE_WEIGHTS = (vgg.weights_dir() / vgg.VGG_FILE).is_file()
 
 
-def _tiny_checkpoint(run_dir: Path) -> Path:
+def _tiny_checkpoint(run_dir: Path, extra_meta: dict | None = None) -> Path:
     from blender_mrvm.models.config import model_config
     from blender_mrvm.models.model import GeneralizableNeRF
     from blender_mrvm.training.checkpoint import save_checkpoint
@@ -27,7 +27,7 @@ def _tiny_checkpoint(run_dir: Path) -> Path:
     cfg = model_config("fast", {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
                                 "sampler": {"n_coarse": 4, "n_fine": 2}})
     torch.manual_seed(0)
-    save_checkpoint(run_dir, 5, GeneralizableNeRF(cfg), cfg, None)
+    save_checkpoint(run_dir, 5, GeneralizableNeRF(cfg), cfg, None, extra_meta)
     return run_dir
 
 
@@ -127,3 +127,41 @@ def test_demo_without_a_model_renders_the_dataset(tmp_path, addon, monkeypatch, 
     assert "note: the shipped default checkpoint X is missing" in text and "renders the dataset" in text
     assert (tmp_path / "d" / "contact_sheet.png").is_file()
     assert len(list((tmp_path / "d" / "dataset").glob("*/*/rgb/*.png"))) == 2
+
+
+def test_references_the_model_would_refuse_are_refused_before_rendering(tmp_path, capsys):
+    """--resolution below the model's training size with the default --ref-size: synthesis would refuse the
+    rendered references after the dataset was rendered; the demo says so first, and writes nothing."""
+    ck = _tiny_checkpoint(tmp_path / "run", {"train_image_size": "24"})
+    out = tmp_path / "demo a"
+    args = ["demo", "--out", str(out), "--checkpoint", str(ck), "--objects", "1", "--views", "3", "--resolution",
+            "16", "--scene-resolution", "16", "--no-lpips", "--no-picture", "--threads", "1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --resolution 16 renders references smaller than the 24 px")
+    assert "--ref-size 24" in err[0] and not out.exists()
+
+
+def test_scene_blend_synthesizes_with_the_ref_size_given(tmp_path, monkeypatch):
+    """scene.blend's views come from the references at --ref-size, as the scored views do (before, build_scene
+    left it out and failed after the scores on references smaller than the model's training size)."""
+    from types import SimpleNamespace
+
+    from blender_mrvm import synthesis
+    from blender_mrvm.commands.demo import build_scene
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    data = make_sphere_dataset(tmp_path / "d", n_objects=1, n_views=4, resolution=16)
+    obj = sorted((data / "spheres").glob("obj*"))[0]
+    seen = []
+
+    def synthesize_views(cfg):
+        seen.append(cfg)
+        raise RuntimeError("stop here")
+        yield
+
+    monkeypatch.setattr(synthesis, "synthesize_views", synthesize_views)
+    args = SimpleNamespace(resolution=16, scene_resolution=16, ref_size=64, device="cpu", threads=1)
+    with pytest.raises(RuntimeError, match="stop here"):
+        build_scene(args, obj, "procedural:chair:0", [0, 2], tmp_path / "ck", tmp_path / "out", render_picture=False)
+    assert [c.ref_size for c in seen] == [64]

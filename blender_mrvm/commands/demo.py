@@ -86,6 +86,20 @@ def check_args(args) -> None:
     demo_folder(args.out).check(args.force)
 
 
+def check_reference_size(args, ck: Path) -> None:
+    """InputError, before anything is rendered, when synthesis would refuse the references the demo renders: with
+    --ref-size 0 references smaller than the images the model was trained on are refused, not upsampled
+    (``synthesis.views.synthesize_views``; ``reference_sizes`` says how large that is)."""
+    from ..errors import InputError
+    from ..synthesis.views import reference_sizes
+
+    _, trained = reference_sizes(args.ref_size, ck)
+    if args.ref_size == 0 and trained and args.resolution < trained:
+        raise InputError(f"--resolution {args.resolution} renders references smaller than the {trained} px this "
+                         f"model was trained on; use --resolution {trained} or more, or pass --ref-size {trained} to "
+                         "upsample them (--ref-size -1 uses them as they are)")
+
+
 def run(args) -> int:
     from ..errors import InputError
 
@@ -151,6 +165,7 @@ def novel_views_demo(args) -> int:
     cats = DEMO_CATEGORIES[:args.objects]
     sources = tuple(f"procedural:{c}:{DEMO_SEED + i}" for i, c in enumerate(cats))
     _, mcfg, meta, ck = load_checkpoint(args.checkpoint)  # fail early, before rendering, on a bad checkpoint
+    check_reference_size(args, ck)
     owned = demo_folder(out)
     owned.claim()
     lpips = None
@@ -318,7 +333,8 @@ def build_scene(args, obj_dir: Path, source: str, refs: list[int], ck: Path, out
     job = out / "novel" / "scene"
     write_targets(job / "targets.json", targets)
     run_with_tqdm(synthesize_views(SynthesisConfig(obj_dir, job / "targets.json", job / "out", tuple(refs), ck,
-                                                   args.device, depth=False, threads=args.threads, force=True)),
+                                                   args.device, depth=False, ref_size=args.ref_size,
+                                                   threads=args.threads, force=True)),
                   desc="synthesize scene", unit="ray")
     meta = ov.meta
     bbox = (np.asarray(meta["bbox"][0]), np.asarray(meta["bbox"][1]))
