@@ -79,6 +79,19 @@ def test_chunk_workers_give_the_same_image_in_the_same_order(kind):
     assert not any(t.name.startswith("mrvm-chunk") and t.is_alive() for t in threading.enumerate())
 
 
+def test_chunk_workers_render_in_the_callers_precision():
+    """Autocast is per thread: the chunk workers ran the networks in fp32 under the caller's bf16, so a bf16 view
+    depended on --threads and synthesis.json said bf16 of fp32 networks."""
+    model, imgs, poses, intr, masks, bbox, target = model_and_scene()
+    views = {}
+    for precision, workers in (("bf16", 1), ("bf16", 3), ("fp32", 3)):
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+            views[precision, workers] = model.synthesize(imgs, poses, [intr] * 2, bbox, target, intr, chunk=97,
+                                                         ref_masks=masks, skip="cull", workers=workers)["color"]
+    assert torch.equal(views["bf16", 1], views["bf16", 3])
+    assert not torch.equal(views["bf16", 3], views["fp32", 3])  # the workers did run in bf16
+
+
 def test_render_workers_use_every_core_with_one_torch_thread_each():
     before = torch.get_num_threads()
     try:

@@ -276,10 +276,14 @@ class RayModel(nn.Module):
         render on a thread pool, up to twice as many chunks in flight as workers (torch's ops release the
         GIL, so they run side by side); a caller that stops early (Esc) waits only for those."""
         dev = self.device
+        # grad mode and autocast are per thread: a worker takes the caller's (bf16 on the CPU ran the networks in
+        # fp32 on every thread but the caller's: the views depended on --threads)
+        cast = torch.is_autocast_enabled(dev.type)
+        cast_dtype = torch.get_autocast_dtype(dev.type) if cast else None
 
         def one(sel):
             sub = rays_to(rays.select(sel), dev)
-            with torch.no_grad():  # grad mode is per thread
+            with torch.no_grad(), torch.autocast(dev.type, dtype=cast_dtype, enabled=cast):
                 return sub, self.render_rays(ctx, sub)
 
         if workers <= 1:

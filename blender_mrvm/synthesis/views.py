@@ -91,7 +91,8 @@ class SynthesisConfig:
     skip_empty: str = "cull"
     """Empty-space skipping inside the object's box (``models/hull.py``) when the references have object
     masks (``mask/*.png``): ``cull`` (default: rays that cannot meet the references' visual hull are
-    background, not evaluated; same images to < 1/255), ``tighten`` (also shorten the rays to the hull:
+    background, not evaluated; same images to < 1/255, except under int8: ``models/precision.py``), ``tighten``
+    (also shorten the rays to the hull:
     faster sampling, but models trained on box-length rays lose PSNR), ``off``."""
     force: bool = False
     """Write into an output folder that already holds files (same-named files are replaced)."""
