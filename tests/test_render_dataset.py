@@ -407,6 +407,24 @@ def test_scene_cameras_and_selected_materials_are_part_of_what_views_were_render
     assert _render(**kw).views_skipped == 2
 
 
+def test_an_unfinished_object_framed_by_other_bounds_is_not_resumed(tmp_path, bpy_empty):
+    """An object interrupted under a version that framed it by other bounds (before session 52: vertices no face
+    uses, collection instances left out) would mix views of two normalizations: refused, --force renders it."""
+    from blender_mrvm.errors import OutputError
+
+    mesh = write_mesh(tmp_path / "thing.ply")
+    kw = dict(out=tmp_path / "d", sources=(str(mesh),), views=2, resolution=(16, 16), samples=1)
+    _render(**kw)
+    obj = tmp_path / "d" / "custom" / "thing"
+    meta = json.loads((obj / "meta.json").read_text())
+    meta["complete"] = False
+    meta["normalization"]["matrix"] = (2.0 * np.array(meta["normalization"]["matrix"])).tolist()
+    (obj / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(OutputError, match="normalized to other bounds"):
+        _render(**kw)
+    assert _render(**kw, force=True).views_rendered == 2
+
+
 def test_shards_starting_into_one_new_folder_do_not_refuse_each_other(tmp_path):
     """The other shard's write probe or half-written manifest in a new folder is not 'another dataset's files'."""
     from blender_mrvm.scene.render import RenderConfig, prepare_output
@@ -784,12 +802,81 @@ def test_mesh_files_of_one_name_in_different_folders_are_told_apart_by_their_fol
     assert [s.key for s in specs] == ["real/panda_link1", "real/xarm_link1", "real/a1_hip",
                                       "real/legs_front_hip", "real/legs_rear_hip", "real/hip", "real/duck"]
     assert [s.path for s in specs] == [str(tmp_path / f) for f in files]
-    # a file named twice is one object named twice, and one object in two formats is one object folder
+    # a file named twice (by two spellings of its path) is one object; one object in two formats is one object
+    # folder, which is refused
+    twice = resolve_sources((str(tmp_path / "a1/meshes/hip.obj"), str(tmp_path / "a1/../a1/meshes/hip.obj")), "real")
+    assert [(s.key, s.path) for s in twice] == [("real/hip", str(tmp_path / "a1/meshes/hip.obj"))]
     (tmp_path / "a1/meshes/hip.stl").write_text("solid x\nendsolid x\n")
-    for twice in (("a1/meshes/hip.obj", "a1/meshes/hip.obj"), ("a1/meshes/hip.obj", "a1/meshes/hip.stl")):
-        with pytest.raises(InputError, match=r"same object folder: real/hip \(.*hip\.obj and .*hip\.(obj|stl); "
-                                             r"rename one\)"):
-            resolve_sources(tuple(str(tmp_path / f) for f in twice), category="real")
+    with pytest.raises(InputError, match=r"same object folder: real/hip \(.*hip\.obj and .*hip\.stl; rename one\)"):
+        resolve_sources(tuple(str(tmp_path / f) for f in ("a1/meshes/hip.obj", "a1/meshes/hip.stl")), category="real")
+
+
+def test_folders_are_read_as_the_user_sees_them(tmp_path):
+    """A folder is ShapeNetCore only where its layout is: a loose mesh beside a subfolder's model.obj, and Google
+    Scanned Objects' <name>/meshes/model.obj, are folders of meshes (they were taken for ShapeNet v1, dropping the
+    loose file without a word and making every object a category); a ShapeNet tree names what it leaves out.
+    Hidden files (macOS's ._chair.obj) are no meshes; names in other scripts get ids of their own (they were all
+    'object'), ASCII names keep theirs; a source named twice is one object, and an archive that cannot be read is
+    said to be so."""
+    import unicodedata
+    import zipfile
+
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.scene.objects import resolve_sources, safe_id
+
+    tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+
+    def folder(name, files):
+        for f in files:
+            (tmp_path / name / f).parent.mkdir(parents=True, exist_ok=True)
+            (tmp_path / name / f).write_text(tri)
+        return str(tmp_path / name)
+
+    def keys(*sources, warnings=None):
+        return [s.key for s in resolve_sources(sources, None, warnings)]
+
+    assert keys(folder("mixed", ["a.obj", "b/model.obj"])) == ["custom/a", "custom/model"]
+    assert keys(folder("gso", ["Bowl/meshes/model.obj", "Mug/meshes/model.obj", "Mug/materials/textures/t.png"])) \
+        == ["custom/Bowl_model", "custom/Mug_model"]
+    said: list[str] = []
+    assert keys(folder("sn", ["03001627/abc/model.obj", "04379243/def/model.obj", "notes/x.obj"]), warnings=said) \
+        == ["chair/abc", "table/def"]
+    assert len(said) == 1 and "1 file(s) outside ShapeNetCore's" in said[0] and "notes/x.obj" in said[0], said
+    assert keys(str(tmp_path / "sn" / "03001627")) == ["chair/abc"]
+    # hidden files and folders: a resource fork is no mesh (its bytes are no OBJ)
+    mac = folder("mac", ["chair.obj", ".git/old.obj", "__MACOSX/chair.obj"])
+    (tmp_path / "mac" / "._chair.obj").write_bytes(b"\0\5\26\7 resource fork")
+    (tmp_path / "mac" / ".chair.obj").write_text(tri)
+    assert keys(mac) == ["custom/chair"]
+    # names in other scripts: distinct, stable ids; ASCII ids as they were
+    assert keys(folder("cjk", ["椅子.obj", "桌子.obj"])) == [f"custom/{safe_id('桌子')}", f"custom/{safe_id('椅子')}"]
+    assert safe_id("椅子") != safe_id("桌子") and safe_id("椅子").startswith("object_") and len(safe_id("椅子")) == 13
+    assert safe_id("café") == safe_id(unicodedata.normalize("NFD", "café")) and safe_id("café").startswith("cafe_")
+    assert [safe_id(n) for n in ("chair", "my chair", "..x..", "")] == ["chair", "my_chair", "x", "object"]
+    # one source named twice is one object (two sources for one object folder: the test above)
+    chair = str(tmp_path / "mac" / "chair.obj")
+    assert keys(chair, str(tmp_path / "mac" / ".." / "mac" / "chair.obj"), mac) == ["custom/chair"]
+    assert keys("procedural:chair:1", "procedural:chair:01") == ["chair/chair_000001"]
+    # an archive that cannot be read is not one "with no mesh file inside"
+    zipped = folder("zips", ["a.obj"])
+    with zipfile.ZipFile(tmp_path / "zips" / "b.zip", "w") as z:
+        z.writestr("b.obj", tri * 50)
+    (tmp_path / "zips" / "c.zip").write_bytes((tmp_path / "zips" / "b.zip").read_bytes()[:60])
+    said = []
+    assert keys(zipped, warnings=said) == ["custom/b", "custom/a"]
+    assert len(said) == 1 and "cannot be read" in said[0] and "c.zip" in said[0], said
+    (tmp_path / "zips" / "a.obj").unlink(), (tmp_path / "zips" / "b.zip").unlink()
+    with pytest.raises(InputError, match=r"no mesh files .* c\.zip cannot be read"):
+        keys(zipped)
+
+
+@pytest.mark.parametrize("source,needle", [("procedural:chiar:1", "unknown category 'chiar'"),
+                                           (f"procedural:chair:{2 ** 63}", r"below 2\*\*63")])
+def test_procedural_sources_are_checked_before_anything_renders(tmp_path, source, needle):
+    from blender_mrvm.scene.objects import resolve_sources
+
+    with pytest.raises(InputError, match=needle):
+        resolve_sources(("procedural:chair:0", source))
 
 
 def test_zip_archives_are_read_with_the_files_around_their_meshes(tmp_path, bpy_empty):
@@ -975,6 +1062,97 @@ def test_blend_file_renders_what_its_render_shows(tmp_path, bpy_empty):
     ext = hi - lo  # the block is 1.5 x 2 x 2 (2 x 2 x 2 uncut), the text above its kept part
     assert ext[0] < 0.85 * ext[1], ext  # the boolean cut (the hidden cutter still cuts)
     assert len(bpy.data.objects) == n_objects, "nothing of the .blend is left in the open file"
+
+
+def test_blend_file_collection_instances_are_rendered(tmp_path, bpy_empty):
+    """A .blend whose scene shows an asset collection (excluded from the view layer) only through collection
+    instances: one plain, one rotated and scaled, one inside another instanced collection; the asset is a red cube
+    cut by a boolean whose cutter is hidden from renders, its collection's instance offset set. Every instance is
+    rendered, in colour, masks and normalization, as Blender places it (it was left out: the file was refused as
+    having no faces), and nothing is left in the open file."""
+    import math
+
+    import bpy
+
+    scene = bpy_empty
+    asset, pair = bpy.data.collections.new("Asset"), bpy.data.collections.new("Pair")
+    asset.instance_offset = (0, 0, -1)
+    bpy.ops.mesh.primitive_cube_add(size=2.0)
+    block = bpy.context.active_object
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(-1.5, 0, 0))
+    cutter = bpy.context.active_object
+    cutter.hide_render = True
+    mod = block.modifiers.new("cut", "BOOLEAN")
+    mod.operation, mod.object = "DIFFERENCE", cutter  # leaves x in [-0.5, 1]
+    mat = _material("red")
+    next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Base Color"].default_value = \
+        (0.8, 0.02, 0.02, 1.0)
+    block.data.materials.append(mat)
+    for o in (block, cutter):
+        scene.collection.objects.unlink(o)
+        asset.objects.link(o)
+
+    def instance(coll, where, into, turn=0.0, scale=1.0):
+        e = bpy.data.objects.new(f"{coll.name}_instance", None)
+        e.instance_type, e.instance_collection = "COLLECTION", coll
+        e.location, e.rotation_euler, e.scale = where, (0, 0, turn), (scale,) * 3  # its saved matrix: identity
+        into.objects.link(e)
+
+    for coll in (asset, pair):
+        scene.collection.children.link(coll)
+        bpy.context.view_layer.layer_collection.children[coll.name].exclude = True
+    instance(asset, (0, 0, 0), scene.collection)  # x [-0.5, 1], y [-1, 1], z [0, 2]
+    instance(asset, (10, 0, 0), scene.collection, turn=math.pi / 2, scale=0.5)  # x [9.5, 10.5], z [0, 1]
+    instance(asset, (0, 5, 0), pair)
+    instance(pair, (0, 0, 10), scene.collection)  # y [4, 6], z [10, 12]
+    path = tmp_path / "kit.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    n_objects = len(bpy.data.objects)
+    s = _render(out=tmp_path / "d", sources=(str(path),), views=2, resolution=(32, 32), samples=1)
+    assert s.objects == ["custom/kit"] and not s.warnings, s.warnings
+    meta = json.loads((tmp_path / "d" / "custom" / "kit" / "meta.json").read_text())
+    assert len(meta["labels"]) == 4, meta["labels"]  # background and three cubes
+    norm = np.array(meta["normalization"]["matrix"])  # the bounds: x [-0.5, 10.5], y [-1, 6], z [0, 12]
+    assert np.isclose(1 / norm[0, 0], math.sqrt(11 ** 2 + 7 ** 2 + 12 ** 2), rtol=1e-4)
+    assert np.allclose(-norm[:3, 3] / norm[0, 0], (5, 2.5, 6), atol=1e-4)
+    ov = F.read_object(tmp_path / "d" / "custom" / "kit")
+    px = np.concatenate([ov.rgb(i)[..., :3][ov.mask(i) > 0].astype(float) for i in range(2)])
+    assert len(px) > 10 and np.median(px[:, 0]) > np.median(px[:, 1]) + 60, np.median(px, axis=0)
+    assert len(bpy.data.objects) == n_objects, "nothing of the .blend is left in the open file"
+
+
+def test_vertices_no_face_uses_are_left_out_of_the_bounds_and_named(tmp_path, bpy_empty):
+    """A scan's PLY with a stray vertex 100 units away (used by no face) is normalized and framed by its faces, as
+    the same triangle without it is (it rendered as nothing: its scale came from the stray point), and a warning and
+    meta.json say so; a selected object's loose vertex too; a loose vertex inside the bounds is no news."""
+    import bpy
+
+    tri = "0 0 0\n1 0 0\n0 0 1\n"
+    for name, extra in (("scan", "100 0 0\n"), ("clean", ""), ("inside", "0.5 0 0.2\n")):
+        n = 3 + bool(extra)
+        (tmp_path / f"{name}.ply").write_text(
+            f"ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+            f"element face 1\nproperty list uchar int vertex_indices\nend_header\n{tri}{extra}3 0 1 2\n")
+    me = bpy.data.meshes.new("tet")
+    me.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (40, 0, 0)], [], [(0, 1, 2), (0, 1, 3), (0, 2, 3),
+                                                                                 (1, 2, 3)])
+    ob = bpy.data.objects.new("Tet", me)
+    bpy_empty.collection.objects.link(ob)
+    ob.select_set(True)
+    s = _render(out=tmp_path / "d", sources=(*(str(tmp_path / f"{n}.ply") for n in ("scan", "clean", "inside")),
+                                              "selected"), views=2, resolution=(16, 16), samples=1)
+    assert sorted(w.split(":")[0] for w in s.warnings) == ["custom/Tet", "custom/scan"], s.warnings
+    assert all("1 vertices that no face uses" in w for w in s.warnings), s.warnings
+    meta = {n: json.loads((tmp_path / "d" / "custom" / n / "meta.json").read_text())
+            for n in ("scan", "clean", "inside", "Tet")}
+    assert meta["scan"]["normalization"] == meta["clean"]["normalization"] == meta["inside"]["normalization"]
+    assert np.isclose(meta["Tet"]["normalization"]["scale"], 1 / np.sqrt(3))
+    assert meta["scan"]["loose_vertices"] == {"count": 1, "bbox_with_them": [[0, 0, 0], [100, 0, 1]]}
+    assert "loose_vertices" not in meta["inside"] and meta["Tet"]["loose_vertices"]["count"] == 1
+    for n in ("scan", "Tet"):  # a dot at most before
+        assert sum((F.read_png(tmp_path / "d" / "custom" / n / "mask" / f"00000{i}.png") > 0).sum()
+                   for i in range(2)) > 10, n
 
 
 def test_blend_file_images_are_part_of_what_its_views_were_rendered_from(tmp_path, bpy_empty):

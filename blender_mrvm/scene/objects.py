@@ -16,6 +16,7 @@ the bounding-box diagonal is 1. The 4x4 normalization matrix is recorded in ``me
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
 import os
@@ -104,26 +105,113 @@ class ObjectSpec:
 
 
 def safe_id(name: str) -> str:
-    """A folder-safe object id."""
-    s = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._")
-    return s or "object"
+    """A folder-safe object id: ``name``'s letters, digits, dots, dashes and underscores, any other run of characters
+    an underscore. A name with characters outside ASCII keeps its readable part (accents dropped: ``café`` reads
+    ``cafe``) and ends in a short stable hash of the whole name (``椅子`` is ``object_`` and six hex digits), so
+    names in other scripts do not all become one id; an ASCII name's id is what it always was."""
+    import hashlib
+    import unicodedata
+
+    if name.isascii():
+        return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
+    name = unicodedata.normalize("NFC", name)  # macOS lists names decomposed: one name, one id
+    readable = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode()
+    return f"{safe_id(readable)}_{hashlib.sha256(name.encode('utf-8', 'surrogateescape')).hexdigest()[:6]}"
 
 
-def _shapenet_models(root: Path) -> list[tuple[str, str, Path]]:
-    """(category, model id, model file) under a ShapeNetCore v2 or v1 root or a single synset folder of either."""
-    # v2: <synset>/<model>/models/model_normalized.obj; the synset folder names the category
-    v2 = sorted(root.glob("*/models/model_normalized.obj")) + sorted(root.glob("*/*/models/model_normalized.obj"))
-    if v2:
-        return [(SHAPENET_SYNSETS.get(f.parents[2].name, f.parents[2].name), f.parents[1].name, f) for f in v2]
-    # v1 (the NMR renders' source): <synset>/<model>/model.obj
-    v1 = sorted(root.glob("*/model.obj")) + sorted(root.glob("*/*/model.obj"))
-    return [(SHAPENET_SYNSETS.get(f.parents[1].name, f.parents[1].name), f.parent.name, f) for f in v1]
+_SYNSET = re.compile(r"\d{8}")
+"""A ShapeNet synset folder's name (WordNet offsets: 8 digits)."""
+
+
+def _shapenet_model(rel: tuple[str, ...], root_name: str) -> tuple[str, str, str] | None:
+    """(version, synset folder, model id) of a file at ``rel`` (its path's parts below a folder named ``root_name``)
+    where ShapeNetCore keeps a model, else None. v2: ``<synset>/<model>/models/model_normalized.obj`` (a name no other
+    layout uses: any synset folder name is taken, as it always was); v1 (the NMR renders' source):
+    ``<synset>/<model>/model.obj``, whose common file name is taken only below a synset folder of 8 digits (Google
+    Scanned Objects' ``<name>/meshes/model.obj`` is no ShapeNet). Either below the root, or below the root as one
+    synset folder."""
+    for version, tail, any_name in (("v2", ("models", "model_normalized.obj"), True), ("v1", ("model.obj",), False)):
+        if len(rel) < len(tail) or rel[-len(tail):] != tail:
+            continue
+        head = rel[:-len(tail)]
+        if len(head) == 2 and (any_name or _SYNSET.fullmatch(head[0])):
+            return version, head[0], head[1]
+        if len(head) == 1 and (any_name or _SYNSET.fullmatch(root_name)):
+            return version, root_name, head[0]
+    return None
+
+
+def folder_files(root: Path) -> list[Path]:
+    """The mesh files, archives and files of other 3D formats in a folder and its subfolders at any depth, sorted.
+    Hidden names (starting with '.': macOS's AppleDouble ``._chair.obj``, ``.git``) and ``__MACOSX`` folders are left
+    out, as the archive reader leaves them out; linked folders are followed, each folder once."""
+    exts = {*MESH_EXTS, *ARCHIVE_EXTS, *OTHER_3D_EXTS}
+    out: list[Path] = []
+    seen: set[str] = set()
+    for top, dirs, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(top)
+        if real in seen:  # a link back up the tree, or a folder reached by two links
+            dirs[:] = []
+            continue
+        seen.add(real)
+        dirs[:] = [d for d in dirs if not d.startswith(".") and d != "__MACOSX"]
+        out.extend(Path(top) / f for f in files if not f.startswith(".") and Path(f).suffix.lower() in exts
+                   and os.path.isfile(os.path.join(top, f)))
+    return sorted(out)
+
+
+def _names(files: list[Path], root: Path, n: int = 3) -> str:
+    """Up to ``n`` files' paths below ``root``, then '...' if there are more."""
+    return ", ".join(str(f.relative_to(root)) for f in files[:n]) + (", ..." if len(files) > n else "")
+
+
+def _folder_specs(src: str, root: Path, category: str | None, passed_over: list[str] | None) -> list[ObjectSpec]:
+    """The objects of a folder: a ShapeNetCore folder's models (:func:`_shapenet_model`; its other mesh files are named
+    in ``passed_over`` as not rendered), else every mesh file and zip archive of mesh files in it and its subfolders
+    (:func:`folder_files`; files of one name in different folders are named by them: :func:`_named_by_folder`).
+    Archives without mesh files or that cannot be read, and files of other 3D formats, are named in
+    ``passed_over``."""
+    files = folder_files(root)
+    found = [(f, _shapenet_model(f.relative_to(root).parts, Path(os.path.abspath(root)).name)) for f in files]
+    models = [(f, m) for f, m in found if m is not None and m[0] == "v2"] or [(f, m) for f, m in found if m is not None]
+    warn = passed_over.append if passed_over is not None else (lambda _: None)
+    if models:
+        taken = {f for f, _ in models}
+        rest = [f for f in files if f not in taken]
+        if rest:
+            warn(f"{src}: {len(rest)} file(s) outside ShapeNetCore's <synset>/<model> layout not rendered "
+                 f"({_names(rest, root)}): give them as sources of their own")
+        return [ObjectSpec("file", safe_id(category or SHAPENET_SYNSETS.get(synset, synset)), safe_id(model),
+                           path=str(f)) for f, (_, synset, model) in models]
+    meshes = [f for f in files if f.suffix.lower() in MESH_EXTS]
+    other = [f for f in files if f.suffix.lower() in OTHER_3D_EXTS]
+    archives = [(f, _archive_members(f, quiet=True)) for f in files if f.suffix.lower() in ARCHIVE_EXTS]
+    broken = [f for f, m in archives if m is None]
+    specs = [spec for f, m in archives if m for spec in _archive_specs(f, m, category)]
+    specs += [ObjectSpec("file", safe_id(category or "custom"), safe_id(f.stem), path=str(f)) for f in meshes]
+    if not specs:
+        hint = (f"; it holds {len(other)} {other[0].suffix} file(s): {OTHER_3D_EXTS[other[0].suffix.lower()]}"
+                if other else f"; {_names(broken, root)} cannot be read (damaged, or not a zip file)" if broken else "")
+        raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) or ShapeNet models in folder {src}{hint}")
+    empty = [f for f, m in archives if m == []]
+    if empty:
+        warn(f"{src}: {len(empty)} .zip file(s) with no mesh file inside not rendered ({_names(empty, root)})")
+    if broken:
+        warn(f"{src}: {len(broken)} archive(s) that cannot be read (damaged, or not a zip file) not rendered "
+             f"({_names(broken, root)})")
+    for ext in sorted({f.suffix.lower() for f in other}):
+        these = [f for f in other if f.suffix.lower() == ext]
+        warn(f"{src}: {len(these)} {ext} file(s) not rendered ({_names(these, root)}): {OTHER_3D_EXTS[ext]}")
+    return specs
 
 
 def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                     passed_over: list[str] | None = None) -> list[ObjectSpec]:
-    """Turn source strings into object specs; raises InputError for anything unusable. Files of another 3D
-    format (``OTHER_3D_EXTS``) found in a folder are appended to ``passed_over`` as a message each."""
+    """Turn source strings into object specs; raises InputError for anything unusable. What a folder holds that is
+    not rendered (files of another 3D format, archives without meshes, files outside a ShapeNet layout) is appended
+    to ``passed_over`` as a message each. A source named twice (a file by two spellings of its path, ``procedural:
+    chair:1`` and ``procedural:chair:01``) is one object; two different sources that map to one object folder are
+    refused."""
     if not sources:
         raise InputError("no source given: name mesh files, a folder, 'selected' or 'procedural:<category>:<seed>'")
     specs: list[ObjectSpec] = []
@@ -145,40 +233,14 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                 raise InputError(f"seed must be an integer in {src!r}") from None
             if seed < 0:
                 raise InputError(f"seed must be non-negative in {src!r}")
+            _check_procedural(parts[1], seed, src)
             specs.append(ObjectSpec("procedural", parts[1], f"{parts[1]}_{seed:06d}", seed=seed))
         else:
             p = Path(src).expanduser()
             if not p.exists():
                 raise InputError(f"mesh file or folder not found: {src}")
             if p.is_dir():
-                models = _shapenet_models(p)
-                if models:
-                    for cat, model_id, f in models:
-                        specs.append(ObjectSpec("file", safe_id(category or cat), safe_id(model_id), path=str(f)))
-                    continue
-                listed = sorted(f for f in p.iterdir() if f.is_file())
-                files = [f for f in listed if f.suffix.lower() in MESH_EXTS]
-                other = [f for f in listed if f.suffix.lower() in OTHER_3D_EXTS]
-                archives = [(f, _archive_members(f, quiet=True)) for f in listed if f.suffix.lower() in ARCHIVE_EXTS]
-                if passed_over is not None and any(not m for _, m in archives):
-                    empty = [f.name for f, m in archives if not m]
-                    passed_over.append(f"{src}: {len(empty)} .zip file(s) with no mesh file inside not rendered "
-                                       f"({', '.join(empty[:3])}{', ...' if len(empty) > 3 else ''})")
-                for f, members in archives:
-                    specs.extend(_archive_specs(f, members, category))
-                if not files and any(m for _, m in archives):
-                    continue
-                if not files:
-                    hint = (f"; it holds {len(other)} {other[0].suffix} file(s): {OTHER_3D_EXTS[other[0].suffix.lower()]}"
-                            if other else "")
-                    raise InputError(f"no mesh files ({', '.join(MESH_EXTS)}) or ShapeNet models in folder {src}{hint}")
-                if other and passed_over is not None:
-                    for ext in sorted({f.suffix.lower() for f in other}):
-                        these = [f.name for f in other if f.suffix.lower() == ext]
-                        passed_over.append(f"{src}: {len(these)} {ext} file(s) not rendered ({', '.join(these[:3])}"
-                                           f"{', ...' if len(these) > 3 else ''}): {OTHER_3D_EXTS[ext]}")
-                for f in files:
-                    specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(f.stem), path=str(f)))
+                specs.extend(_folder_specs(src, p, category, passed_over))
             elif p.suffix.lower() in ARCHIVE_EXTS:
                 members = _archive_members(p)
                 if not members:
@@ -192,14 +254,41 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                     raise InputError(f"unsupported mesh format {p.suffix or '(none)'!r} for {src}{hint}; "
                                      f"supported: {', '.join(MESH_EXTS)}, and .zip, .kmz or .zae archives of them")
                 specs.append(ObjectSpec("file", safe_id(category or "custom"), safe_id(p.stem), path=str(p)))
-    specs = _named_by_folder(specs)
-    keys = [s.key for s in specs]
-    dup = sorted({k for k in keys if keys.count(k) > 1})
+    specs = _named_by_folder(_distinct(specs))
+    counts = collections.Counter(s.key for s in specs)
+    dup = sorted(k for k, n in counts.items() if n > 1)
     if dup:
         same = [s.describe() for s in specs if s.key == dup[0]]
         raise InputError(f"two sources map to the same object folder: {dup[0]} ({' and '.join(same[:2])}; "
                          "rename one)")
     return specs
+
+
+def _check_procedural(category: str, seed: int, src: str) -> None:
+    """Refuse a procedural source the library cannot build (an unknown category, a seed out of range) when the
+    sources are read, not when its turn comes after the objects before it rendered."""
+    try:
+        from . import procedural
+    except ImportError:
+        raise InputError("the procedural object library is not available in this build") from None
+    try:
+        procedural.sample_parameters(category, seed)
+    except InputError as e:
+        raise InputError(f"{e} (in {src!r})") from None
+
+
+def _distinct(specs: list[ObjectSpec]) -> list[ObjectSpec]:
+    """``specs`` without repeats of one source for one object folder: the same file (its path resolved, and the member
+    inside an archive), procedural object or selected object named twice is rendered once, as first named."""
+    seen: set[tuple] = set()
+    out = []
+    for s in specs:
+        what = (s.kind, os.path.realpath(Path(s.path).expanduser()) if s.kind == "file" else "", s.member, s.seed,
+                s.names, s.params, s.category, s.object_id)
+        if what not in seen:
+            seen.add(what)
+            out.append(s)
+    return out
 
 
 def _named_by_folder(specs: list[ObjectSpec]) -> list[ObjectSpec]:
@@ -235,9 +324,9 @@ ARCHIVE_EXTS = (".zip", ".kmz", ".zae")
 ARCHIVE_LIMIT_BYTES = 4 << 30
 
 
-def _archive_members(path: Path, quiet: bool = False) -> list[str]:
+def _archive_members(path: Path, quiet: bool = False) -> list[str] | None:
     """The mesh files inside a zip archive, at any depth, sorted (macOS resource forks left out). A file that is not
-    a readable zip is an InputError, or with ``quiet`` holds none."""
+    a readable zip (damaged, truncated) is an InputError, or with ``quiet`` None."""
     import zipfile
 
     try:
@@ -245,7 +334,7 @@ def _archive_members(path: Path, quiet: bool = False) -> list[str]:
             names = [i.filename for i in z.infolist() if not i.is_dir()]
     except (zipfile.BadZipFile, OSError, EOFError) as e:
         if quiet:
-            return []
+            return None
         raise InputError(f"cannot read archive {path}: {str(e).strip() or 'not a zip file'}") from None
     return sorted(n for n in names if Path(n).suffix.lower() in MESH_EXTS and not n.startswith("__MACOSX/")
                   and not Path(n).name.startswith("._"))
@@ -627,16 +716,107 @@ def _append_blend_scene(path: Path) -> list:
     return scenes
 
 
-def _object_refs(stack) -> list:
-    """The objects the modifiers or constraints of ``stack`` point to (any Object pointer property)."""
+def _object_ref_props(stack) -> list[tuple]:
+    """(item, property name, object) of each object the modifiers or constraints of ``stack`` point to (any Object
+    pointer property)."""
     out = []
     for item in stack:
         for prop in item.bl_rna.properties:
             if prop.type == "POINTER" and getattr(prop.fixed_type, "identifier", "") == "Object":
                 val = getattr(item, prop.identifier, None)
                 if val is not None:
-                    out.append(val)
+                    out.append((item, prop.identifier, val))
     return out
+
+
+def _object_refs(stack) -> list:
+    """The objects the modifiers or constraints of ``stack`` point to (:func:`_object_ref_props`)."""
+    return [val for _, _, val in _object_ref_props(stack)]
+
+
+_MAX_INSTANCE_DEPTH = 8
+"""Collection instances inside instances are realized this deep (Blender's own limit)."""
+_CURVE_TYPES = ("CURVE", "SURFACE", "FONT", "META")
+"""Object types whose surfaces render but are no meshes (made meshes for the data passes by :func:`_blend_rendered`)."""
+
+
+def _instanced_objects(coll) -> list:
+    """The objects a collection instance of ``coll`` renders: those of it and its child collections, not hidden from
+    renders (nor in a collection that is), once each. A view layer's exclusion does not count (an asset collection
+    is commonly excluded from the scene and shown through instances)."""
+    out: dict[int, object] = {}
+
+    def walk(c):
+        if c.hide_render:
+            return
+        for o in c.objects:
+            if not o.hide_render:
+                out.setdefault(o.as_pointer(), o)
+        for child in c.children:
+            walk(child)
+
+    walk(coll)
+    return list(out.values())
+
+
+def _realized_instances(objs: list, shown: set[int], scene) -> list:
+    """Objects of their own for what the collection instances among ``objs`` render (an empty instancing a collection:
+    a linked asset, kitbashing), so colour, masks and normalization all hold them: a copy of each instanced surface
+    at its place in the instance (the instance's matrix, less the collection's instance offset, times the object's),
+    sharing its data and materials, with copies of the objects its modifiers use moved alike and hidden from renders
+    (a boolean's cutter: the result is the same), and instances within instances. The empties stop instancing (the
+    copies render in their place); the shown copies are added to ``shown``. Constraints and animation are not
+    copied: each copy keeps the placement its object has in ``scene`` (the appended scene, evaluated here when it
+    has instances: the placements a file saves can be older than its objects' locations)."""
+    made: list = []
+    if not any(o.instance_type == "COLLECTION" and o.instance_collection is not None for o in objs):
+        return made
+    with bpy.context.temp_override(scene=scene, view_layer=scene.view_layers[0]):
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+
+    def world(o) -> Matrix:
+        return o.evaluated_get(depsgraph).matrix_world.copy()
+
+    def realize(instancer, parent: Matrix, depth: int) -> None:
+        coll = instancer.instance_collection
+        if depth >= _MAX_INSTANCE_DEPTH or coll is None:
+            return
+        place = parent @ world(instancer) @ Matrix.Translation(-coll.instance_offset)
+        copies: dict[int, bpy.types.Object] = {}
+
+        def copy_of(o, show: bool):
+            c = copies.get(o.as_pointer())
+            if c is not None:  # made before as what a modifier uses: shown too where the collection shows it
+                if show and c.hide_render:
+                    c.hide_render = False
+                    shown.add(c.as_pointer())
+                return c
+            c = copies[o.as_pointer()] = o.copy()
+            c.animation_data_clear()
+            c.constraints.clear()
+            c.parent = None
+            c.matrix_world = place @ world(o)
+            c.instance_type = "NONE"
+            c.hide_render = not show
+            if show:
+                shown.add(c.as_pointer())
+            made.append(c)
+            for item, name, dep in _object_ref_props(c.modifiers):
+                setattr(item, name, copy_of(dep, False))
+            return c
+
+        for o in _instanced_objects(coll):
+            if o.type == "MESH" or o.type in _CURVE_TYPES:
+                copy_of(o, True)
+            if o.instance_type == "COLLECTION":
+                realize(o, place, depth + 1)  # its place in this instance is place @ its own
+
+    for o in objs:
+        if o.instance_type == "COLLECTION" and o.instance_collection is not None:
+            realize(o, Matrix.Identity(4), 0)
+            with contextlib.suppress(AttributeError, RuntimeError, TypeError):  # a linked empty cannot be changed
+                o.instance_type = "NONE"
+    return made
 
 
 def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types.Object]:
@@ -644,7 +824,8 @@ def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types
     collection or object hidden from renders), with armatures and parents they need; curves, surfaces, text and
     metaballs made meshes (the data passes rasterize meshes); the scene itself removed. Objects left out stay in
     the file's data unlinked. Objects that shown ones use (a boolean's hidden cutter, an armature) come along
-    hidden from renders, so they move with the normalization and the data passes leave them out."""
+    hidden from renders, so they move with the normalization and the data passes leave them out. Collection
+    instances are made objects of their own (:func:`_realized_instances`)."""
     shown: set[int] = set()
     for sc in scenes:
         def walk(lc):
@@ -656,6 +837,8 @@ def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types
 
         walk(sc.view_layers[0].layer_collection)
     keep = [o for o in new if o.as_pointer() in shown]
+    if scenes:  # (one: _append_blend_scene's)
+        keep += _realized_instances(keep, shown, scenes[0])
     ptrs = {o.as_pointer() for o in keep}
     appended = {o.as_pointer() for o in new}
     todo = list(keep)
@@ -669,7 +852,7 @@ def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types
                 todo.append(dep)
     out = []
     for o in keep:
-        if o.type in ("CURVE", "SURFACE", "FONT", "META") and o.as_pointer() in shown:
+        if o.type in _CURVE_TYPES and o.as_pointer() in shown:
             me = bpy.data.meshes.new_from_object(o)  # its geometry (bevel, extrusion); curve modifiers are rare
             mo = bpy.data.objects.new(o.name + "_mesh", me)
             mo.matrix_world = o.matrix_world.copy()
@@ -1193,19 +1376,55 @@ def renders(o: bpy.types.Object) -> bool:
     return o.type == "MESH" and not o.hide_render and getattr(o, "visible_camera", True)
 
 
-def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
-    """World-space vertices of the evaluated, render-visible meshes (modifiers applied) in ``view_layer``, (N, 3):
-    the meshes :func:`mesh_triangles` rasterizes."""
-    pts = []
+def _world_vertices(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer):
+    """(world-space vertices, whether a face uses each) of each evaluated, render-visible mesh of ``objs``."""
+    out = []
     for _, ev in rendered_meshes(objs, view_layer):
         with evaluated_mesh(ev) as me:
             co = np.empty(len(me.vertices) * 3, dtype=np.float64)
             me.vertices.foreach_get("co", co)
+            corners = np.empty(len(me.loops), dtype=np.int32)
+            me.loops.foreach_get("vertex_index", corners)
+        used = np.zeros(len(co) // 3, dtype=bool)
+        used[corners] = True
         m = np.array(ev.matrix_world, dtype=np.float64)
-        pts.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
+        out.append((co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3], used))
+    return out
+
+
+def mesh_vertices_world(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> np.ndarray:
+    """World-space vertices that faces use, of the evaluated, render-visible meshes (modifiers applied) in
+    ``view_layer``, (N, 3): the meshes :func:`mesh_triangles` rasterizes. A vertex no face uses (a scan's stray
+    point, a loose vertex or edge) renders nothing and is left out, so it cannot set the bounds the object is
+    normalized and framed by (:func:`loose_vertices` tells when it would have)."""
+    pts = [co[used] for co, used in _world_vertices(objs, view_layer)]
     if not pts or sum(len(p) for p in pts) == 0:
-        raise InputError("the object has no vertices")
+        raise InputError("the object has no faces (points or lines only): nothing of it would render")
     return np.concatenate(pts)
+
+
+LOOSE_BOUNDS = 0.01
+"""Vertices no face uses that reach beyond the faces' bounding box by more than this share of its diagonal are
+named in a warning (:func:`loose_vertices`)."""
+
+
+def loose_vertices(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer) -> dict | None:
+    """Where vertices that no face uses (left out of the bounds: :func:`mesh_vertices_world`) would have moved the
+    bounding box by more than :data:`LOOSE_BOUNDS` of its diagonal: ``{"count": how many such vertices the meshes
+    hold, "bbox_with_them": [lo, hi]}`` (world space, as the object was loaded), for ``meta.json`` and a warning;
+    else None."""
+    parts = _world_vertices(objs, view_layer)
+    faces = np.concatenate([co[used] for co, used in parts] or [np.empty((0, 3))])
+    loose = np.concatenate([co[~used] for co, used in parts] or [np.empty((0, 3))])
+    if len(loose) == 0 or len(faces) == 0 or not np.isfinite(faces).all():
+        return None  # nothing left out, or nothing to bound (the render refuses the object)
+    lo, hi = faces.min(axis=0), faces.max(axis=0)
+    reach = loose[np.isfinite(loose).all(axis=1)]
+    lo_all = np.minimum(lo, reach.min(axis=0)) if len(reach) else lo
+    hi_all = np.maximum(hi, reach.max(axis=0)) if len(reach) else hi
+    if max(np.abs(lo_all - lo).max(), np.abs(hi_all - hi).max()) <= LOOSE_BOUNDS * float(np.linalg.norm(hi - lo)):
+        return None
+    return {"count": len(loose), "bbox_with_them": [lo_all.tolist(), hi_all.tolist()]}
 
 
 def normalization_matrix(verts: np.ndarray, what: str = "the object") -> np.ndarray:

@@ -728,6 +728,21 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         vl = session.view_layer
         O.check_vertices(O.mesh_vertices_world(objs, vl), spec.describe())
         norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl), spec.describe())
+        loose = O.loose_vertices(objs, vl)  # left out of the bounds (a scan's stray points): said, as they moved them
+        old_norm = ((old or {}).get("normalization") or {}).get("matrix") if meta_path.exists() else None
+        if old_norm is not None and not np.allclose(np.asarray(old_norm, dtype=np.float64), norm, atol=1e-6):
+            # the unfinished object's views were framed by other bounds (rendered before session 52, which leaves
+            # vertices no face uses out of them and renders collection instances): they would not match these
+            if not cfg.force:
+                raise OutputError(f"{obj_dir} holds views of {spec.describe()} normalized to other bounds than it has "
+                                  "now (this version frames objects by the vertices their faces use, and renders "
+                                  "collection instances); use --force to render it again")
+            shutil.rmtree(obj_dir)
+        if loose is not None:
+            summary.warnings.append(
+                f"{spec.key}: {loose['count']} vertices that no face uses (stray points, loose vertices or edges: "
+                "they render nothing) left out of the bounds it is normalized and framed by; they reached well beyond "
+                "its faces (meta.json: loose_vertices)")
         O.apply_world_transform(objs, norm, vl)
         radius = float(np.linalg.norm(O.mesh_vertices_world(objs, vl), axis=1).max())
 
@@ -812,6 +827,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             meta["missing_material_libraries"] = missing_mtl  # its materials rendered a default grey
         if made_opaque:
             meta["made_opaque"] = made_opaque  # alpha 0 with nothing driving it: rendered at alpha 1
+        if loose is not None:
+            meta["loose_vertices"] = loose  # left out of bbox and normalization: the bounds they would have given
         if cfg.fov_range_deg is not None:
             meta["render"].update({"fov_range_deg": list(cfg.fov_range_deg), "distance_range": list(cfg.distance_range),
                                    "camera_seed": object_camera_seed(cfg, spec.key)})
