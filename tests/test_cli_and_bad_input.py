@@ -124,6 +124,26 @@ def test_no_silent_overwrite(capsys, tmp_path, mesh, bpy_empty):
     assert meta["settings"]["samples"] == 4 and meta["complete"]
 
 
+def test_contact_sheet_leaves_out_objects_it_cannot_show(capsys, tmp_path):
+    """A dataset with an interrupted object (Ctrl-C: meta.json not complete, no camera files yet) and an object
+    folder without views: the sheet shows the finished object and a note names the two left out (the first stopped
+    it with an error, the second with a traceback)."""
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    ds = make_sphere_dataset(tmp_path / "ds", n_objects=3, n_views=3, resolution=16, seed=1)
+    cut = ds / "spheres" / "obj000"
+    cut.joinpath("meta.json").write_text(json.dumps({**json.loads((cut / "meta.json").read_text()), "complete": False}))
+    for f in ("intrinsics.txt", "transforms.json"):
+        (cut / f).unlink(missing_ok=True)
+    for f in (ds / "spheres" / "obj001").glob("*/*.*"):
+        f.unlink()
+    code, err = run_cli(capsys, "contact-sheet", "--dataset", ds, "--out", tmp_path / "sheet.png", "--views", "2")
+    assert code == 0, err
+    assert "left out" in err and "spheres/obj000 (unfinished)" in err and "spheres/obj001 (no views)" in err, err
+    assert F.read_png(tmp_path / "sheet.png").shape[0] == 16 + 96, "one row: the finished object"
+
+
 def test_help_lists_commands(capsys):
     with pytest.raises(SystemExit) as e:
         main(["--help"])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -28,6 +29,10 @@ def run(args) -> int:
     if not Path(args.dataset).is_dir():
         raise InputError(f"dataset folder {args.dataset} does not exist")
     check_new_file(out, args.force, "contact sheet")
-    path = dataset_contact_sheet(Path(args.dataset), out, args.objects, args.views)
+    left_out: list[str] = []
+    path = dataset_contact_sheet(Path(args.dataset), out, args.objects, args.views, left_out=left_out)
+    if left_out:
+        print(f"note: {len(left_out)} object folder(s) left out, not finished or without views to show: "
+              f"{', '.join(left_out[:5])}{', ...' if len(left_out) > 5 else ''}", file=sys.stderr)
     print(f"wrote {path}")
     return 0

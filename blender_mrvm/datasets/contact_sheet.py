@@ -37,18 +37,64 @@ def _rgb(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def dataset_contact_sheet(root: Path, out_png: Path, max_objects: int = 8, views_per_object: int = 4,
-                          tile: int = 96) -> Path:
-    """Rows = objects; per view: RGB, depth, part mask, normals."""
-    root = Path(root)
-    objs = sorted(p.parent for p in root.glob("*/*/meta.json"))[:max_objects]
-    if not objs:
-        from ..errors import InputError
+def finished_objects(root: Path, limit: int | None = None,
+                     left_out: list[str] | None = None) -> list[F.ObjectViews]:
+    """The finished objects of a dataset root, in name order, at most ``limit``. An object folder whose
+    ``meta.json`` says it is not complete (a render stopped by Ctrl-C or a crash; a ``meta.json`` without the key,
+    as other writers leave it, counts as complete, as the loaders read it), that holds no view, or whose files
+    cannot be read is left out and appended to ``left_out`` as ``category/object (why)``."""
+    from ..errors import InputError
 
+    out: list[F.ObjectViews] = []
+    skipped = left_out if left_out is not None else []
+    for meta_path in sorted(Path(root).glob("*/*/meta.json")):
+        if limit is not None and len(out) >= limit:
+            break
+        obj_dir = meta_path.parent
+        name = f"{obj_dir.parent.name}/{obj_dir.name}"
+        try:
+            ov = F.read_object(obj_dir)
+        except InputError as e:
+            skipped.append(f"{name} ({'unfinished' if _unfinished(meta_path) else e})")
+            continue
+        if ov.meta.get("complete", True) is not True:
+            skipped.append(f"{name} (unfinished)")
+        elif not ov.indices:
+            skipped.append(f"{name} (no views)")
+        else:
+            out.append(ov)
+    return out
+
+
+def _unfinished(meta_path: Path) -> bool:
+    """Whether a ``meta.json`` that can be read says its object is not complete."""
+    import json
+
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("complete", True) is not True
+
+
+def dataset_contact_sheet(root: Path, out_png: Path, max_objects: int = 8, views_per_object: int = 4,
+                          tile: int = 96, left_out: list[str] | None = None) -> Path:
+    """Rows = objects (the first ``max_objects`` finished ones: :func:`finished_objects`, which names the object
+    folders it leaves out in ``left_out``); per view: RGB, depth, part mask, normals."""
+    from ..errors import InputError
+
+    root = Path(root)
+    skipped: list[str] = []
+    objs = finished_objects(root, max_objects, skipped)
+    if left_out is not None:
+        left_out.extend(skipped)
+    if not objs:
+        if skipped:
+            raise InputError(f"no finished objects under {root} to show: {len(skipped)} left out "
+                             f"({', '.join(skipped[:3])}{', ...' if len(skipped) > 3 else ''})")
         raise InputError(f"no rendered objects under {root}")
     rows = []
-    for obj_dir in objs:
-        ov = F.read_object(obj_dir)
+    for ov in objs:
         n = len(ov.indices)
         picks = sorted({round(k * (n - 1) / max(views_per_object - 1, 1)) for k in range(min(views_per_object, n))})
         tiles = []
