@@ -181,3 +181,69 @@ def test_compare_reports_pairs_views_and_uses_objects_as_units():
     assert c["per_category"]["y"]["psnr"]["se_objects"] is None and c["per_category"]["x"]["ssim"]["diff"] == 0.0
     with pytest.raises(InputError):
         compare_reports(a, rep([("z", "q", 0, 1.0, 0.0)]))
+
+
+def test_compare_refuses_other_data_and_other_references():
+    """`eval --compare-to` pairs views by (category, object, view); names repeat across data sets (a turntable and a
+    sphere-rig render of one library) and input protocols, so a comparison of other data, another split or views
+    rendered from other inputs is refused, naming what differs. Reports without the per-view inputs (written
+    before they were kept) are compared on what they record: their protocol's input views, their data."""
+    from blender_mrvm.training.evaluate import check_comparable, compare_reports
+
+    def rep(root, inputs, split="test", **protocol):
+        return {"data": {"root": root, "split": split, "format": "ours"}, "protocol": protocol,
+                "views": [{"category": "c", "object": "o", "view": 3, "inputs": inputs, "psnr": 20.0}]}
+
+    assert compare_reports(rep("/d/sn", [0, 2]), rep("/d/sn/", [0, 2]))["overall"]["views"] == 1
+    with pytest.raises(InputError, match="root /d/sn against /d/sn_sphere"):
+        compare_reports(rep("/d/sn", [0, 2]), rep("/d/sn_sphere", [0, 2]))
+    with pytest.raises(InputError, match="split test against train"):
+        compare_reports(rep("/d/sn", [0, 2]), rep("/d/sn", [0, 2], split="train"))
+    with pytest.raises(InputError, match=r"view 3 of c/o from other input views \(\[0, 2\] against \[2\]\)"):
+        compare_reports(rep("/d/sn", [0, 2]), rep("/d/sn", [2]))
+    old = lambda iv: {"protocol": {"input_views": iv},  # noqa: E731  (an eval.json of before: no data, no inputs)
+                      "views": [{"category": "c", "object": "o", "view": 3, "psnr": 19.0}]}
+    assert compare_reports(rep("/d/sn", [0, 2], input_views=[0, 2]), old([0, 2]))["overall"]["psnr"]["diff"] == 1.0
+    with pytest.raises(InputError, match=r"protocol input_views \[0, 2\] against \[0\]"):
+        compare_reports(rep("/d/sn", [0, 2], input_views=[0, 2]), old([0]))
+    check_comparable({"data": {"root": "/d/sn", "split": "test"}}, old([0]))  # nothing recorded to tell them apart
+
+
+def test_eval_compare_to_checks_the_pairing_and_force_drops_a_stale_comparison(two_category_set, checkpoint, tmp_path,
+                                                                               capsys):
+    import shutil
+
+    base = ["eval", "--checkpoint", str(checkpoint), "--no-lpips", "--threads", "1", "--max-objects", "1"]
+    a = tmp_path / "a"
+    assert main([*base, "--data", str(two_category_set), "--out", str(a)]) == 0
+    rec = json.loads((a / "eval.json").read_text())
+    assert rec["data"]["root"] == str(two_category_set.resolve()) and rec["data"]["n_inputs"] == 2
+    assert [v["inputs"] for v in rec["views"]] == [[4, 1]] * 3
+    # the same object names in another set: refused before anything is scored
+    other_set = tmp_path / "copy"
+    shutil.copytree(two_category_set, other_set)
+    capsys.readouterr()
+    b = tmp_path / "b"
+    assert main([*base, "--data", str(other_set), "--out", str(b), "--compare-to", str(a / "eval.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "of different data: root" in err[0] and not b.exists(), err
+    # another input protocol on the same set: the views are scored, the pairing is refused
+    assert main([*base, "--data", str(two_category_set), "--n-inputs", "1", "--out", str(b),
+                 "--compare-to", str(a / "eval.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "from other input views ([4] against [4, 1])" in err[0], err
+    assert (b / "eval.json").is_file() and not (b / "compare.json").exists()
+    # a comparison that pairs, then a rerun with --force and no --compare-to: the old compare.json goes
+    assert main([*base, "--data", str(two_category_set), "--out", str(b), "--force",
+                 "--compare-to", str(a / "eval.json")]) == 0
+    assert (b / "compare.json").is_file()
+    assert main([*base, "--data", str(two_category_set), "--out", str(b), "--force"]) == 0
+    assert sorted(p.name for p in b.iterdir()) == ["eval.json", "eval.md", "eval_grid.png"]
+
+
+def test_eval_with_nothing_to_score_is_an_error(two_category_set, checkpoint, tmp_path, capsys):
+    out = tmp_path / "e"
+    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--no-lpips",
+                 "--input-views", "0,1,2,3,4,5", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nothing to score" in err[0] and not out.exists(), err

@@ -79,7 +79,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "GPU, int8 on the CPU where it pays); the metrics are float32 whatever it is; eval.json records it")
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
-                   "also write <out>/compare.json (paired differences this - other, standard errors over objects)")
+                   "also write <out>/compare.json (paired differences this - other, standard errors over objects); "
+                   "refused when it is of another data root, split or format, or a common view had other inputs")
 
 
 def check_args(args) -> None:
@@ -152,7 +153,7 @@ def run(args) -> int:
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
-    from ..training.evaluate import compare_reports, evaluate, per_category, protocol_target_inputs, protocol_views
+    from ..training.evaluate import evaluate, per_category, protocol_target_inputs, protocol_views
 
     from ..threads import render_workers
     from ..training.adapt import from_args as adapt_from_args
@@ -165,6 +166,9 @@ def run(args) -> int:
     if not args.data.exists():
         raise InputError(f"dataset {args.data} does not exist")
     fmt = args.fmt or detect_format(args.data)
+    data_rec = {"root": str(args.data.expanduser().resolve()), "split": args.split, "format": fmt}
+    if other is not None:  # another data set or split: refused before anything is scored (the views come later)
+        compare_to(args, {"data": data_rec}, other, check_only=True)
     if args.input_views is not None:
         try:
             views = [int(v) for v in str(args.input_views).split(",") if v.strip()]
@@ -219,8 +223,8 @@ def run(args) -> int:
     extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None},
              "device": str(device), "precision": precision,
              "background": {"data": data_bg, "white_background": model.white_background, "note": bg_note},
-             "data": {"root": str(args.data), "split": args.split, "format": fmt, "protocol_source": source,
-                      "max_objects_per_category": args.max_objects_per_category}}
+             "data": {**data_rec, "protocol_source": source, "max_objects_per_category": args.max_objects_per_category,
+                      "n_inputs": None if source == "--input-views" else args.n_inputs}}
     with autocast(precision, device.type):
         report = run_with_tqdm(evaluate(model, scenes, views, lpips, args.max_targets, args.out, target_views=targets,
                                         extra=extra, ref_size=ref_size, max_ref_size=max_ref_size,
@@ -230,12 +234,29 @@ def run(args) -> int:
                                         reproject=reproject, reproject_cfg=reproject_from_args(args)),
                                desc="eval", unit="view")
     print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
+    (args.out / "compare.json").unlink(missing_ok=True)  # an earlier run's (--force): not of this eval.json
     if other is not None:
         from ..datasets.format import atomic_write_json
 
         this = json.loads((args.out / "eval.json").read_text())
         cmp = {"this": str(args.checkpoint), "other": other.get("checkpoint", {}).get("path"),
-               **compare_reports(this, other)}
+               **compare_to(args, this, other)}
         atomic_write_json(args.out / "compare.json", cmp)
         print(json.dumps({"this minus other": cmp["overall"]}, indent=2))
     return 0
+
+
+def compare_to(args, this: dict, other: dict, check_only: bool = False) -> dict | None:
+    """``training.evaluate.compare_reports(this, other)`` (or with ``check_only`` its check alone), its refusal
+    (other data, split or references: ``check_comparable``) named as --compare-to's."""
+    from ..errors import InputError
+    from ..training.evaluate import check_comparable, compare_reports
+
+    try:
+        if check_only:
+            check_comparable(this, other)
+            return None
+        return compare_reports(this, other)
+    except InputError as e:
+        done = "" if check_only else f" ({args.out / 'eval.json'} is written, compare.json is not)"
+        raise InputError(f"--compare-to {args.compare_to}: {e}{done}") from None

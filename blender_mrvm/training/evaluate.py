@@ -280,6 +280,9 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     for s in scenes:
         jobs += _jobs(s, input_views, target_views, target_inputs, max_targets, nearest, pool)
     total = sum(len(t) for _, _, t in jobs)
+    if not total:  # every view an input (--input-views 0,1,2,3 of 4 views): an empty report is no evaluation
+        raise InputError(f"nothing to score: every target view of the {len(scenes)} object(s) is one of the input "
+                         f"views {list(input_views)}; leave some views out of the inputs")
     # grid: the first object of every category, then further objects, up to grid_objects rows
     firsts = {}
     seen_objects = set()
@@ -334,7 +337,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                 # PSNR rewards; reported beside the others, not counted in the best-baseline margin)
                 cands["baseline_blend"] = ref_imgs.mean(0).astype(np.float32)
             sc = scores_against(gt, cands, lpips)
-            rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]), **sc["model"]}
+            rec = {"category": s.category, "object": s.name, "view": int(s.view_ids[t]),
+                   "inputs": [int(s.view_ids[r]) for r in refs], **sc["model"]}  # what --compare-to pairs on
             if reproject != "off":
                 rec.update({"model_only": sc["model_only"], "reference_share": share})
             if s.masks is not None:
@@ -523,14 +527,63 @@ def markdown_table(report: dict) -> str:
     return text
 
 
+COMPARED_DATA = ("root", "split", "format")
+"""``eval.json``'s ``data`` entries two evaluations must share to be paired (object names repeat across sets:
+a turntable and a sphere-rig render of the same library, another resolution)."""
+COMPARED_PROTOCOL = ("input_views", "nearest", "pool")
+"""``eval.json``'s ``protocol`` entries compared when a report has no per-view ``inputs`` (written before they
+were recorded)."""
+
+
+def _same_root(x, y) -> bool:
+    """Two recorded data roots name the same folder (a relative one, as reports before this recorded it, is read
+    against the current folder)."""
+    import os
+
+    norm = lambda p: os.path.normcase(os.path.abspath(os.path.expanduser(str(p))))  # noqa: E731
+    return x == y or norm(x) == norm(y)
+
+
+def check_comparable(a: dict, b: dict) -> None:
+    """InputError naming what differs unless reports ``a`` and ``b`` (``eval.json`` dicts, or parts of them) scored
+    the same views of the same data from the same references: their ``data`` root, split and format
+    (:data:`COMPARED_DATA`), and for every view both scored its input view ids (``inputs``). Only what both
+    record is compared: a report written before the per-view inputs were kept is compared on its protocol's
+    input views, nearest and pool (:data:`COMPARED_PROTOCOL`) instead, one without ``data`` on its views alone."""
+    da, db = a.get("data") or {}, b.get("data") or {}
+    for k in COMPARED_DATA:
+        x, y = da.get(k), db.get(k)
+        if x is not None and y is not None and not (_same_root(x, y) if k == "root" else x == y):
+            raise InputError(f"the two evaluations are of different data: {k} {x} against {y}; a paired comparison "
+                             "needs the same views of the same data set and split")
+    views = [r for r in (*a.get("views", ()), *b.get("views", ()))]
+    if views and all("inputs" in r for r in views):
+        key = lambda r: (r["category"], r["object"], r["view"])  # noqa: E731
+        ia = {key(r): r["inputs"] for r in a.get("views", ())}
+        for r in b.get("views", ()):
+            k = key(r)
+            if k in ia and list(ia[k]) != list(r["inputs"]):
+                raise InputError(f"the two evaluations rendered view {k[2]} of {k[0]}/{k[1]} from other input views "
+                                 f"({list(ia[k])} against {list(r['inputs'])}): another input protocol (--n-inputs, "
+                                 "--input-views, --nearest) cannot be paired")
+        return
+    pa, pb = a.get("protocol") or {}, b.get("protocol") or {}
+    for k in COMPARED_PROTOCOL:
+        if k in pa and k in pb and pa[k] != pb[k]:
+            raise InputError(f"the two evaluations used other input views: protocol {k} {pa[k]} against {pb[k]}; "
+                             "another input protocol cannot be paired")
+
+
 def compare_reports(a: dict, b: dict) -> dict:
-    """Paired difference a - b of two evaluations of the same views (``eval.json`` dicts with 'views').
+    """Paired difference a - b of two evaluations of the same views (``eval.json`` dicts with 'views'); an
+    InputError first when they are not of the same data and references (:func:`check_comparable`).
 
     Per metric, overall and per category, the object is the unit (the views of one object are correlated):
     ``diff`` is the mean over objects of each object's mean difference over its common views (every object
     counts alike, however many views it has), ``se_objects`` its standard error over objects, ``wins`` the share
     of objects on which a is better (higher PSNR/SSIM, lower LPIPS); ``diff_views`` is the mean difference over
     the common views themselves (the two differ when objects have different numbers of views)."""
+    check_comparable(a, b)
     key = lambda r: (r["category"], r["object"], r["view"])  # noqa: E731
     va, vb = {key(r): r for r in a["views"]}, {key(r): r for r in b["views"]}
     common = sorted(set(va) & set(vb))
