@@ -169,6 +169,30 @@ def test_tiny_capture_poses_reproject_and_paths_are_smooth(tiny):
         assert step.max() < 2.2 * step.mean()
 
 
+def test_more_or_fewer_scenes_on_a_set_give_the_splits_of_a_fresh_run(tiny, tmp_path, bpy_empty):
+    """Raising --scenes on an existing set re-labels the kept scenes' splits as a fresh run of that many assigns
+    them (a kept test scene had stayed test: 3 test scenes of 10 where a fresh run has 2); lowering it lists only
+    the run's scenes."""
+    import shutil
+
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.scene.capture_scenes import scene_splits
+
+    out = tmp_path / "grown"
+    shutil.copytree(tiny, out)
+    base = ["make-captures", "--views", "6", "--resolution", "24", "--samples", "2", "--seed", "3", "--out", str(out)]
+    assert main([*base, "--scenes", "3"]) == 0
+    want = dict(zip(["captures/scene_000003", "captures/scene_000004", "captures/scene_000005"], scene_splits(3)))
+    assert want["captures/scene_000004"] == "train"  # test among 2 scenes, train among 3
+    for split in ("train", "val", "test"):
+        assert F.read_split(out, split) == [k for k, v in want.items() if v == split], split
+    for key, split in want.items():
+        assert json.loads((out / key / "meta.json").read_text())["split"] == split
+    assert main([*base, "--scenes", "1"]) == 0  # nothing rendered; scenes 4 and 5 are not this run's
+    assert F.read_split(out, "train") == ["captures/scene_000003"]
+    assert F.read_split(out, "test") == [] and F.read_split(out, "val") == []
+
+
 def test_capture_seeds_are_deterministic(tiny, tmp_path, bpy_empty):
     """The same seed renders the same scene (cameras, room, lights, images); the next seed another one."""
     from blender_mrvm.datasets import format as F

@@ -10,7 +10,9 @@ meta.json with ``"background": "scene"`` and the room's box as ``bbox``), with t
 - held-out views in between: every ``--holdout-every``-th view of a path is a target, synthesized
   from its neighbours on the path (``splits/eval_views.json``: ``target_inputs_<n>`` for 1 to 6
   inputs, which ``eval --n-inputs N`` follows);
-- held-out scenes: the last 20 % of the scenes are the test split (``splits/test.lst``), never trained on.
+- held-out scenes: the last 20 % of the scenes are the test split (``splits/test.lst``), never trained on
+  (of this run's ``--scenes``: more scenes on an existing set re-label the kept ones as a fresh run would, and
+  the split lists name this run's scenes only).
 
 Example: python -m blender_mrvm make-captures --scenes 12 --views 24 --resolution 64 --out data/captures64
 """

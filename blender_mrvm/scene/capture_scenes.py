@@ -321,7 +321,9 @@ def write_capture_splits(root: Path, cfg: CaptureConfig) -> dict[str, list[str]]
     """``splits/*.lst`` from the finished scenes on disk, and the protocol file."""
     from .render import write_splits
 
-    splits = write_splits(root, cfg.settings())  # scenes are <CATEGORY>/<scene id>, as objects are
+    # scenes are <CATEGORY>/<scene id>, as objects are; only this run's: scenes a run with more --scenes left
+    # behind are not listed (their split belongs to that run's count)
+    splits = write_splits(root, cfg.settings(), only={f"{CATEGORY}/{s}" for s in scene_ids(cfg)})
     F.atomic_write_json(Path(root) / "splits" / "eval_views.json", protocol(cfg.views, cfg.holdout_every))
     return splits
 
@@ -338,6 +340,8 @@ def _render_scene(cfg: CaptureConfig, k: int, scene_id: str, split: str, tmpdir:
             old = {}
         if F.settings_match(old.get("settings"), settings) and old.get("complete") and \
                 all(view_intact(obj_dir, v) for v in range(old.get("n_views", -1))):
+            if old.get("split") != split:  # the split changes no pixel: it follows this run's --scenes, as a fresh
+                F.atomic_write_json(meta_path, {**old, "split": split})  # render of that many scenes assigns it
             for v in range(old["n_views"]):
                 summary.views_skipped += 1
                 yield f"{scene_id}: view {v + 1}/{old['n_views']} (done before)"
