@@ -32,7 +32,7 @@ test-blender: $(STAMP) $(WEIGHTS)
 	PY=$(PY) scripts/test_blender_version.sh $(BPY)
 
 bench: $(STAMP)
-	$(PY) -m blender_mrvm bench render --out bench_out
+	$(PY) -m blender_mrvm bench render --out bench_out --force
 
 extension: $(STAMP)
 	$(PY) -m blender_mrvm build-extension --out dist

@@ -402,6 +402,12 @@ def _e(needle, argv=(), cls="tracebacks", base=None, **kw):
     return Case(cls, (base or _EV) + out + argv, needle, **kw)
 
 
+def _write_other_eval(path: Path) -> None:
+    """An eval.json of another data set whose objects have the names of the world's."""
+    path.write_text(json.dumps({"data": {"root": "/elsewhere/ds", "split": "test", "format": "ours"},
+                                "views": [{"category": "spheres", "object": "obj000", "view": 1, "psnr": 20.0}]}))
+
+
 EVAL = [
     _e("has no split 'tset'", ["--split", "tset"], cls="silent-garbage"),
     _e("needs at least 2 references", ["--adapt-steps", "3"]),
@@ -445,6 +451,11 @@ EVAL = [
     _e("already holds files (precious.txt)", ["--out", "{w}/occupied"], cls="data-loss"),
     _e("exists and is not a folder", ["--out", "{w}/a_file"], cls="data-loss"),
     _e("already holds files (eval.json)", ["--out", "{w}/earlier_eval"], cls="data-loss"),
+    # every view an input: an empty eval.json and exit 0 (review of session 61)
+    _e("nothing to score", ["--input-views", "0,1,2,3,4"], cls="silent-garbage"),
+    # object names repeat across data sets: another set's eval.json had been "paired" view by view without a word
+    _e("ds against /elsewhere/ds; a paired comparison needs the same views", ["--compare-to", "{w}/bad/eval_other_data.json"],
+       cls="silent-garbage", setup=lambda w, new: _write_other_eval(w / "bad" / "eval_other_data.json")),
     _e("cannot read image", base=["eval", "--data", "{w}/bad/ds_truncpng", "--checkpoint", "{w}/ck", "--no-lpips",
                                   "--split", "train", "--input-views", "0"]),
 ]
@@ -605,6 +616,25 @@ BENCH = [
     Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--objects", "0", "--out", "{new}"],
          "--objects must be at least 1"),
     Case("tracebacks", ["sem2nerf", "bench", "--size", "0", "--out", "{new}"], "--size must be at least 1"),
+    # empty lists: IndexError in write_csv after it had emptied the CSV, or "out of memory for every one"
+    Case("tracebacks", ["bench", "model", "--presets", ",", "--out", "{new}"], "--presets: none given"),
+    Case("tracebacks", ["bench", "profile", "--presets", ",", "--out", "{new}"], "--presets: none given"),
+    Case("tracebacks", ["bench", "render", "--engines", ",", "--out", "{new}"], "--engines: none given"),
+    Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--checkpoints", ",", "--out", "{new}"],
+         "--checkpoints: none given"),
+    # names checked up front: a TypeError mid-run, a CalledProcessError from the child, a traceback on the device
+    Case("tracebacks", ["bench", "render", "--engines", "FOO", "--out", "{new}"], "--engines: unknown FOO"),
+    Case("tracebacks", ["bench", "threads", "--preset", "nope", "--out", "{new}"], "unknown model preset 'nope'"),
+    Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--device", "gpu", "--out", "{new}"],
+         "unknown device 'gpu'"),
+] + ([] if CUDA else [Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--device", "cuda", "--out",
+                                          "{new}"], "no CUDA GPU")]) + [
+    # every checkpoint checked before the first is measured (a bad second one had stopped the sweep half-way)
+    Case("tracebacks", ["bench", "tradeoff", "--data", "{w}/ds", "--no-lpips", "--checkpoints",
+                        "shipped:gpnr,{w}/nope", "--out", "{new}"], "does not exist"),
+    # a bench's earlier results: overwritten without --force (and mixed with a stopped rerun's)
+    Case("data-loss", ["bench", "model", "--presets", "fast", "--out", "{new}"], "already holds this bench's results",
+         setup=lambda w, new: (new.mkdir(), (new / "bench_model.csv").write_text("earlier"))),
 ]
 
 # `sem2nerf eval` wrote eval.json and eval_grid.png into any --out only after the whole evaluation (session 29):

@@ -296,7 +296,7 @@ def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request
     assert not (out / "bench_model_profile.txt").exists()
     seen = []
     monkeypatch.setattr(torch.nn.Module, "compile", lambda m, **kw: seen.append((type(m).__name__, kw)))
-    assert main([*args[:5], "2", *args[6:], "--compile", "--profile"]) == 0
+    assert main([*args[:5], "2", *args[6:], "--force", "--compile", "--profile"]) == 0
     rows = list(csv.DictReader(open(out / "bench_model.csv")))
     assert [r["compiled"] for r in rows] == ["True"]
     assert float(rows[0]["aten_ops_per_view"]) > 100 and float(rows[0]["kernel_launches_per_view"]) == 0
@@ -311,12 +311,14 @@ def test_bench_model_writes_a_row_per_configuration_and_compiles_only_on_request
     assert registry.compile_networks(model, mode="max-autotune") == ["coarse"]  # not the encoder nor a weightless module
     assert seen == [("Linear", {"dynamic": True, "mode": "max-autotune"})]
     seen.clear()
-    assert main([*args[:5], "2", *args[6:], "--compile-mode", "reduce-overhead"]) == 0
+    assert main([*args[:5], "2", *args[6:], "--compile-mode", "reduce-overhead"]) == 2  # the results are kept...
+    assert main([*args[:5], "2", *args[6:], "--compile-mode", "reduce-overhead", "--force"]) == 0  # ...or replaced
+    assert not (out / "bench_model_profile.txt").exists()  # the earlier run's, not of these rows
     row = next(csv.DictReader(open(out / "bench_model.csv")))
     assert row["compiled"] == "True" and row["compile_mode"] == "reduce-overhead"
     assert seen and all(kw == {"dynamic": True, "mode": "reduce-overhead"} for _, kw in seen)
     monkeypatch.undo()
-    assert main([*args[:5], "2", *args[6:], "--precisions", "fp32,int8"]) == 0  # int8 linear layers (CPU only)
+    assert main([*args[:5], "2", *args[6:], "--force", "--precisions", "fp32,int8"]) == 0  # int8 linear layers (CPU only)
     assert [r["precision"] for r in csv.DictReader(open(out / "bench_model.csv"))] == ["fp32", "int8"]
     assert main([*args[:5], "2", *args[6:], "--precisions", "int8", "--compile"]) == 2
     assert main([*args[:5], "2", *args[6:], "--precisions", "fp16"]) == 2  # a GPU setting
@@ -433,3 +435,92 @@ def test_bench_train_sweeps_object_batches(tmp_path):
     for bad in (["--object-batches", "0"], ["--ref-views-per", "batch"]):
         assert main(["bench", "train", "--presets", "fast", *bad, "--out", str(tmp_path / "c")]) == 2
     assert not (tmp_path / "c").exists()
+
+
+def test_a_bench_keeps_its_earlier_results_unless_forced(tmp_path, capsys):
+    """Every bench refuses an --out holding its own earlier results (it had overwritten them), before measuring;
+    --force removes them when the measuring starts, so a stopped rerun never mixes its rows with an earlier
+    run's plot or front. Files of other benches or the user's stay."""
+    from blender_mrvm.bench import start_results
+    from blender_mrvm.cli import main
+    from blender_mrvm.errors import OutputError
+
+    out = tmp_path / "b"
+    out.mkdir()
+    for n in (*tr.RESULTS, "bench_model.csv", "notes.md"):
+        (out / n).write_text("earlier")
+    with pytest.raises(OutputError, match=r"already holds this bench's results \(bench_tradeoff.csv, "):
+        start_results(out, tr.RESULTS)
+    assert main(["bench", "profile", "--presets", "fast", "--size", "8", "--out", str(out)]) == 0  # its own CSV is not there
+    capsys.readouterr()
+    assert main(["bench", "profile", "--presets", "fast", "--size", "8", "--out", str(out)]) == 2
+    assert "pass --force" in capsys.readouterr().err
+    start_results(out, tr.RESULTS, force=True)
+    assert sorted(p.name for p in out.iterdir()) == ["bench_model.csv", "bench_profile.csv", "notes.md"]
+
+
+def test_empty_lists_are_refused_and_write_csv_keeps_the_earlier_file(tmp_path):
+    from blender_mrvm.bench import names, write_csv
+
+    for text in (",", " , ", ""):
+        with pytest.raises(InputError, match="--presets: none given"):
+            names(text, "--presets")
+    assert names(" fast, gpnr:fast ,", "--presets") == ["fast", "gpnr:fast"]
+    with pytest.raises(InputError, match="--engines: unknown FOO; choose from A, B"):
+        names("A,FOO", "--engines", ("A", "B"))
+    (tmp_path / "x.csv").write_text("a\n1\n")
+    with pytest.raises(InputError, match="nothing was measured"):
+        write_csv(tmp_path / "x.csv", [])
+    assert (tmp_path / "x.csv").read_text() == "a\n1\n"
+
+
+def test_tradeoff_skips_the_points_objects_with_few_views_cannot_make(tmp_path, capsys):
+    """The refs axis's 5 references on objects of 4 views (no target left: an IndexError) and the nearest points
+    above 3 are skipped with a note; the rest is measured."""
+    import csv
+
+    from blender_mrvm.cli import main
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.training.synthetic import make_sphere_dataset
+
+    data = make_sphere_dataset(tmp_path / "ds", n_objects=1, n_views=4, resolution=16, seed=1)
+    F.write_split(data, "test", F.read_split(data, "train"))
+    assert [tr.fits(tr.Point("refs", "", refs=r), 4) for r in (1, 2, 5)] == [True, True, False]
+    assert [tr.fits(tr.Point("nearest", "", nearest=k), 4) for k in (2, 3, 5)] == [True, True, False]
+    out = tmp_path / "b"
+    assert main(["bench", "tradeoff", "--data", str(data), "--checkpoints", "shipped:gpnr", "--axes", "refs",
+                 "--objects", "1", "--targets", "1", "--size", "8", "--repeats", "1", "--no-lpips",
+                 "--out", str(out)]) == 0
+    assert "'5 refs' skipped: the objects have 4 views" in capsys.readouterr().out
+    assert [r["point"] for r in csv.DictReader(open(out / "bench_tradeoff.csv"))] == ["as trained", "1 refs"]
+
+
+def test_bench_threads_runs_each_load_once_and_a_failed_child_is_one_line(monkeypatch, tmp_path):
+    """--competitors 0: the quiet settings once (they had run twice); ratio_to_first is to the first --threads
+    count; a failing child `bench model` is an error naming its own error line, not a CalledProcessError."""
+    import argparse
+    import csv
+
+    from blender_mrvm.bench import threads as bt
+    from blender_mrvm.errors import MRVMError
+
+    monkeypatch.setattr(bt, "_one", lambda policy, t, args: 0.5 * t)
+    args = argparse.Namespace(preset="fast", size=8, views=1, threads="2,4", competitors=0, repeats=1,
+                              out=str(tmp_path / "t"), force=False)
+    assert bt.run(args) == 0
+    rows = list(csv.DictReader(open(tmp_path / "t" / "bench_threads.csv")))
+    assert len(rows) == 2 * len(bt.POLICIES) and {r["competing_processes"] for r in rows} == {"0"}
+    assert [r["ratio_to_first"] for r in rows[:2]] == ["1.0", "2.0"] and "ratio to the first of" in bt.__doc__
+    monkeypatch.undo()
+    with pytest.raises(MRVMError, match=r"failed with exit code 2: --views: each must be at least 1"):
+        bt._one("PASSIVE", 1, argparse.Namespace(preset="fast", size=8, views=0, repeats=1))
+
+
+def test_bench_capture_caches_a_ring_per_render_setting(tmp_path):
+    import argparse
+
+    from blender_mrvm.bench import capture as bc
+
+    a = argparse.Namespace(views=3, width=16, height=16, samples=1)
+    b = argparse.Namespace(views=3, width=16, height=16, samples=4)
+    assert bc.ring_folder(tmp_path, a) != bc.ring_folder(tmp_path, b)

@@ -1,4 +1,10 @@
-"""Benchmarks (``python -m blender_mrvm bench <name>``); each module writes CSV figures."""
+"""Benchmarks (``python -m blender_mrvm bench <name>``); each module writes CSV figures.
+
+Each module names the files it writes into ``--out`` (``RESULTS``). An ``--out`` holding a bench's earlier
+results is refused before anything is measured (:func:`check_results`, from ``commands/bench.py``); with
+``--force`` they are removed when the measuring starts (:func:`start_results`), so a bench that rewrites its CSV
+after every point and is stopped never leaves its new rows beside an earlier run's plot or front.
+"""
 
 from __future__ import annotations
 
@@ -25,6 +31,47 @@ def whole_numbers(text: str, flag: str, minimum: int = 1, maximum: int | None = 
     return values
 
 
+def names(text: str, flag: str, choices: tuple[str, ...] | None = None) -> list[str]:
+    """A comma-separated list of names given on the command line (``--presets fast,gpnr:fast``), blanks dropped;
+    an :class:`InputError` naming ``flag`` when it names none (``","``) or, with ``choices``, one outside them,
+    before anything is measured."""
+    from ..errors import InputError
+
+    items = [t.strip() for t in str(text).split(",") if t.strip()]
+    if not items:
+        raise InputError(f"{flag}: none given" + (f"; choose from {', '.join(choices)}" if choices else ""))
+    bad = [t for t in items if choices is not None and t not in choices]
+    if bad:
+        raise InputError(f"{flag}: unknown {', '.join(bad)}; choose from {', '.join(choices)}")
+    return items
+
+
+def check_results(out: Path, results: tuple[str, ...], force: bool = False) -> None:
+    """OutputError when ``out`` holds any of ``results`` (a bench's files from an earlier run) and ``force`` is
+    off; files of other benches or the user's are no business of a bench (``--out docs`` is the usual place)."""
+    from ..errors import OutputError
+    from ..guards import _shown
+
+    out = Path(out)
+    earlier = [n for n in results if (out / n).exists()] if out.is_dir() else []
+    if earlier and not force:
+        raise OutputError(f"bench output folder {out} already holds this bench's results ({_shown(earlier)}); "
+                          "choose another --out or pass --force to replace them")
+
+
+def start_results(out: Path, results: tuple[str, ...], force: bool = False) -> Path:
+    """``out``, created, once the bench's arguments are checked and before its first measurement: refused as
+    :func:`check_results` says, else the earlier results removed (``force``), so the folder never mixes them
+    with this run's."""
+    out = Path(out)
+    check_results(out, results, force)
+    for n in results:
+        if (out / n).is_file():
+            (out / n).unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
 def at_least(args, **minimums: int) -> None:
     """Refuse integer options below their minimum, every one named in one line (``at_least(args, repeats=1)``)."""
     from ..errors import InputError
@@ -36,8 +83,13 @@ def at_least(args, **minimums: int) -> None:
 
 
 def write_csv(path: Path, rows: list[dict], fields: list[str] | None = None, quiet: bool = False) -> Path:
-    """Write benchmark rows (dicts with the same keys) as CSV and say where."""
+    """Write benchmark rows (dicts with the same keys) as CSV and say where; no rows is an InputError before the
+    file is opened (an earlier CSV there stays as it was)."""
+    from ..errors import InputError
+
     path = Path(path)
+    if not rows:
+        raise InputError(f"nothing was measured: no rows to write to {path}")
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields or list(rows[0]))

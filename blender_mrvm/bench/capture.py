@@ -42,6 +42,10 @@ import numpy as np
 
 from . import write_csv
 
+RESULTS = ("bench_capture.csv", "bench_capture_runs.csv")
+"""What the bench writes into ``--out`` (``bench.check_results``); the rendered rings cached there
+(``capture_ring_*``) are reused by later runs of the same render settings."""
+
 STAGES = ("scan", "extract", "match", "map", "check", "undistort", "export")
 METHODS = ("ours", "ours_exhaustive", "pycolmap_default")
 
@@ -60,8 +64,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="arc: n consecutive ring views; spread: n evenly spaced views")
 
 
+def ring_folder(out: Path, args) -> Path:
+    """The cached ring of these render settings under ``out``: every setting is in the name (a ring rendered at
+    other --samples had been reused as if it were this one)."""
+    return out / f"capture_ring_{args.views}_{args.width}x{args.height}_s{args.samples}"
+
+
 def _render(out: Path, args) -> dict:
-    ring = out / f"capture_ring_{args.views}_{args.width}x{args.height}"
+    ring = ring_folder(out, args)
     truth_path = ring / "truth.json"
     if not truth_path.is_file():
         import bpy  # noqa: F401  (the renderer lives in the scene layer)
@@ -211,7 +221,7 @@ def summarize(runs: list[dict]) -> list[dict]:
 
 def run(args) -> int:
     from ..errors import InputError
-    from . import at_least, whole_numbers
+    from . import at_least, start_results, whole_numbers
 
     at_least(args, views=3, width=16, height=16, samples=1, repeats=1)
     if args.threads != -1 and args.threads < 1:
@@ -221,8 +231,7 @@ def run(args) -> int:
     unknown = [m for m in methods if m not in RUNNERS]
     if unknown or not methods:
         raise InputError(f"--methods: unknown or none ({', '.join(unknown)}); choose from {', '.join(RUNNERS)}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = start_results(Path(args.out), RESULTS, args.force)
     t = time.perf_counter()
     truth = _render(out, args)
     print(f"ring of {args.views} views at {args.width}x{args.height} ready ({time.perf_counter() - t:.0f}s)")

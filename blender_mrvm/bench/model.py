@@ -29,6 +29,9 @@ from pathlib import Path
 
 from . import PeakMemory, write_csv
 
+RESULTS = ("bench_model.csv", "bench_model_profile.txt")
+"""What the bench writes into ``--out`` (``bench.check_results``)."""
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="bench_out", help="folder for bench_model.csv")
@@ -69,9 +72,13 @@ def run(args) -> int:
     from ..geometry import cameras
     from ..models import registry
     from ..synthesis.views import resolve_device
-    from . import at_least, whole_numbers
+    from . import at_least, names, start_results, whole_numbers
 
     at_least(args, repeats=1, threads=1, workers=1, chunk=0, ref_size=0)
+    presets = []
+    for preset in names(args.presets, "--presets"):  # an empty list had read "out of memory for every one"
+        kind, _, name = preset.rpartition(":")
+        presets.append((preset, name, registry.build_config(kind or None, name)))  # unknown names fail now
     sizes, view_counts = whole_numbers(args.sizes, "--sizes"), whole_numbers(args.views, "--views")
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     device = str(resolve_device(args.device))
@@ -85,15 +92,12 @@ def run(args) -> int:
     if "int8" in precisions and compile_mode(args):
         raise InputError("--precisions int8 and --compile do not combine (torch.compile takes float layers)")
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = start_results(Path(args.out), RESULTS, args.force)
     rows = []
     eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5],
                                                                    [-0.8, -0.5, 0.2])]
     bbox = (np.full(3, -0.4), np.full(3, 0.4))
-    for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
-        kind, _, name = preset.rpartition(":")
-        cfg = registry.build_config(kind or None, name)
+    for preset, name, cfg in presets:
         torch.manual_seed(0)
         model = registry.build_model(cfg).eval().to(device)
         n_params = sum(p.numel() for p in model.parameters())

@@ -25,6 +25,9 @@ from pathlib import Path
 
 from . import write_csv
 
+RESULTS = ("bench_profile.csv",)
+"""What the bench writes into ``--out`` (``bench.check_results``)."""
+
 FUNCTIONS = {"rays_in_cameras": "projection", "project_samples": "projection", "sample_maps": "gathering",
              "stratified": "sampling", "sample_pdf": "sampling", "volume_render": "compositing"}
 
@@ -104,20 +107,24 @@ def run(args) -> int:
 
     from ..geometry import cameras
     from ..models import registry
-    from . import at_least
+    from . import at_least, names, start_results
     from .model import ref_eyes
 
     at_least(args, size=1, views=1, threads=1)
+    presets = []
+    for preset in names(args.presets, "--presets"):  # empty: an IndexError in write_csv after it emptied the CSV
+        kind, _, name = preset.rpartition(":")
+        presets.append((preset, name, registry.build_config(kind or None, name)))  # unknown names fail now
+    out = start_results(Path(args.out), RESULTS, args.force)
     torch.set_num_threads(args.threads)
     rows = []
     eyes = [np.array(e, float) / np.linalg.norm(e) * 1.3 for e in ([1, 0.2, 0.4], [-0.2, 1, 0.3], [0.6, -0.7, 0.5])]
     bbox = (np.full(3, -0.4), np.full(3, 0.4))
     size = args.size
     intr = cameras.Intrinsics(131.25 * size / 128, 131.25 * size / 128, size / 2, size / 2, size, size)
-    for preset in [s.strip() for s in args.presets.split(",") if s.strip()]:
-        kind, _, name = preset.rpartition(":")
+    for preset, name, cfg in presets:
         torch.manual_seed(0)
-        model = registry.build_model(registry.build_config(kind or None, name)).eval()
+        model = registry.build_model(cfg).eval()
         refs = np.random.default_rng(0).random((args.views, size, size, 3)).astype(np.float32)
         poses = [cameras.look_at_opencv(e) for e in ref_eyes(eyes, args.views)]
         target = cameras.look_at_opencv(eyes[0])
@@ -133,5 +140,5 @@ def run(args) -> int:
                          "threads": args.threads, "stage": stage, "seconds": round(sec, 4),
                          "share_pct": round(100 * sec / total, 1), "view_seconds": round(total, 4)})
             print(f"{preset:12s} {stage:28s} {sec:7.3f} s  {100 * sec / total:5.1f} %")
-    write_csv(Path(args.out) / "bench_profile.csv", rows)
+    write_csv(out / "bench_profile.csv", rows)
     return 0

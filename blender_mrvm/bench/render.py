@@ -20,6 +20,9 @@ from pathlib import Path
 
 from . import write_csv
 
+RESULTS = ("bench_render.csv",)
+"""What the bench writes into ``--out`` (``bench.check_results``)."""
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="bench_out", help="folder for bench_render.csv")
@@ -102,12 +105,13 @@ def run(args) -> int:
     import os
     import platform
 
-    from . import at_least, whole_numbers
+    from ..scene.render import ENGINES
+    from . import at_least, names, start_results, whole_numbers
 
     at_least(args, repeats=1, views=1, eevee_views=1, samples=1)
     resolutions = whole_numbers(args.resolutions, "--resolutions")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    engines = names(str(args.engines).upper(), "--engines", ENGINES)  # FOO had been a TypeError mid-run
+    out = start_results(Path(args.out), RESULTS, args.force)
     rows = []
     methods = (("naive_loop", naive_loop, "rgb png"),
                ("render_dataset", ours, "rgb png, depth+normal exr, mask png, pose, intrinsics, transforms.json, meta"))
@@ -115,7 +119,7 @@ def run(args) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         mesh = _mesh(tmp)
-        for engine in [e.strip().upper() for e in args.engines.split(",") if e.strip()]:
+        for engine in engines:
             views = args.eevee_views if engine == "BLENDER_EEVEE" else args.views
             for res in resolutions:
                 for rep in range(args.repeats):

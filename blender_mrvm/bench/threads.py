@@ -5,8 +5,9 @@ own malloc thresholds (``threads.apply_malloc_defaults`` off), on a quiet machin
 
 Each setting runs ``bench model`` in a fresh process (libgomp reads its policy when torch is imported).
 ``--competitors K`` busy processes (a pure-Python spin loop each, like Blender or a second job holding a
-core) run beside the "busy" settings. Writes ``<out>/bench_threads.csv``: policy, threads, competitors,
-median seconds per view and the ratio to 1 thread under the same policy and load.
+core) run beside the "busy" settings (``--competitors 0``: the quiet settings alone). Writes
+``<out>/bench_threads.csv``: policy, threads, competitors, median seconds per view and ``ratio_to_first``, the
+ratio to the first of ``--threads`` (1 thread by default) under the same policy and load.
 
 Usage::
 
@@ -24,6 +25,9 @@ import tempfile
 from pathlib import Path
 
 from . import write_csv
+
+RESULTS = ("bench_threads.csv",)
+"""What the bench writes into ``--out`` (``bench.check_results``)."""
 
 SPIN = "import time\nwhile True:\n    pass\n"
 
@@ -58,18 +62,29 @@ def _one(policy: str, threads: int, args) -> float:
         cmd = [sys.executable, "-m", "blender_mrvm", "bench", "model", "--presets", args.preset, "--views",
                str(args.views), "--sizes", str(args.size), "--repeats", str(args.repeats), "--out", tmp]
         cmd += ["--threads", "1", "--workers", str(threads)] if policy.startswith("chunk") else ["--threads", str(threads)]
-        subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+        done = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        if done.returncode != 0:  # the child's own error line, not a CalledProcessError traceback
+            from ..errors import MRVMError
+
+            lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+            why = next((ln for ln in reversed(lines) if ln.startswith("error:")), lines[-1] if lines else "")
+            raise MRVMError(f"bench model ({policy}, {threads} thread(s)) failed with exit code {done.returncode}: "
+                            f"{why.removeprefix('error: ')}")
         with open(Path(tmp) / "bench_model.csv") as f:
             return float(next(csv.DictReader(f))["seconds_median"])
 
 
 def run(args) -> int:
-    from . import at_least, whole_numbers
+    from ..models import registry
+    from . import at_least, start_results, whole_numbers
 
     at_least(args, size=1, views=1, competitors=0, repeats=1)
     threads = whole_numbers(args.threads, "--threads")
+    kind, _, name = str(args.preset).strip().rpartition(":")
+    registry.build_config(kind or None, name)  # an unknown preset: one line now, not a failed child process later
+    out = start_results(Path(args.out), RESULTS, args.force)
     rows = []
-    for busy in (0, args.competitors):
+    for busy in dict.fromkeys((0, args.competitors)):  # --competitors 0: the quiet settings once, not twice
         procs = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(busy)]
         try:
             for policy in POLICIES:
@@ -86,5 +101,5 @@ def run(args) -> int:
             for p in procs:
                 p.kill()
                 p.wait()
-    write_csv(Path(args.out) / "bench_threads.csv", rows)
+    write_csv(out / "bench_threads.csv", rows)
     return 0

@@ -57,6 +57,8 @@ import numpy as np
 from ..models.precision import autocast, for_precision
 from . import PeakMemory, write_csv
 
+RESULTS = ("bench_tradeoff.csv", "bench_tradeoff.png", "bench_tradeoff_front.md")
+"""What the bench writes into ``--out`` (``bench.check_results``)."""
 AXES = ("base", "samples", "gate", "stop", "filter", "refs", "nearest", "ref_size", "precision", "skip", "chunk")
 
 
@@ -75,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--workers", type=int, default=1,
                    help="ray chunks rendered side by side on threads (threads.render_workers; torch threads then 1)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:N] (auto: CUDA when available)")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (the front then uses PSNR only)")
     p.add_argument("--out", type=Path, default=Path("bench_out"), help="folder for the CSV, PNG and front")
 
@@ -324,6 +326,12 @@ def pareto(rows: list[dict], cost: str, loss: str) -> list[dict]:
     return front
 
 
+def fits(pt: Point, n_views: int) -> bool:
+    """Whether objects of ``n_views`` views can make the point: its references leave a view to render (``refs``)
+    and a view has that many others to take the nearest from (``nearest``)."""
+    return pt.refs < n_views and pt.nearest <= n_views - 1
+
+
 def run(args) -> int:
     import torch
 
@@ -332,13 +340,17 @@ def run(args) -> int:
     from ..errors import InputError
     from ..models import registry
     from ..models.config import merge
-    from ..synthesis import load_checkpoint
+    from ..synthesis import load_checkpoint, resolve_device
     from ..models.pretrained import resolve_checkpoint
-    from . import at_least
+    from . import at_least, names, start_results
 
     at_least(args, objects=1, targets=1, size=1, repeats=1, threads=1, workers=1)
+    args.device = str(resolve_device(args.device))  # 'gpu', or cuda on a CPU build: one line, not a traceback
     torch.set_num_threads(1 if args.workers > 1 else args.threads)
     axes = parse_axes(args.axes)
+    # every checkpoint resolved and its header checked now, not when its turn comes after the others' sweeps
+    specs = names(args.checkpoints, "--checkpoints")
+    s2n_files = {spec: sem2nerf_file(spec) for spec in specs}
     lpips = None
     if not args.no_lpips:
         from ..models.metrics import LPIPS
@@ -348,12 +360,12 @@ def run(args) -> int:
     by_cat: dict[str, list] = {}
     for o in objs:
         by_cat.setdefault(Path(o[1]).parent.name, []).append(o)
-    order = [c[i] for i in range(max(map(len, by_cat.values()))) for c in by_cat.values() if i < len(c)]
+    order = [c[i] for i in range(max(map(len, by_cat.values()), default=0)) for c in by_cat.values() if i < len(c)]
     scenes = [load_object(f, p, args.split) for f, p in order[:args.objects]]
     if not scenes:
         raise InputError(f"{args.data}: no objects in split {args.split!r}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    n_views = min(len(sc) for sc in scenes)
+    out = start_results(Path(args.out), RESULTS, args.force)
     load0 = os.getloadavg()[0]
     rows = []
     def add(kind: str, spec: str, cfg, n_params: int, pt: Point, speed: dict, quality: dict, n_objects: int,
@@ -376,8 +388,8 @@ def run(args) -> int:
         write_csv(out / "bench_tradeoff.csv", rows, quiet=True)  # after every point: a stopped sweep keeps its rows
 
     masked = None
-    for spec in [s.strip() for s in args.checkpoints.split(",") if s.strip()]:
-        s2n = sem2nerf_file(spec)
+    for spec in specs:
+        s2n = s2n_files[spec]
         if s2n is not None:
             from dataclasses import replace
 
@@ -406,6 +418,10 @@ def run(args) -> int:
         kind = registry.kind_of(cfg0)
         n_params = sum(p.numel() for p in model.parameters())
         for pt in sweep(kind, cfg0, axes, args.device):
+            if not fits(pt, n_views):
+                print(f"note: {kind} {pt.axis} point '{pt.label}' skipped: the objects have {n_views} views, too few "
+                      "to leave a target beside its references", flush=True)
+                continue
             model.cfg = merge(cfg0, pt.overrides) if pt.overrides else cfg0
             m = for_precision(model, pt.precision)  # int8: a copy with int8 linear layers
             t0 = time.perf_counter()

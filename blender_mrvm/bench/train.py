@@ -40,6 +40,9 @@ from pathlib import Path
 
 from . import PeakMemory, write_csv
 
+RESULTS = ("bench_train.csv", "bench_train_profile.txt")
+"""What the bench writes into ``--out`` (``bench.check_results``)."""
+
 PRECISIONS = {"fp32": "none", "bf16": "bf16", "fp16": "fp16"}
 """Bench precision name -> ``train.amp``."""
 
@@ -332,7 +335,11 @@ def run(args) -> int:
         presets.append((name, registry.build_config(kind or None, name)))  # unknown names fail before any work
     if not presets:
         raise InputError("--presets is empty")
-    out = Path(args.out)
+    if args.data and not Path(args.data).exists():
+        raise InputError(f"--data {args.data} does not exist")
+    from . import start_results
+
+    out = start_results(Path(args.out), RESULTS, args.force)
     rows = []
     with tempfile.TemporaryDirectory(prefix="mrvm_bench_train_") as tmp:
         tmp = Path(tmp)
@@ -377,7 +384,6 @@ def run(args) -> int:
                     "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
                     "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__})
                 if args.profile:
-                    out.mkdir(parents=True, exist_ok=True)
                     with open(out / "bench_train_profile.txt", "w" if len(rows) == 1 else "a") as f:
                         f.write(f"== {name} {tag} {device}: {args.profile} step(s) profiled; per "
                                 f"step: " + ", ".join(f"{k} {r.get(k, '')}" for k in PROFILE_COLUMNS) + "\n"

@@ -26,6 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         bp = sub.add_parser(name, help=(mod.__doc__ or name).strip().splitlines()[0],
                             description=(mod.__doc__ or "").strip())
         mod.add_arguments(bp)
+        bp.add_argument("--force", action="store_true",
+                        help="replace this bench's earlier results in --out (removed when the measuring starts)")
         bp.set_defaults(_bench=mod)
 
 
@@ -36,4 +38,8 @@ def run(args) -> int:
         from ..guards import check_folder_writable
 
         check_folder_writable(Path(args.out), "bench output folder")
+        # and its earlier results: kept unless --force (they had been overwritten, or mixed with a stopped rerun's)
+        from ..bench import check_results
+
+        check_results(Path(args.out), getattr(args._bench, "RESULTS", ()), args.force)
     return int(args._bench.run(args) or 0)
