@@ -273,6 +273,11 @@ def test_recover_poses_continues_an_unfinished_run(tmp_path):
     (out / "colmap").mkdir(parents=True)
     (out / "colmap" / "database.db").write_bytes(b"partial")
     (out / "rgb").mkdir()
+    with pytest.raises(OutputError, match=r"already holds files \(colmap, rgb\)"):
+        prepare_output(out, photos, force=False)  # files of our names alone are not a run of ours (session 52)
+    from blender_mrvm.capture.export import RUN_MARKER
+
+    (out / RUN_MARKER).write_text("")  # what a run writes first
     prepare_output(out, photos, force=False)  # continues: colmap/ is left to the stage log, the rest redone
     assert (out / "colmap" / "database.db").is_file() and not (out / "rgb").exists()
     from blender_mrvm.capture.sfm import StageLog

@@ -116,8 +116,8 @@ def test_dependency_report_lines(tmp_path):
 
     it = W.Interpreter("/py", "project venv")
     rep = W.DependencyReport(it, "3.11.7", {"torch": None, "safetensors": "0.4", "numpy": "1.26.4", "PIL": "10.0",
-                                           "OpenEXR": None, "pycolmap": "4.2.1", "pillow_heif": "1.8.1",
-                                           "av": "18.1.0"})
+                                           "scipy": "1.13.1", "OpenEXR": None, "pycolmap": "4.2.1",
+                                           "pillow_heif": "1.8.1", "av": "18.1.0"})
     assert rep.missing == ["torch", "OpenEXR"]
     assert rep.install_command == '"/py" -m pip install "torch==2.13.0" "openexr>=3.3"'
     lines = rep.lines()
