@@ -64,6 +64,29 @@ def test_every_class_in_the_package_is_registered(addon):
         blender_mrvm.register()
 
 
+def test_paths_relative_to_an_unsaved_blend_are_refused_in_every_section(empty_scene):
+    """'//' in a .blend not saved yet: Blender reads it from the folder it was started in, so the Dataset's mesh
+    path, Capture's photos and Novel Views' checkpoint named another file without a word (a dataset rendered from
+    whatever chair.obj was there)."""
+    import bpy
+
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.operators import capture, dataset, synthesize
+
+    assert not bpy.data.filepath
+    scene = empty_scene
+    scene.mrvm_dataset.source, scene.mrvm_dataset.source_path = "PATH", "//chair.obj"
+    scene.mrvm_dataset.output_dir = "/tmp/mrvm_never_written"
+    with pytest.raises(InputError, match="save the .blend first .* the mesh file or folder"):
+        dataset.config_from_props(bpy.context)
+    scene.mrvm_capture.images_dir, scene.mrvm_capture.output_dir = "//photos", "/tmp/mrvm_never_written"
+    with pytest.raises(InputError, match="save the .blend first .* the photos"):
+        capture.config_from_props(bpy.context)
+    scene.mrvm_novel_views.checkpoint = "//mrvm_runs/run"
+    with pytest.raises(InputError, match="save the .blend first .* the checkpoint"):
+        synthesize._checkpoint(bpy.context, scene.mrvm_novel_views)
+
+
 def test_bpy_free_layers_import_without_blender():
     import subprocess
     import sys

@@ -63,6 +63,12 @@ def test_train_writes_checkpoints_that_synthesis_picks_and_continues(train_ready
     assert nv.checkpoint == str(run)
     # Synthesis now takes that run (its latest checkpoint) as the model.
     assert S._checkpoint(bpy.context, nv) == run
+    # A run folder given relative to the .blend is picked as the folder trained, even when the .blend is saved
+    # elsewhere before the job ends (the setting's text then named another folder)
+    from blender_mrvm.operators import train as T
+
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    assert T._as_setting(run) == bpy.path.relpath(str(run)) and Path(bpy.path.abspath(T._as_setting(run))) == run
     # Fine-tune: continue the same run to step 3.
     p.iterations = 3
     assert bpy.ops.mrvm.train() == {"FINISHED"}

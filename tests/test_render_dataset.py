@@ -236,6 +236,32 @@ def test_selected_objects_and_scene_rig_leave_user_scene_untouched(tmp_path, bpy
         assert ov.mask(k).any(), "the monkey is in view of every camera"
 
 
+def test_what_the_user_makes_while_views_render_is_theirs(tmp_path, bpy_empty):
+    """The panel renders one view a step, modally: what the user (or another job) made between the steps was
+    removed with the session's own data when the object finished (a new object, material, scene, image)."""
+    import bpy
+
+    from blender_mrvm.scene.render import RenderConfig, render_dataset
+
+    mesh = write_mesh(tmp_path / "m.ply")
+    before = {k: len(getattr(bpy.data, k)) for k in ("objects", "meshes", "materials", "scenes", "cameras", "worlds")}
+    gen = render_dataset(RenderConfig(out=tmp_path / "d", sources=(str(mesh), "procedural:chair:0"), views=2,
+                                      resolution=(16, 16), samples=1))
+    next(gen), next(gen)  # started, first view of the first object
+    me = bpy.data.meshes.new("UserMesh")
+    user = bpy.data.objects.new("UserCube", me)
+    bpy.context.scene.collection.objects.link(user)
+    bpy.data.materials.new("UserMaterial")
+    bpy.data.scenes.new("UserScene")
+    bpy.data.images.new("UserImage", 4, 4)
+    run_to_end(gen)
+    for name, kind in (("UserCube", "objects"), ("UserMesh", "meshes"), ("UserMaterial", "materials"),
+                       ("UserScene", "scenes"), ("UserImage", "images")):
+        assert name in getattr(bpy.data, kind), name
+    after = {k: len(getattr(bpy.data, k)) for k in before}
+    assert after == {k: v + (k in ("objects", "meshes", "materials", "scenes")) for k, v in before.items()}
+
+
 def test_rgba_and_workbench(tmp_path, bpy_empty):
     mesh = write_mesh(tmp_path / "w.ply")
     _render(out=tmp_path / "d", sources=(str(mesh),), views=2, resolution=(48, 48), samples=2, rgba=True,

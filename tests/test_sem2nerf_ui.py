@@ -117,6 +117,10 @@ def test_operator_dataset_mask_orbit_planes_with_semantic_maps(s2n):
     p.show_semantic = False
     assert all(o[IP.SHOW_SEMANTIC] == 0 for o in coll.objects if IP.SHOW_SEMANTIC in o)
     assert not list(s2n.jobs.iterdir()), "the job folder is removed"
+    # With the box ticked, new planes show their semantic maps (they showed images until it was ticked again)
+    p.show_semantic = True
+    assert bpy.ops.mrvm.sem2nerf() == {"FINISHED"}
+    assert all(o[IP.SHOW_SEMANTIC] == 1 for o in coll.objects if IP.SHOW_SEMANTIC in o)
 
 
 def test_painted_image_reads_back_as_the_mask(empty_scene, trained, tmp_path):  # noqa: F811

@@ -331,7 +331,8 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
             if not force and not unfinished:
                 named = [n for n in present if n != RUN_MARKER]
                 shown = ", ".join(named[:3]) + (", ..." if len(named) > 3 else "")
-                raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force to overwrite")
+                raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force (in the panel: "
+                                  "Overwrite) to overwrite")
             keep = {"colmap"} if unfinished and not force else set()  # a failed or killed run: resume its stages
             remove_entries(out, [e for e in OUTPUT_ENTRIES if e not in keep])
     out.mkdir(parents=True, exist_ok=True)

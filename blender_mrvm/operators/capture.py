@@ -35,7 +35,9 @@ def config_from_props(context):
                         upsample_below=p.upsample_below, single_camera=p.single_camera,
                         estimate_focal=p.estimate_focal, allow_pair=p.allow_pair, video_frames=p.video_frames,
                         force=p.force).validate()
-    return Path(bpy.path.abspath(p.images_dir)), Path(bpy.path.abspath(out)), cfg
+    from ._paths import blend_path
+
+    return blend_path(p.images_dir, "the photos"), Path(bpy.path.abspath(out)), cfg
 
 
 WORKER_NEEDS = ("pycolmap", "PIL", "numpy")

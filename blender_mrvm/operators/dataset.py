@@ -31,7 +31,9 @@ def config_from_props(context) -> "RenderConfig":  # noqa: F821
     else:
         if not p.source_path.strip():
             raise MRVMError("choose a mesh file or folder to render")
-        sources = (bpy.path.abspath(p.source_path),)
+        from ._paths import blend_path
+
+        sources = (str(blend_path(p.source_path, "the mesh file or folder")),)
     out = p.output_dir.strip()
     if not out:
         raise MRVMError("choose an output folder")

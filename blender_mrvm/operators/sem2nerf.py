@@ -64,16 +64,10 @@ class Sem2NeRFJob:
     """The render command's --quality: full or preview."""
 
 
-def _abspath(p: str) -> Path:
-    return Path(bpy.path.abspath(p.strip()))
-
-
 def _path_setting(raw: str, what: str) -> Path:
-    if not raw.strip():
-        raise InputError(f"choose {what}")
-    if raw.strip().startswith("//") and not bpy.data.filepath:
-        raise InputError(f"save the .blend first or choose an absolute path for {what} (// is relative to the .blend)")
-    return _abspath(raw)
+    from ._paths import blend_path
+
+    return blend_path(raw, what)
 
 
 def checkpoint_from_props(p):
@@ -193,6 +187,10 @@ def import_run(context, run: Sem2NeRFRun) -> str:
         res = import_results(context.scene, list(job.targets), run.job_dir / "out", job.planes, semantic=True)
     finally:
         shutil.rmtree(run.job_dir, ignore_errors=True)
+    if getattr(context.scene.mrvm_sem2nerf, "show_semantic", False):  # new planes as the panel's checkbox says
+        from ..scene.sem2nerf import set_show_semantic
+
+        set_show_semantic(True)
     made = sum(1 for t in job.targets if t.generated)
     n = len(res.planes)
     return (f"{n} Sem2NeRF view{'s' if n != 1 else ''} of {job.mask_name} in collection {res.collection.name!r}"

@@ -92,14 +92,16 @@ def _abspath(p: str) -> Path:
 def _checkpoint(context, p) -> Path | str:
     from .. import prefs as P
 
+    from ._paths import blend_path
+
     if p.checkpoint.strip():
-        ck = _abspath(p.checkpoint)
+        ck = blend_path(p.checkpoint, "the checkpoint")
         if not ck.exists():
             raise InputError(f"checkpoint {ck} does not exist")
         return ck
     pr = P.get(context)
     if pr is not None and pr.checkpoint_dir.strip():
-        ck = _abspath(pr.checkpoint_dir)
+        ck = blend_path(pr.checkpoint_dir, "the checkpoint folder of the add-on preferences")
         if not ck.exists():
             raise InputError(f"the checkpoint folder set in the add-on preferences does not exist: {ck}")
         return ck

@@ -74,12 +74,19 @@ class TrainJob:
 
 
 def _abs(p: str, what: str) -> Path:
-    raw = p.strip()
-    if not raw:
-        raise InputError(f"choose the {what}")
-    if raw.startswith("//") and not bpy.data.filepath:
-        raise InputError(f"save the .blend first or choose an absolute {what} (// is relative to the .blend)")
-    return Path(bpy.path.abspath(raw))
+    from ._paths import blend_path
+
+    return blend_path(p, f"the {what}")
+
+
+def _as_setting(path: Path) -> str:
+    """``path`` as a panel setting: relative to the saved .blend (``//``) when it can be, else absolute."""
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(str(path))
+        except ValueError:  # another drive (Windows)
+            pass
+    return str(path)
 
 
 def run_config(run_dir: Path) -> dict | None:
@@ -255,7 +262,8 @@ def on_train_result(context, run: TrainRun) -> str:
     msg += f"; checkpoint {ck}"
     nv = getattr(context.scene, "mrvm_novel_views", None)
     if p.use_for_synthesis and nv is not None:
-        nv.checkpoint = p.run_dir.strip() if p.run_dir.strip().startswith("//") else str(run.job.run_dir)
+        nv.checkpoint = _as_setting(Path(run.job.run_dir))  # the folder trained, not the setting's text now (a
+        # .blend saved elsewhere during the run moved what '//' names)
         msg += " (picked for novel views)"
     return msg
 

@@ -428,14 +428,24 @@ _REMOVE_FIRST = ("objects", "collections", "meshes", "curves", "armatures", "cam
 def remove_new_data(before: dict[str, set[int]]) -> None:
     """Remove datablocks created since ``before`` in the collections it holds (the user's own data is untouched);
     library entries last, once nothing of theirs is left."""
-    order = [n for n in _REMOVE_FIRST if n in before] + [n for n in before if n not in _REMOVE_FIRST
-                                                         and n != "libraries"]
+    _remove_where(before, lambda name, ptr: ptr not in before[name])
+
+
+def remove_data(own: dict[str, set[int]]) -> None:
+    """Remove the datablocks ``own`` names (pointers per collection, as :func:`snapshot_data` gives them) that still
+    exist; library entries last."""
+    _remove_where(own, lambda name, ptr: ptr in own[name])
+
+
+def _remove_where(collections: dict[str, set[int]], pick) -> None:
+    order = [n for n in _REMOVE_FIRST if n in collections] + [n for n in collections if n not in _REMOVE_FIRST
+                                                              and n != "libraries"]
     for name in order:
-        new = [d for d in getattr(bpy.data, name) if d.as_pointer() not in before[name]]
-        if new:
-            bpy.data.batch_remove(new)
-    if "libraries" in before:
-        for lib in [lib for lib in bpy.data.libraries if lib.as_pointer() not in before["libraries"]]:
+        chosen = [d for d in getattr(bpy.data, name) if pick(name, d.as_pointer())]
+        if chosen:
+            bpy.data.batch_remove(chosen)
+    if "libraries" in collections:
+        for lib in [lib for lib in bpy.data.libraries if pick("libraries", lib.as_pointer())]:
             bpy.data.libraries.remove(lib)
 
 

@@ -222,10 +222,10 @@ def prepare_output(cfg: RenderConfig) -> None:
         if not F.settings_match(old.get("settings"), settings) and not cfg.force:
             raise OutputError(f"{out} holds a dataset rendered with other settings "
                               f"({_settings_diff(old.get('settings') or {}, settings)}); "
-                              "use --force to overwrite it or choose another folder")
+                              "use --force (in the panel: Overwrite) to overwrite it or choose another folder")
     elif any(p.name != F.ROOT_MANIFEST and not _own_temporary(p.name) for p in out.iterdir()) and not cfg.force:
         raise OutputError(f"{out} is not empty and holds no blender_mrvm dataset; "
-                          "use --force to write into it or choose an empty folder")
+                          "use --force (in the panel: Overwrite) to write into it or choose an empty folder")
     F.atomic_write_json(manifest, {"format": "blender_mrvm dataset", "format_version": F.FORMAT_VERSION,
                                    "generator": f"blender_mrvm {__version__}", "settings": settings})
 
@@ -279,6 +279,8 @@ class RenderSession:
         self.tmpdir = tmpdir
         self._before = O.snapshot_data()
         self._scenes_before = {s.as_pointer() for s in bpy.data.scenes}
+        self._own: dict[str, set[int]] | None = None  # what the session made, once sealed
+        self._own_scenes: set[int] | None = None
         self.scene = bpy.data.scenes.new("MRVM_render")
         self.coll = bpy.data.collections.new("MRVM_objects")
         self.scene.collection.children.link(self.coll)
@@ -343,10 +345,24 @@ class RenderSession:
         ob.rotation_euler = (math.radians(40), math.radians(10), math.radians(30))
         self.coll.objects.link(ob)
 
+    def seal(self) -> None:
+        """Record what the session made: its scene and what loading the object made. Called once the object is
+        loaded, in the same step as ``__init__``: the views render one a step from the panel's modal operator, and
+        what the user (or another job) creates between the steps is theirs: :meth:`close` removed it all."""
+        now = O.snapshot_data()
+        self._own = {name: now[name] - self._before[name] for name in now}
+        self._own_scenes = {s.as_pointer() for s in bpy.data.scenes} - self._scenes_before
+
     def close(self) -> None:
-        for sc in [s for s in bpy.data.scenes if s.as_pointer() not in self._scenes_before]:
+        """Remove what the session made (before :meth:`seal`, in the step that made it: everything new)."""
+        own_scenes = self._own_scenes
+        for sc in [s for s in bpy.data.scenes if s.as_pointer() not in self._scenes_before
+                   and (own_scenes is None or s.as_pointer() in own_scenes)]:
             bpy.data.scenes.remove(sc)
-        O.remove_new_data(self._before)
+        if self._own is None:
+            O.remove_new_data(self._before)
+        else:
+            O.remove_data(self._own)
 
     # ------------------------------------------------------------------
     def render_colour(self, box: tuple[int, int, int, int] | None) -> dict[str, dict[str, np.ndarray]]:
@@ -668,7 +684,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         if not F.settings_match(old.get("settings"), settings) or not same_source:
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds another render of {spec.key} "
-                                  f"({old.get('source')}); use --force to overwrite it")
+                                  f"({old.get('source')}); use --force (in the panel: Overwrite) to overwrite it")
             shutil.rmtree(obj_dir)
         elif (old.get("source_hash") not in (None, source_hash)  # None: rendered before hashes were kept
               or old.get("linked_files_hash") not in (None, linked_hash)
@@ -676,7 +692,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} as it was before it changed "
                                   "(its content, its materials, or a texture, buffer or linked .blend file it names, "
-                                  "differs from what they were rendered from); use --force to render it again")
+                                  "differs from what they were rendered from); use --force (in the panel: Overwrite) "
+                                  "to render it again")
             shutil.rmtree(obj_dir)
         elif old.get("complete") and all(view_intact(obj_dir, i) for i in range(old.get("n_views", -1))):
             update = {"split": assign_split(cfg, spec.key), "source": spec.describe()}
@@ -707,8 +724,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             # before were rendered: those views would not match these (a finished object is never re-imported)
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} rendered with other images than "
-                                  "its materials read now (a texture changed, appeared or went); use --force to "
-                                  "render it again")
+                                  "its materials read now (a texture changed, appeared or went); use --force (in the "
+                                  "panel: Overwrite) to render it again")
             shutil.rmtree(obj_dir)
         if made_opaque:
             summary.warnings.append(
@@ -736,7 +753,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} normalized to other bounds than it has "
                                   "now (this version frames objects by the vertices their faces use, and renders "
-                                  "collection instances); use --force to render it again")
+                                  "collection instances); use --force (in the panel: Overwrite) to render it again")
             shutil.rmtree(obj_dir)
         if loose is not None:
             summary.warnings.append(
@@ -838,6 +855,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         F.atomic_write_json(meta_path, meta)
         for k in F.VIEW_DIRS:
             (obj_dir / k).mkdir(exist_ok=True)
+        session.seal()  # the object is loaded: what is made from here on (between the views' steps) is not ours
 
         current_intr = None
         opacity: list[tuple] = []  # per rendered view (inside, outside the mask), from the writer thread
