@@ -20,6 +20,7 @@ from blender_mrvm.capture import align  # noqa: E402
 from blender_mrvm.capture.config import CaptureConfig  # noqa: E402
 from blender_mrvm.capture.export import read_capture, read_points_ply  # noqa: E402
 from blender_mrvm.capture.sfm import recover_poses  # noqa: E402
+from blender_mrvm.datasets import format as F  # noqa: E402
 from blender_mrvm.errors import Cancelled, InputError, OutputError  # noqa: E402
 from blender_mrvm.geometry import cameras as C  # noqa: E402
 from blender_mrvm.progress import run_to_end  # noqa: E402
@@ -340,6 +341,15 @@ def test_recovered_capture_is_a_scene_gpnr_synthesizes_from(recovered):
     assert cap.meta["object_bbox"] == [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
     refs = S.load_references(out, (0, 2), ref_size=80)
     assert refs.background == "scene" and refs.bbox_source == "meta.json bbox"
+    # An orbit circles the object the photos circle (the normalization's origin), at the photos' distance: it
+    # circled the scene box's centre, which the sparse points of the ground and walls put well off the object
+    every = S.load_references(out, ref_size=80)
+    dist = np.median([np.linalg.norm(c[:3, 3]) for c in every.c2w])
+    for t in S.orbit_targets(every, 6):
+        eye, axis = t.c2w_opencv[:3, 3], t.c2w_opencv[:3, 2]
+        assert np.isclose(np.linalg.norm(eye), dist, rtol=1e-6)
+        assert np.linalg.norm(np.cross(axis, -eye)) < 1e-6 * np.linalg.norm(eye)  # it looks at the origin
+    assert np.linalg.norm(0.5 * (lo + hi)) > 0.2, "the scene box's centre is not the object's (else not a test)"
     torch.set_num_threads(1)
     model, _, _, _ = S.load_checkpoint("shipped:gpnr")
     from blender_mrvm.models.background import for_rendering
@@ -815,6 +825,13 @@ def test_output_not_overwritten_without_force(ring, tmp_path, capsys):
     assert len(res.registered) == 5
     assert json.loads((tmp_path / "guess" / "meta.json").read_text())["focal_from_view_graph"] is False
     assert (out / "notes.txt").read_text() == "mine"  # --force replaces only the capture's own files
+    # One camera a photo (the default): their own intrinsics, so a copy without transforms.json is refused, not read
+    # with the first photo's for every view
+    frames = json.loads((out / "transforms.json").read_text())["frames"]
+    assert len({(f["fl_x"], f["cx"], f["cy"]) for f in frames}) > 1 and meta["per_view_intrinsics"] is True
+    (out / "transforms.json").unlink()
+    with pytest.raises(InputError, match="its views have their own intrinsics"):
+        F.read_object(out)
 
 
 def test_cancel_by_closing_the_generator(ring, tmp_path):

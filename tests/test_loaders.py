@@ -51,6 +51,32 @@ def test_srn(tmp_path):
     assert np.allclose(sc.bbox[1], 0.5)
 
 
+def test_an_srn_split_folder_is_read_as_its_own_split_and_captures_side_by_side_are_refused(tmp_path):
+    """A folder of one SRN split (cars_train) was read whatever --split said (eval --split test scored training
+    objects and recorded 'test'); captures side by side were read as SRN (their intrinsics.txt), losing their
+    scene box, per-photo cameras and background."""
+    obj = tmp_path / "cars_train" / "abc"
+    for i, c2w in enumerate(POSES):
+        F.write_png(obj / "rgb" / f"{i:06d}.png", _image(i))
+        F.write_srn_pose(obj / "pose" / f"{i:06d}.txt", c2w)
+    F.atomic_write_text(obj / "intrinsics.txt", F.format_srn_intrinsics(INTR))
+    assert L.list_objects(tmp_path / "cars_train", split="train") == [("srn", obj)]
+    with pytest.raises(InputError, match=r"the 'train' split of an SRN set, not 'test'"):
+        L.list_objects(tmp_path / "cars_train", split="test")
+    bare = tmp_path / "objects"
+    (bare / "abc").mkdir(parents=True)
+    for f in ("rgb", "pose", "intrinsics.txt"):
+        (bare / "abc" / f).symlink_to(obj / f)
+    assert L.list_objects(bare, split="test") == [("srn", bare / "abc")]  # no split named: every object
+    for name in ("a", "b"):
+        cap = tmp_path / "caps" / name
+        (cap / "rgb").mkdir(parents=True)
+        F.atomic_write_text(cap / "intrinsics.txt", F.format_srn_intrinsics(INTR))
+        F.atomic_write_json(cap / "meta.json", {"kind": "capture", "background": "scene"})
+    with pytest.raises(InputError, match=r"holds recovered captures one level down \(a, b\)"):
+        L.detect_format(tmp_path / "caps")
+
+
 def test_nmr_dvr(tmp_path):
     obj = tmp_path / "02958343" / "xyz"
     cams = {}

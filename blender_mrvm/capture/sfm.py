@@ -759,6 +759,9 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
                                     "points (what models clip rays to)"})
     if cfg.normalize:
         meta["object_bbox"] = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]  # the normalization's unit sphere
+    if len({(v.intrinsics.fx, v.intrinsics.fy, v.intrinsics.cx, v.intrinsics.cy) for v in views}) > 1:
+        meta["per_view_intrinsics"] = True  # (one camera a photo): a copy without transforms.json is refused, not
+        # read with the first photo's intrinsics for every view (datasets.format.read_object)
     write_capture(out_dir, views, xyz, rgb, meta)
     stages.close()
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c

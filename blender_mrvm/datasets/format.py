@@ -438,7 +438,7 @@ def read_object(obj_dir: Path) -> ObjectViews:
         # view (a GPU session's slimmed copy without transforms.json trained on such views, session 18)
         raise InputError(f"{obj_dir}: its views have their own intrinsics (meta.json per_view_intrinsics), kept in "
                          f"transforms.json, which {'lacks view ' + str(lost[0]) if tf.is_file() else 'is missing'}; "
-                         "restore it from the rendered set (render-dataset writes it)")
+                         "restore it from the rendered set or the capture (render-dataset and recover-poses write it)")
     poses = [read_srn_pose(view_paths(obj_dir, i)["pose"]) for i in idx]
     per_view = [by_view.get(i, intr) for i in idx]
     return ObjectViews(obj_dir, meta, intr, poses, idx, per_view)

@@ -262,11 +262,25 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
 
 # --------------------------------------------------------------------------------------------- dispatch
 
+def _is_capture(meta_path: Path) -> bool:
+    """Whether ``meta.json`` is a recovered capture's (``recover-poses``)."""
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("kind") == "capture"
+
+
 def detect_format(root: Path) -> str:
     """Guess the layout of a dataset root (or a single object folder)."""
     root = Path(root)
     if (root / F.ROOT_MANIFEST).is_file() or any(root.glob("*/*/meta.json")) or (root / "meta.json").is_file():
         return "ours"
+    captures = sorted(p.parent.name for p in root.glob("*/meta.json") if _is_capture(p))
+    if captures:  # side by side (each also holds an SRN intrinsics.txt: read as SRN they lost box, cameras, background)
+        raise InputError(f"{root} holds recovered captures one level down ({', '.join(captures[:3])}"
+                         f"{', ...' if len(captures) > 3 else ''}): give one of them, or lay them out as "
+                         "<category>/<capture> folders")
     if any(root.glob("transforms_*.json")) or any(root.glob("*/transforms_*.json")):
         return "nerf"
     if any(root.glob("*/*/cameras.npz")) or (root / "cameras.npz").is_file():
@@ -291,9 +305,15 @@ def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> li
         # pixelNeRF: <root>/<cat>_<split>/<object>/ or a folder of objects
         if (root / "intrinsics.txt").is_file():
             return [("srn", root)]
-        cands = sorted(p.parent for p in root.glob(f"*_{split}/*/intrinsics.txt")) or \
-            sorted(p.parent for p in root.glob("*/intrinsics.txt"))
-        return [("srn", p) for p in cands]
+        cands = sorted(p.parent for p in root.glob(f"*_{split}/*/intrinsics.txt"))
+        if cands:
+            return [("srn", p) for p in cands]
+        # a folder of objects: one split of a set (cars_train), or objects without one
+        named = root.name.rsplit("_", 1)[1] if "_" in root.name else ""
+        if named in F.SPLITS and named != split:
+            raise InputError(f"{root} is the {named!r} split of an SRN set, not {split!r}: give --split {named}, or "
+                             f"the set's folder ({root.parent}) to choose its splits")
+        return [("srn", p) for p in sorted(p.parent for p in root.glob("*/intrinsics.txt"))]
     if fmt == "nmr":
         if (root / "cameras.npz").is_file():
             return [("nmr", root)]

@@ -21,9 +21,10 @@ runs that command in the worker process). :func:`synthesize_views` is a progress
    cancel leaves ``out`` as it was, and no folder the run created.
 
 The object's box (the model clips rays to it and works in the box's normalised frame) comes from
-the reference folder: ``meta.json`` ``bbox`` (renders), ``bound_radius``, a normalised capture (its
-object of interest fits the unit sphere), else where the reference cameras' optical axes meet
-(radius half the camera distance). ``bbox`` in the config overrides all of them.
+the reference folder: ``meta.json`` ``bbox`` (renders; a recovered capture's scene box from its sparse points),
+``bound_radius``, a normalised capture without a box (its object of interest fits the unit sphere), else where the
+reference cameras' optical axes meet (radius half the camera distance). ``bbox`` in the config overrides all of
+them. An orbit looks at the capture's object (``object_bbox``), not at its scene box's centre.
 """
 
 from __future__ import annotations
@@ -184,13 +185,22 @@ class References:
     """(V, H, W) bool object masks at the images' size when every reference has one (``mask/``), else None."""
     background: str = "white"
     """What the views show (meta.json ``background``): 'white' (an object on white) or 'scene'."""
+    subject: tuple | None = None
+    """(min xyz, max xyz) of what the photos are of, where it is not ``bbox``: a recovered capture's ``bbox`` is the
+    scene's (the sparse points: what models clip rays to), its ``object_bbox`` the unit sphere of the normalization
+    round the object the cameras circle. None: ``bbox``."""
+
+    def subject_centre(self) -> np.ndarray:
+        """The point new views (an orbit) look at: the centre of :attr:`subject`, or of ``bbox``."""
+        lo, hi = self.subject if self.subject is not None else self.bbox
+        return 0.5 * (np.asarray(lo, np.float64) + np.asarray(hi, np.float64))
 
     def subset(self, keep: Sequence[int]) -> "References":
         """The references at positions ``keep``."""
         keep = list(keep)
         return References(self.folder, tuple(self.views[k] for k in keep), self.images[keep],
                           [self.c2w[k] for k in keep], [self.intrinsics[k] for k in keep], self.bbox, self.bbox_source,
-                          None if self.masks is None else self.masks[keep], self.background)
+                          None if self.masks is None else self.masks[keep], self.background, self.subject)
 
 
 def nearest_views(ref_c2w: Sequence[np.ndarray], target_c2w: np.ndarray, centre, k: int) -> tuple[int, ...]:
@@ -403,14 +413,21 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
                 raise InputError(f"reference views {views[0]} and {views[i]} have different aspect ratios "
                                  f"({intrs[0].width}x{intrs[0].height} and {intr.width}x{intr.height})")
             imgs[i], intrs[i] = resize_view(img, intr, w0, h0)
+    subject = None
     if bbox is not None:
         box, src = parse_bbox([*bbox[0], *bbox[1]]), "given"
     else:
         box, src = object_box(ov.meta, poses)
+        ob = ov.meta.get("object_bbox")  # a capture's object, inside its scene box
+        if ob is not None:
+            try:
+                subject = parse_bbox([*ob[0], *ob[1]])
+            except (InputError, TypeError, ValueError, IndexError):
+                subject = None
     from ..models.background import of_meta
 
     return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src,
-                      _reference_masks(folder, ov, [pos[v] for v in views], w0, h0), of_meta(ov.meta))
+                      _reference_masks(folder, ov, [pos[v] for v in views], w0, h0), of_meta(ov.meta), subject)
 
 
 def _reference_masks(folder: Path, ov, ks: Sequence[int], w: int, h: int) -> np.ndarray | None:
@@ -846,7 +863,8 @@ def targets_from_views(folder: Path, views: Sequence[int]) -> list[Target]:
 
 def orbit_targets(refs: References, count: int, elevation_deg: float = 20.0, radius: float | None = None,
                   size: int = 0) -> list[Target]:
-    """``count`` targets on a circle around the object's box centre, looking at it, with the first
+    """``count`` targets on a circle around the object's centre (:meth:`References.subject_centre`: a capture's
+    object, not its scene box), looking at it, with the first
     reference's field of view (unshifted) at ``size`` pixels on the longer side (0 = the references' size).
     ``radius`` defaults to the references' median distance from the centre.
 
@@ -855,7 +873,7 @@ def orbit_targets(refs: References, count: int, elevation_deg: float = 20.0, rad
     new frame's centre."""
     from ..geometry.rigs import orbit_poses
 
-    centre = 0.5 * (np.asarray(refs.bbox[0]) + np.asarray(refs.bbox[1]))
+    centre = refs.subject_centre()
     if radius is None:
         radius = float(np.median([np.linalg.norm(c[:3, 3] - centre) for c in refs.c2w]))
     k = refs.intrinsics[0]
