@@ -81,12 +81,9 @@ def _abs(p: str, what: str) -> Path:
 
 def _as_setting(path: Path) -> str:
     """``path`` as a panel setting: relative to the saved .blend (``//``) when it can be, else absolute."""
-    if bpy.data.filepath:
-        try:
-            return bpy.path.relpath(str(path))
-        except ValueError:  # another drive (Windows)
-            pass
-    return str(path)
+    from ..scene.image_planes import blend_relative
+
+    return blend_relative(path)
 
 
 def run_config(run_dir: Path) -> dict | None:

@@ -301,7 +301,7 @@ def output_folder(cfg: PlaneConfig) -> Path:
     return Path(bpy.path.abspath(f))
 
 
-def _blend_path(p: Path) -> str:
+def blend_relative(p: Path) -> str:
     """A file path as Blender stores it: relative to the saved .blend when possible."""
     if bpy.data.filepath:
         try:
@@ -570,7 +570,7 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
         stems = _unique_stems([c.name for c in cams], folder, old, cfg.own_folder)
         for v, cam, intr, stem in zip(views, cams, intrs, stems):
             png = _write_png(t, v.rgba, (work or folder) / f"{stem}.png")
-            stored = (f"{stored_folder.rstrip('/')}/{stem}.png" if cfg.pack else _blend_path(png))
+            stored = (f"{stored_folder.rstrip('/')}/{stem}.png" if cfg.pack else blend_relative(png))
             img = _load_image(png, f"MRVM {cam.name}", stored, cfg.pack)
             if not cfg.pack:
                 files.append(png)
@@ -578,7 +578,7 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
             simg = None
             if v.semantic is not None:
                 spng = _write_png(t, v.semantic, (work or folder) / f"{stem}_semantic.png")
-                stored_s = (f"{stored_folder.rstrip('/')}/{stem}_semantic.png" if cfg.pack else _blend_path(spng))
+                stored_s = (f"{stored_folder.rstrip('/')}/{stem}_semantic.png" if cfg.pack else blend_relative(spng))
                 simg = _load_image(spng, f"MRVM semantic {cam.name}", stored_s, cfg.pack)
                 images.append(simg)
                 if not cfg.pack:
@@ -593,7 +593,7 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
             obj["mrvm_distance"] = float(cfg.distance)
             if v.depth is not None:
                 exr = _write_exr(t, v.depth, (work or folder) / f"{stem}_depth.exr")
-                stored_d = (f"{stored_folder.rstrip('/')}/{stem}_depth.exr" if cfg.pack else _blend_path(exr))
+                stored_d = (f"{stored_folder.rstrip('/')}/{stem}_depth.exr" if cfg.pack else blend_relative(exr))
                 dimg = _load_image(exr, f"MRVM depth {cam.name}", stored_d, cfg.pack, non_color=True)
                 dimg.use_fake_user = True  # referenced by no material: keep it through save/reload
                 obj["mrvm_depth_image"] = dimg.name
