@@ -211,9 +211,17 @@ def test_eval_writes_metrics(tmp_path, trained):
     assert sb["per_object"][0]["from_start"][0] == 0.0 and sb["monotonic"] in (0, 1)
 
 
-def test_bench_cli(tmp_path):
+def test_bench_cli(tmp_path, capsys):
     rc = main(["sem2nerf", "bench", "--out", str(tmp_path), "--size", "64", "--repeats", "2"])
-    assert rc == 0 and (tmp_path / "bench_sem2nerf_inputs.csv").is_file()
+    csv_path = tmp_path / "bench_sem2nerf_inputs.csv"
+    assert rc == 0 and csv_path.is_file()
+    # a second run keeps the first one's figures unless --force, like every other bench
+    csv_path.write_text("earlier figures\n")
+    assert main(["sem2nerf", "bench", "--out", str(tmp_path), "--size", "64", "--repeats", "2"]) == 2
+    assert "already holds this bench's results" in capsys.readouterr().err
+    assert csv_path.read_text() == "earlier figures\n"
+    assert main(["sem2nerf", "bench", "--out", str(tmp_path), "--size", "64", "--repeats", "2", "--force"]) == 0
+    assert csv_path.read_text().startswith("builder,")
 
 
 def test_shipped_sem2nerf_resolves_or_says_so(tmp_path):

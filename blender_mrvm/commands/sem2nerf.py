@@ -4,7 +4,7 @@
   python -m blender_mrvm sem2nerf render --checkpoint runs/s2n --mask obj/mask/000000.png --pose obj/pose/000000.txt \\
       --out s2n_out [--views 8 | --targets targets.json] [--edit 2:0] [--style-seed 3] [--mix-seed 5 --mix 0.3] [--blend 7]
   python -m blender_mrvm sem2nerf eval --checkpoint runs/s2n --data data/shapenet13_all --holdout 3 --out eval/s2n
-  python -m blender_mrvm sem2nerf bench --out docs     # -> docs/bench_sem2nerf_inputs.csv
+  python -m blender_mrvm sem2nerf bench --out docs --force  # -> docs/bench_sem2nerf_inputs.csv
 
 render writes OUT/rgb, OUT/semantic (uint8 part ids), OUT/semantic_color, OUT/pose and sem2nerf.json;
 bad input (labels the checkpoint does not know, an empty mask, a mask of another size, a missing
@@ -106,6 +106,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     b.add_argument("--out", default="bench_out", help="output folder (default bench_out)")
     b.add_argument("--size", type=int, default=512, help="mask size in pixels (default 512)")
     b.add_argument("--repeats", type=int, default=50, help="timed repeats per builder (default 50)")
+    b.add_argument("--force", action="store_true", help="replace this bench's earlier results in --out")
 
 
 def parse_model_overrides(items: list[str]) -> dict:
@@ -186,13 +187,14 @@ def run(args) -> int:
         print(json.dumps(res["overall"]))
         return 0
     if cmd == "bench":
-        from ..bench import at_least
+        from ..bench import at_least, start_results
         from ..guards import check_folder_writable
-        from ..models.sem2nerf.inputs import bench
+        from ..models.sem2nerf.inputs import BENCH_RESULTS, bench
 
         at_least(args, size=1, repeats=1)
         check_folder_writable(Path(args.out), "bench output folder")
-        res = bench(Path(args.out), size=args.size, repeats=args.repeats)
+        out = start_results(Path(args.out), BENCH_RESULTS, args.force)
+        res = bench(out, size=args.size, repeats=args.repeats)
         print(json.dumps({k: round(v, 3) for k, v in res.items()}))
         return 0
     raise AssertionError(cmd)

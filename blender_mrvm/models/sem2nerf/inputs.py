@@ -290,6 +290,10 @@ def synthetic_mask(size: int = 512, seed: int = 0) -> np.ndarray:
     return m
 
 
+BENCH_RESULTS = ("bench_sem2nerf_inputs.csv",)
+"""What :func:`bench` writes into its folder (``bench.check_results``)."""
+
+
 def bench(out_dir: Path, size: int = 512, repeats: int = 50, n_labels: int = 6) -> dict[str, float]:
     """Time each builder on a ``size`` px mask and write ``bench_sem2nerf_inputs.csv`` (wall-clock median,
     min, 90th percentile and the median process CPU time, which a loaded machine disturbs less);
@@ -336,7 +340,7 @@ def bench(out_dir: Path, size: int = 512, repeats: int = 50, n_labels: int = 6) 
                      "cpu_median_ms": f"{np.median(cs):.3f}"})
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / "bench_sem2nerf_inputs.csv", "w", newline="") as f:
+    with open(out_dir / BENCH_RESULTS[0], "w", newline="") as f:
         wr = csv.DictWriter(f, fieldnames=list(rows[0]))
         wr.writeheader()
         wr.writerows(rows)
