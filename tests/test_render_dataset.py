@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -449,6 +450,41 @@ def test_an_unfinished_object_framed_by_other_bounds_is_not_resumed(tmp_path, bp
     with pytest.raises(OutputError, match="normalized to other bounds"):
         _render(**kw)
     assert _render(**kw, force=True).views_rendered == 2
+
+
+def test_a_procedural_object_built_otherwise_by_a_later_library_is_not_resumed(tmp_path, bpy_empty, monkeypatch):
+    """An object's generator parameters can stay the same while a later version of the library builds other geometry
+    from them: an object interrupted under one version and resumed under the other would mix the two. The built
+    object is hashed (meta.json's appearance_hash); a dataset rendered before that was kept still resumes."""
+    from blender_mrvm.errors import OutputError
+    from blender_mrvm.scene.procedural import _registry
+
+    kw = dict(out=tmp_path / "d", sources=("procedural:table:3",), views=2, resolution=(16, 16), samples=1)
+    _render(**kw)
+    meta_path = next((tmp_path / "d").glob("*/*/meta.json"))
+    meta = json.loads(meta_path.read_text())
+    assert meta["appearance_hash"].startswith("sha256:")
+    meta["complete"] = False  # interrupted after its views
+    meta_path.write_text(json.dumps(meta))
+    assert _render(**kw).views_skipped == 2, "the same library: resumed"
+
+    gen = _registry.GENERATORS["table"]
+
+    def with_a_spike(p, rng, m):  # the same parameters, other geometry: what a library change looks like
+        kinds = gen.fn(p, rng, m)
+        m._verts[0] = m._verts[0] * np.array([1.0, 1.0, 1.3])
+        return kinds
+
+    monkeypatch.setitem(_registry.GENERATORS, "table", dataclasses.replace(gen, fn=with_a_spike))
+    with pytest.raises(OutputError, match="as it was before it changed"):
+        _render(**kw)
+    assert _render(**kw, force=True).views_rendered == 2
+    monkeypatch.undo()
+    meta = json.loads(meta_path.read_text())
+    meta.pop("appearance_hash")  # rendered before the built object was hashed
+    meta["complete"] = False
+    meta_path.write_text(json.dumps(meta))
+    assert _render(**kw).views_skipped == 2
 
 
 def test_shards_starting_into_one_new_folder_do_not_refuse_each_other(tmp_path):

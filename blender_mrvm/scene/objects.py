@@ -1640,8 +1640,11 @@ def _material_description(mat, seen: set[int]) -> list:
 
 def appearance_fingerprint(spec: ObjectSpec) -> str | None:
     """Selected objects' looks beyond their geometry, as a hash: their materials (settings, node trees), UV maps,
-    colour attributes and object colour; ``None`` for other sources, whose files hold all of it
+    colour attributes and object colour. A procedural object: what the library builds from its parameters
+    (:func:`_procedural_build_fingerprint`). ``None`` for mesh files, whose bytes hold all of it
     (:func:`source_fingerprint`). Kept beside it so datasets rendered before it was kept still resume."""
+    if spec.kind == "procedural":
+        return _procedural_build_fingerprint(spec)
     if spec.kind != "selected":
         return None
     import hashlib
@@ -1665,6 +1668,61 @@ def appearance_fingerprint(spec: ObjectSpec) -> str | None:
                 attr.data.foreach_get("color", a)
                 h.update(attr.name.encode() + attr.domain.encode() + b"\0" + a.tobytes())
     return "sha256:" + h.hexdigest()
+
+
+def _procedural_build_fingerprint(spec: ObjectSpec) -> str:
+    """The object the procedural library builds for ``spec``, as a hash: its vertices, faces, part labels, sharp
+    edges and its materials' nodes, node inputs and links.
+
+    :func:`source_fingerprint` hashes the generator's parameters only, which stay the same when a later version of
+    the library builds other geometry or colours from them: an object interrupted under one version and resumed
+    under another would mix the two. Built in a collection of its own (no scene sees it) and removed again; a few
+    milliseconds an object. Material and node names are left out (Blender suffixes them when a name is taken)."""
+    import hashlib
+
+    from . import procedural
+
+    coll = bpy.data.collections.new("mrvm_fingerprint")
+    ob = None
+    try:
+        ob = procedural.build(spec.category, spec.seed, coll, **dict(spec.params))
+        me = ob.data
+        h = hashlib.sha256()
+        co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+        me.vertices.foreach_get("co", co)
+        h.update(co.tobytes())
+        # faces and edges as sets: bmesh's operators (bevel) list the same faces in another order, or start a face
+        # at another corner, depending on what ran before in the process
+        part = me.attributes.get("part_id")
+        rows = []
+        for k, poly in enumerate(me.polygons):
+            v = list(poly.vertices)
+            first = v.index(min(v))
+            rows.append((tuple(v[first:] + v[:first]), poly.material_index, poly.use_smooth,
+                         part.data[k].value if part is not None else None))
+        h.update(repr(sorted(rows)).encode())
+        h.update(repr(sorted(tuple(sorted(e.vertices)) for e in me.edges if e.use_edge_sharp)).encode())
+        for mat in me.materials:
+            tree = mat.node_tree if mat is not None and compat.uses_nodes(mat) else None
+            desc: list = [tuple(_plain(getattr(mat, k, None)) for k in ("diffuse_color", "roughness", "metallic",
+                                                                       "pass_index"))] if mat else [None]
+            if tree is not None:
+                for n in sorted(tree.nodes, key=lambda n: (n.bl_idname, n.name)):
+                    desc.append((n.bl_idname, [(i.identifier, _plain(getattr(i, "default_value", None)))
+                                               for i in n.inputs]))
+                desc.append(sorted((lk.from_node.bl_idname, lk.from_socket.identifier, lk.to_node.bl_idname,
+                                    lk.to_socket.identifier) for lk in tree.links))
+            h.update(repr(desc).encode())
+        return "sha256:" + h.hexdigest()
+    finally:
+        if ob is not None:
+            mesh, mats = ob.data, [m for m in ob.data.materials if m is not None]
+            bpy.data.objects.remove(ob)
+            bpy.data.meshes.remove(mesh)
+            for m in mats:
+                if m.users == 0:
+                    bpy.data.materials.remove(m)
+        bpy.data.collections.remove(coll)
 
 
 def linked_files_fingerprint(spec: ObjectSpec) -> str | None:
