@@ -176,6 +176,38 @@ def test_shards_partition_objects(tmp_path, bpy_empty):
     assert sorted(sum((F.read_split(tmp_path / "d", s) for s in F.SPLITS), [])) == sorted(done[0] + done[1])
 
 
+def test_a_shard_finishing_while_another_writes_the_lists_is_not_left_out(tmp_path, bpy_empty, monkeypatch):
+    """Shard A reads the folder, shard B finishes its last object and writes the lists, then A writes its own
+    (read before B's object was finished): B's object was missing from the lists although it is on disk."""
+    from blender_mrvm.scene import render as R
+
+    meshes = [write_mesh(tmp_path / "m" / f"o{i}.ply") for i in range(2)]
+    out = tmp_path / "d"
+    _render(out=out, sources=(str(tmp_path / "m"),), views=1, resolution=(16, 16), samples=1)
+    b_meta = out / "custom" / "o1" / "meta.json"
+    finished = json.loads(b_meta.read_text())
+    b_meta.write_text(json.dumps({**finished, "complete": False}))  # B is still rendering o1 when A reads
+
+    real_write = F.write_split
+    b_done = []
+
+    def write_split(root, split, entries):  # between A's reading and A's writing, B finishes and writes
+        if not b_done:
+            b_done.append(1)
+            b_meta.write_text(json.dumps(finished))
+            b_sees = {sp: [] for sp in F.SPLITS}  # what B's lists hold: both objects
+            for o in ("o0", "o1"):
+                b_sees[json.loads((out / "custom" / o / "meta.json").read_text())["split"]].append(f"custom/{o}")
+            for sp, lst in b_sees.items():
+                real_write(root, sp, lst)
+        real_write(root, split, entries)
+
+    monkeypatch.setattr(F, "write_split", write_split)
+    R.write_splits(out)
+    listed = sorted(sum((F.read_split(out, sp) for sp in F.SPLITS), []))
+    assert b_done and listed == ["custom/o0", "custom/o1"] and len(meshes) == 2
+
+
 @pytest.mark.parametrize("ext", [".obj", ".ply", ".stl", ".glb", ".off"])
 def test_every_mesh_format_loads_and_normalizes(tmp_path, bpy_empty, ext):
     mesh = write_mesh(tmp_path / f"thing{ext}")

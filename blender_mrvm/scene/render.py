@@ -245,22 +245,38 @@ def assign_split(cfg: RenderConfig, key: str) -> str:
 
 def write_splits(root: Path, settings: dict | None = None, only: set[str] | None = None) -> dict[str, list[str]]:
     """Rewrite ``splits/*.lst`` from the finished objects on disk that match ``settings`` (default: the
-    root manifest's); ``only``: of these objects (``category/object_id``) alone."""
+    root manifest's); ``only``: of these objects (``category/object_id``) alone.
+
+    Shards rendering into one folder each rewrite the lists when they finish; one that read the folder just before
+    another's last object was finished, and wrote just after it, would leave that object out. So the lists are read
+    again after writing, and written again until what was written is what is on disk: every object finished before
+    a shard's last write is then in the lists (each list is replaced whole, atomically, on any filesystem)."""
     root = Path(root)
     if settings is None:
         settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
+    splits = _finished_splits(root, settings, only)
+    for _ in range(100):  # each round needs another object finished meanwhile: a handful at most
+        for s, entries in splits.items():
+            F.write_split(root, s, entries)
+        again = _finished_splits(root, settings, only)
+        if again == splits:
+            break
+        splits = again
+    return splits
+
+
+def _finished_splits(root: Path, settings, only: set[str] | None) -> dict[str, list[str]]:
+    """The finished objects on disk that match ``settings`` (and are in ``only``), by their recorded split."""
     splits: dict[str, list[str]] = {s: [] for s in F.SPLITS}
     for meta_path in sorted(root.glob("*/*/meta.json")):
         try:
             meta = json.loads(meta_path.read_text())
-        except ValueError:
+        except (ValueError, FileNotFoundError):  # not valid JSON, or removed by another shard meanwhile
             continue
         key = f"{meta.get('category')}/{meta.get('object_id')}"
         if (meta.get("complete") and F.settings_match(meta.get("settings"), settings) and meta.get("split") in splits
                 and (only is None or key in only)):
             splits[meta["split"]].append(key)
-    for s, entries in splits.items():
-        F.write_split(root, s, entries)
     return splits
 
 
