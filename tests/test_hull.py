@@ -195,3 +195,33 @@ def test_gpu_march_in_one_pass_meets_the_same_rays_as_the_early_out_march():
         keep = footprint(hull, intr, pose)
         a, b = clip_rays(rays, hull, "cull", keep=keep, block=257), clip_rays(rays, hull, "cull", keep=keep, block=1 << 20)
         assert torch.equal(a.hit, b.hit) and torch.equal(a.far, b.far)
+
+
+def test_references_made_smaller_keep_thin_parts_in_the_hull():
+    """A body and a rod one pixel wide in 64 px masks, taken to 16 px references: nearest sampling dropped the rod
+    from the masks (it falls between the samples) and kept the body, so the hull culled the rays through the rod. The masks are made smaller
+    conservatively (a pixel is object when any object pixel overlaps it), and every point of the rod stays."""
+    from blender_mrvm.synthesis import resize_mask
+
+    big, small = 64, 16
+    eyes = [np.array([2.6, 0.0, 0.3]), np.array([0.0, -2.6, 0.2]), np.array([-1.8, -1.8, -0.4])]
+    poses = [C.look_at_opencv(e) for e in eyes]
+    intr = C.Intrinsics(big * 1.1, big * 1.1, big / 2, big / 2, big, big)
+    rod = np.stack([np.zeros(41), np.zeros(41), np.linspace(-0.4, 0.4, 41)], -1)  # the z axis
+    masks = np.zeros((3, big, big), bool)
+    for v, pose in enumerate(poses):  # the pixel each rod point projects into: a line one pixel wide
+        p = (rod - pose[:3, 3]) @ pose[:3, :3]
+        u = np.floor(intr.fx * p[:, 0] / p[:, 2] + intr.cx).astype(int)
+        w = np.floor(intr.fy * p[:, 1] / p[:, 2] + intr.cy).astype(int)
+        masks[v, w, u] = True
+        q = (np.array([0.35, 0.35, -0.3]) - pose[:3, 3]) @ pose[:3, :3]  # and a body beside it, 8 px across
+        qu, qw = int(intr.fx * q[0] / q[2] + intr.cx), int(intr.fy * q[1] / q[2] + intr.cy)
+        masks[v, qw - 4:qw + 4, qu - 4:qu + 4] = True
+    small_intr = intr.resized(small, small)
+    small_masks = np.stack([resize_mask(m, small, small) for m in masks])
+    assert small_masks.any(axis=(1, 2)).all()
+    hull = build_hull(small_masks, ref_cameras(poses, [small_intr] * 3), 1.1, resolution=32)
+    G = hull.resolution
+    ijk = np.clip(((rod + hull.box) * (G / (2 * hull.box))).astype(int), 0, G - 1)
+    assert hull.occupied.numpy()[ijk[:, 0], ijk[:, 1], ijk[:, 2]].all(), "a part of the rod was carved away"
+    assert hull.fraction < 0.3
