@@ -123,6 +123,49 @@ def test_exact_resume(tmp_path, data):
     assert sa["rng"][0]["numpy"] == sb["rng"][0]["numpy"]
 
 
+def test_a_resume_keeps_the_fp16_loss_scale(tmp_path, data, monkeypatch):
+    """fp16 training's loss scaler (a GPU's) found its scale over the run; a resume started again from the default
+    and skipped steps until it found it again. Its state is saved with the optimizer's and restored (a stand-in
+    scaler here: this machine has no GPU)."""
+    from blender_mrvm.training import trainer as T
+
+    class Scaler:  # GradScaler's interface; halves its scale each step, as after overflows
+        made: list = []
+
+        def __init__(self):
+            self.scale_value, self.steps = 65536.0, 0
+            Scaler.made.append(self)
+
+        def scale(self, loss):
+            return loss
+
+        def unscale_(self, opt):
+            pass
+
+        def step(self, opt):
+            opt.step()
+
+        def update(self):
+            self.scale_value, self.steps = self.scale_value / 2, self.steps + 1
+
+        def state_dict(self):
+            return {"scale": self.scale_value, "steps": self.steps}
+
+        def load_state_dict(self, st):
+            self.scale_value, self.steps = st["scale"], st["steps"]
+
+    monkeypatch.setattr(T, "_grad_scaler", lambda cfg, device: Scaler())
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "b", root, iterations=4, pretrain_frac=0.5)
+    gen = train(mcfg, tcfg, scenes=scenes)
+    next(gen), next(gen)
+    gen.close()
+    assert ckpt.load_trainer_state(ckpt.find_checkpoint(tmp_path / "b"))["grad_scaler"] == {"scale": 16384.0,
+                                                                                             "steps": 2}
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    assert (Scaler.made[-1].scale_value, Scaler.made[-1].steps) == (4096.0, 4), "resumed from the saved scale"
+
+
 def test_init_checkpoint_finetunes_from_given_weights(tmp_path, data):
     """Fine-tuning starts from a checkpoint's weights (lr 0: they come back unchanged), takes the
     checkpoint's model config when the run config names none, refuses another architecture, and a

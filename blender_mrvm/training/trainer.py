@@ -269,7 +269,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
     model = registry.build_model(model_cfg).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    scaler = torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
+    scaler = _grad_scaler(cfg, device)
     batcher = RayBatcher(scenes, cfg, model.box_padding, cfg.seed * 7919 + dd.rank, weights)
     lp = None
     if cfg.lpips_weight > 0:
@@ -294,6 +294,8 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                              f"({cfg.iterations}): raise it (--iterations, the panel's Iterations) to {start} or more "
                              "to continue the run, or start it over (--no-resume --force)")
         opt.load_state_dict(state["optimizer"])
+        if scaler is not None and state.get("grad_scaler"):  # fp16: its loss scale and growth count, found so far
+            scaler.load_state_dict(state["grad_scaler"])
         _set_rng_state(batcher, gen, state["rng"][dd.rank])
     else:
         if cfg.init_checkpoint:
@@ -389,7 +391,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 log.write(json.dumps(last) + "\n")
                 log.flush()
             if done % cfg.ckpt_every == 0 or done == cfg.iterations:
-                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size)
+                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler)
                 saved_at = done
             try:
                 yield Progress(done, cfg.iterations, f"loss {tot['loss']:.4f} psnr {last['psnr_fine']:.2f}")
@@ -398,7 +400,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 # as a checkpoint the next run resumes from, not lost back to the last ckpt_every. One process
                 # only: the ranks of a torchrun job stop at different steps, and saving is collective.
                 if dd.world == 1 and saved_at != done:
-                    saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size)
+                    saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler)
                     print(f"train: stopped after step {done} of {cfg.iterations}; checkpoint {saved} "
                           "(the same command resumes from it)", file=sys.stderr, flush=True)
                 raise
@@ -743,7 +745,12 @@ def param_digest(model: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
-def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, image_size: int = 0):
+def _grad_scaler(cfg: TrainConfig, device: str):
+    """fp16 autocast's loss scaler (on a GPU only), else None."""
+    return torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
+
+
+def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, image_size: int = 0, scaler=None):
     my = _rng_state(batcher, gen)
     if dd.world > 1:
         import torch.distributed as dist
@@ -754,7 +761,9 @@ def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, ima
         states = [my]
     path = None
     if dd.main:
-        state = {"step": step, "optimizer": opt.state_dict(), "rng": states, "world_size": dd.world}
+        state = {"step": step, "optimizer": opt.state_dict(), "rng": states, "world_size": dd.world,
+                 # fp16: a resume starting again from 65536 would skip steps (inf gradients) until it found its scale
+                 **({"grad_scaler": scaler.state_dict()} if scaler is not None else {})}
         path = ckpt.save_checkpoint(run_dir, step, model, model_cfg, state,
                                     {"train_config": json.dumps(run_config_dict(model_cfg, cfg)["train"]),
                                      "train_image_size": str(image_size)},
