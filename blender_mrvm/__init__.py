@@ -28,6 +28,12 @@ def register() -> None:
 
 
 def unregister() -> None:
-    """Unregister everything register() registered, in reverse order."""
+    """End the jobs still running (Blender frees a running modal operator whose class goes without cancelling it:
+    its worker, timer and progress bar would stay), then unregister everything register() registered, in reverse
+    order."""
+    if _registered_modules:
+        from .operators._modal import end_live_jobs
+
+        end_live_jobs()
     while _registered_modules:
         _registered_modules.pop().unregister()

@@ -81,6 +81,11 @@ RIGS = [
 ]
 
 
+PATH_OPTIONS = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
+"""Options of every file and folder setting: ``//`` (relative to the .blend) is meant there. Blender 4.5 and later
+warn at each ``//`` value of a path property without this option; 4.2 to 4.4 have no such option."""
+
+
 LIBRARY_ITEMS = [("ALL", "All 13 categories", "Every category of the procedural library")] + [
     (c, c.capitalize(), f"Procedural {c}s") for c in CATEGORIES]
 
@@ -97,11 +102,11 @@ class MRVM_PG_dataset(bpy.types.PropertyGroup):
     library_count: IntProperty(name="Objects", default=4, min=1, soft_max=1000,
                                description="Objects (seeds) per category")
     library_seed: IntProperty(name="First seed", default=0, min=0)
-    source_path: StringProperty(name="Path", subtype="FILE_PATH",
+    source_path: StringProperty(name="Path", subtype="FILE_PATH", options=PATH_OPTIONS,
                                 description="Mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD, Alembic; COLLADA, 3DS and "
                                             "others where assimp-py is installed), .blend or .zip archive of "
                                             "them, folder of them, or ShapeNetCore folder")
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_dataset",
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_dataset",
                                description="Dataset root folder (// is relative to the .blend)")
     rig: EnumProperty(name="Rig", items=RIGS, default="sphere")
     views: IntProperty(name="Views", default=24, min=1, soft_max=250, description="Views per object")
@@ -139,12 +144,12 @@ CAPTURE_MODELS = [
 class MRVM_PG_capture(bpy.types.PropertyGroup):
     """Settings of the Recover poses operator."""
 
-    images_dir: StringProperty(name="Photos", subtype="FILE_PATH",
+    images_dir: StringProperty(name="Photos", subtype="FILE_PATH", options=PATH_OPTIONS,
                                description="Folder of photos or video frames, all of one size (HEIC and WebP "
                                            "too), or a video file (mp4, mov, ...)")
     video_frames: IntProperty(name="Video frames", default=40, min=3, soft_max=400,
                               description="Of a video: the sharpest frame of each of this many equal spans of it")
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_capture",
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_capture",
                                description="Capture folder to write (// is relative to the .blend)")
     camera_model: EnumProperty(name="Camera model", items=CAPTURE_MODELS, default="SIMPLE_PINHOLE")
     matcher: EnumProperty(name="Matching", items=[
@@ -179,9 +184,9 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
         ("SCENE", "Scene cameras", "Cameras in the scene with a background image (the reference photo)"),
         ("CAPTURE", "Recovered capture", "A capture folder written by Recover poses"),
     ], default="DATASET")
-    dataset_dir: StringProperty(name="Object folder", subtype="DIR_PATH",
+    dataset_dir: StringProperty(name="Object folder", subtype="DIR_PATH", options=PATH_OPTIONS,
                                 description="One object's folder of a rendered dataset (holds rgb/ and pose/)")
-    capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", default="//mrvm_capture",
+    capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_capture",
                                 description="Capture folder written by Recover poses")
     reference_views: StringProperty(name="Views", default="all",
                                     description="Views of the folder used as references: 'all' (each novel view is "
@@ -206,7 +211,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                 description="Distance of the orbit cameras from the 3D cursor")
     orbit_fov: FloatProperty(name="Field of view", default=0.6981317, min=0.01745, max=2.967, subtype="ANGLE",
                              description="Field of view of the orbit cameras (along the longer image side)")
-    checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
+    checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", options=PATH_OPTIONS, default="",
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
     shipped_model: EnumProperty(name="Shipped model", items=SHIPPED_MODELS, default="auto",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
@@ -228,7 +233,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
     plane_distance: FloatProperty(name="Plane distance", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")
     output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_novel_views",
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_novel_views",
                                description="Folder of the novel-view PNG/EXR files (// is relative to the .blend)")
     save_depth: BoolProperty(name="Depth (EXR)", default=False, description="Also save each view's depth map as EXR")
     running: BoolProperty(default=False, options={"SKIP_SAVE"})
@@ -241,9 +246,9 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
 class MRVM_PG_train(bpy.types.PropertyGroup):
     """Settings of the Train / fine-tune operator (runs `python -m blender_mrvm train` in the worker)."""
 
-    data_dir: StringProperty(name="Dataset", subtype="DIR_PATH", default="//mrvm_dataset",
+    data_dir: StringProperty(name="Dataset", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_dataset",
                              description="Root of a rendered dataset (ours, SRN, NMR/DVR or NeRF-synthetic)")
-    run_dir: StringProperty(name="Run folder", subtype="DIR_PATH", default="//mrvm_runs/run",
+    run_dir: StringProperty(name="Run folder", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_runs/run",
                             description="Folder for checkpoints and the metrics log; a run there is continued")
     start_from: EnumProperty(name="Start from", items=[
         ("SHIPPED", "Shipped model", "Fine-tune the model shipped with the add-on on this dataset (no masking phase, "
@@ -251,7 +256,7 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
         ("CHECKPOINT", "Checkpoint", "Fine-tune another trained checkpoint (a model file, checkpoint or run folder)"),
         ("NEW", "New model", "Train a model of the chosen size from a random start (MRVM pretraining, then finetuning)"),
     ], default="SHIPPED")
-    init_checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
+    init_checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", options=PATH_OPTIONS, default="",
                                     description="The checkpoint to fine-tune: a model .safetensors file, a checkpoint "
                                                 "folder or a run folder")
     keep_losses: BoolProperty(name="Keep its losses", default=False,
@@ -302,7 +307,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
         ("FILE", "Dataset mask", "A part-id mask PNG of a rendered dataset (mask/NNNNNN.png)"),
         ("IMAGE", "Blender image", "An image painted or opened in Blender's image editor"),
     ], default="FILE")
-    mask_path: StringProperty(name="Mask file", subtype="FILE_PATH",
+    mask_path: StringProperty(name="Mask file", subtype="FILE_PATH", options=PATH_OPTIONS,
                               description="Part-id mask PNG (uint8, the checkpoint's image size)")
     mask_image: PointerProperty(name="Image", type=bpy.types.Image,
                                 description="The mask image (the checkpoint's image size, square)")
@@ -321,7 +326,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     ], default="DATASET")
     camera: PointerProperty(name="Camera", type=bpy.types.Object, poll=_is_camera,
                             description="The camera the mask is seen from (its frame must be square)")
-    checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", default="",
+    checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", options=PATH_OPTIONS, default="",
                                description="Sem2NeRF model (`sem2nerf train` run folder, checkpoint folder or model file); "
                                            "empty = the shipped Sem2NeRF model")
     target_source: EnumProperty(name="Views", items=[
@@ -342,7 +347,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     plane_distance: FloatProperty(name="Plane distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")
     output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//mrvm_sem2nerf",
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_sem2nerf",
                                description="Folder of the generated images and semantic maps (// is relative to the .blend)")
     show_semantic: BoolProperty(name="Show semantic maps", default=False, update=_show_semantic_changed,
                                 description="The Sem2NeRF planes show their semantic maps instead of their images")
@@ -367,10 +372,23 @@ def end_jobs_of_loaded_file(*_args) -> None:
     saved in the .blend despite SKIP_SAVE (which keeps them out of presets, not out of files), so a file saved
     while a job ran would open with that section showing a progress bar and refusing to start ("already
     running"); each such section is set idle again, in every scene."""
+    _end_jobs()
+
+
+def end_jobs_after_register() -> None:
+    """Timer, once, just after :func:`register`: the same for the file open when the add-on is enabled (opened while
+    it was disabled, no ``load_post`` of the add-on saw it), except the sections of jobs started since. A timer since
+    ``bpy.data`` cannot be read while Blender registers add-ons at start-up."""
+    from .operators._modal import live_sections
+
+    _end_jobs(live_sections())
+
+
+def _end_jobs(keep: set = frozenset()) -> None:
     for scene in bpy.data.scenes:
         for name in SCENE_PROPERTIES:
             group = getattr(scene, name, None)
-            if group is not None and group.running:
+            if group is not None and group.running and (scene.session_uid, name) not in keep:
                 group.running, group.progress, group.status = False, 0.0, ""
 
 
@@ -381,9 +399,13 @@ def register() -> None:
         setattr(bpy.types.Scene, name, PointerProperty(type=cls))
     if end_jobs_of_loaded_file not in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.append(end_jobs_of_loaded_file)
+    if not bpy.app.timers.is_registered(end_jobs_after_register):
+        bpy.app.timers.register(end_jobs_after_register, first_interval=0)
 
 
 def unregister() -> None:
+    if bpy.app.timers.is_registered(end_jobs_after_register):
+        bpy.app.timers.unregister(end_jobs_after_register)
     while end_jobs_of_loaded_file in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(end_jobs_of_loaded_file)
     for name in SCENE_PROPERTIES:

@@ -132,8 +132,10 @@ def probe(python: str, timeout: float = 30.0, needs: tuple[str, ...] = ()) -> di
     try:
         cp = subprocess.run([str(p), "-c", _PROBE, *[m for m, _, _ in DEPENDENCIES]], capture_output=True, text=True,
                             timeout=timeout, env=_clean_env(), stdin=subprocess.DEVNULL)
-    except (OSError, subprocess.TimeoutExpired) as e:
-        raise InputError(f"worker Python {python} cannot run: {e}") from e
+    except subprocess.TimeoutExpired:  # its message would hold the whole probe script
+        raise InputError(f"worker Python {python} did not answer within {timeout:g} s") from None
+    except OSError as e:
+        raise InputError(f"worker Python {python} cannot run: {e.strerror or e}") from e
     try:
         out = json.loads(cp.stdout.strip().splitlines()[-1])
     except (ValueError, IndexError):
@@ -169,7 +171,10 @@ def choose_interpreter(python_path: str = "", needs: tuple[str, ...] = ("torch",
     if pref:
         p = Path(os.path.expanduser(pref))
         if p.is_dir():  # a venv folder instead of its interpreter
-            p = venv_python(p) if venv_python(p).is_file() else p
+            if not venv_python(p).is_file():
+                raise InputError(f"the worker Python set in the add-on preferences is a folder without "
+                                 f"{venv_python(Path()).as_posix()}: {pref} (set a Python executable, or a venv folder)")
+            p = venv_python(p)
         if not p.is_file():
             raise InputError(f"the worker Python set in the add-on preferences does not exist: {pref}")
         return Interpreter(str(p), "preferences")
@@ -204,8 +209,45 @@ def _clean_env() -> dict[str, str]:
     return env
 
 
-def worker_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    """The child's environment: the package importable, JSON progress, unbuffered UTF-8 output."""
+WEIGHTS_ENV = "MRVM_WEIGHTS_DIR"
+"""The environment variable ``models/vgg.py`` reads the offline weight cache folder from."""
+WEIGHT_FILES = ("vgg16_imagenet_features.safetensors", "lpips_vgg_v0.1_lin.safetensors")
+"""The files ``fetch-weights`` writes there (``models/vgg.py``'s VGG_FILE and LPIPS_FILE; that module needs torch)."""
+FETCH_WEIGHTS = "python -m blender_mrvm fetch-weights"
+
+preferences_cache_dir = None
+"""A callable giving the add-on preferences' Cache folder ('' when unset); set by ``prefs.register`` (this module
+stays bpy-free)."""
+
+
+def weights_dir(python: str = "", cache_dir: str | None = None) -> Path:
+    """The offline weight cache (VGG16 / LPIPS, written by ``fetch-weights``) a worker run by ``python`` reads: the
+    add-on preferences' Cache folder (``cache_dir``; None: ask :data:`preferences_cache_dir`) when set, else
+    ``$MRVM_WEIGHTS_DIR``, else, when ``python`` is a venv's (``<venv>/bin/python``), ``<venv>/../.cache/weights``
+    where that exists (the project's cache, where ``fetch-weights`` run in the project puts them), else the
+    package's own default (``models/vgg.py``: ``.cache/weights`` beside the package folder)."""
+    if cache_dir is None:
+        cache_dir = preferences_cache_dir() if preferences_cache_dir is not None else ""
+    if cache_dir and cache_dir.strip():
+        return Path(os.path.expanduser(cache_dir.strip()))
+    if os.environ.get(WEIGHTS_ENV):
+        return Path(os.environ[WEIGHTS_ENV])
+    if python:
+        venv = Path(python).parent.parent
+        project = venv.parent / ".cache" / "weights"
+        if (venv / "pyvenv.cfg").is_file() and project.is_dir():
+            return project
+    return PACKAGE_DIR.parent / ".cache" / "weights"
+
+
+def missing_weights(folder: Path) -> list[str]:
+    """The files of :data:`WEIGHT_FILES` that ``folder`` lacks."""
+    return [f for f in WEIGHT_FILES if not (Path(folder) / f).is_file()]
+
+
+def worker_env(extra: dict[str, str] | None = None, python: str = "") -> dict[str, str]:
+    """The child's environment: the package importable, JSON progress, unbuffered UTF-8 output, the offline weight
+    cache (:func:`weights_dir` of ``python``) in ``MRVM_WEIGHTS_DIR``."""
     from .progress import PROGRESS_ENV
 
     env = _clean_env()
@@ -214,6 +256,7 @@ def worker_env(extra: dict[str, str] | None = None) -> dict[str, str]:
     env[PROGRESS_ENV] = "json"
     env["PYTHONUNBUFFERED"] = "1"
     env["PYTHONIOENCODING"] = "utf-8"
+    env[WEIGHTS_ENV] = str(weights_dir(python))
     env.update(extra or {})
     from .threads import apply_omp_defaults
 
@@ -320,7 +363,7 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
     argv = worker_argv(python, command, args)
     t0 = time.monotonic()
     try:
-        proc = subprocess.Popen(argv, cwd=str(cwd) if cwd else None, env=worker_env(env), stdin=subprocess.DEVNULL,
+        proc = subprocess.Popen(argv, cwd=str(cwd) if cwd else None, env=worker_env(env, python), stdin=subprocess.DEVNULL,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, encoding="utf-8",
                                 errors="replace", bufsize=1, start_new_session=(os.name == "posix"),
                                 creationflags=getattr(subprocess, "CREATE_NEW_PROCESS_GROUP", 0))

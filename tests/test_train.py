@@ -925,3 +925,19 @@ def test_a_resume_below_its_step_is_refused_and_a_finished_run_reports_its_step(
     assert {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir() if p.is_file()} == before
     s = run_to_end(train(mcfg, tcfg, scenes=scenes))
     assert s["step"] == 2 and s["resumed_from"] == 2 and s["checkpoint"] is None
+
+
+def test_a_resume_with_more_iterations_says_the_schedule_changes(tmp_path, data, capsys):
+    """A run extended by resuming with a larger --iterations follows the longer schedule from the resume step: the
+    learning rate jumps back up and the masking phase moves. Legal, but not what one run of either length does,
+    so it is said."""
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "run", root, iterations=2, ckpt_every=2, pretrain_frac=0.5)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    capsys.readouterr()
+    run_to_end(train(mcfg, replace(tcfg, iterations=4), scenes=scenes))
+    err = capsys.readouterr().err
+    assert "started with 2 iterations and resumes at step 2 with 4" in err
+    assert "masked pretraining ends at step 2 (was 1)" in err
+    run_to_end(train(mcfg, replace(tcfg, iterations=4), scenes=scenes))
+    assert "resumes at step" not in capsys.readouterr().err, "the same length again: nothing to say"

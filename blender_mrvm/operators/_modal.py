@@ -17,11 +17,42 @@ is the job's), never to the scene shown then.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from ..errors import MRVMError
 
 _PROGRESS_STEPS = 1000
 _GONE = object()
 """``ProgressOperator._scene`` once the job's scene was deleted."""
+_live: list = []
+"""The modal jobs running now (their operators), so that :func:`end_live_jobs` can end them when the add-on is
+unregistered."""
+
+
+def live_sections() -> set[tuple[int | None, str]]:
+    """(scene ``session_uid``, section) of every modal job running now: sections whose ``running`` is true."""
+    return {(job._scene_uid, job.props_attr) for job in _live}
+
+
+def end_live_jobs(context=None, reason: str = "the add-on was disabled") -> int:
+    """End every modal job still running; the add-on calls it when it is unregistered, before its operator classes
+    go (Blender then frees a running modal operator without calling its ``cancel``, which would leave the worker
+    process running, the timer firing, the progress indicator up and the section "running"). Each job's generator
+    is closed (the worker is interrupted; finished work is kept, as with Esc), its timer removed, the progress
+    indicator ended and its section set idle with a message naming ``reason``. ``context``: the one to end them in
+    (default: the one each was started in). Returns how many jobs were ended."""
+    n = 0
+    while _live:
+        job = _live.pop()
+        try:
+            gen, job._gen = job._gen, None
+            if gen is not None:
+                gen.close()
+            job._finish(job._started_in if context is None else context, True, f"{job.job_name} cancelled: {reason}", "WARNING")
+            n += 1
+        except Exception as e:  # noqa: BLE001  (an operator Blender freed already: end the others)
+            print(f"blender_mrvm: could not end {job.job_name}: {type(e).__name__}: {e}")
+    return n
 
 
 def unexpected_error(e: Exception) -> str:
@@ -52,6 +83,8 @@ class ProgressOperator:
     _scene = None
     """The scene the modal job was started in (None: ``context.scene``)."""
     _scene_uid = None
+    _started_in = None
+    """What :func:`end_live_jobs` ends a job in: the window manager, workspace and screen it was started from."""
 
     # -- to implement ---------------------------------------------------------------------
     def start(self, context):
@@ -124,9 +157,13 @@ class ProgressOperator:
         wm.progress_begin(0, _PROGRESS_STEPS)
         self._timer = wm.event_timer_add(self.timer_interval, window=context.window)
         wm.modal_handler_add(self)
+        self._started_in = SimpleNamespace(window_manager=wm, workspace=context.workspace, screen=context.screen,
+                                           scene=context.scene)
+        _live.append(self)
         return {"RUNNING_MODAL"}
 
     def _finish(self, context, cancelled: bool, message: str, level: str = "INFO"):
+        _live[:] = [job for job in _live if job is not self]
         wm = context.window_manager
         if self._timer is not None:
             wm.event_timer_remove(self._timer)
@@ -146,11 +183,15 @@ class ProgressOperator:
         return f"{self.job_name} cancelled" + (f"; {self.cancel_hint}" if self.cancel_hint else "")
 
     def cancel(self, context):  # Blender closing the operator (file load, quit)
+        if not any(job is self for job in _live):  # ended already (end_live_jobs)
+            return
         if self._gen is not None:
             self._gen.close()
         self._finish(context, True, self._cancel_message(), "WARNING")
 
     def modal(self, context, event):
+        if self._gen is None:  # ended by end_live_jobs (the add-on was unregistered)
+            return {"CANCELLED"}
         if event.type == "ESC":
             self._gen.close()
             return self._finish(context, True, self._cancel_message(), "WARNING")

@@ -25,7 +25,7 @@ import os
 import sys
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -293,6 +293,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
             raise InputError(f"the run in {run_dir} is at step {start} ({found.name}), past train.iterations "
                              f"({cfg.iterations}): raise it (--iterations, the panel's Iterations) to {start} or more "
                              "to continue the run, or start it over (--no-resume --force)")
+        _note_a_longer_schedule(found, start, cfg, dd.main)
         opt.load_state_dict(state["optimizer"])
         if scaler is not None and state.get("grad_scaler"):  # fp16: its loss scale and growth count, found so far
             scaler.load_state_dict(state["grad_scaler"])
@@ -743,6 +744,29 @@ def param_digest(model: torch.nn.Module) -> str:
         h.update(k.encode())
         h.update(v.detach().cpu().contiguous().numpy().tobytes())
     return h.hexdigest()
+
+
+def _note_a_longer_schedule(found: Path, step: int, cfg: TrainConfig, main: bool) -> None:
+    """Say so when a run is resumed with another length than it was started with: the learning rate and the
+    masking phase follow the new length from the resume step on, so the resumed run is not the one a single
+    run of either length would have been (exact resume holds at the same settings)."""
+    from ..models.checkpoint_files import read_header_meta
+
+    if not main:
+        return
+    try:
+        rec = json.loads(read_header_meta(found / ckpt.MODEL_FILE).get("train_config") or "{}")
+        before = int(rec["iterations"])
+    except (KeyError, TypeError, ValueError, OSError, InputError):
+        return  # an older checkpoint that did not record it
+    if before == cfg.iterations:
+        return
+    was = replace(cfg, iterations=before)
+    print(f"note: the run was started with {before} iterations and resumes at step {step} with {cfg.iterations}: "
+          f"the learning rate follows the {cfg.iterations}-step schedule from here ({lr_at(step, was):.3g} at this "
+          f"step before, {lr_at(step, cfg):.3g} now)" + (
+              f", and masked pretraining ends at step {int(cfg.pretrain_frac * cfg.iterations)} (was "
+              f"{int(cfg.pretrain_frac * before)})" if 0 < cfg.pretrain_frac < 1 else ""), file=sys.stderr)
 
 
 def _grad_scaler(cfg: TrainConfig, device: str):
