@@ -1688,20 +1688,22 @@ def _procedural_build_fingerprint(spec: ObjectSpec) -> str:
         ob = procedural.build(spec.category, spec.seed, coll, **dict(spec.params))
         me = ob.data
         h = hashlib.sha256()
-        co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+        co = np.empty(len(me.vertices) * 3, dtype=np.float64)
         me.vertices.foreach_get("co", co)
-        h.update(co.tobytes())
-        # faces and edges as sets: bmesh's operators (bevel) list the same faces in another order, or start a face
-        # at another corner, depending on what ran before in the process
+        # Positions on a 1e-4 grid (the object's bbox diagonal is 1), faces and edges as sets of positions: bmesh's
+        # bevel is not bit-exact from one process to the next (a few vertices one float32 step apart, listed in
+        # another order, faces started at another corner), which renders the same images
+        at = [tuple(q) for q in np.round(co.reshape(-1, 3) * 1e4).astype(np.int64).tolist()]
         part = me.attributes.get("part_id")
         rows = []
         for k, poly in enumerate(me.polygons):
-            v = list(poly.vertices)
+            v = [at[i] for i in poly.vertices]
             first = v.index(min(v))
             rows.append((tuple(v[first:] + v[:first]), poly.material_index, poly.use_smooth,
                          part.data[k].value if part is not None else None))
         h.update(repr(sorted(rows)).encode())
-        h.update(repr(sorted(tuple(sorted(e.vertices)) for e in me.edges if e.use_edge_sharp)).encode())
+        h.update(repr(sorted(tuple(sorted((at[a], at[b]))) for a, b in (e.vertices for e in me.edges
+                                                                      if e.use_edge_sharp))).encode())
         for mat in me.materials:
             tree = mat.node_tree if mat is not None and compat.uses_nodes(mat) else None
             desc: list = [tuple(_plain(getattr(mat, k, None)) for k in ("diffuse_color", "roughness", "metallic",
