@@ -43,6 +43,8 @@ def test_eval_views_are_fixed_and_disjoint_from_targets():
     (lambda: parse_shard("3/2"), "shard"),
     (lambda: parse_shard("x"), "shard"),
     (lambda: M.eval_views(2), "at least 3 views"),
+    # the last seed past the range was found only after the other objects rendered
+    (lambda: M.plan("all", 2, 2 ** 63 - 1), r"reaches seed 9223372036854775808; seeds must be below 2\*\*63"),
 ])
 def test_bad_arguments_are_clear_errors(call, match):
     with pytest.raises(InputError, match=match):
@@ -90,3 +92,32 @@ def test_tiny_unseen_set_renders_with_splits_and_part_masks(bpy_empty, tmp_path)
     assert code == 0
     assert len(read_split(out, "train")) == 13 and read_split(out, "test") == []
     assert json.loads((out / "bench" / "bench_000000" / "meta.json").read_text())["split"] == "train"
+
+
+def test_a_seed_range_past_the_limit_is_refused_before_any_render(tmp_path, capsys):
+    """make-shapenet and preview-library found a last seed past 2**63 only after rendering every seed before it."""
+    from blender_mrvm.cli import main
+
+    assert main(["make-shapenet", "--seed", str(2 ** 63 - 1), "--objects-per-category", "2", "--views", "3",
+                 "--resolution", "8", "--out", str(tmp_path / "d")]) == 2
+    assert "seeds must be below 2**63" in capsys.readouterr().err and not (tmp_path / "d").exists()
+    assert main(["preview-library", "--first-seed", str(2 ** 63 - 2), "--seeds", "3", "--categories", "chair",
+                 "--out", str(tmp_path / "p.png")]) == 2
+    assert "seeds must be below 2**63" in capsys.readouterr().err and not (tmp_path / "p.png").exists()
+
+
+def test_a_plan_without_held_out_objects_says_so(tmp_path, capsys, monkeypatch):
+    """--objects-per-category 1 (or below 10 with unseen) gives empty val or test lists: legal, but eval later found
+    nothing to score without a word here."""
+    from blender_mrvm.cli import main
+
+    monkeypatch.setattr(M, "render_configs", lambda args: [])  # the plan and its note alone: nothing rendered
+    import blender_mrvm.scene.render as R
+
+    monkeypatch.setattr(R, "write_splits", lambda *a, **k: {"train": [], "val": [], "test": []})
+    main(["make-shapenet", "--objects-per-category", "1", "--views", "3", "--resolution", "8",
+          "--out", str(tmp_path / "d")])
+    assert "gives no val and no test objects" in capsys.readouterr().err
+    main(["make-shapenet", "--objects-per-category", "10", "--views", "3", "--resolution", "8",
+          "--out", str(tmp_path / "e")])
+    assert "gives no" not in capsys.readouterr().err

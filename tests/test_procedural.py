@@ -270,6 +270,21 @@ def test_same_seed_same_render(bpy_empty, tmp_path):
     assert np.abs(imgs[0] - imgs[2]).mean() > 1.0
 
 
+def test_preview_parts_colours_the_parts_in_cycles_too(bpy_empty, tmp_path):
+    """preview-library --parts set the Workbench colour only: under Cycles the sheet was the same as without it."""
+    from PIL import Image
+
+    from blender_mrvm.progress import run_to_end
+    from blender_mrvm.scene.procedural.preview import contact_sheet
+
+    sheets = []
+    for parts in (False, True):
+        out = tmp_path / f"{parts}.png"
+        run_to_end(contact_sheet(out, ("chair",), (1,), 48, "CYCLES", 2, parts))
+        sheets.append(np.asarray(Image.open(out).convert("RGB"), dtype=np.int16))
+    assert np.abs(sheets[0] - sheets[1]).mean() > 2.0
+
+
 # ---------------------------------------------------------------------------------------------
 # variety, measured on silhouettes
 # ---------------------------------------------------------------------------------------------

@@ -34,7 +34,10 @@ DIST_DEFAULT = (0.85, 1.6)  # = geometry.rigs.DISTANCE_RANGE
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--setting", choices=SETTINGS, default="all", help="all: category-agnostic; unseen: "
                    "train on airplane/car/chair, test on the other 10")
-    p.add_argument("--objects-per-category", type=int, default=2, help="objects (seeds) per category")
+    p.add_argument("--objects-per-category", type=int, default=2,
+                   help="objects (seeds) per category (default 2). all: 20%% of a category's objects to test (at least "
+                        "1) and 10%% to val (rounded), 1 object a category is train only; unseen: 10%% of the train "
+                        "categories' objects to val (none below 10), every object of the other 10 to test")
     p.add_argument("--views", type=int, default=24, help="views per object (NMR uses 24)")
     p.add_argument("--resolution", type=int, default=64, help="square image size in pixels (NMR uses 64)")
     p.add_argument("--out", required=True, help="dataset root folder")
@@ -88,6 +91,9 @@ def plan(setting: str, per_category: int, first_seed: int = 0) -> dict[str, list
         raise InputError(f"--objects-per-category must be at least 1, got {per_category}")
     if first_seed < 0:
         raise InputError(f"--seed must not be negative, got {first_seed}")
+    if first_seed + per_category > 2 ** 63:  # found before anything renders, not at the last seed
+        raise InputError(f"--seed {first_seed} with --objects-per-category {per_category} reaches seed "
+                         f"{first_seed + per_category - 1}; seeds must be below 2**63")
     out: dict[str, list[str]] = {"train": [], "val": [], "test": []}
     for cat in CATEGORIES:
         seeds = list(range(first_seed, first_seed + per_category))
@@ -182,6 +188,10 @@ def run(args) -> int:
     cfgs = render_configs(args)
     protocol = eval_views(args.views, cams["rig"])
     groups = plan(args.setting, args.objects_per_category, args.seed)
+    empty = [split for split in ("val", "test") if not groups[split]]
+    if empty:  # legal (a training set; the held-out sets' --seed 1000 recipe), but eval then finds nothing
+        print(f"note: --setting {args.setting} with --objects-per-category {args.objects_per_category} gives no "
+              f"{' and no '.join(empty)} objects (see --help)", file=sys.stderr)
     out = Path(args.out)
     total_views = 0
     for split, cfg in cfgs:

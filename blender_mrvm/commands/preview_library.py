@@ -29,6 +29,9 @@ def run(args) -> int:
         raise InputError(f"--seeds must be positive, got {args.seeds}")
     if args.first_seed < 0:
         raise InputError(f"--first-seed must not be negative, got {args.first_seed}")
+    if args.first_seed + args.seeds > 2 ** 63:  # found before the first tile renders, not at the last
+        raise InputError(f"--first-seed {args.first_seed} with --seeds {args.seeds} reaches seed "
+                         f"{args.first_seed + args.seeds - 1}; seeds must be below 2**63")
     out = Path(args.out)
     cats = CATEGORIES if args.categories == "all" else tuple(c.strip() for c in args.categories.split(",") if c.strip())
     if not cats:

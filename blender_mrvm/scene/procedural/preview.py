@@ -96,6 +96,22 @@ def render_object_png(scene, obj, path: Path) -> None:
     bpy.ops.render.render(write_still=True)
 
 
+def _flat_part_colour(mat, rgb) -> None:
+    """Colour ``mat`` by its part alone, in every engine: Workbench draws ``diffuse_color``, Cycles and EEVEE the
+    node tree (a plain diffuse surface of that colour, replacing the part's textures and metal)."""
+    from .. import compat
+
+    mat.diffuse_color = (*rgb, 1.0)
+    nt = compat.node_tree(mat)
+    if nt is None:
+        return
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (*rgb, 1.0)
+    nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+
+
 def contact_sheet(out: Path, categories=CATEGORIES, seeds=(0, 1, 2, 3, 4, 5), size: int = 160,
                   engine: str = "WORKBENCH", samples: int = 16, parts: bool = False):
     """Render ``seeds`` of every category into one PNG at ``out``; a progress generator returning the path."""
@@ -128,7 +144,7 @@ def contact_sheet(out: Path, categories=CATEGORIES, seeds=(0, 1, 2, 3, 4, 5), si
                 obj = build(cat, int(seed), scene.collection)
                 if parts:
                     for mat in obj.data.materials:
-                        mat.diffuse_color = (*part_color(mat.pass_index), 1.0)
+                        _flat_part_colour(mat, part_color(mat.pass_index))
                 png = Path(tmp) / f"{cat}_{seed}.png"
                 render_object_png(scene, obj, png)
                 tile = Image.open(png).convert("RGB")
