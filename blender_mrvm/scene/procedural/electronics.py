@@ -60,9 +60,14 @@ def display(p, rng, m):
     if p.stand == "neck" or (p.style == "crt" and p.stand != "none"):
         nw = rng.uniform(0.05, 0.12) * W
         neck_top = z0 + (fh + chin) * rng.uniform(0.3, 0.5)
-        ny = depth / 2 + (depth * 3 if p.style == "crt" else nw * 0.4)
+        # against the frame's back (it stood 0.25 neck widths behind it), leaning about its top so its foot comes
+        # forward onto the base and down to the floor (tilted about its middle, its top left the frame)
+        ny = depth / 2 + (depth * 3 if p.style == "crt" else nw * 0.15)
         tilt = rng.uniform(0.0, 0.25)
-        m.box("stand", (nw, nw * 0.3, neck_top), (0, ny, neck_top / 2), bevel=nw * 0.1, rot=(-tilt, 0, 0))
+        length = neck_top / math.cos(tilt)
+        foot_y = ny - length * math.sin(tilt)
+        m.box("stand", (nw, nw * 0.3, length), (0, (ny + foot_y) / 2, neck_top / 2), bevel=nw * 0.1, rot=(-tilt, 0, 0))
+        ny = foot_y  # the base goes under the foot
         bs = _pick(rng, ("rect", "round", "v"))
         if bs == "round":
             m.cylinder("base", W * rng.uniform(0.15, 0.22), 0.015, (0, ny - 0.02, 0.0075), segments=32, bevel=0.005)

@@ -378,8 +378,11 @@ def sofa(p, rng, m):
         m.box("seat_cushion", (cw - 0.01, ext, ct), (ex, -total_d / 2 - ext / 2 + 0.01, base_top + ct / 2),
               bevel=ct * 0.35, segments=3)
         if p.layout == "sectional" and bh > 0.02:
-            m.box("frame", (bt, ext + D, bh), (side * (W / 2 + bt / 2), -total_d / 2 - ext / 2 + D / 2, h + bh / 2 - 0.02),
-                  bevel=bev, segments=3)
+            # the side back stands on the legs' level, beside the seat and its extension (it began above the frame
+            # and floated beside the seat)
+            top = h + bh - 0.02
+            m.box("frame", (bt, ext + D, top - lh), (side * (W / 2 + bt / 2), -total_d / 2 - ext / 2 + D / 2,
+                                                     (top + lh) / 2), bevel=bev, segments=3)
             extra_x = side
     # arms
     if aw > 0:
@@ -397,15 +400,17 @@ def sofa(p, rng, m):
     # legs
     if lh > 0.01:
         style = _pick(rng, ("round", "square", "tapered"))
-        span = W / 2 + aw - 0.06
-        for sx in (-1, 1):
-            for sy in (-1, 1):
-                x, y = sx * span, sy * (total_d / 2 - 0.06)
-                if style == "square":
-                    m.box("leg", (0.05, 0.05, lh), (x, y, lh / 2), bevel=0.006)
-                else:
-                    m.cylinder("leg", 0.025, lh, (x, y, lh / 2), radius2=0.025 if style == "round" else 0.035,
-                               segments=10)
+        # under the arms, or under the seat's end on a sectional's armless side (they stood in the air beyond it)
+        spots = [(sx * (W / 2 + (aw if sx != extra_x else 0.0) - 0.06), sy * (total_d / 2 - 0.06))
+                 for sx in (-1, 1) for sy in (-1, 1)]
+        if p.layout in ("sectional", "chaise"):  # and under the front of the extension
+            spots += [(ex + dx * (cw / 2 - 0.06), -total_d / 2 - ext + 0.07) for dx in (-1, 1)]
+        for x, y in spots:
+            if style == "square":
+                m.box("leg", (0.05, 0.05, lh), (x, y, lh / 2), bevel=0.006)
+            else:
+                m.cylinder("leg", 0.025, lh, (x, y, lh / 2), radius2=0.025 if style == "round" else 0.035,
+                           segments=10)
     for k in range(p.pillows):
         x = -W / 2 + cw * 0.5 + (W - cw) * (k / max(p.pillows - 1, 1) if p.pillows > 1 else 0.0)
         m.sphere("pillow", 0.2, (x, total_d / 2 - bt - 0.15, h + 0.17), scale=(1.0, 0.35, 0.9), segments=16,

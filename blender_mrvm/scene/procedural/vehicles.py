@@ -281,6 +281,10 @@ def airplane(p, rng, m):
     fin_root = root_c * 0.6 if style != "fighter" else root_c * 0.35
     fin_le = L / 2 - fin_root * 1.15
     fin_sw = fin_h * math.tan(math.radians(rng.uniform(30, 50)))
+    # a sweep of at most 1.6 root chords keeps the top chord (root - sweep / 2) positive: with a short root and a
+    # steep sweep (glider, bizjet) the outline crossed itself (an inside-out, pinched fin under a T-tail that
+    # floated above it)
+    fin_sw = min(fin_sw, fin_root * 1.6)
     fin = [(fin_le, R * 0.4), (fin_le + fin_root, R * 0.6), (fin_le + fin_root + fin_sw * 0.5, R * 0.6 + fin_h),
            (fin_le + fin_sw, R * 0.6 + fin_h)]
     if tail == "twin":
