@@ -42,7 +42,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with the CLI's one-line errors: ``error: <what>`` (and where the help is), exit 2."""
+    """argparse with the CLI's one-line errors: ``error: <what>`` (and where the help is), exit 2; descriptions keep
+    their lines (the commands' examples, one a line, were reflowed into one paragraph)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"error: {message} (see `{self.prog} --help`)\n")

@@ -186,3 +186,17 @@ def test_blender_script_entry_point(tmp_path, mesh):
     res = subprocess.run([sys.executable, str(ROOT / "scripts" / "mrvm_blender.py"), "--", *base(tmp_path / "o2", "nope.obj")],
                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
     assert res.returncode == 2 and "error: mesh file or folder not found: nope.obj" in res.stderr
+
+
+def test_help_keeps_the_examples_one_a_line(capsys):
+    """argparse's default formatter joined the commands' examples into one paragraph."""
+    from blender_mrvm.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["train", "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "\nData-parallel:   torchrun" in out and "\nFine-tune:" in out
+    with pytest.raises(SystemExit):
+        main(["bench", "--help"])
+    assert "OpenMP policies and chunk workers." in " ".join(capsys.readouterr().out.split())  # its first line, whole

@@ -121,3 +121,12 @@ def test_a_plan_without_held_out_objects_says_so(tmp_path, capsys, monkeypatch):
     main(["make-shapenet", "--objects-per-category", "10", "--views", "3", "--resolution", "8",
           "--out", str(tmp_path / "e")])
     assert "gives no" not in capsys.readouterr().err
+
+
+def test_preview_library_refuses_zero_samples(tmp_path, capsys):
+    """Cycles at 0 samples wrote a sheet of empty tiles without a word."""
+    from blender_mrvm.cli import main
+
+    assert main(["preview-library", "--engine", "CYCLES", "--samples", "0", "--seeds", "1", "--categories", "chair",
+                 "--out", str(tmp_path / "p.png")]) == 2
+    assert "--samples must be at least 1" in capsys.readouterr().err and not (tmp_path / "p.png").exists()

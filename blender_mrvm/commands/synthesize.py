@@ -25,7 +25,7 @@ from ..models.precision import SYNTH_PRECISIONS
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--references", type=Path, required=True, help="object folder with rgb/ + pose/ (render or capture)")
     p.add_argument("--views", nargs="+", default=None, help="reference view indices, e.g. 0,1 or 0 1, or all "
-                   "(default: all, at most 500; with more than a view uses, each view takes its nearest, --nearest)")
+                   "(default: all, at most 500; with more than --nearest allows, each target uses its nearest, see --nearest)")
     p.add_argument("--nearest", type=int, default=0, metavar="K",
                    help="render each view from its K nearest references (by direction and distance; fewer is faster, "
                    "docs/guide/novel_views.md, 'Many references'); 0 (default) = every reference when there are "
@@ -61,8 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="object box in world units (default: from the reference folder)")
     p.add_argument("--threads", type=int, default=0, help="CPU threads (0 = every core): views render that many ray chunks side by side, one core each")
     p.add_argument("--quality", choices=("full", "preview"), default="full",
-                   help="full (default: as the model was trained) or preview (half the samples per ray: about 1.6x "
-                   "faster for a few tenths of a dB, docs/bench_tradeoff)")
+                   help="full (default: as the model was trained) or preview (half the samples per ray: about half "
+                   "the time for -0.19 dB with the default model, docs/guide/speed.md)")
     p.add_argument("--precision", choices=SYNTH_PRECISIONS, default="auto",
                    help="auto (default: bf16 on a GPU, where every shipped model scores the same and renders "
                    "1.04-1.21x faster; on the CPU int8 for NeRFormer models with wide enough layers, the quality model "

@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model kind when the config names none: nerformer_mrvm (default) or gpnr (with --init: "
                         "the checkpoint's own model, which must be of this kind)")
     p.add_argument("--preset", default=None,
-                   help="model preset (fast, balanced, accurate, ...) when the config names none")
+                   help="model preset (fast, balanced, accurate or paper) when the config names none")
     p.add_argument("--data", action="append", default=None, metavar="ROOT",
                    help="dataset root (overrides train.data); repeat to pool the objects of several datasets, "
                         "e.g. a turntable and a sphere-rig rendering")
