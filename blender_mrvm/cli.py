@@ -1,4 +1,4 @@
-"""The headless command-line interface: ``python -m blender_mrvm <command> ...``.
+"""The headless command-line interface: python -m blender_mrvm <command> ...
 
 Each command lives in ``commands/<name>.py`` with ``add_arguments(parser)`` and ``run(args) -> int``;
 those modules import nothing heavy at module level, so ``--help`` is instant and a command that
@@ -41,12 +41,25 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions keep their lines (the commands' examples, one a line, were reflowed into one paragraph), and an
+    option whose help does not speak of its default gets it appended."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        d = action.default
+        if ("default" in text.lower() or not action.option_strings or d is None or d is False or d == []
+                or d is argparse.SUPPRESS):
+            return text
+        return text + " (default: %(default)s)"
+
+
 class Parser(argparse.ArgumentParser):
-    """argparse with the CLI's one-line errors: ``error: <what>`` (and where the help is), exit 2; descriptions keep
-    their lines (the commands' examples, one a line, were reflowed into one paragraph)."""
+    """argparse with the CLI's one-line errors: ``error: <what>`` (and where the help is), exit 2, and the CLI's
+    help layout (:class:`HelpFormatter`)."""
 
     def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # type: ignore[override]

@@ -524,3 +524,11 @@ def test_bench_capture_caches_a_ring_per_render_setting(tmp_path):
     a = argparse.Namespace(views=3, width=16, height=16, samples=1)
     b = argparse.Namespace(views=3, width=16, height=16, samples=4)
     assert bc.ring_folder(tmp_path, a) != bc.ring_folder(tmp_path, b)
+
+
+def test_bench_train_refuses_an_unknown_device_before_making_its_folder(tmp_path, capsys):
+    """`bench train --device tpu` was refused only after --out was made: an empty folder was left behind."""
+    from blender_mrvm.cli import main
+
+    assert main(["bench", "train", "--device", "tpu", "--out", str(tmp_path / "new")]) == 2
+    assert "unknown device 'tpu'" in capsys.readouterr().err and not (tmp_path / "new").exists()

@@ -200,3 +200,32 @@ def test_help_keeps_the_examples_one_a_line(capsys):
     with pytest.raises(SystemExit):
         main(["bench", "--help"])
     assert "OpenMP policies and chunk workers." in " ".join(capsys.readouterr().out.split())  # its first line, whole
+
+
+def test_help_states_defaults_and_engines_are_spelled_alike(capsys):
+    """Options whose help did not state their default now show it; make-shapenet took CYCLES only in capitals and
+    preview-library refused BLENDER_WORKBENCH, the spelling the other commands use."""
+    from blender_mrvm.cli import build_parser
+
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["make-shapenet", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "samples per pixel (default: 8)" in out and "(default 2)" in out and "(default: 2)" not in out
+    a = build_parser().parse_args(["make-shapenet", "--out", "x", "--engine", "cycles"])
+    b = build_parser().parse_args(["preview-library", "--out", "x.png", "--engine", "BLENDER_WORKBENCH"])
+    assert a.engine == "CYCLES" and b.engine == "WORKBENCH"
+
+
+def test_orbit_options_without_orbit_and_a_missing_gpu_in_demo_are_refused_first(tmp_path, capsys):
+    """synthesize took --orbit-elevation 95 with --target-views and ignored it; demo --device cuda without a GPU
+    rendered the dataset before failing, leaving its files in --out."""
+    import torch
+
+    from blender_mrvm.cli import main
+
+    assert main(["synthesize", "--references", str(tmp_path), "--target-views", "2", "--orbit-elevation", "95",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "--orbit-elevation: only for --orbit N" in capsys.readouterr().err and not (tmp_path / "o").exists()
+    if not torch.cuda.is_available():
+        assert main(["demo", "--device", "cuda", "--out", str(tmp_path / "d")]) == 2
+        assert "no CUDA GPU" in capsys.readouterr().err and not (tmp_path / "d").exists()

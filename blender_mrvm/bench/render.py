@@ -28,9 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="bench_out", help="folder for bench_render.csv")
     p.add_argument("--views", type=int, default=24, help="views per measurement (Cycles, Workbench)")
     p.add_argument("--eevee-views", type=int, default=3, help="views per measurement for EEVEE (slow on software GL)")
-    p.add_argument("--resolutions", default="64,128")
-    p.add_argument("--engines", default="CYCLES,BLENDER_WORKBENCH,BLENDER_EEVEE")
-    p.add_argument("--samples", type=int, default=16)
+    p.add_argument("--resolutions", default="64,128", help="comma-separated square image sizes, pixels")
+    p.add_argument("--engines", default="CYCLES,BLENDER_WORKBENCH,BLENDER_EEVEE", help="comma-separated render engines")
+    p.add_argument("--samples", type=int, default=16, help="samples per pixel")
     p.add_argument("--repeats", type=int, default=1, help="side-by-side measurements per engine and resolution "
                                                           "(the order alternates to cancel drift)")
 

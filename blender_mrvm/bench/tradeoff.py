@@ -77,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--workers", type=int, default=1,
                    help="ray chunks rendered side by side on threads (threads.render_workers; torch threads then 1)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda[:N] (auto: CUDA when available)")
+    p.add_argument("--device", default="cpu", help="cpu, cuda[:N] or auto (CUDA when available); default cpu")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (the front then uses PSNR only)")
     p.add_argument("--out", type=Path, default=Path("bench_out"), help="folder for the CSV, PNG and front")
 

@@ -60,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-views-per", default="object",
                    help="comma-separated train.ref_views_per values: 'object' (each object draws its reference count) "
                    "or 'step' (one count a step: with --object-batches a step is one forward pass)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda[:N]")
+    p.add_argument("--device", default="cpu", help="cpu or cuda[:N] (default cpu)")
     p.add_argument("--steps", type=int, default=20, help="timed steps per configuration")
     p.add_argument("--warmup", type=int, default=3, help="untimed steps first (allocator, autotuning; at least 1)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (train.threads)")
@@ -313,7 +313,10 @@ def run(args) -> int:
     from ..training.run_folder import check_device
     from ..training.synthetic import make_sphere_dataset
 
+    from ..validation import check_device_name
+
     device = str(args.device).strip().lower()
+    check_device_name("--device", device, allow_auto=False)  # before --out is made: 'tpu' left an empty folder
     check_device(device)
     if args.steps < 1 or args.warmup < 1 or args.threads < 1 or args.profile < 0:
         raise InputError("--steps, --warmup and --threads must be at least 1 (the first step carries the set-up: "

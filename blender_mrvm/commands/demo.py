@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene-resolution", type=int, default=128, help="size of the image planes' views in scene.blend")
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model: 0 (default) shrinks "
                    "references larger than the model's training images to that size, -1 keeps them, N pixels")
-    p.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda[:N] (default auto)")
     p.add_argument("--threads", type=int, default=0, help="CPU threads (0 = every core): views render that many ray chunks side by side, one core each")
     p.add_argument("--no-lpips", action="store_true", help="skip LPIPS (otherwise the offline weights are required)")
     p.add_argument("--no-picture", action="store_true", help="do not render demo_out/scene.png")
@@ -77,6 +77,10 @@ def check_args(args) -> None:
         V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
     V.check_count("--threads", args.threads, 0, 4096)
     V.check_device_name("--device", args.device)
+    if args.device.strip().lower().startswith("cuda"):  # found before the dataset renders, not after
+        from ..synthesis.views import resolve_device
+
+        resolve_device(args.device)
     if not 1 <= args.objects <= len(DEMO_CATEGORIES):
         raise InputError(f"--objects must be between 1 and {len(DEMO_CATEGORIES)}, got {args.objects}")
     if args.checkpoint is not None:

@@ -42,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolution", type=int, default=64, help="square image size in pixels (NMR uses 64)")
     p.add_argument("--out", required=True, help="dataset root folder")
     p.add_argument("--shard", default="0/1", help="i/n: render only this deterministic share of the objects")
-    p.add_argument("--engine", default="CYCLES", choices=("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH"))
+    p.add_argument("--engine", default="CYCLES", type=str.upper, choices=("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH"),
+                   help="render engine, as render-dataset's")
     p.add_argument("--samples", type=int, default=8, help="samples per pixel")
     p.add_argument("--seed", type=int, default=0, help="first object seed (objects use seed .. seed+N-1)")
     p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")

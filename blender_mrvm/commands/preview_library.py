@@ -13,7 +13,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--first-seed", type=int, default=0, help="first seed")
     p.add_argument("--categories", default="all", help="comma-separated categories, or 'all'")
     p.add_argument("--size", type=int, default=160, help="tile size in pixels")
-    p.add_argument("--engine", default="WORKBENCH", choices=("WORKBENCH", "CYCLES"), help="render engine")
+    p.add_argument("--engine", default="WORKBENCH", choices=("WORKBENCH", "CYCLES"),
+                   type=lambda s: s.upper().removeprefix("BLENDER_"),
+                   help="render engine (BLENDER_WORKBENCH, as the other commands spell it, is WORKBENCH)")
     p.add_argument("--samples", type=int, default=16, help="Cycles samples per pixel")
     p.add_argument("--parts", action="store_true", help="colour faces by part label instead of material")
 

@@ -40,12 +40,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     tg.add_argument("--target-views", nargs="+", help="synthesize these views of the reference folder, e.g. 0,5,9, to "
                     "compare with their images (with no --views, every other view is a reference)")
     tg.add_argument("--orbit", type=int, metavar="N", help="synthesize N views on a circle around the object")
-    p.add_argument("--orbit-elevation", type=float, default=20.0, help="orbit elevation in degrees (default 20)")
-    p.add_argument("--orbit-radius", type=float, default=None, help="orbit radius (default: the references' distance)")
-    p.add_argument("--orbit-size", type=int, default=0, help="orbit images' longer side in pixels (default: the references')")
+    p.add_argument("--orbit-elevation", type=float, default=None,
+                   help="with --orbit: its elevation in degrees (default 20)")
+    p.add_argument("--orbit-radius", type=float, default=None,
+                   help="with --orbit: its radius (default: the references' distance)")
+    p.add_argument("--orbit-size", type=int, default=0,
+                   help="with --orbit: its images' longer side in pixels (default: the references')")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="model file, checkpoint folder or run folder of any model kind, or shipped:<kind> such as shipped:gpnr, shipped:gpnr_captures for rooms and photo captures, shipped:mrvm_anyview for cameras off the turntable, or shipped:mrvm_quality (GPU-trained, best for cameras anywhere, slow on a CPU) (default: shipped:auto, the shipped NeRFormer+MRVM model that fits the cameras: the default model on its 30-degree training turntable, else the any-view model on a CPU and the quality model on a GPU; synthesis.json's model_choice says which)")
-    p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda (default auto)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when available), cpu or cuda[:N] (default auto)")
     p.add_argument("--compile", action="store_true",
                    help="torch.compile the model's networks first (on an H100 1.2x faster through synthesize than "
                         "eager after a first view of ~30 s; on a CPU about a tenth faster after minutes of compiling; "
@@ -108,6 +111,13 @@ def run(args) -> int:
                           quality=args.quality, precision=args.precision, skip_empty=args.skip_empty, force=args.force,
                           nearest=args.nearest, adapt=adapt_from_args(args), reproject=args.reproject,
                           compile=args.compile)
+    orbit_only = [f for f, v in (("--orbit-elevation", args.orbit_elevation), ("--orbit-radius", args.orbit_radius),
+                                 ("--orbit-size", args.orbit_size or None)) if v is not None]
+    if orbit_only and args.orbit is None:  # they were taken and ignored
+        raise InputError(f"{', '.join(orbit_only)}: only for --orbit N (the orbit's cameras); without it "
+                         "nothing would use it")
+    if args.orbit_elevation is None:
+        args.orbit_elevation = 20.0
     if args.orbit_size:
         V.check_image_side("--orbit-size", args.orbit_size)
     if args.orbit is not None:
