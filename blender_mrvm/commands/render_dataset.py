@@ -48,24 +48,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "too: panda_link1, xarm_link1)")
     p.add_argument("--out", required=True, help="dataset root folder")
     p.add_argument("--rig", default="sphere", help="sphere | hemisphere | spiral | turntable | scene (default: sphere)")
-    p.add_argument("--views", type=int, default=24, help="views per object (default: 24)")
+    p.add_argument("--views", type=int, default=24, help="views per object (default: 24; --rig scene: one a scene "
+                   "camera)")
     p.add_argument("--resolution", default="128", help="R or WxH pixels (default: 128)")
     p.add_argument("--engine", default="CYCLES", type=str.upper,
                    help="CYCLES | BLENDER_EEVEE | BLENDER_WORKBENCH (default: CYCLES, on the CPU)")
     p.add_argument("--samples", type=int, default=32, help="samples per pixel (default: 32)")
     p.add_argument("--rgba", action="store_true", help="write RGBA images instead of compositing on white")
-    p.add_argument("--fov", type=float, default=40.0, help="horizontal field of view of generated cameras, degrees")
-    p.add_argument("--elevation", type=float, default=20.0, help="turntable elevation, degrees")
+    p.add_argument("--fov", type=float, default=40.0, help="horizontal field of view of generated cameras, degrees "
+                   "(default 40; with any of the --*-range options each view draws its own)")
+    p.add_argument("--elevation", type=float, default=20.0, help="--rig turntable: its elevation, degrees (default 20)")
     p.add_argument("--fov-range", default=None, metavar="MIN,MAX",
-                   help="sphere/hemisphere rigs: draw each view's horizontal field of view from this range, degrees "
-                        "(with --distance-range; either alone takes the other's default: 30,60 and 0.85,1.6)")
+                   help="sphere/hemisphere rigs: draw each view's horizontal field of view from this range, degrees; "
+                        "one number fixes it (any of the three ranges turns varied cameras on; one alone takes the "
+                        "others' defaults: 30,60 and 0.85,1.6)")
     p.add_argument("--distance-range", default=None, metavar="MIN,MAX",
                    help="sphere/hemisphere rigs: camera distance per view, multiples of the distance at which the "
-                        "object's bounding sphere fills the view")
+                        "object's bounding sphere fills the view; one number fixes it")
     p.add_argument("--elevation-range", default=None, metavar="MIN,MAX",
                    help="sphere/hemisphere rigs with varied cameras: keep the directions to this band of elevations, "
                         "degrees (default: the whole rig)")
-    p.add_argument("--seed", type=int, default=0, help="seed of random rigs and splits")
+    p.add_argument("--seed", type=int, default=0, help="seed of random rigs and splits (default 0)")
     p.add_argument("--category", default=None, help="category folder for mesh files / selected objects (default: custom)")
     p.add_argument("--split", default=None, choices=["train", "val", "test"], help="put every object into this split")
     p.add_argument("--shard", default="0/1", help="i/n: render only this shard of the objects (default 0/1)")
