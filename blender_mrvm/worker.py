@@ -173,7 +173,8 @@ def choose_interpreter(python_path: str = "", needs: tuple[str, ...] = ("torch",
         if p.is_dir():  # a venv folder instead of its interpreter
             if not venv_python(p).is_file():
                 raise InputError(f"the worker Python set in the add-on preferences is a folder without "
-                                 f"{venv_python(Path()).as_posix()}: {pref} (set a Python executable, or a venv folder)")
+                                 f"{venv_python(Path()).as_posix()}: {pref} (set a Python executable or a venv "
+                                 "folder)")
             p = venv_python(p)
         if not p.is_file():
             raise InputError(f"the worker Python set in the add-on preferences does not exist: {pref}")
@@ -363,7 +364,8 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
     argv = worker_argv(python, command, args)
     t0 = time.monotonic()
     try:
-        proc = subprocess.Popen(argv, cwd=str(cwd) if cwd else None, env=worker_env(env, python), stdin=subprocess.DEVNULL,
+        proc = subprocess.Popen(argv, cwd=str(cwd) if cwd else None, env=worker_env(env, python),
+                                stdin=subprocess.DEVNULL,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, encoding="utf-8",
                                 errors="replace", bufsize=1, start_new_session=(os.name == "posix"),
                                 creationflags=getattr(subprocess, "CREATE_NEW_PROCESS_GROUP", 0))

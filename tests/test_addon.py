@@ -531,3 +531,84 @@ def test_every_panel_draws_idle_and_running(empty_scene):
                 assert ("label", "halfway through a long job") in log, cls.__name__
     for name in ("mrvm_dataset", "mrvm_capture", "mrvm_novel_views", "mrvm_train", "mrvm_sem2nerf"):
         getattr(empty_scene, name).running = False
+
+
+def test_one_zip_names_the_platforms_its_wheels_cover(tmp_path):
+    """build-extension without --split-platforms: the manifest's ``platforms`` are those on which every bundled
+    package has a wheel, so Blender refuses to install it elsewhere (macOS x64, Windows ARM: pillow and openexr have
+    no wheels there in the bundled set) instead of installing it without them. Before, it named none. Only pure
+    wheels (or none): no ``platforms``, i.e. every platform."""
+    import os
+    import sys
+
+    import bpy
+
+    from blender_mrvm.commands import build_extension as B
+
+    sys.path.insert(0, os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core"))
+    try:
+        from bl_pkg.bl_extension_utils import pkg_manifest_params_compatible_or_error
+    finally:
+        sys.path.pop(0)
+    whl = tmp_path / "whl"
+    whl.mkdir()
+    wheels = [_fake_wheel(whl, py, plat, "binpkg") for py in ("cp311", "cp313")
+              for plat in ("win_amd64", "macosx_11_0_arm64", "manylinux_2_28_x86_64", "manylinux_2_28_aarch64")]
+    wheels += [_fake_wheel(whl, py, plat, "otherpkg") for py in ("cp311", "cp313")
+               for plat in ("win_amd64", "win_arm64", "macosx_10_9_universal2",
+                            "manylinux_2_17_x86_64.manylinux2014_x86_64")]  # no linux-arm64
+    pure = _fake_wheel(whl, name="purepkg")
+    assert B.wheel_platforms([*wheels, pure]) == ["windows-x64", "macos-arm64", "linux-x64"]
+    manifest = tomllib.loads(zipfile.ZipFile(B.build(tmp_path / "out", [*wheels, pure]))
+                             .read("blender_manifest.toml").decode())
+    assert manifest["platforms"] == ["windows-x64", "macos-arm64", "linux-x64"]
+    refused = {plat: pkg_manifest_params_compatible_or_error(
+                   blender_version_min=manifest["blender_version_min"], blender_version_max="",
+                   platforms=manifest["platforms"], python_versions=["3.11", "3.13"], this_platform=plat,
+                   this_python_version=(3, 11, 9), this_blender_version=(4, 2, 0), error_fn=print) is not None
+               for plat in B.ALL_BLENDER_PLATFORMS}
+    assert refused == {"windows-x64": False, "windows-arm64": True, "macos-x64": True, "macos-arm64": False,
+                       "linux-x64": False, "linux-arm64": True}
+    only_pure = tomllib.loads(zipfile.ZipFile(B.build(tmp_path / "pure", [pure]))
+                              .read("blender_manifest.toml").decode())
+    assert "platforms" not in only_pure and B.wheel_platforms([]) == list(B.ALL_BLENDER_PLATFORMS)
+    # the real set (the cache --wheels auto fills), where it was fetched: every package on the four platforms
+    real = B.bundled_in(B.WHEEL_CACHE / "py3.11-win_amd64")
+    if real:
+        cached = [w for folder in B.WHEEL_CACHE.glob("py3.*") for w in B.bundled_in(folder)]
+        assert B.wheel_platforms(cached) == ["windows-x64", "macos-arm64", "linux-x64", "linux-arm64"]
+
+
+def test_the_wheel_cache_is_the_repositorys_wherever_the_command_runs(tmp_path, monkeypatch):
+    """build-extension --wheels auto keeps its downloads in the repository's .cache/extension_wheels; before, in
+    ./.cache of whatever folder the command ran from (a new download and a stray folder each time)."""
+    import types
+
+    from blender_mrvm.commands import build_extension as B
+    from blender_mrvm.errors import MRVMError
+
+    assert B.WHEEL_CACHE == ROOT / ".cache" / "extension_wheels"
+    asked = []
+
+    def offline(dest):
+        asked.append(Path(dest))
+        raise MRVMError("offline")
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(B, "fetch_wheels", offline)
+    monkeypatch.setattr(B, "build", stop)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        B.run(types.SimpleNamespace(out=str(tmp_path / "dist"), wheels="auto", split_platforms=False))
+    assert [p.resolve() for p in asked] == [ROOT / ".cache" / "extension_wheels"]
+
+
+def test_the_manifest_asks_for_the_clipboard():
+    """prefs.py's Copy Install Command writes the clipboard: the manifest says so (Blender's rule: a short reason
+    without a trailing period; test_extension_zip validates the manifest with Blender's own validator)."""
+    manifest = tomllib.loads((ROOT / "blender_mrvm" / "blender_manifest.toml").read_text())
+    reason = manifest["permissions"]["clipboard"]
+    assert reason and len(reason) <= 64 and reason[-1].isalnum()
+    assert "context.window_manager.clipboard" in (ROOT / "blender_mrvm" / "prefs.py").read_text()

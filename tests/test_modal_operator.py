@@ -192,3 +192,33 @@ def test_a_job_whose_scene_was_deleted_is_cancelled(empty_scene):
     assert op.reports[-1] == ("WARNING", "Test job cancelled: the scene it was started in was deleted")
     assert ctx.window_manager.calls[-1] == ("end",) and not empty_scene.mrvm_sem2nerf.running
     assert empty_scene.mrvm_sem2nerf.status == ""
+
+
+def test_unregistering_the_addon_ends_its_running_jobs(addon):
+    """Disabling the add-on while a job runs: Blender frees a running modal operator whose class is unregistered
+    without calling its ``cancel`` (WM_operator_handlers_clear), so before, the worker went on running, the timer
+    and the progress bar stayed and the section stayed "running". unregister() now ends each live job first, as
+    Esc does (generator closed: the worker is interrupted), in the context the job was started in."""
+    import blender_mrvm
+    from blender_mrvm.operators import _modal
+
+    ctx, op = make_context(), Job(n=10)
+    done_ctx, done = make_context(), Job(n=1)
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"} and done.invoke(done_ctx, None) == {"RUNNING_MODAL"}
+    assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"}
+    while done.modal(done_ctx, TIMER) == {"RUNNING_MODAL"}:
+        pass
+    assert (None, "job") in _modal.live_sections()
+    assert any(j is op for j in _modal._live) and not any(j is done for j in _modal._live)  # a finished one is not
+    blender_mrvm.unregister()
+    try:
+        assert op.closed and not ctx.scene.job.running
+        assert ctx.scene.job.status == op.reports[-1][1] == "Test job cancelled: the add-on was disabled; kept 2 things"
+        calls = ctx.window_manager.calls
+        assert ("timer_remove",) in calls and calls[-1] == ("end",) and ctx.workspace.text is None
+        assert done_ctx.window_manager.calls.count(("end",)) == 1  # the finished one is left alone
+        assert op.modal(ctx, TIMER) == {"CANCELLED"} and _modal.end_live_jobs() == 0
+        op.cancel(ctx)  # Blender closing it later changes nothing
+        assert calls.count(("end",)) == 1
+    finally:
+        blender_mrvm.register()

@@ -239,3 +239,54 @@ def test_find_project_venv_through_an_extension_symlink(tmp_path):
     assert W.find_project_venv(ext / "blender_mrvm") == py
     assert W.find_project_venv(tmp_path / "blender" / "extensions") is None
     assert W.find_project_venv() == W.venv_python(ROOT / ".venv")
+
+
+@pytest.mark.skipif(os.name == "nt", reason="the fake interpreters are scripts with a #! line")
+def test_a_hanging_python_and_a_folder_without_one_are_named_plainly(tmp_path):
+    """A worker Python that hangs is reported as not answering (before: "cannot run: Command '[..., '-c', '<the
+    whole multi-line probe script>', ...]' timed out after 30 seconds"); a preference naming a folder that is not a
+    venv is "a folder without bin/python" (before: "does not exist", though it exists)."""
+    hang = tmp_path / "hang_py"
+    hang.write_text("#!/bin/sh\nsleep 30\n")
+    hang.chmod(0o755)
+    W.clear_probe_cache()
+    t0 = time.monotonic()
+    with pytest.raises(InputError) as ei:
+        W.probe(str(hang), timeout=1)
+    assert str(ei.value) == f"worker Python {hang} did not answer within 1 s" and time.monotonic() - t0 < 10
+    folder = tmp_path / "not a venv"
+    folder.mkdir()
+    with pytest.raises(InputError) as ei:
+        W.choose_interpreter(str(folder))
+    assert "is a folder without bin/python" in str(ei.value) and "does not exist" not in str(ei.value)
+    W.clear_probe_cache()
+
+
+def test_the_worker_reads_the_weights_from_the_cache_folder(tmp_path, monkeypatch):
+    """The worker's MRVM_WEIGHTS_DIR (models/vgg.py reads the offline VGG16 / LPIPS weights there): the preferences'
+    Weights cache when set, else $MRVM_WEIGHTS_DIR, else the project's .cache/weights beside a venv's Python, else
+    the package's default. Before, the worker got none: in the installed extension it looked beside the extension's
+    folder, not where `fetch-weights` put them."""
+    monkeypatch.delenv("MRVM_WEIGHTS_DIR", raising=False)
+    monkeypatch.setattr(W, "preferences_cache_dir", None)
+    default = ROOT / ".cache" / "weights"
+    assert W.weights_dir() == default
+    assert W.worker_env()["MRVM_WEIGHTS_DIR"] == str(default)
+    proj = tmp_path / "proj"
+    py = W.venv_python(proj / ".venv")
+    py.parent.mkdir(parents=True)
+    (proj / ".venv" / "pyvenv.cfg").write_text("home = /usr/bin\n")
+    assert W.weights_dir(str(py)) == default  # no .cache/weights in that project
+    (proj / ".cache" / "weights").mkdir(parents=True)
+    assert W.worker_env(python=str(py))["MRVM_WEIGHTS_DIR"] == str(proj / ".cache" / "weights")
+    monkeypatch.setenv("MRVM_WEIGHTS_DIR", str(tmp_path / "env"))
+    assert W.weights_dir(str(py)) == tmp_path / "env"
+    monkeypatch.setattr(W, "preferences_cache_dir", lambda: str(tmp_path / "mine"))
+    assert W.worker_env(python=str(py))["MRVM_WEIGHTS_DIR"] == str(tmp_path / "mine")
+    # what the child reads: models/vgg.py's folder is the one passed, with the files named as there
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", "from blender_mrvm.models import vgg; "
+                          "print(vgg.weights_dir(), vgg.VGG_FILE, vgg.LPIPS_FILE)"], capture_output=True, text=True,
+                         env=W.worker_env(python=str(py)), timeout=120)
+    assert out.stdout.split() == [str(tmp_path / "mine"), *W.WEIGHT_FILES], out.stderr

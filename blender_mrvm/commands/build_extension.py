@@ -60,7 +60,10 @@ BLENDER_PLATFORMS = ("windows-x64", "macos-arm64", "linux-x64", "linux-arm64")
 # takes the Python versions an extension supports from its wheels' tags and refuses to install one whose wheels
 # are for none of its own ("This Python version (3.13) isn't compatible with (3.11)"), so every one is bundled.
 BLENDER_PYTHONS = ("3.11", "3.13")
-WHEEL_CACHE = Path(".cache") / "extension_wheels"
+WHEEL_CACHE = PACKAGE_DIR.parent / ".cache" / "extension_wheels"
+"""Where --wheels auto keeps the downloaded wheels: the repository's .cache, wherever the command runs from."""
+ALL_BLENDER_PLATFORMS = ("windows-x64", "windows-arm64", "macos-x64", "macos-arm64", "linux-x64", "linux-arm64")
+"""Every platform Blender builds for (a manifest without ``platforms`` installs on each)."""
 
 
 def fetch_wheels(dest: Path) -> list[Path]:
@@ -108,9 +111,40 @@ def wheel_pythons(wheels: list[Path]) -> set[str]:
     return out
 
 
+def blender_platforms_of(wheel: Path) -> set[str]:
+    """The Blender platforms a wheel installs on, from its platform tag (as Blender reads it: ``any`` is every one,
+    ``universal2`` both macOS ones, a compressed tag such as ``manylinux_2_17_x86_64.manylinux2014_x86_64`` each)."""
+    out: set[str] = set()
+    for tag in Path(wheel).name[:-4].split("-")[-1].split("."):
+        if tag == "any":
+            return set(ALL_BLENDER_PLATFORMS)
+        system = ("windows" if tag.startswith("win") else "macos" if tag.startswith("macosx") else
+                  "linux" if "linux" in tag else None)
+        machines = (["x64", "arm64"] if tag.endswith("universal2") else ["x64"] if tag.endswith(("amd64", "x86_64"))
+                    else ["arm64"] if tag.endswith(("arm64", "aarch64")) else [])
+        out.update(f"{system}-{m}" for m in machines if system)
+    return out & set(ALL_BLENDER_PLATFORMS)
+
+
+def wheel_platforms(wheels: list[Path]) -> list[str]:
+    """The Blender platforms on which every bundled package has a wheel, for each Python its wheels are for: the
+    manifest's ``platforms`` (elsewhere Blender would install the extension without that package). In
+    :data:`ALL_BLENDER_PLATFORMS` order; every one when there are no wheels or all are pure."""
+    def package(w: Path) -> str:
+        return Path(w).name.split("-")[0].lower()
+
+    covered = set(ALL_BLENDER_PLATFORMS)
+    for name in {package(w) for w in wheels}:
+        own = [w for w in wheels if package(w) == name]
+        for py in wheel_pythons(own):  # (a Python it has no wheel for at all: run() warns)
+            covered &= {plat for w in own if py in wheel_pythons([w]) for plat in blender_platforms_of(w)}
+    return [p for p in ALL_BLENDER_PLATFORMS if p in covered]
+
+
 def build(out_dir: Path, wheels: list[Path] | None = None) -> Path:
     """Build the extension zip into ``out_dir``; with ``wheels``, a staged copy of the package that bundles them
-    (listed in its manifest's ``wheels``), the source folder itself otherwise."""
+    (listed in its manifest's ``wheels``, its ``platforms`` those every bundled package has wheels for:
+    :func:`wheel_platforms`), the source folder itself otherwise."""
     return _build(out_dir, wheels, ())[0]
 
 
@@ -141,8 +175,13 @@ def _build(out_dir: Path, wheels: list[Path] | None, platforms: tuple[str, ...])
                     shutil.copy2(w, source / "wheels" / Path(w).name)
                 listed = ", ".join(f'"./wheels/{Path(w).name}"' for w in sorted(wheels, key=lambda w: Path(w).name))
                 lines += f"wheels = [{listed}]\n"
-            if platforms:
-                lines += "platforms = [" + ", ".join(f'"{p}"' for p in platforms) + "]\n"
+            listed_platforms = platforms or wheel_platforms(wheels or [])
+            if not listed_platforms:
+                raise MRVMError("the bundled wheels have no platform in common: "
+                                + "; ".join(f"{Path(w).name}: {', '.join(sorted(blender_platforms_of(w)))}"
+                                            for w in wheels or []))
+            if platforms or len(listed_platforms) < len(ALL_BLENDER_PLATFORMS):  # none listed: every platform
+                lines += "platforms = [" + ", ".join(f'"{p}"' for p in listed_platforms) + "]\n"
             text = (source / "blender_manifest.toml").read_text()
             first_table = text.index("\n[") + 1  # top-level keys, so before the first [table]
             (source / "blender_manifest.toml").write_text(f"{text[:first_table]}{lines}\n{text[first_table:]}")
@@ -208,6 +247,8 @@ def run(args) -> int:
         validate(z)
         m = tomllib.loads(zipfile.ZipFile(z).read("blender_manifest.toml").decode())
         n = len(m.get("build", {}).get("generated", {}).get("wheels", m.get("wheels", [])))  # a platform's own
-        print(f"built {z} ({z.stat().st_size / 1024:.0f} KiB{f', {n} wheels' if n else ''})")
+        plats = m.get("build", {}).get("generated", {}).get("platforms", m.get("platforms", []))
+        where = f", installs on {', '.join(plats)}" if plats else ""
+        print(f"built {z} ({z.stat().st_size / 1024:.0f} KiB{f', {n} wheels' if n else ''}{where})")
     print("install it with Edit > Preferences > Get Extensions > Install from Disk")
     return 0

@@ -29,7 +29,9 @@ LPIPS_CHANNELS = (64, 128, 256, 512, 512)
 
 
 def weights_dir() -> Path:
-    """Weight cache folder: ``$MRVM_WEIGHTS_DIR`` or ``<repo>/.cache/weights`` (git-ignored)."""
+    """Weight cache folder: ``$MRVM_WEIGHTS_DIR`` or ``<repo>/.cache/weights`` (git-ignored). A worker started by the
+    add-on always gets ``$MRVM_WEIGHTS_DIR`` (``worker.weights_dir``: the preferences' Weights cache, else the
+    project's cache beside a project venv, else this default: beside the installed extension's folder)."""
     env = os.environ.get("MRVM_WEIGHTS_DIR")
     if env:
         return Path(env)
@@ -41,7 +43,8 @@ def _load(name: str) -> dict[str, torch.Tensor]:
 
     path = weights_dir() / name
     if not path.is_file():
-        raise InputError(f"offline weights {path} are missing; run `{FETCH_COMMAND}` once (set-up step)")
+        raise InputError(f"offline weights {path} are missing; run `{FETCH_COMMAND} --out \"{path.parent}\"` once "
+                         "(set-up step)")
     return dequantize(load_file(str(path)))
 
 

@@ -39,8 +39,8 @@ def end_live_jobs(context=None, reason: str = "the add-on was disabled") -> int:
     go (Blender then frees a running modal operator without calling its ``cancel``, which would leave the worker
     process running, the timer firing, the progress indicator up and the section "running"). Each job's generator
     is closed (the worker is interrupted; finished work is kept, as with Esc), its timer removed, the progress
-    indicator ended and its section set idle with a message naming ``reason``. ``context``: the one to end them in
-    (default: the one each was started in). Returns how many jobs were ended."""
+    indicator ended and its section set idle with a message naming ``reason`` and what was kept. ``context``: the
+    one to end them in (default: the one each was started in). Returns how many jobs were ended."""
     n = 0
     while _live:
         job = _live.pop()
@@ -48,7 +48,9 @@ def end_live_jobs(context=None, reason: str = "the add-on was disabled") -> int:
             gen, job._gen = job._gen, None
             if gen is not None:
                 gen.close()
-            job._finish(job._started_in if context is None else context, True, f"{job.job_name} cancelled: {reason}", "WARNING")
+            hint = f"; {job.cancel_hint}" if job.cancel_hint else ""
+            job._finish(job._started_in if context is None else context, True,
+                        f"{job.job_name} cancelled: {reason}{hint}", "WARNING")
             n += 1
         except Exception as e:  # noqa: BLE001  (an operator Blender freed already: end the others)
             print(f"blender_mrvm: could not end {job.job_name}: {type(e).__name__}: {e}")

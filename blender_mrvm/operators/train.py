@@ -12,7 +12,9 @@ learning rate), the same as ``train --init`` on the command line. New runs on ou
 add the opacity loss (``training.config.OPACITY_WEIGHT``). With "Continue run" on and a run already in the run folder,
 the trainer resumes it instead (weights, optimizer, schedule and random state) and trains up to the
 iteration count, on whatever dataset is chosen now. When it finishes, the run folder is picked as
-the Synthesize novel views checkpoint (the synthesis loads its latest checkpoint).
+the Synthesize novel views checkpoint (the synthesis loads its latest checkpoint). A job that needs the offline
+VGG16 / LPIPS weights (Keep its losses of a model trained with LPIPS, a VGG16 encoder) is refused before it starts
+when they are not in the worker's weight cache (``worker.weights_dir``: the preferences' Weights cache, ...).
 """
 
 from __future__ import annotations
@@ -123,6 +125,42 @@ def init_checkpoint(p) -> tuple[Path, dict]:
     return checked_header(ck)
 
 
+def _vgg_encoder(cfg) -> bool:
+    """A model config (dict or dataclass) whose encoder is an ImageNet VGG16 (built from the offline weights)."""
+    enc = cfg.get("encoder") if isinstance(cfg, dict) else getattr(cfg, "encoder", None)
+    if isinstance(enc, dict):
+        return enc.get("backbone") == "vgg16" and bool(enc.get("pretrained"))
+    return getattr(enc, "backbone", None) == "vgg16" and bool(getattr(enc, "pretrained", False))
+
+
+def _recorded(meta: dict, key: str) -> dict:
+    """A JSON section of a checkpoint's metadata ({} when it has none or it cannot be read)."""
+    try:
+        doc = json.loads(meta.get(key) or "{}")
+    except ValueError:
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _positive(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+
+
+def require_weights(context, why: str) -> None:
+    """InputError naming the folder and the command that fills it when the offline VGG16 / LPIPS weights the
+    worker will read (``worker.weights_dir``: the preferences' Weights cache, ...) are missing; before the job
+    starts, instead of the worker failing after its start-up."""
+    from .. import prefs as P
+    from ..worker import FETCH_WEIGHTS, choose_interpreter, missing_weights, weights_dir
+
+    pr = P.get(context)
+    folder = weights_dir(choose_interpreter(pr.python_path if pr else "").path)
+    if missing_weights(folder):
+        raise InputError(f"{why} needs the offline VGG16 / LPIPS weights, which are not in {folder}: run "
+                         f'`{FETCH_WEIGHTS} --out "{folder}"` once, or set Weights cache in the add-on preferences '
+                         "to the folder it wrote them to")
+
+
 def plan_from_props(context) -> TrainJob:
     """Check the Model section's settings; no side effects. MRVMError on bad input."""
     from .. import prefs as P
@@ -150,11 +188,16 @@ def plan_from_props(context) -> TrainJob:
                              "a new run folder, or turn off Continue run")
         model = {"kind": kind, "config": running["model"]["config"]}
         base = {k: v for k, v in running.get("train", {}).items() if k in CONTINUED_SETTINGS}
+        weights = ("continuing a run with the LPIPS loss" if _positive(base.get("lpips_weight")) else
+                   "continuing a run of a VGG16-encoder model" if _vgg_encoder(model["config"]) else "")
     elif p.start_from != "NEW":
         from ..models.checkpoint_files import model_name
 
         init, meta = init_checkpoint(p)  # fine-tune: the checkpoint's own model
         name, model = model_name(meta) or "?", {}
+        lpips = p.keep_losses and _positive(_recorded(meta, "train_config").get("lpips_weight"))
+        weights = ("Keep its losses (the LPIPS loss)" if lpips else
+                   "fine-tuning a VGG16-encoder model" if _vgg_encoder(_recorded(meta, "model_config")) else "")
     else:
         from ..models import registry
 
@@ -162,6 +205,10 @@ def plan_from_props(context) -> TrainJob:
             raise InputError(f"the {registry.kind(p.model_kind).title} model has no {p.preset!r} size; choose one of "
                              f"{', '.join(registry.presets(p.model_kind))}")
         name, model = p.preset, {"kind": p.model_kind, "preset": p.preset}
+        vgg = _vgg_encoder(registry.presets(p.model_kind)[p.preset])
+        weights = f"the {p.preset} size (a VGG16 encoder)" if vgg else ""
+    if weights:
+        require_weights(context, weights)
     pr = P.get(context)
     dev = (pr.device if pr else "AUTO").lower()
     return TrainJob(data, run_dir, name, model, init, base, int(p.iterations), int(p.checkpoint_every),
