@@ -156,3 +156,28 @@ def test_path_settings_take_blend_relative_values_without_a_warning(empty_scene)
         for name, identifier in paths:
             setattr(getattr(empty_scene, name), identifier, "//relative/path")
     assert [str(w.message) for w in caught] == []
+
+
+def test_synthesize_with_a_folder_of_runs_as_the_default_checkpoint_says_what_it_expects(empty_scene, tmp_path):
+    """The preferences' Default checkpoint set to a folder of runs: Synthesize gave the worker's "no checkpoint
+    found at X" after the job started; it now gives the preferences' own message first."""
+    import bpy
+
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.operators.synthesize import _checkpoint
+
+    runs = tmp_path / "runs"
+    for run in ("a", "b"):
+        (runs / run).mkdir(parents=True)
+        (runs / run / "model.safetensors").write_bytes(b"x")
+    pr = _prefs()
+    before = pr.checkpoint_dir
+    pr.checkpoint_dir = str(runs)
+    try:
+        p = types.SimpleNamespace(checkpoint="", shipped_model="auto")
+        with pytest.raises(InputError, match="holds the runs a, b: choose one"):
+            _checkpoint(bpy.context, p)
+        pr.checkpoint_dir = str(runs / "a")
+        assert _checkpoint(bpy.context, p) == runs / "a"
+    finally:
+        pr.checkpoint_dir = before

@@ -354,7 +354,7 @@ def test_panels_never_probe_the_worker_from_draw(empty_scene, monkeypatch):
     ctx = bpy.context
     for cls in (MRVM_PT_model, MRVM_PT_novel_views):
         _draw(cls)
-    _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO"))
+    _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO", checkpoint_dir=""))
     rep = P.dependency_status(ctx, cached=True)
     assert rep.pending and rep.lines() == [("Checking the worker Python...", True)]
     monkeypatch.undo()

@@ -204,7 +204,7 @@ def test_dependency_status_in_preferences(empty_scene, prefs, bare_python):
 
     rep = P.dependency_status()
     assert rep.interpreter.path == sys.executable and rep.missing == [] and rep.install_command == ""
-    log = _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO"))
+    log = _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO", checkpoint_dir=""))
     labels = _labels(log)
     own = f"Worker Python (Blender's own, {sys.version_info.major}.{sys.version_info.minor}"  # 3.13 from 5.1 on
     assert labels[0].startswith(own) and labels[0].endswith(sys.executable)
@@ -215,7 +215,7 @@ def test_dependency_status_in_preferences(empty_scene, prefs, bare_python):
     rep = P.dependency_status()
     assert rep.interpreter.source == "preferences"
     assert rep.missing == ["torch", "safetensors", "numpy", "PIL", "scipy", "OpenEXR", "pycolmap", "pillow_heif", "av"]
-    log = _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO"))
+    log = _draw(P.MRVM_AddonPreferences, types.SimpleNamespace(device="AUTO", checkpoint_dir=""))
     labels = _labels(log)
     assert "torch: missing (needed for training and novel-view synthesis)" in labels
     assert "pycolmap: missing (needed for recovering the poses of photos)" in labels

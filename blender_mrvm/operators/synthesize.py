@@ -101,9 +101,10 @@ def _checkpoint(context, p) -> Path | str:
         return ck
     pr = P.get(context)
     if pr is not None and pr.checkpoint_dir.strip():
-        ck = blend_path(pr.checkpoint_dir, "the checkpoint folder of the add-on preferences")
-        if not ck.exists():
-            raise InputError(f"the checkpoint folder set in the add-on preferences does not exist: {ck}")
+        ck = blend_path(pr.checkpoint_dir, "the default checkpoint of the add-on preferences")
+        problem = P.checkpoint_problem(str(ck))  # missing, or a folder of runs: said before the worker starts
+        if problem:
+            raise InputError(problem)
         return ck
     if p.shipped_model == "auto":  # the worker picks by the cameras (models.pretrained.auto_model)
         if default_checkpoint() is None:

@@ -124,7 +124,7 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
 
             pr = P.get(context)
             if pr is not None and pr.checkpoint_dir.strip():
-                col.label(text="Model: the checkpoint set in the preferences", icon="INFO")
+                col.label(text="Model: the Default checkpoint of the preferences", icon="INFO")
             else:
                 from ..models.pretrained import FIGURES
 
