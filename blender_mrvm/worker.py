@@ -351,6 +351,13 @@ def stop(proc: subprocess.Popen, grace_s: float = 5.0) -> int | None:
     return proc.poll()
 
 
+INTERRUPT = "interrupt"
+"""What a caller ``send()``s into :func:`run_worker` (through any ``yield from``) to stop the child without waiting
+for it: it is interrupted (it finishes and saves the step in progress), the generator goes on yielding while it
+winds down, and escalates to terminate and kill past the grace time; then :class:`Cancelled`. Closing the generator
+instead stops the child before it returns (blocking up to the grace time)."""
+
+
 def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | None = None,
                env: dict[str, str] | None = None, poll_s: float = 0.1, grace_s: float = 5.0,
                on_start=None) -> ProgressGen:
@@ -382,8 +389,25 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
     stderr_tail: deque[str] = deque(maxlen=50)
     last = Progress(0, 0, f"starting {command}")
     open_streams = 2
+    stopping: list = []  # (signal sent, when): the escalation after an INTERRUPT sent in
+
+    def wind_down(msg) -> None:
+        """Interrupt on INTERRUPT; past the grace time terminate, 2 s later kill (never blocking the caller)."""
+        now = time.monotonic()
+        if msg == INTERRUPT and not stopping:
+            _signal(proc, signal.SIGINT)
+            stopping.append((signal.SIGINT, now))
+        elif stopping and proc.poll() is None:
+            sig, since = stopping[-1]
+            if sig == signal.SIGINT and now - since > grace_s:
+                _signal(proc, signal.SIGTERM)
+                stopping.append((signal.SIGTERM, now))
+            elif sig == signal.SIGTERM and now - since > 2.0 and hasattr(signal, "SIGKILL"):
+                _signal(proc, signal.SIGKILL)
+                stopping.append((signal.SIGKILL, now))
+
     try:
-        yield last
+        wind_down((yield last))
         while open_streams:
             deadline = time.monotonic() + poll_s
             got = False
@@ -407,7 +431,10 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
                 else:
                     stderr_tail.append(line)
             if open_streams:
-                yield last
+                if stopping:
+                    last = Progress(last.done, last.total, f"stopping {command}: the step in progress is finished "
+                                    "and kept (Esc again stops at once)")
+                wind_down((yield last))
         rc = proc.wait()
     finally:
         if proc.poll() is None:
@@ -422,7 +449,7 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
     result.returncode, result.seconds, result.stderr_tail = rc, time.monotonic() - t0, list(stderr_tail)
     if rc == 0:
         return result
-    if rc in (130, -signal.SIGINT):
+    if rc in (130, -signal.SIGINT) or (stopping and rc != 0):
         raise Cancelled("the worker was interrupted; finished work is kept")
     raise WorkerError(error_message(rc, list(stderr_tail), python), rc)
 

@@ -110,6 +110,51 @@ def test_escape_cancels_and_closes_the_generator():
     assert ("end",) in ctx.window_manager.calls and ("timer_remove",) in ctx.window_manager.calls
 
 
+class WorkerJob(Job):
+    """A job run in the worker: its generator winds down over a few ticks once INTERRUPT is sent in (as
+    worker.run_worker does while the child saves its step in progress), then raises Cancelled."""
+
+    stops_softly = True
+
+    def start(self, context):
+        from blender_mrvm.errors import Cancelled
+        from blender_mrvm.worker import INTERRUPT
+
+        def gen():
+            try:
+                got = yield Progress(0, self.n, "start")
+                for i in range(self.n):
+                    if got == INTERRUPT:
+                        self.interrupted = True
+                        yield Progress(i, self.n, "stopping: saving the step")
+                        raise Cancelled("the worker was interrupted; finished work is kept")
+                    got = yield Progress(i + 1, self.n, f"step {i + 1}")
+                return "result"
+            finally:
+                self.closed = True
+        return gen()
+
+
+def test_escape_on_a_worker_job_lets_it_wind_down_without_blocking():
+    """Esc closed the generator, which waited for the worker to save its step (Train: up to 37 s, the UI frozen).
+    A worker job is interrupted at the next tick and goes on until the worker has wound down; a second Esc stops
+    it at once."""
+    ctx, op = make_context(), WorkerJob(n=10)
+    op.invoke(ctx, None)
+    op.modal(ctx, TIMER)
+    assert op.modal(ctx, SimpleNamespace(type="ESC")) == {"RUNNING_MODAL"}
+    assert not op.closed and ctx.scene.job.running and "Esc again stops at once" in ctx.scene.job.status
+    assert op.modal(ctx, TIMER) == {"RUNNING_MODAL"} and op.interrupted  # sent in, winding down
+    assert op.modal(ctx, TIMER) == {"CANCELLED"}
+    assert op.closed and not ctx.scene.job.running
+    assert op.reports[-1] == ("WARNING", "Test job cancelled; kept 2 things")
+
+    ctx, op = make_context(), WorkerJob(n=10)
+    op.invoke(ctx, None)
+    op.modal(ctx, SimpleNamespace(type="ESC"))
+    assert op.modal(ctx, SimpleNamespace(type="ESC")) == {"CANCELLED"} and op.closed  # the second Esc
+
+
 def test_errors_are_reported_and_stop_the_job():
     ctx, op = make_context(), Job(n=3, fail_at=1)
     op.invoke(ctx, None)

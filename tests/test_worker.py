@@ -143,6 +143,56 @@ def test_cancel_stops_the_child_and_keeps_finished_views(tmp_path):
     assert not [p for p in obj.rglob(".*") if p.is_file()]
 
 
+def test_an_interrupt_sent_in_stops_the_child_without_blocking(tmp_path):
+    """Esc on a panel job closed the generator, which waited for the child (up to 37 s for Train: its grace to save
+    the step in progress) with Blender's UI frozen. INTERRUPT sent into the generator interrupts the child and
+    returns at once; the generator goes on yielding while the child winds down, then raises Cancelled, and the
+    child has exited as interrupted, keeping its finished views."""
+    out = tmp_path / "ds"
+    procs = []
+    gen = W.run_worker("render-dataset", [*RENDER, "--views", "400", "--out", out], sys.executable, env=ENV,
+                       on_start=procs.append, grace_s=20.0)
+    t0 = time.monotonic()
+    for ev in gen:
+        if ev.done >= 2:
+            break
+        assert time.monotonic() - t0 < 60, "no progress from the child"
+    t1 = time.monotonic()
+    ev = gen.send(W.INTERRUPT)
+    assert time.monotonic() - t1 < 1.0, "the send returned at once"
+    (proc,) = procs
+    ticks = 0
+    with pytest.raises(Cancelled, match="interrupted"):
+        while True:
+            ev = next(gen)
+            ticks += 1
+            assert "Esc again stops at once" in ev.message or proc.poll() is not None
+            assert time.monotonic() - t1 < 30
+    assert proc.returncode == 130, "SIGINT: the CLI closed its work and exited as interrupted (not killed)"
+    done = sorted(p.name for p in (out / "chair" / "chair_000000" / "pose").glob("*.txt"))
+    assert 2 <= len(done) < 400
+
+
+def test_a_child_that_ignores_the_interrupt_is_terminated_after_the_grace(tmp_path, monkeypatch):
+    """A worker that does not wind down is terminated past the grace time, still without blocking the caller."""
+    script = tmp_path / "stubborn.py"
+    script.write_text("import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
+                      "time.sleep(60)\n")
+    monkeypatch.setattr(W, "worker_argv", lambda python, command, args: [python, str(script)])
+    procs = []
+    gen = W.run_worker("x", [], sys.executable, env=ENV, on_start=procs.append, grace_s=0.5)
+    next(gen)
+    time.sleep(1.5)  # the child has set its signal handler
+    (proc,) = procs
+    t1 = time.monotonic()
+    gen.send(W.INTERRUPT)
+    assert time.monotonic() - t1 < 1.0
+    with pytest.raises((Cancelled, W.WorkerError)):
+        for _ in gen:
+            assert time.monotonic() - t1 < 15
+    assert proc.poll() is not None
+
+
 def test_child_error_is_one_line(tmp_path):
     gen = W.run_worker("render-dataset", ["--source", str(tmp_path / "nothing.obj"), "--out", tmp_path / "o"],
                        sys.executable, env=ENV)

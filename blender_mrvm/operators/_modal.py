@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from ..errors import MRVMError
+from ..errors import Cancelled, MRVMError
 
 _PROGRESS_STEPS = 1000
 _GONE = object()
@@ -79,9 +79,15 @@ class ProgressOperator:
     cancel_hint: str = ""
     """Appended to the cancel message (what was kept)."""
     timer_interval: float = 0.01
+    stops_softly: bool = False
+    """The job runs in the worker (``worker.run_worker``): Esc interrupts it and the job goes on while the worker
+    finishes and saves its step in progress (the UI stays free); a second Esc stops it at once."""
 
     _gen = None
     _timer = None
+    _send = None
+    """What the next timer tick sends into the job's generator (``worker.INTERRUPT`` after a first Esc)."""
+    _stopping = False
     _scene = None
     """The scene the modal job was started in (None: ``context.scene``)."""
     _scene_uid = None
@@ -195,6 +201,14 @@ class ProgressOperator:
         if self._gen is None:  # ended by end_live_jobs (the add-on was unregistered)
             return {"CANCELLED"}
         if event.type == "ESC":
+            if self.stops_softly and not self._stopping:
+                from ..worker import INTERRUPT
+
+                self._stopping, self._send = True, INTERRUPT  # handled at the next tick; the UI is not blocked
+                props = self._props(context)
+                if props is not None:
+                    props.status = f"stopping {self.job_name}: finishing the step in progress (Esc again stops at once)"
+                return {"RUNNING_MODAL"}
             self._gen.close()
             return self._finish(context, True, self._cancel_message(), "WARNING")
         if event.type != "TIMER":
@@ -204,7 +218,8 @@ class ProgressOperator:
             return self._finish(context, True, f"{self.job_name} cancelled: the scene it was started in was deleted",
                                 "WARNING")
         try:
-            ev = next(self._gen)
+            send, self._send = self._send, None
+            ev = self._gen.send(send) if send is not None else next(self._gen)
         except StopIteration as stop:
             try:
                 return self._finish(context, False, self.on_result(self._job_context(context), stop.value))
@@ -213,6 +228,8 @@ class ProgressOperator:
             except Exception as e:  # the job must end: a running flag left set refuses every later run
                 return self._finish(context, True, unexpected_error(e), "ERROR")
         except MRVMError as e:
+            if self._stopping and isinstance(e, Cancelled):  # the worker wound down after Esc, as asked
+                return self._finish(context, True, self._cancel_message(), "WARNING")
             return self._finish(context, True, str(e), "ERROR")
         except Exception as e:  # the generator has ended with it; the timer and the progress bar end here
             return self._finish(context, True, unexpected_error(e), "ERROR")

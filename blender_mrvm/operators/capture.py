@@ -82,6 +82,7 @@ class MRVM_OT_recover_poses(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_capture"
     job_name = "Pose recovery"
+    stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "finished stages are kept in the output's colmap/"
     timer_interval = 0.05
 

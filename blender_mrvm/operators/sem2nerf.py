@@ -235,6 +235,7 @@ class MRVM_OT_sem2nerf(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_sem2nerf"
     job_name = "Sem2NeRF"
+    stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "nothing was added"
     timer_interval = 0.1
 

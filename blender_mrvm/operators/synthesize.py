@@ -257,6 +257,7 @@ class MRVM_OT_synthesize(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_novel_views"
     job_name = "Synthesis"
+    stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "nothing was added"
     timer_interval = 0.1
 

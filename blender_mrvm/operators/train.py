@@ -321,6 +321,7 @@ class MRVM_OT_train(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_train"
     job_name = "Training"
+    stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "the step in progress finishes and is saved as a checkpoint (train again to continue)"
     timer_interval = 0.1
 
