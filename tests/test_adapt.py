@@ -145,3 +145,15 @@ def test_a_diverging_adaptation_stops_with_one_error(setup):
     images, c2w, intr, masks = _refs(scene, [0, 1, 2])
     with pytest.raises(InputError, match="diverged at step 1.*learning rate"):
         run_to_end(adapt(bad, images, c2w, intr, scene.bbox, AdaptConfig(steps=5), masks))
+
+
+def test_the_adaptation_learning_rate_is_capped_near_the_measured_range():
+    """--adapt-lr 1 was accepted and wiped the view (a finite loss while the opacity collapsed); the rates measured
+    were 5e-5 to 2e-4 (docs/adapt.md)."""
+    from blender_mrvm.training.adapt import MAX_LR
+
+    assert MAX_LR == 1e-2
+    AdaptConfig(steps=3, lr=MAX_LR)
+    for lr in (1.0, 0.011):
+        with pytest.raises(InputError, match="--adapt-lr must be a number between 0 and 0.01"):
+            AdaptConfig(steps=3, lr=lr)

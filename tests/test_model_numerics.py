@@ -356,3 +356,32 @@ def test_short_attention_default_policy(monkeypatch):
         monkeypatch.setattr(nerformer, "SHORT_ATTENTION_MAX", bad)
         with pytest.raises(InputError, match="MRVM_SHORT_ATTENTION"):
             nerformer.short_attention_max(cpu)
+
+
+def test_a_nan_render_is_an_error_naming_the_checkpoint(tmp_path):
+    """Finite weights of 1e30 (a diverged training step; loading refuses only NaN) render NaN, which had been written
+    as black images (NaN casts to 0) and into eval.json as NaN (not JSON)."""
+    import json
+
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.training import checkpoint as ckpt
+    from blender_mrvm.training.evaluate import report_json
+
+    cfg = model_config("fast", {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
+                                "sampler": {"n_coarse": 4, "n_fine": 2}})
+    torch.manual_seed(0)
+    model = GeneralizableNeRF(cfg)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.fill_(1e30)
+    ck = ckpt.save_checkpoint(tmp_path / "run", 1, model, cfg, None)
+    model, _, _ = ckpt.load_model(tmp_path / "run")  # finite: it loads
+    intr = cameras.intrinsics_from_fov(math.radians(40), 16, 16)
+    c2w = [cameras.look_at_opencv(np.array([2.0, 0.3 * i, 1.0])) for i in range(2)]
+    bbox = (np.full(3, -0.5), np.full(3, 0.5))
+    with pytest.raises(InputError, match=f"NaN or infinite values .*the checkpoint {ck / 'model.safetensors'} is "
+                                         "probably broken"):
+        model.synthesize(np.ones((2, 16, 16, 3), np.float32), c2w, [intr, intr], bbox, c2w[0], intr)
+    text = report_json({"overall": {"psnr": None, "ssim": float("nan"), "lpips": np.float32("inf")}, "n": [1.0]})
+    assert json.loads(text) == {"overall": {"psnr": None, "ssim": None, "lpips": None}, "n": [1.0]}
+    assert "NaN" not in text and "Infinity" not in text

@@ -263,3 +263,69 @@ def test_no_resume_refuses_a_run_unless_forced_and_resume_drops_metrics_past_its
     run_to_end(T.train(cfg(iterations=2, checkpoint_every=1, seed=5), resume=False, force=True))
     assert sorted(p.name for p in (out / "checkpoints").glob("step_*")) == ["step_0000001", "step_0000002"]
     assert find_checkpoint(out).name == "step_0000002" and steps() == [1, 2]
+
+
+def test_a_nan_loss_or_a_diverged_update_stops_before_anything_is_saved(data, tmp_path):
+    """A NaN loss had raised a raw RuntimeError ('loss became nan at step 1', 0-based) only after the generator's and
+    the discriminator's updates, and a diverged update had been saved (weights and style mean non-finite). Now both
+    stop with `train`'s one-line TrainingStopped, steps counted from 1, and no such weights are written."""
+    from blender_mrvm.errors import TrainingStopped
+
+    objects = T.load_masked_dataset(data)
+    bad = [T.MaskedObject(o.name, o.category, np.full_like(o.images, np.nan), o.masks, o.c2w, o.intrinsics, o.labels)
+           for o in objects]
+    base = dict(data=str(data), preset="fast", model_overrides=TINY_MODEL, iterations=2, objects_per_step=1,
+                patch_size=8, lpips_weight=0.0, gan_weight=0.1, checkpoint_every=1, log_every=1, threads=1)
+    out = tmp_path / "nan"
+    with pytest.raises(TrainingStopped, match=r"training stopped at step 1: the loss is nan .*no checkpoint was "
+                                              r"written"):
+        run_to_end(T.train(T.train_config(**base, out_dir=str(out)), resume=False, objects=bad))
+    assert not (out / "checkpoints").exists()
+    # a learning rate of 1e30 (refused by train_config, so built directly): the first update diverges
+    out = tmp_path / "lr"
+    cfg = T.Sem2NeRFTrainConfig(**{**base, "model_overrides": tuple(TINY_MODEL)}, out_dir=str(out), lr=1e30,
+                                encoder_lr=1e30)
+    with pytest.raises(TrainingStopped, match=r"training stopped at step 1: its update left NaN, infinite or diverged "
+                                              r"weights .*no checkpoint was written"):
+        run_to_end(T.train(cfg, resume=False, objects=objects))
+    assert not (out / "checkpoints").exists()
+
+
+@pytest.mark.parametrize("field,value", [("lr", 1e39), ("encoder_lr", 2.0), ("code_lr", float("nan")),
+                                         ("disc_lr", -1.0), ("lr_end_factor", 1e39)])
+def test_learning_rates_are_checked_up_front(field, value):
+    """--lr 1e39 (not a float32) had crashed in Adam's step with a traceback, after the run folder was started."""
+    with pytest.raises(InputError, match=f"--{field.replace('_', '-')} must be a number"):
+        T.train_config(**{field: value})
+
+
+def test_non_finite_weights_are_refused_and_nan_renders_name_the_checkpoint(tmp_path):
+    """load_sem2nerf lacked the finiteness check `load_weights` makes (a NaN style mean loaded), and a model with
+    diverged finite weights wrote its NaN renders as black images."""
+    from blender_mrvm.models.sem2nerf.config import sem2nerf_config
+    from blender_mrvm.models.sem2nerf.inputs import build_inputs
+    from blender_mrvm.models.sem2nerf.model import Sem2NeRF
+
+    cfg = sem2nerf_config("fast", dict(TINY_MODEL), image_size=16, labels=(0, 1), label_names=("background", "a"))
+    model = Sem2NeRF(cfg)
+    with torch.no_grad():
+        model.style_mean.fill_(float("nan"))
+    T.save_checkpoint(tmp_path / "nan", 1, model, 16, None)
+    with pytest.raises(InputError, match="holds NaN or infinite weights \\(style_mean\\)"):
+        T.load_sem2nerf(tmp_path / "nan")
+    with torch.no_grad():
+        model.update_style_mean()
+        for p in model.parameters():
+            p.fill_(1e30)
+        model.style_mean.clamp_(-1e30, 1e30).nan_to_num_(0.0)
+    ck = T.save_checkpoint(tmp_path / "huge", 1, model, 16, None)
+    model, cfg, _ = T.load_sem2nerf(tmp_path / "huge")
+    from blender_mrvm.geometry import cameras
+
+    intr = cameras.intrinsics_from_fov(0.7, 16, 16)
+    c2w = cameras.look_at_opencv(np.array([2.0, 0.0, 1.0]))
+    mask = np.zeros((16, 16), np.uint8)
+    mask[4:12, 4:12] = 1
+    code = model.encode(torch.from_numpy(build_inputs(mask, cfg.labels))[None], c2w[None], intr)
+    with pytest.raises(InputError, match=f"the checkpoint {ck / 'model.safetensors'} is probably broken"):
+        model.render_image(intr, c2w, code, model.default_style())

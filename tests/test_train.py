@@ -941,3 +941,62 @@ def test_a_resume_with_more_iterations_says_the_schedule_changes(tmp_path, data,
     assert "masked pretraining ends at step 2 (was 1)" in err
     run_to_end(train(mcfg, replace(tcfg, iterations=4), scenes=scenes))
     assert "resumes at step" not in capsys.readouterr().err, "the same length again: nothing to say"
+
+
+@pytest.mark.parametrize("poison", ["huge", "nan"])
+def test_a_diverged_update_is_never_saved(tmp_path, data, monkeypatch, poison):
+    """The loss check sees step N's loss, computed with the weights before update N: the diverged weights update N
+    leaves (1e30 from a learning rate too high, or NaN) had been saved as step N's checkpoint (the final one too,
+    exit 0) while the message said that checkpoint was kept. They are now checked before any save."""
+    from blender_mrvm.errors import TrainingStopped
+
+    root, scenes = data
+    real_step = torch.optim.AdamW.step
+    calls = []
+
+    def step(self, *a, **kw):  # update 2 diverges
+        out = real_step(self, *a, **kw)
+        calls.append(1)
+        if len(calls) == 2:
+            with torch.no_grad():
+                for g in self.param_groups:
+                    for p in g["params"]:
+                        p.mul_(1e30) if poison == "huge" else p.fill_(float("nan"))
+        return out
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    run = tmp_path / "run"
+    mcfg, tcfg = _cfgs(run, root, iterations=2, ckpt_every=1, keep_checkpoints=1, objects_per_step=1)
+    with pytest.raises(TrainingStopped, match=r"training stopped at step 2: its update left NaN, infinite or "
+                                              r"diverged weights .*; the last checkpoint \(step_0000001\) is kept"):
+        run_to_end(train(mcfg, tcfg, scenes=scenes))
+    cks = sorted(p.name for p in (run / "checkpoints").iterdir() if p.is_dir())
+    assert cks == ["step_0000001"], cks  # step 2 (the final one) not written; keep 1 did not drop the good one
+    assert (run / "checkpoints" / "latest").read_text().strip() == "step_0000001"
+    model, _, _ = ckpt.load_model(run)  # finite, loads
+    assert not ckpt.nonfinite_weights(model, ckpt.DIVERGED_WEIGHT)
+    # diverging at the first update: nothing is saved, with a one-line stop (it had ended with exit 0)
+    calls.clear()
+    calls.append(1)
+    with pytest.raises(TrainingStopped, match="training stopped at step 1: .*no checkpoint was written"):
+        run_to_end(train(mcfg, replace(tcfg, out_dir=str(tmp_path / "run1"), iterations=1), scenes=scenes))
+    assert not (tmp_path / "run1" / "checkpoints").exists()
+
+
+def test_training_refuses_boxes_no_camera_looks_at(tmp_path, data, capsys):
+    """A bbox away from where the cameras look (a wrong meta.json bbox): every ray missed ('hit 0' every step) and
+    the run trained nothing without a word. All such objects: refused up front; some: a warning naming them."""
+    from blender_mrvm.errors import InputError
+
+    root, scenes = data
+    _, tcfg = _cfgs(tmp_path, root)
+    away = [copy.copy(s) for s in scenes]
+    away[0].bbox = (np.full(3, 100.0), np.full(3, 101.0))
+    assert len(away) >= 2
+    RayBatcher(scenes, tcfg, 0.1, seed=0)
+    assert "warning" not in capsys.readouterr().err
+    RayBatcher(away, tcfg, 0.1, seed=0)
+    err = capsys.readouterr().err
+    assert err.count("warning:") == 1 and f"{away[0].category}/{away[0].name}" in err and f"1 of the {len(away)}" in err
+    with pytest.raises(InputError, match="looks at its box .* the run would learn nothing"):
+        RayBatcher(away[:1], tcfg, 0.1, seed=0)

@@ -153,7 +153,7 @@ def run(args) -> int:
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
-    from ..training.evaluate import evaluate, per_category, protocol_target_inputs, protocol_views
+    from ..training.evaluate import evaluate, per_category, report_json, protocol_target_inputs, protocol_views
 
     from ..threads import render_workers
     from ..training.adapt import from_args as adapt_from_args
@@ -233,7 +233,7 @@ def run(args) -> int:
                                         pool=views if args.nearest and source == "--input-views" else None,
                                         reproject=reproject, reproject_cfg=reproject_from_args(args)),
                                desc="eval", unit="view")
-    print(json.dumps({"overall": report["overall"], "out": str(args.out)}, indent=2))
+    print(report_json({"overall": report["overall"], "out": str(args.out)}))
     (args.out / "compare.json").unlink(missing_ok=True)  # an earlier run's (--force): not of this eval.json
     if other is not None:
         from ..datasets.format import atomic_write_json

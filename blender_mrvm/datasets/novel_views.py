@@ -108,7 +108,7 @@ def write_targets(path: Path, targets: list[Target], depth: bool = False) -> Pat
 def read_targets(path: Path) -> tuple[list[Target], bool]:
     """``(targets, depth wanted)`` from ``targets.json``; InputError naming what is wrong (the target and
     the field): sizes of 1 to ``validation.MAX_IMAGE_SIDE`` pixels, finite positive focal lengths, a finite
-    principal point and pose, names unique (each names one Blender camera)."""
+    principal point and a rigid pose (not scaled, sheared or mirrored), names unique (each names one Blender camera)."""
     path = Path(path)
     try:
         d = json.loads(path.read_text())
@@ -163,6 +163,9 @@ def _target_of_row(path: Path, i: int, r) -> Target:
         if pose is None or pose.shape not in ((4, 4), (3, 4)) or not np.isfinite(pose).all() or (
                 pose.shape == (4, 4) and not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0])):
             raise InputError(f"{what}: c2w_opencv must be a finite 4x4 (or 3x4) camera-to-world matrix")
+        from ..models.sem2nerf.render import check_pose  # (torch-free) the check `sem2nerf render` makes
+
+        check_pose(as_pose(pose), f"{what}: c2w_opencv")  # a mirrored pose rendered an empty view without a word
         generated = r.get("generated", False)
         if not isinstance(generated, bool):
             raise InputError(f"{what}: generated must be true or false, got {generated!r}")

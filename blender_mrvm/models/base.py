@@ -53,6 +53,22 @@ def rays_on_host(device: torch.device) -> bool:
     return device.type == "cpu"
 
 
+def check_finite_view(model, **parts: torch.Tensor) -> None:
+    """InputError when a rendered view's ``parts`` (colour, opacity, depth, ...) hold NaN or infinite values: a
+    model with diverged weights renders nothing but NaN, which an image would store as black (NaN casts to 0) and
+    eval.json as NaN. Names the checkpoint the model was loaded from (``model.checkpoint_file``) as probably
+    broken. One host sync."""
+    if bool(torch.stack([torch.isfinite(v).all() for v in parts.values()]).all()):
+        return
+    from ..errors import InputError
+
+    bad = [k for k, v in parts.items() if not bool(torch.isfinite(v).all())]
+    src = getattr(model, "checkpoint_file", None)
+    what = f"checkpoint {src} is" if src else "model's weights are"
+    raise InputError(f"the rendered view holds NaN or infinite values ({', '.join(bad)}): the {what} probably "
+                     "broken (a training run whose learning rate diverged?); retrain it or use another checkpoint")
+
+
 @dataclass
 class NormalizedScene:
     """A scene moved into the model's frame: box centred, longest half-side 1."""
@@ -267,6 +283,7 @@ class RayModel(nn.Module):
             evaluated += int(idx.numel())
             span += (rays.far[idx] / box_far[idx].clamp_min(1e-12)).sum()
         span = float(span) / evaluated if evaluated else 0.0
+        check_finite_view(self, colour=color, opacity=acc, depth=depth)
         return {"color": color.view(H, W, 3).clamp(0, 1).cpu(), "depth": depth.view(H, W).cpu(),
                 "acc": acc.view(H, W).clamp(0, 1).cpu(), "rays": n, "box_rays": int(box_rays), "evaluated": evaluated,
                 "span": span, "samples": samples}

@@ -40,6 +40,12 @@ def few_references_note(n_refs: int) -> str:
             f"or 4, while it gained with {PAYS_FROM} or more (docs/adapt.md); consider --adapt-steps 0")
 
 
+MAX_LR = 1e-2
+"""The largest ``--adapt-lr``: measured from 5e-5 to 2e-4 (``docs/adapt.md``; 2e-4 already lost 1.5 dB with two
+references), and at 1 a few steps wiped the view (opacity collapsed at a finite loss): 0.01 leaves room to try
+higher rates without accepting ones that only destroy the model."""
+
+
 @dataclass(frozen=True)
 class AdaptConfig:
     """How a model adapts to a scene's references (``steps`` 0 = it does not)."""
@@ -62,7 +68,7 @@ class AdaptConfig:
 
         V.check_count("--adapt-steps", self.steps, 0, 100000)
         V.check_count("--adapt-rays", self.rays, 1, 1 << 20)
-        for name, v, hi in (("--adapt-lr", self.lr, 1.0), ("adaptation opacity weight", self.opacity_weight, 100.0),
+        for name, v, hi in (("--adapt-lr", self.lr, MAX_LR), ("adaptation opacity weight", self.opacity_weight, 100.0),
                             ("--adapt-lpips", self.lpips_weight, 100.0)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and 0 <= v <= hi):
                 raise InputError(f"{name} must be a number between 0 and {hi:g}, got {v!r}")
@@ -158,7 +164,9 @@ def add_arguments(p) -> None:
                    help="fine-tune a copy of the model on the references alone before rendering, this many steps "
                    "(each holds one reference out as the target; needs 2+ references, pays with 5+; 0 = off, the "
                    "default; training/adapt.py)")
-    p.add_argument("--adapt-lr", type=float, default=d.lr, help=f"learning rate of --adapt-steps (default {d.lr:g})")
+    p.add_argument("--adapt-lr", type=float, default=d.lr,
+                   help=f"peak learning rate of --adapt-steps (default {d.lr:g}; measured from 5e-5 to 2e-4, "
+                        f"docs/adapt.md; at most {MAX_LR:g}: higher rates wipe the view)")
     p.add_argument("--adapt-rays", type=int, default=d.rays, help=f"target rays per adaptation step (default {d.rays})")
     p.add_argument("--adapt-lpips", type=float, default=d.lpips_weight,
                    help="LPIPS patch loss weight while adapting (0 = off, the default; needs the offline weights)")

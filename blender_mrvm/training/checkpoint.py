@@ -113,8 +113,29 @@ def _first_line(e: Exception) -> str:
     return (str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__)[:300]
 
 
+DIVERGED_WEIGHT = 1e8
+"""Largest absolute weight a training run saves (:func:`nonfinite_weights`' ``limit``): trained models' weights stay
+within a few units (the shipped ones' largest is 5), while a step with a diverging learning rate leaves finite
+weights of 1e30 that render nothing but NaN (float32 overflows a layer or two later)."""
+
+
+def nonfinite_weights(model: torch.nn.Module | dict[str, torch.Tensor], limit: float | None = None) -> list[str]:
+    """The names of ``model``'s floating-point parameters and buffers (or of a dict's tensors) that hold NaN or
+    infinite values, or with ``limit`` values larger than it in magnitude (one host sync when none does: a
+    diverged training step is caught before it is saved)."""
+    tensors = model.state_dict() if isinstance(model, torch.nn.Module) else model
+    floats = [(k, v.detach()) for k, v in tensors.items() if v.is_floating_point() and v.numel()]
+    if not floats:
+        return []
+    peaks = torch.stack([v.abs().max().float() for _, v in floats])  # (NaN stays NaN: max propagates it)
+    ok = torch.isfinite(peaks) if limit is None else peaks <= limit
+    if bool(ok.all()):
+        return []
+    return [k for (k, _), good in zip(floats, ok.tolist()) if not good]
+
+
 def _check_finite(model: torch.nn.Module, model_file: Path) -> None:
-    bad = [k for k, v in model.state_dict().items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    bad = nonfinite_weights(model)
     if bad:
         raise InputError(f"checkpoint {model_file} holds NaN or infinite weights ({bad[0]}"
                          f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''})")
@@ -157,6 +178,7 @@ def load_model(path: Path, device: str = "cpu"):
     cfg = config_from_meta(meta, model_file)
     model = registry.build_model(cfg, load_pretrained=False)  # the checkpoint holds every weight
     load_weights(model, model_file, device)
+    model.checkpoint_file = model_file  # named when its renders come out NaN (models.base.check_finite_view)
     return model.to(device), cfg, meta
 
 

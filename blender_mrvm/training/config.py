@@ -366,6 +366,10 @@ def init_model_config(name: str) -> Any:
     return read_model_config(resolve_init_checkpoint(name))
 
 
+MAX_LR = 1.0
+"""The largest ``train.lr`` accepted (``--adapt-lr`` has a lower cap: ``training.adapt``)."""
+
+
 def validate(c: TrainConfig) -> None:
     """Types, then ranges (``TrainConfig.__post_init__`` runs it; kept callable for old callers)."""
     from .. import validation as V
@@ -375,7 +379,9 @@ def validate(c: TrainConfig) -> None:
         V.at_least(c, name, 1)
     for name in ("max_objects", "seed", "lr_warmup", "keep_checkpoints", "threads"):
         V.at_least(c, name, 0)
-    V.at_least(c, "lr", 0.0)  # 0 is a frozen run (tests); NaN/inf are refused by check_types
+    # 0 is a frozen run (tests); NaN/inf are refused by check_types; above 1 a run only diverges (1e39 is not even
+    # a float32: AdamW's step crashed on it, after the run folder was started)
+    V.in_range(c, "lr", 0.0, MAX_LR)
     V.in_range(c, "lr_final_frac", 0.0, 1.0)
     for name in ("weight_decay", "grad_clip", "coarse_weight"):
         V.at_least(c, name, 0.0)

@@ -13,6 +13,7 @@ Markdown table (``eval.md``) and a PNG grid (one row per category: references | 
 from __future__ import annotations
 
 import json
+import math
 from collections import defaultdict
 from dataclasses import asdict
 from pathlib import Path
@@ -371,7 +372,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     report.update(extra or {})
     if out_dir is not None:
         out_dir = Path(out_dir)
-        F.atomic_write_json(out_dir / "eval.json", {**report, "views": records})
+        F.atomic_write_text(out_dir / "eval.json", report_json({**report, "views": records}) + "\n")
         F.atomic_write_text(out_dir / "eval.md", markdown_table(report))
         if grid_rows:
             F.write_png(out_dir / "eval_grid.png", make_grid(grid_rows))
@@ -480,7 +481,19 @@ def make_grid(rows: list[list[np.ndarray]], pad: int = 2) -> np.ndarray:
 
 
 def report_json(report: dict) -> str:
-    return json.dumps(report, indent=2)
+    """The report as JSON; a non-finite number (an SSIM of a NaN render) is null, as a missing mean is: NaN is not
+    JSON, and readers other than Python's refuse it."""
+    return json.dumps(_finite(report), indent=2, allow_nan=False)
+
+
+def _finite(v):
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    if isinstance(v, (float, np.floating)) and not math.isfinite(v):
+        return None
+    return v
 
 
 def markdown_table(report: dict) -> str:

@@ -153,6 +153,30 @@ def check_loss(loss: float, step: int, last_checkpoint: Path | None, what: str =
         return
     from ..errors import TrainingStopped
 
-    kept = f"the last checkpoint ({Path(last_checkpoint).name}) is kept" if last_checkpoint else "no checkpoint was written"
     raise TrainingStopped(f"training stopped at step {step}: the {what} is {loss} (NaN or infinite weights, poses or "
-                          f"images, or a learning rate that diverges); {kept}")
+                          f"images, or a learning rate that diverges); {_kept(last_checkpoint)}")
+
+
+def _kept(last_checkpoint: Path | None) -> str:
+    return (f"the last checkpoint ({Path(last_checkpoint).name}) is kept" if last_checkpoint
+            else "no checkpoint was written")
+
+
+def check_weights(model, step: int, last_checkpoint: Path | None, extra: dict | None = None) -> None:
+    """Stop training after step ``step`` when its update left NaN, infinite or diverged weights (larger than
+    ``checkpoint.DIVERGED_WEIGHT``: a learning rate that diverges) in ``model`` or the ``extra`` tensors saved
+    with it: they are never saved, so the last checkpoint stays the last good one (:func:`check_loss` sees only
+    the loss of the weights before the update)."""
+    from .checkpoint import DIVERGED_WEIGHT, nonfinite_weights
+
+    tensors = {**model.state_dict(), **(extra or {})}
+    bad = nonfinite_weights(tensors, DIVERGED_WEIGHT)
+    if not bad:
+        return
+    from ..errors import TrainingStopped
+
+    peak = float(tensors[bad[0]].detach().abs().max())
+    more = f", and {len(bad) - 1} more tensors" if len(bad) > 1 else ""
+    raise TrainingStopped(f"training stopped at step {step}: its update left NaN, infinite or diverged weights "
+                          f"({bad[0]} reaches {peak:.3g}{more}; a learning rate that diverges?), which were not saved; "
+                          f"{_kept(last_checkpoint)}")

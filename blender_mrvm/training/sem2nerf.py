@@ -117,6 +117,10 @@ class Sem2NeRFTrainConfig:
     optimizer starts afresh. Ignored when the run folder has a checkpoint to resume from."""
 
 
+MAX_LR = 1.0
+"""The largest learning rate a run accepts (``train.lr``'s cap too, ``training.config.MAX_LR``)."""
+
+
 def train_config(**kw) -> Sem2NeRFTrainConfig:
     """A validated :class:`Sem2NeRFTrainConfig` (InputError for bad values)."""
     if "model_overrides" in kw and isinstance(kw["model_overrides"], dict):
@@ -128,6 +132,15 @@ def train_config(**kw) -> Sem2NeRFTrainConfig:
         raise InputError("sem2nerf: need 0 < scale_end <= scale_start <= 1")
     if cfg.lpips_weight > 0 and cfg.patch_size < 16:
         raise InputError("sem2nerf: LPIPS needs patch_size >= 16 (or lpips_weight 0)")
+    # learning rates above 1 only diverge (1e39 is not even a float32: Adam's step crashed on it)
+    for name in ("lr", "encoder_lr", "code_lr", "disc_lr"):
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and 0 <= v <= MAX_LR):
+            raise InputError(f"sem2nerf: --{name.replace('_', '-')} must be a number between 0 and {MAX_LR:g}, "
+                             f"got {v!r}")
+    v = cfg.lr_end_factor
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and 0 < v <= 1):
+        raise InputError(f"sem2nerf: --lr-end-factor must be a number above 0 and at most 1, got {v!r}")
     return cfg
 
 
@@ -279,6 +292,10 @@ def load_sem2nerf(path: Path, device: str = "cpu"):
     except RuntimeError as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise InputError(f"checkpoint {model_file} does not match its config: {first[:300]}") from None
+    from .checkpoint import _check_finite
+
+    _check_finite(model, model_file)  # (the style mean too: a buffer)
+    model.checkpoint_file = model_file  # named when its renders come out NaN (models.base.check_finite_view)
     return model.to(device).eval(), cfg, meta
 
 
@@ -434,8 +451,13 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
             input_cache[(o, v)] = torch.from_numpy(build_inputs(objects[o].masks[v], labels))
         return input_cache[(o, v)]
 
+    def trained(done: int) -> None:  # TrainingStopped when the update left diverged weights (never saved)
+        run_folder.check_weights(model, done, last_ck or ck, {"codes": codes, **({} if disc is None else {
+            f"disc.{k}": v for k, v in disc.state_dict().items()})})
+
     def save(done: int) -> Path:
         model.update_style_mean()
+        trained(done)  # (the style mean too: the mean of the mapping network's outputs)
         state = {"step": done, "codes": codes.detach().cpu(), "opt": opt.state_dict(),
                  "rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
                  "objects": [f"{o.category}/{o.name}" for o in objects]}
@@ -503,6 +525,8 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
             if disc is not None:
                 g_adv = F.softplus(-disc(pred_img)).mean()
                 loss = loss + cfg.gan_weight * g_adv
+            # before the updates: a NaN never reaches the weights (steps counted from 1, as `train` counts them)
+            run_folder.check_loss(float(loss.detach()), step + 1, last_ck or ck)
             decay = cfg.lr_end_factor ** (step / max(cfg.iterations - 1, 1))
             for group, lr in zip(opt.param_groups, (cfg.lr, cfg.encoder_lr, cfg.code_lr)):
                 group["lr"] = lr * decay
@@ -516,9 +540,8 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                 d_loss = F.softplus(-disc(gt_img)).mean() + F.softplus(disc(pred_img.detach())).mean()
                 d_loss.backward()
                 d_opt.step()
-            if not torch.isfinite(loss):
-                raise RuntimeError(f"sem2nerf: loss became {loss.item()} at step {step}")
             done = step + 1
+            trained(done)
             if done % cfg.log_every == 0 or done == cfg.iterations:
                 psnr = float(-10 * torch.log10(l2.detach().clamp_min(1e-10)))
                 rec = {"step": done, "loss": float(loss.detach()), "l2": float(l2.detach()), "psnr": psnr,
@@ -734,9 +757,10 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
                            if blend_rows else None, "per_object": blend_rows},
            "per_view": per_view, "per_object_edits": edit_rows}
     Path(out).mkdir(parents=True, exist_ok=True)
-    from ..datasets.format import atomic_write_json
+    from ..datasets.format import atomic_write_text
+    from .evaluate import report_json
 
-    atomic_write_json(Path(out) / "eval.json", res)
+    atomic_write_text(Path(out) / "eval.json", report_json(res) + "\n")  # (valid JSON: null, never NaN)
     if grid_rows:
         from ..datasets.format import write_png
 

@@ -35,10 +35,10 @@ import torch
 from ..datasets.format import atomic_write_text
 from ..datasets.loaders import ObjectScene, load_dataset
 from ..errors import InputError
-from ..geometry.cameras import axis_cosines
+from ..geometry.cameras import axis_cosines, rays_opencv
 from ..models import registry
 from ..models.base import RayModel, TrainPhase, normalized_scene, ref_cameras, rays_to
-from ..models.rays import RayBundle, make_rays
+from ..models.rays import RayBundle, intersect_box, make_rays
 from ..progress import Progress
 from .patches import bilinear, sample_patch
 from ..synthesis import nearest_views
@@ -122,6 +122,17 @@ class RayBatcher:
                              f"{cfg.min_ref_views + 1} views (the references and a target), and {len(few)} "
                              f"{'has' if len(few) == 1 else 'have'} fewer: {named}; lower train.min_ref_views or "
                              "leave those objects out")
+        unseen = [s for s in scenes if box_unseen(s, box_padding)]
+        if unseen:  # every ray of theirs misses the box: they would train nothing, at 'hit 0' every step
+            named = ", ".join(f"{s.category}/{s.name}" for s in unseen[:3]) + (", ..." if unseen[3:] else "")
+            lo, hi = (np.round(np.asarray(b, np.float64), 4).tolist() for b in unseen[0].bbox)
+            what = (f"no view of {len(unseen)} of the {len(scenes)} training object(s) ({named}) looks at its box "
+                    f"(the first's: {lo} to {hi}): every ray of theirs misses it")
+            if len(unseen) == len(scenes):
+                raise InputError(f"{what}, so the run would learn nothing; check the objects' bbox (meta.json) "
+                                 "against their cameras")
+            print(f"warning: {what} and trains nothing; check their bbox (meta.json) against their cameras",
+                  file=sys.stderr)
         self.scenes = scenes
         self.weights = weights
         self.nearest = bool(nearest)
@@ -194,6 +205,21 @@ class RayBatcher:
         if s.background == "scene":
             return np.zeros(s.images.shape[1:3], bool)
         return (s.images[view] < 0.99).any(-1)
+
+
+def box_unseen(s: ObjectScene, box_padding: float, grid: int = 32) -> bool:
+    """Whether no ray through a ``grid`` x ``grid`` lattice of pixels of any view of ``s`` crosses its (padded) box:
+    a bbox that is not where the cameras look (a wrong meta.json bbox) makes every training ray miss. A view that
+    sees the box ends the search (the first one, for sound data)."""
+    ns = normalized_scene(s.bbox[0], s.bbox[1], box_padding)
+    lo, hi = np.full(3, -ns.box), np.full(3, ns.box)
+    for c2w, intr in zip(s.c2w, s.intrinsics):
+        u = (np.arange(grid) + 0.5) * intr.width / grid
+        v = (np.arange(grid) + 0.5) * intr.height / grid
+        o, d = rays_opencv(intr, ns.pose(c2w), np.stack(np.meshgrid(u, v), -1).reshape(-1, 2))
+        if intersect_box(o.reshape(-1, 3), d.reshape(-1, 3), lo, hi)[2].any():
+            return False
+    return True
 
 
 def surface_distance(rays, cos: np.ndarray, z: np.ndarray) -> torch.Tensor:
@@ -392,6 +418,11 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 log.write(json.dumps(last) + "\n")
                 log.flush()
             if done % cfg.ckpt_every == 0 or done == cfg.iterations:
+                # the loss above was computed with the weights before this update, and a diverging step (a learning
+                # rate too high) leaves NaN or huge weights: checked before every save, never saved (between saves
+                # the next step's loss check stops such a run; checking after every step added a few ops per
+                # weight tensor to every step)
+                run_folder.check_weights(model, done, saved or found)
                 saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler)
                 saved_at = done
             try:
@@ -401,6 +432,7 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
                 # as a checkpoint the next run resumes from, not lost back to the last ckpt_every. One process
                 # only: the ranks of a torchrun job stop at different steps, and saving is collective.
                 if dd.world == 1 and saved_at != done:
+                    run_folder.check_weights(model, done, saved or found)
                     saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler)
                     print(f"train: stopped after step {done} of {cfg.iterations}; checkpoint {saved} "
                           "(the same command resumes from it)", file=sys.stderr, flush=True)

@@ -466,4 +466,5 @@ class Sem2NeRF(nn.Module):
                                  style_code[:1])
             for k in out:
                 out[k][idx.to(dev)] = o[k][0].to(out[k].dtype)
+        base.check_finite_view(self, colour=out["rgb"], opacity=out["acc"], semantics=out["semantic"])
         return {k: v.reshape(h, w) if k == "acc" else v.reshape(h, w, -1) for k, v in out.items()}
