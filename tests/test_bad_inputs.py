@@ -35,7 +35,7 @@ CUDA = torch.cuda.is_available()
 
 # ------------------------------------------------------------------------------------------ the world
 
-def tiny_checkpoint(run_dir: Path, step: int = 3, nan: bool = False) -> Path:
+def tiny_checkpoint(run_dir: Path, step: int = 3, nan: bool = False, diverged: bool = False) -> Path:
     from blender_mrvm.models.config import model_config
     from blender_mrvm.models.model import GeneralizableNeRF
     from blender_mrvm.training.checkpoint import save_checkpoint
@@ -46,6 +46,10 @@ def tiny_checkpoint(run_dir: Path, step: int = 3, nan: bool = False) -> Path:
     if nan:
         with torch.no_grad():
             next(model.parameters()).fill_(float("nan"))
+    if diverged:  # finite weights of 1e30, as a step with a diverging learning rate leaves: its renders are NaN
+        with torch.no_grad():
+            for p in model.parameters():
+                p.fill_(1e30)
     save_checkpoint(run_dir, step, model, cfg, None, {"train_image_size": "16"})
     return run_dir
 
@@ -149,6 +153,7 @@ def world(tmp_path_factory):
     tiny_checkpoint(tck)
     truncate(next(tck.glob("checkpoints/step_*/model.safetensors")), 0.6)
     tiny_checkpoint(bad / "ck_nan", nan=True)
+    tiny_checkpoint(bad / "ck_diverged", diverged=True)
     (bad / "ck_text.safetensors").write_text("this is not a checkpoint")
     dl = bad / "ck_damaged_latest"  # latest names a deleted step and the only checkpoint is truncated
     tiny_checkpoint(dl)
@@ -162,7 +167,9 @@ def world(tmp_path_factory):
                       ("huge", {**good, "targets": [{**row, "w": 100000, "h": 100000}]}),
                       ("fneg", {**good, "targets": [{**row, "fl_x": -5.0}]}),
                       ("dup", {**good, "targets": [row, {**row2, "name": row["name"]}]}),
-                      ("mixed", {**good, "targets": [row, {**row2, "w": 24, "cx": 12.0}]})):  # 16x16 and 24x16
+                      ("mixed", {**good, "targets": [row, {**row2, "w": 24, "cx": 12.0}]}),  # 16x16 and 24x16
+                      ("mirrored", {**good, "targets": [{**row, "c2w_opencv": [  # its z axis flipped: det -1
+                          [a, b, -c, d] for a, b, c, d in row["c2w_opencv"][:3]] + [[0.0, 0.0, 0.0, 1.0]]}]})):
         (bad / f"targets_{name}.json").write_text(json.dumps(doc))
     (bad / "eval_bad.json").write_text("{\"overall\": ")
     (bad / "eval_list.json").write_text("[1, 2, 3]")
@@ -223,7 +230,10 @@ TRAIN = [
     _t("train.iterations must be an integer", train={"iterations": None}),
     _t("train.lr must be a finite number", train={"lr": float("nan")}),
     _t("train.lr must be a finite number", train={"lr": float("inf")}),
-    _t("train.lr must be at least 0", train={"lr": -1e-3}),
+    _t("train.lr must be between 0.0 and 1.0", train={"lr": -1e-3}),
+    # above float32's range: AdamW's step crashed with a traceback after the run folder was started
+    _t("train.lr must be between 0.0 and 1.0, got 1e+39", train={"lr": 1e39}),
+    _t("train.lr must be between 0.0 and 1.0", train={"lr": 2.0}, garbage=True),
     _t("train.lr must be a number", train={"lr": "fast"}),
     _t("train.log_every must be at least 1", train={"log_every": 0}),
     _t("train.ckpt_every must be at least 1", train={"ckpt_every": 0}),
@@ -383,7 +393,15 @@ SYNTH = [
     _s("six finite numbers", ["--bbox", "0", "0", "nan", "1", "1", "1"]),
     _s("--blend must name a .blend file", ["--blend", "{new}.txt"]),
     _s("--adapt-steps must be between 0 and 100000", ["--adapt-steps", "-1"]),
-    _s("--adapt-lr must be a number between 0 and 1", ["--adapt-steps", "3", "--adapt-lr", "nan"], cls="silent-garbage"),
+    _s("--adapt-lr must be a number between 0 and 0.01", ["--adapt-steps", "3", "--adapt-lr", "nan"],
+       cls="silent-garbage"),
+    # a finite loss while the opacity collapsed: the view came out wiped
+    _s("--adapt-lr must be a number between 0 and 0.01", ["--adapt-steps", "3", "--adapt-lr", "1"],
+       cls="silent-garbage"),
+    # a mirrored camera rendered an empty view without a word (`sem2nerf render` refused it)
+    _s("c2w_opencv is not a rigid camera pose", ["--targets", "{w}/bad/targets_mirrored.json"], cls="silent-garbage"),
+    # finite weights of 1e30 (a diverged training step): NaN renders were written as black images
+    _s("is probably broken", base=[*_SYN[:6], "{w}/bad/ck_diverged", *_SYN[7:]], cls="silent-garbage"),
     _s("--adapt-lr must be above 0", ["--adapt-steps", "3", "--adapt-lr", "0"], cls="silent-garbage"),
     _s("--adapt-rays must be between 1", ["--adapt-steps", "3", "--adapt-rays", "0"]),
     _s("needs at least 2 references", ["--views", "0", "--adapt-steps", "3"]),
@@ -445,6 +463,9 @@ EVAL = [
     _e("does not load: truncated", base=["eval", "--data", "{w}/ds", "--checkpoint", "{w}/bad/ck_trunc", "--no-lpips", "--input-views", "0"]),
     _e("holds NaN or infinite weights", base=["eval", "--data", "{w}/ds", "--checkpoint", "{w}/bad/ck_nan",
                                               "--no-lpips", "--input-views", "0"], cls="silent-garbage"),
+    # NaN renders of a diverged checkpoint: black images and NaN in eval.json (not JSON)
+    _e("is probably broken", base=["eval", "--data", "{w}/ds", "--checkpoint", "{w}/bad/ck_diverged", "--no-lpips",
+                                   "--input-views", "0"], cls="silent-garbage"),
     _e("no checkpoint found", base=["eval", "--data", "{w}/ds", "--checkpoint", "{w}/emptydir", "--no-lpips", "--input-views", "0"]),
     _e("shipped:auto picks a model from the cameras of a synthesis", base=[
         "eval", "--data", "{w}/ds", "--checkpoint", "shipped:auto", "--no-lpips", "--input-views", "0"], cls="usage"),
@@ -517,15 +538,15 @@ POSES = [
     Case("tracebacks", _RP + ["--out", "{new}"], "needs at least 3 (a stereo pair needs --pair)"),
     Case("data-loss", _RP + ["--out", "{w}/a_file", "--pair"], "exists and is not a folder"),
     Case("data-loss", _RP + ["--out", "{w}/occupied", "--pair"], "already holds files (precious.txt)"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--threads", "-4"], "capture.num_threads must be at least 1"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--threads", "0"], "capture.num_threads must be at least 1"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--seed", "-1"], "capture.seed must be at least 0"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--overlap", "0"], "capture.sequential_overlap must be at least 1"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--max-features", "10"], "max_num_features must be at least 64"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--max-image-size", "10"], "max_image_size must be at least 64"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--min-registered", "2"], "min_registered_fraction"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--min-registered", "nan"], "capture.min_registered_fraction must be a finite"),
-    Case("tracebacks", _RP + ["--out", "{new}", "--upsample-below", "-1"], "upsample_below must be at least 0"),
+    # the messages name the options typed (they named the config's fields: capture.num_threads); 0 threads = all
+    Case("tracebacks", _RP + ["--out", "{new}", "--threads", "-4"], "--threads must be -1 (all) or at least 1"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--seed", "-1"], "--seed must be at least 0"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--overlap", "0"], "--overlap must be at least 1"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--max-features", "10"], "--max-features must be at least 64"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--max-image-size", "10"], "--max-image-size must be at least 64"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--min-registered", "2"], "--min-registered must lie in"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--min-registered", "nan"], "--min-registered must be a finite"),
+    Case("tracebacks", _RP + ["--out", "{new}", "--upsample-below", "-1"], "--upsample-below must be at least 0"),
 ]
 
 _RD = ["render-dataset", "--source", "procedural:chair:0", "--out", "{new}", "--views", "2", "--resolution", "16"]
@@ -564,7 +585,7 @@ RENDER = [
     Case("silent-garbage", ["recover-poses", "--images", "{w}/raw", "--out", "{new}"],
          "camera RAW file(s) (.CR2), which pycolmap cannot read"),
     Case("usage", ["recover-poses", "--images", "{w}/clip.mp4", "--out", "{new}", "--frames", "2"],
-         "video_frames must be at least 3"),
+         "--frames must be at least 3"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup/house.skp", "--out", "{new}", "--views", "2"],
          "export it as glTF"),
     Case("tracebacks", ["render-dataset", "--source", "{w}/sketchup", "--out", "{new}", "--views", "2"],
@@ -647,6 +668,15 @@ SEM2NERF = [
     Case("data-loss", _S2E + ["--out", "{w}/ds"], "is the dataset folder"),
     Case("tracebacks", ["sem2nerf", "bench", "--out", "{w}/a_file", "--size", "16", "--repeats", "1"],
          "bench output folder"),
+    # above float32's range: Adam's step crashed with a traceback after the run folder was started
+    Case("tracebacks", ["sem2nerf", "train", "--data", "{w}/ds", "--out", "{new}", "--lr", "1e39"],
+         "sem2nerf: --lr must be a number between 0 and 1, got 1e+39"),
+    Case("silent-garbage", ["sem2nerf", "train", "--data", "{w}/ds", "--out", "{new}", "--encoder-lr", "5"],
+         "sem2nerf: --encoder-lr must be a number between 0 and 1"),
+    Case("tracebacks", ["sem2nerf", "train", "--data", "{w}/ds", "--out", "{new}", "--code-lr", "nan"],
+         "sem2nerf: --code-lr must be a number between 0 and 1"),
+    Case("tracebacks", ["sem2nerf", "train", "--data", "{w}/ds", "--out", "{new}", "--lr-end-factor", "1e39"],
+         "sem2nerf: --lr-end-factor must be a number above 0 and at most 1"),
 ]
 
 # found by trying each command's --out on a file and a folder (session 29): tracebacks after the work, or a PNG

@@ -58,7 +58,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=int, default=540, help="rendered photo height, pixels")
     p.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel of the rendered photos")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, of {', '.join(METHODS)}")
-    p.add_argument("--threads", type=int, default=-1, help="CPU threads for every method (-1 = all)")
+    p.add_argument("--threads", type=int, default=-1, help="CPU threads for every method (0 or -1 = all; default all)")
     p.add_argument("--repeats", type=int, default=3, help="runs per method and size (medians are reported)")
     p.add_argument("--subset", choices=("arc", "spread"), default="arc",
                    help="arc: n consecutive ring views; spread: n evenly spaced views")
@@ -224,8 +224,10 @@ def run(args) -> int:
     from . import at_least, start_results, whole_numbers
 
     at_least(args, views=3, width=16, height=16, samples=1, repeats=1)
+    if args.threads == 0:  # 0 = all, as in synthesize, eval and recover-poses
+        args.threads = -1
     if args.threads != -1 and args.threads < 1:
-        raise InputError(f"--threads must be -1 (all) or at least 1 (got {args.threads})")
+        raise InputError(f"--threads must be 0 or -1 (all) or at least 1 (got {args.threads})")
     sizes = whole_numbers(args.sizes, "--sizes", minimum=3, maximum=args.views)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in RUNNERS]

@@ -66,8 +66,8 @@ class CaptureConfig:
         from .. import validation as V
 
         V.check_types(self)
-        if self.num_threads != -1:
-            V.at_least(self, "num_threads", 1)
+        if self.num_threads != -1 and self.num_threads < 1:
+            raise InputError(f"{self.config_label}.num_threads must be -1 (all) or at least 1, got {self.num_threads}")
         V.at_least(self, "seed", 0)
         V.at_least(self, "video_frames", 3)
         V.at_least(self, "sequential_overlap", 1)

@@ -45,22 +45,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fail when fewer than this fraction of photos register")
     p.add_argument("--pair", action="store_true", help="accept a stereo pair (2 photos)")
     p.add_argument("--no-normalize", action="store_true", help="keep COLMAP's world (no up / unit-sphere fit)")
-    p.add_argument("--threads", type=int, default=d.num_threads, help="CPU threads (-1 = all)")
-    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--threads", type=int, default=d.num_threads, help="CPU threads (0 or -1 = all; default all)")
+    p.add_argument("--seed", type=int, default=d.seed, help="seed of COLMAP's random sampling (RANSAC, the mapper)")
     p.add_argument("--force", action="store_true", help="overwrite an output folder that holds files")
     p.add_argument("--verbose", action="store_true", help="show COLMAP's log")
 
 
-def config_from_args(args: argparse.Namespace):
-    from ..capture.config import CaptureConfig
+FLAGS = {"num_threads": "--threads", "max_num_features": "--max-features", "max_image_size": "--max-image-size",
+         "upsample_below": "--upsample-below", "sequential_overlap": "--overlap",
+         "min_registered_fraction": "--min-registered", "video_frames": "--frames", "seed": "--seed"}
+"""The options of the config's fields, so a message names what the user typed (it said capture.num_threads)."""
 
-    return CaptureConfig(camera_model=args.camera_model, single_camera=args.single_camera,
-                         estimate_focal=not args.no_focal_from_views, matcher=args.matcher, max_num_features=args.max_features,
-                         max_image_size=args.max_image_size, upsample_below=args.upsample_below,
-                         sequential_overlap=args.overlap,
-                         min_registered_fraction=args.min_registered, allow_pair=args.pair,
-                         normalize=not args.no_normalize, num_threads=args.threads, seed=args.seed,
-                         video_frames=args.frames, force=args.force).validate()
+
+def config_from_args(args: argparse.Namespace):
+    import re
+
+    from ..capture.config import CaptureConfig
+    from ..errors import InputError
+
+    try:
+        return CaptureConfig(camera_model=args.camera_model, single_camera=args.single_camera,
+                             estimate_focal=not args.no_focal_from_views, matcher=args.matcher,
+                             max_num_features=args.max_features, max_image_size=args.max_image_size,
+                             upsample_below=args.upsample_below, sequential_overlap=args.overlap,
+                             min_registered_fraction=args.min_registered, allow_pair=args.pair,
+                             normalize=not args.no_normalize, num_threads=-1 if args.threads == 0 else args.threads,
+                             seed=args.seed, video_frames=args.frames, force=args.force).validate()
+    except InputError as e:
+        text = re.sub(r"\b(?:capture\.)?(" + "|".join(FLAGS) + r")\b", lambda m: FLAGS[m.group(1)], str(e))
+        raise InputError(text) from None
 
 
 def cli_args(images, out, cfg) -> list[str]:
