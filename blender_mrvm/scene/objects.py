@@ -400,7 +400,7 @@ def _process_work_dir() -> Path:
 # --------------------------------------------------------------------------------------------
 
 _DATA_COLLECTIONS = ("objects", "meshes", "materials", "images", "textures", "node_groups", "cameras",
-                     "lights", "worlds", "collections", "curves", "armatures", "actions")
+                     "lights", "worlds", "collections", "curves", "armatures", "actions", "particles")
 
 
 def snapshot_data(names: tuple[str, ...] = _DATA_COLLECTIONS) -> dict[str, set[int]]:
@@ -829,13 +829,409 @@ def _realized_instances(objs: list, shown: set[int], scene) -> list:
     return made
 
 
+MAX_INSTANCES = 200_000
+"""Geometry-nodes, particle and vertex/face instances one object may have: they are made real meshes for the data
+passes (:func:`_realized_geometry_instances`); an object with more is refused (a scatter of millions of instances
+renders cheaply in Cycles, but as one mesh it would not fit in memory)."""
+MAX_INSTANCED_FACES = 20_000_000
+"""Faces the instances of one object may add up to once they are made real meshes (as :data:`MAX_INSTANCES`)."""
+_MESHLIKE = ("MESH", *_CURVE_TYPES)
+"""Types of instanced objects whose surfaces are made meshes (hair curves, point clouds and volumes are not:
+they render in the colour only)."""
+
+
+def _node_instancer(o) -> bool:
+    """Whether ``o``'s geometry nodes modifiers may make instances (one of them renders)."""
+    return any(m.type == "NODES" and m.show_render and m.node_group is not None for m in o.modifiers)
+
+
+def _dupli_systems(o) -> list:
+    """The particle system modifiers of ``o`` that render instances of an object or collection."""
+    out = []
+    for m in o.modifiers:
+        if m.type == "PARTICLE_SYSTEM" and m.show_render:
+            st = m.particle_system.settings
+            if st is not None and st.render_type in ("OBJECT", "COLLECTION"):
+                out.append(m)
+    return out
+
+
+def _dupli_instancer(o) -> bool:
+    """Whether ``o`` instances objects by particles or by its vertices or faces (not geometry nodes)."""
+    return o.type == "MESH" and (o.instance_type in ("VERTS", "FACES") or bool(_dupli_systems(o)))
+
+
+def _scene_depsgraph(scene):
+    """``scene``'s evaluated dependency graph (its first view layer's; the context's own where that is it)."""
+    vl = bpy.context.view_layer
+    if vl is not None and bpy.context.scene == scene:
+        return bpy.context.evaluated_depsgraph_get()
+    with bpy.context.temp_override(scene=scene, view_layer=scene.view_layers[0]):
+        return bpy.context.evaluated_depsgraph_get()
+
+
+def _instance_key(ob) -> tuple[int, int]:
+    """What tells instanced geometry apart: its object (as the file has it) and its evaluated data."""
+    return ob.original.as_pointer(), ob.data.as_pointer() if ob.data is not None else 0
+
+
+def _instance_records(depsgraph, instancers: dict[int, object], keep) -> dict[int, list]:
+    """Per instancer (by pointer; ``instancers`` maps the pointer of the object as ``depsgraph`` has it to what the
+    error messages name): its instances ``keep(instancer, instance)`` takes, as (:func:`_instance_key`, world
+    matrix), with the instance count and face count checked against :data:`MAX_INSTANCES` and
+    :data:`MAX_INSTANCED_FACES`. (An instance's object lives only while ``object_instances`` is iterated.)"""
+    out: dict[int, list] = {p: [] for p in instancers}
+    faces: dict[int, int] = {p: 0 for p in instancers}
+    per_data: dict[tuple[int, int], int] = {}
+    for inst in depsgraph.object_instances:
+        if not inst.is_instance or inst.parent is None:
+            continue
+        p = inst.parent.original.as_pointer()
+        if p not in out:
+            continue
+        ob = inst.object
+        if ob.type not in _MESHLIKE or not keep(instancers[p], inst):
+            continue
+        key = _instance_key(ob)
+        out[p].append((key, inst.matrix_world.copy()))
+        if key not in per_data:
+            per_data[key] = len(ob.data.polygons) if ob.type == "MESH" and ob.data is not None else 0
+        faces[p] += per_data[key]
+    for p, found in out.items():
+        name = instancers[p].name
+        if len(found) > MAX_INSTANCES:
+            raise InputError(f"object {name!r} has {len(found)} instances (geometry nodes, particles or vertex/face "
+                             f"instancing), more than the {MAX_INSTANCES} that are made meshes for the masks and "
+                             "depth; render fewer (a lower density or count), or realize and decimate them")
+        if faces[p] > MAX_INSTANCED_FACES:
+            raise InputError(f"object {name!r} has {len(found)} instances of {faces[p]} faces in all, more than the "
+                             f"{MAX_INSTANCED_FACES} that are made meshes for the masks and depth; render fewer or "
+                             "simpler instances")
+    return out
+
+
+def _instanced_meshes(depsgraph, keys: set) -> dict:
+    """For each :func:`_instance_key` of ``keys``: (a new mesh of that instanced geometry, with its layers, the
+    materials its object renders it with), or None where it has no faces. The caller removes the meshes."""
+    out: dict = {}
+    for inst in depsgraph.object_instances:
+        if not inst.is_instance or len(out) == len(keys):
+            continue
+        ob = inst.object
+        if ob.type not in _MESHLIKE:
+            continue
+        key = _instance_key(ob)
+        if key not in keys or key in out:
+            continue
+        try:
+            me = bpy.data.meshes.new_from_object(ob, preserve_all_data_layers=True, depsgraph=depsgraph)
+        except RuntimeError:  # nothing to make a mesh of (an empty curve)
+            out[key] = None
+            continue
+        if len(me.polygons) == 0:
+            bpy.data.meshes.remove(me)
+            out[key] = None
+            continue
+        slots = [s.material for s in ob.material_slots]  # evaluated copies: their originals are kept
+        mats = slots if slots and len(slots) >= len(me.materials) else list(me.materials)
+        out[key] = (me, [m.original if m is not None else None for m in mats])
+    return out
+
+
+def _realize_node_group():
+    """A geometry nodes group that realizes every instance of its input (made for the render; removed with it)."""
+    ng = bpy.data.node_groups.new("MRVM_realize_instances", "GeometryNodeTree")
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gin, gout = ng.nodes.new("NodeGroupInput"), ng.nodes.new("NodeGroupOutput")
+    realize = ng.nodes.new("GeometryNodeRealizeInstances")
+    ng.links.new(gin.outputs[0], realize.inputs[0])
+    ng.links.new(realize.outputs[0], gout.inputs[0])
+    return ng
+
+
+def _realize_node_instances(objs: list, scene) -> bool:
+    """Make the geometry nodes instances of ``objs`` (our own objects, evaluated in ``scene``: Instance on Points, a
+    scatter) real geometry: a modifier realizing them is added at the end of each such object's stack, so its
+    evaluated mesh, which the data passes and the bounds read, is what Cycles renders (the instances' materials, UV
+    maps and attributes come along). Returns whether any object changed."""
+    cands = {o.as_pointer(): o for o in objs if o.type in _MESHLIKE and not o.hide_render and _node_instancer(o)}
+    if not cands:
+        return False
+    depsgraph = _scene_depsgraph(scene)
+    found = _instance_records(depsgraph, cands, lambda o, inst: inst.particle_system is None)
+    group = None
+    for p, insts in found.items():
+        if not insts:
+            continue
+        o = cands[p]
+        if group is None:
+            group = _realize_node_group()
+        mod = o.modifiers.new("MRVM_realize_instances", "NODES")
+        mod.node_group = group
+    if group is not None:
+        _scene_depsgraph(scene)  # evaluated again: what reads the objects next (a curve made a mesh) sees it
+    return group is not None
+
+
+_ATTRIBUTE_FIELDS = {"FLOAT": ("value", 1, np.float32), "INT": ("value", 1, np.int32), "BOOLEAN": ("value", 1, bool),
+                     "FLOAT_VECTOR": ("vector", 3, np.float32), "FLOAT_COLOR": ("color", 4, np.float32),
+                     "BYTE_COLOR": ("color", 4, np.float32), "FLOAT2": ("vector", 2, np.float32),
+                     "INT8": ("value", 1, np.int32), "INT16_2D": ("value", 2, np.int32),
+                     "INT32_2D": ("value", 2, np.int32), "QUATERNION": ("value", 4, np.float32),
+                     "FLOAT4X4": ("value", 16, np.float32)}
+"""How :func:`_mesh_arrays` reads each kind of mesh attribute: (field, components, dtype)."""
+
+
+def _mesh_arrays(me) -> dict:
+    """A mesh's geometry and attributes as arrays (:func:`_joined_mesh` puts copies of it together)."""
+    def get(seq, name, n, dtype, width=1):
+        arr = np.empty(n * width, dtype=dtype)
+        if n:
+            seq.foreach_get(name, arr)
+        return arr.reshape(n, width) if width > 1 else arr
+
+    nv, ne, nl, nf = len(me.vertices), len(me.edges), len(me.loops), len(me.polygons)
+    sizes = {"POINT": nv, "EDGE": ne, "FACE": nf, "CORNER": nl}
+    attrs = {}
+    for a in me.attributes:
+        if a.name.startswith(".") or a.name in ("position", "material_index") or a.domain not in sizes \
+                or a.data_type not in _ATTRIBUTE_FIELDS:
+            continue
+        fld, width, dtype = _ATTRIBUTE_FIELDS[a.data_type]
+        attrs[a.name] = (a.domain, a.data_type, get(a.data, fld, sizes[a.domain], dtype, width))
+    uv_render = [u.name for u in me.uv_layers if u.active_render]
+    colours = me.color_attributes
+    return {"co": get(me.vertices, "co", nv, np.float64, 3), "edges": get(me.edges, "vertices", ne, np.int64, 2),
+            "corner_vert": get(me.loops, "vertex_index", nl, np.int64),
+            "corner_edge": get(me.loops, "edge_index", nl, np.int64),
+            "loop_start": get(me.polygons, "loop_start", nf, np.int64),
+            "loop_total": get(me.polygons, "loop_total", nf, np.int64),
+            "material_index": get(me.polygons, "material_index", nf, np.int64), "attrs": attrs,
+            "uv_active": me.uv_layers.active.name if me.uv_layers.active is not None else None,
+            "uv_render": uv_render[0] if uv_render else None,
+            "colour_active": colours.active_color_name if len(colours) else None,
+            "colour_render": colours.default_color_name if len(colours) else None}
+
+
+def _joined_mesh(name: str, groups: list[tuple[dict, list, np.ndarray]]):
+    """One mesh of many placed copies of meshes: ``groups`` holds per mesh its arrays (:func:`_mesh_arrays`), its
+    materials (the instanced object's slots) and the world matrices of its copies (K, 4, 4). Materials are joined
+    into one slot list (a mesh without any gets a slot of its own with none), attributes of one name are joined
+    (zero where a mesh has none), and a mirrored copy's faces are turned round so their normals face out as
+    Cycles shades the instance."""
+    mats: list = []
+    slot_of: dict[int, int] = {}
+
+    def slot(m) -> int:
+        key = m.as_pointer() if m is not None else 0
+        if key not in slot_of:
+            slot_of[key] = len(mats)
+            mats.append(m)
+        return slot_of[key]
+
+    kinds: dict[str, tuple[str, str]] = {}
+    for arrays, _, _ in groups:
+        for aname, (domain, dtype, _) in arrays["attrs"].items():
+            kinds.setdefault(aname, (domain, dtype))
+    co, edges, cvert, cedge, lstart, mindex = [], [], [], [], [], []
+    attrs: dict[str, list] = {aname: [] for aname in kinds}
+    nv = ne = nl = 0
+    for arrays, materials, mw in groups:
+        k = len(mw)
+        v, e, lo = len(arrays["co"]), len(arrays["edges"]), len(arrays["corner_vert"])
+        f = len(arrays["loop_start"])
+        lin, move = mw[:, :3, :3], mw[:, :3, 3]
+        co.append((np.einsum("kij,vj->kvi", lin, arrays["co"]) + move[:, None, :]).reshape(-1, 3))
+        mirrored = np.linalg.det(lin) < 0
+        # a face's corners in reverse order (for mirrored copies): corner j takes corner n-1-j's vertex and the edge
+        # of corner n-2-j (the edge from corner j's vertex on to the next one)
+        start = np.repeat(arrays["loop_start"], arrays["loop_total"])
+        n = np.repeat(arrays["loop_total"], arrays["loop_total"])
+        j = np.arange(lo) - start
+        rev_v, rev_e = start + (n - 1 - j), start + (n - 2 - j) % np.maximum(n, 1)
+        ident = np.arange(lo)
+        pick_v = np.where(mirrored[:, None], rev_v[None, :], ident[None, :])  # (K, L)
+        pick_e = np.where(mirrored[:, None], rev_e[None, :], ident[None, :])
+        vofs = nv + v * np.arange(k)[:, None]
+        eofs = ne + e * np.arange(k)[:, None]
+        edges.append((arrays["edges"][None, :, :] + vofs[:, :, None]).reshape(-1, 2))
+        cvert.append((arrays["corner_vert"][pick_v] + vofs).ravel())
+        cedge.append((arrays["corner_edge"][pick_e] + eofs).ravel())
+        lstart.append((arrays["loop_start"][None, :] + nl + lo * np.arange(k)[:, None]).ravel())
+        local = [slot(m) for m in materials] or [slot(None)]
+        mi = np.asarray(local, dtype=np.int64)[np.clip(arrays["material_index"], 0, len(local) - 1)]
+        mindex.append(np.tile(mi, k))
+        sizes = {"POINT": v, "EDGE": e, "FACE": f, "CORNER": lo}
+        for aname, (domain, dtype) in kinds.items():
+            fld, width, np_type = _ATTRIBUTE_FIELDS[dtype]
+            have = arrays["attrs"].get(aname)
+            if have is None or have[:2] != (domain, dtype):
+                attrs[aname].append(np.zeros((k * sizes[domain], width), dtype=np_type))
+                continue
+            vals = have[2].reshape(sizes[domain], width)
+            if domain == "CORNER":
+                out = vals[pick_v]  # (K, L, width)
+            else:
+                out = np.broadcast_to(vals, (k, *vals.shape))
+            if aname == "custom_normal" and dtype == "FLOAT_VECTOR":  # free normals turn with the copy
+                nrm = np.linalg.inv(lin).transpose(0, 2, 1)
+                out = np.einsum("kij,knj->kni", nrm, out)
+                out /= np.maximum(np.linalg.norm(out, axis=2, keepdims=True), 1e-12)
+            attrs[aname].append(np.asarray(out, dtype=np_type).reshape(-1, width))
+        nv, ne, nl = nv + k * v, ne + k * e, nl + k * lo
+
+    me = bpy.data.meshes.new(name)
+    cat = (lambda parts, dtype: np.concatenate(parts).astype(dtype, copy=False).ravel())
+    me.vertices.add(nv)
+    me.vertices.foreach_set("co", cat(co, np.float32))
+    me.edges.add(ne)
+    me.edges.foreach_set("vertices", cat(edges, np.int32))
+    me.loops.add(nl)
+    me.loops.foreach_set("vertex_index", cat(cvert, np.int32))
+    me.loops.foreach_set("edge_index", cat(cedge, np.int32))
+    starts = cat(lstart, np.int32)
+    me.polygons.add(len(starts))
+    me.polygons.foreach_set("loop_start", starts)
+    me.polygons.foreach_set("material_index", cat(mindex, np.int32))
+    for aname, (domain, dtype) in kinds.items():
+        fld, _, np_type = _ATTRIBUTE_FIELDS[dtype]
+        a = me.attributes.get(aname) or me.attributes.new(aname, dtype, domain)
+        a.data.foreach_set(fld, cat(attrs[aname], np_type))
+    for m in mats:
+        me.materials.append(m)
+    first = groups[0][0]
+    for key, flag in (("uv_active", "active"), ("uv_render", "active_render")):
+        if first[key] is not None and first[key] in me.uv_layers:
+            setattr(me.uv_layers[first[key]], flag, True)
+    cols = me.color_attributes
+    if first["colour_active"] and first["colour_active"] in cols:
+        cols.active_color_name = first["colour_active"]
+    if first["colour_render"] and first["colour_render"] in cols:
+        cols.default_color_name = first["colour_render"]
+    me.update()
+    return me
+
+
+def _baked_instances(name: str, insts: list, depsgraph):
+    """A mesh object holding every instance of ``insts`` ((:func:`_instance_key`, world matrix) pairs: an
+    instancer's particles or vertex/face instances) at its place, in world space; ``None`` when they hold no
+    faces. Each instanced geometry's mesh is made once, with its materials (:func:`_instanced_meshes`)."""
+    by_source: dict[tuple[int, int], list] = {}
+    for key, mw in insts:
+        by_source.setdefault(key, []).append(mw)
+    meshes = _instanced_meshes(depsgraph, set(by_source))
+    try:
+        groups = [(_mesh_arrays(meshes[key][0]), meshes[key][1], np.array([np.array(m) for m in mws]))
+                  for key, mws in by_source.items() if meshes.get(key) is not None]
+    finally:
+        for made in meshes.values():
+            if made is not None:
+                bpy.data.meshes.remove(made[0])
+    if not groups:
+        return None
+    return bpy.data.objects.new(name + "_instances", _joined_mesh(name + "_instances", groups))
+
+
+def _bake_dupli_instances(pairs: list[tuple[object, object]], scene) -> list:
+    """Real meshes for the particle and vertex/face instances of objects: ``pairs`` holds (the instancer as it is
+    in ``scene``, our object that renders in its place: itself for a .blend's, a copy for a selected one). Each
+    instancer's instances (read from ``scene``'s evaluation: their meshes, materials and world places) are joined
+    into one new mesh object (:func:`_baked_instances`), and our object stops instancing: its instancing particle
+    systems stop rendering, vertex/face instancing is turned off, and the object itself is hidden from renders
+    where its instancer is not shown in renders (``show_instancer_for_render``). Returns the new objects, the
+    children the instancing placed (now hidden from renders: they render only as instances) left to the caller."""
+    pairs = [(src, ours) for src, ours in pairs if _dupli_instancer(src) and not ours.hide_render]
+    if not pairs:
+        return []
+    depsgraph = _scene_depsgraph(scene)
+    children = {src.as_pointer(): {c.as_pointer() for c in src.children} for src, _ in pairs}
+
+    def keep(src, inst) -> bool:
+        if inst.particle_system is not None:
+            return inst.particle_system.settings.render_type in ("OBJECT", "COLLECTION")
+        return src.instance_type in ("VERTS", "FACES") and \
+            inst.object.original.as_pointer() in children[src.as_pointer()]
+
+    found = _instance_records(depsgraph, {src.as_pointer(): src for src, _ in pairs}, keep)
+    made = []
+    for src, ours in pairs:
+        insts = found[src.as_pointer()]
+        baked = _baked_instances(src.name, insts, depsgraph) if insts else None
+        if baked is not None:
+            made.append(baked)
+        for m in _dupli_systems(ours):
+            m.show_render = m.show_viewport = False
+        if ours.instance_type in ("VERTS", "FACES"):
+            ours.instance_type = "NONE"
+        if not src.show_instancer_for_render:
+            ours.hide_render = True
+    return made
+
+
+@contextlib.contextmanager
+def _particles_as_rendered(objs: list):
+    """Inside the block, the particle systems of ``objs`` that instance objects show as many particles and children
+    as a render does (the evaluation read here is a viewport one, which shows the settings' display percentage and
+    viewport child count); the settings are set back after (they may be the user's own)."""
+    saved = []
+    seen: set[int] = set()
+    for o in objs:
+        for m in _dupli_systems(o):
+            st = m.particle_system.settings
+            if st.as_pointer() in seen:
+                continue
+            seen.add(st.as_pointer())
+            was = (st.display_percentage, st.child_percent)
+            if was != (100, st.rendered_child_count):
+                saved.append((st, was))
+                st.display_percentage, st.child_percent = 100, st.rendered_child_count
+    try:
+        yield
+    finally:
+        for st, (shown, children) in saved:
+            st.display_percentage, st.child_percent = shown, children
+
+
+def _realized_geometry_instances(objs: list, shown: set[int], scene) -> list:
+    """Real meshes for what the geometry nodes, particle and vertex/face instancing of the shown objects of ``objs``
+    (a .blend's, in its appended ``scene``) render: geometry nodes instances are realized on the object itself
+    (:func:`_realize_node_instances`), particle and vertex/face instances are joined into a new object per
+    instancer (:func:`_bake_dupli_instances`), which is returned and added to ``shown``; the children that vertex or
+    face instancing placed are hidden from renders (Blender renders them only as instances). Objects outside
+    ``scene`` (collection instances made objects) are linked to it for the evaluation."""
+    mine = [o for o in objs if o.as_pointer() in shown]
+    if not any(_node_instancer(o) or _dupli_instancer(o) for o in mine):
+        return []
+    inside = {o.as_pointer() for o in scene.objects}
+    extra = [o for o in objs if o.as_pointer() not in inside]
+    for o in extra:
+        scene.collection.objects.link(o)
+    try:
+        for o in mine:
+            if o.type == "MESH":
+                render_evaluation(o)
+        _realize_node_instances(mine, scene)
+        placed = [c for o in mine if o.type == "MESH" and o.instance_type in ("VERTS", "FACES") for c in o.children]
+        with _particles_as_rendered(mine):
+            made = _bake_dupli_instances([(o, o) for o in mine], scene)
+    finally:
+        for o in extra:
+            scene.collection.objects.unlink(o)
+    for c in placed:
+        c.hide_render = True
+    shown.update(o.as_pointer() for o in made)
+    return made
+
+
 def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types.Object]:
     """Of the objects a .blend's scene brought, those its render shows (not excluded from its view layer, no
     collection or object hidden from renders), with armatures and parents they need; curves, surfaces, text and
     metaballs made meshes (the data passes rasterize meshes); the scene itself removed. Objects left out stay in
     the file's data unlinked. Objects that shown ones use (a boolean's hidden cutter, an armature) come along
     hidden from renders, so they move with the normalization and the data passes leave them out. Collection
-    instances are made objects of their own (:func:`_realized_instances`)."""
+    instances are made objects of their own (:func:`_realized_instances`); geometry nodes, particle and vertex/face
+    instances are made real meshes (:func:`_realized_geometry_instances`)."""
     shown: set[int] = set()
     for sc in scenes:
         def walk(lc):
@@ -849,6 +1245,7 @@ def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types
     keep = [o for o in new if o.as_pointer() in shown]
     if scenes:  # (one: _append_blend_scene's)
         keep += _realized_instances(keep, shown, scenes[0])
+        keep += _realized_geometry_instances(keep, shown, scenes[0])
     ptrs = {o.as_pointer() for o in keep}
     appended = {o.as_pointer() for o in new}
     todo = list(keep)
@@ -861,8 +1258,17 @@ def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types
                 ptrs.add(dep.as_pointer())
                 todo.append(dep)
     out = []
+    nodes_depsgraph = None
     for o in keep:
-        if o.type in _CURVE_TYPES and o.as_pointer() in shown:
+        if o.type in _CURVE_TYPES and o.as_pointer() in shown and _node_instancer(o) and scenes \
+                and o.name in scenes[0].objects:
+            # geometry nodes make its surface (instances realized: _realized_geometry_instances): as evaluated
+            nodes_depsgraph = nodes_depsgraph or _scene_depsgraph(scenes[0])
+            me = bpy.data.meshes.new_from_object(o.evaluated_get(nodes_depsgraph))
+            mo = bpy.data.objects.new(o.name + "_mesh", me)
+            mo.matrix_world = o.matrix_world.copy()
+            out.append(mo)
+        elif o.type in _CURVE_TYPES and o.as_pointer() in shown:
             me = bpy.data.meshes.new_from_object(o)  # its geometry (bevel, extrusion); curve modifiers are rare
             mo = bpy.data.objects.new(o.name + "_mesh", me)
             mo.matrix_world = o.matrix_world.copy()
@@ -1358,7 +1764,7 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
             render_evaluation(ob)
             collection.objects.link(ob)
             out.append(ob)
-        return out
+        return out + _realized_selected_instances([bpy.data.objects[name] for name in spec.names], out, collection)
     if spec.kind == "procedural":
         try:
             from . import procedural
@@ -1369,6 +1775,32 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
         return [ob]
     raise InputError(f"unknown source kind {spec.kind!r}")
 
+
+
+def _realized_selected_instances(srcs: list, copies: list, collection) -> list:
+    """Real meshes for what the geometry nodes, particle and vertex/face instancing of selected objects render
+    (``copies``, in ``collection``, are what is rendered of ``srcs``): geometry nodes instances are realized on the
+    copies, evaluated in the render's scene (:func:`_realize_node_instances`); particle and vertex/face instances are
+    read from the scene the user's object is in, as it shows them, and joined into a new object each, linked to
+    ``collection`` (:func:`_bake_dupli_instances`; the particle settings are set to show as many particles as a
+    render does for that moment, then set back). Returns the new objects; nothing of the user's changes."""
+    here = copies[0].users_scene if copies else ()
+    if here:
+        _realize_node_instances(copies, here[0])
+    pairs = [(src, ob) for src, ob in zip(srcs, copies) if _dupli_instancer(src)]
+    if not pairs:
+        return []
+    made = []
+    for src, ob in pairs:
+        scenes = src.users_scene
+        user_scene = bpy.context.scene if bpy.context.scene in scenes else (scenes[0] if scenes else None)
+        if user_scene is None:
+            continue
+        with _particles_as_rendered([src]):
+            made += _bake_dupli_instances([(src, ob)], user_scene)
+    for o in made:
+        collection.objects.link(o)
+    return made
 
 def render_evaluation(ob: bpy.types.Object) -> None:
     """Make a private copy evaluate as a render does: modifiers shown in renders only, subdivision
