@@ -666,6 +666,16 @@ SEM2NERF = [
     Case("data-loss", _S2E + ["--out", "{w}/occupied"], "already holds files (precious.txt)"),
     Case("data-loss", _S2E + ["--out", "{w}/a_file"], "exists and is not a folder"),
     Case("data-loss", _S2E + ["--out", "{w}/ds"], "is the dataset folder"),
+    # taken before: view 99 of a 3-view object scored view 0 and eval.json recorded 99; negative counts recorded
+    Case("silent-garbage", _S2E + ["--out", "{new}", "--input-view", "99"], "--input-view 99:"),
+    Case("silent-garbage", _S2E + ["--out", "{new}", "--holdout", "-1"], "--holdout must be at least 0"),
+    Case("silent-garbage", _S2E + ["--out", "{new}", "--blend-objects", "-1"], "--blend-objects must be at least 0"),
+    Case("usage", _S2E + ["--out", "{new}", "--max-objects", "-2"], "--max-objects must be at least 0"),
+    Case("silent-garbage", ["sem2nerf", "render", "--checkpoint", "shipped:sem2nerf", "--mask", "{w}/m.png", "--pose",
+                            "{w}/p.txt", "--out", "{new}", "--threads", "-4"], "--threads must be at least 0"),
+    # a raw torch traceback from training's first step
+    Case("tracebacks", ["sem2nerf", "train", "--data", "{w}/ds", "--out", "{new}", "--device", "tpu"],
+         "--device: unknown device 'tpu'"),
     Case("tracebacks", ["sem2nerf", "bench", "--out", "{w}/a_file", "--size", "16", "--repeats", "1"],
          "bench output folder"),
     # above float32's range: Adam's step crashed with a traceback after the run folder was started

@@ -53,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     t.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (default 500)")
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     t.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
-    t.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    t.add_argument("--device", default="cpu", help="auto (CUDA when available), cpu or cuda[:N] (default cpu)")
     t.add_argument("--no-resume", action="store_true", help="start from scratch; a run folder that holds a run "
                    "needs --force too (its checkpoints and metrics are then removed)")
     t.add_argument("--force", action="store_true", help="with --no-resume: start over in a run folder that holds a run")
@@ -75,13 +75,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--blend-steps", type=int, default=5, help="images along the blend, ends included (default 5)")
     r.add_argument("--mix-seed", type=int, default=None, metavar="SEED",
                    help="render every view with the style blended toward the style of SEED ...")
-    r.add_argument("--mix", type=float, default=0.5, help="... by this factor in [0, 1] (default 0.5)")
+    r.add_argument("--mix", type=float, default=0.5, help="with --mix-seed: the blend factor in [0, 1] (default 0.5)")
     r.add_argument("--targets", default="",
                    help="targets.json (the add-on's format) of the cameras to render instead of the orbit")
     r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
     r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
-    r.add_argument("--device", default="cpu", help="auto, cpu or cuda (default cpu)")
-    r.add_argument("--quality", default="full", help="full (as trained) or preview: half the samples per ray, about "
+    r.add_argument("--device", default="cpu", help="auto (CUDA when available), cpu or cuda[:N] (default cpu)")
+    r.add_argument("--quality", default="full", choices=("full", "preview"), help="full (as trained) or preview: half the samples per ray, about "
                    "1.9x faster for -0.13 dB at equal LPIPS (bench tradeoff, docs/guide/speed.md)")
 
     e = sub.add_parser("eval", help="PSNR/SSIM/LPIPS and mIoU on held-out objects vs the category-mean baseline")
@@ -102,7 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     e.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
 
-    b = sub.add_parser("bench", help="time the input builders at 512 px -> CSV")
+    b = sub.add_parser("bench", help="time the input builders (512 px by default) -> CSV")
     b.add_argument("--out", default="bench_out", help="output folder (default bench_out)")
     b.add_argument("--size", type=int, default=512, help="mask size in pixels (default 512)")
     b.add_argument("--repeats", type=int, default=50, help="timed repeats per builder (default 50)")
@@ -140,7 +140,20 @@ def parse_model_overrides(items: list[str]) -> dict:
 def run(args) -> int:
     from ..progress import run_with_tqdm
 
+    from .. import validation as V
+
     cmd = args.sem2nerf_command
+    for flag in ("holdout", "max_objects", "threads", "input_view", "blend_objects"):  # negative ones were taken
+        if getattr(args, flag, None) is not None:
+            V.check_count(f"--{flag.replace('_', '-')}", getattr(args, flag), 0)
+    if getattr(args, "views_every", None) is not None:
+        V.check_count("--views-every", args.views_every, 1)
+    if cmd in ("train", "render"):
+        V.check_device_name("--device", args.device)
+        if args.device.strip().lower() != "cpu":  # auto and cuda resolved now: a traceback in training before
+            from ..synthesis.views import resolve_device
+
+            args.device = str(resolve_device(args.device))
     if cmd == "train":
         from ..guards import check_folder_writable
         from ..training import sem2nerf as T

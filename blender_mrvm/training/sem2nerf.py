@@ -692,6 +692,10 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     else:
         evals = load_masked_dataset(Path(data), split, max_objects)
         base_objs = load_masked_dataset(Path(data), "train", 0)
+    short = [ob.name for ob in evals if input_view >= len(ob.images)]
+    if short:  # it read view input_view % n, while eval.json recorded input_view
+        raise InputError(f"--input-view {input_view}: {short[0]} has only {len(next(o for o in evals if o.name == short[0]).images)} "
+                         f"views{f' ({len(short) - 1} more objects too)' if len(short) > 1 else ''}")
     means = category_mean_images(base_objs)
     photos = category_mean_photos(base_objs)
     lp = M.LPIPS()
@@ -704,7 +708,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
     for k, ob in enumerate(evals):
         if ob.images.shape[1:3] != (cfg.image_size, cfg.image_size):
             raise InputError(f"{ob.name}: images are not {cfg.image_size} px like the checkpoint's training images")
-        v_in = input_view % len(ob.images)
+        v_in = input_view
         with torch.no_grad():
             code = model.encode(torch.from_numpy(build_inputs(ob.masks[v_in], cfg.labels))[None], ob.c2w[v_in][None],
                                 ob.intrinsics[v_in])
