@@ -81,16 +81,24 @@ def test_missing_corrupt_unsupported_files(capsys, tmp_path, bpy_empty):
 
 
 def test_empty_selection(capsys, tmp_path, bpy_empty):
-    code, err = run_cli(capsys, *base(tmp_path / "o", "selected"))
-    assert code == 2 and "no mesh objects are selected" in one_line_error(err)
+    import bpy
+
+    blend = tmp_path / "empty.blend"  # from a shell, selected objects are those of the --blend file
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    code, err = run_cli(capsys, *base(tmp_path / "o", "selected"), "--blend", str(blend))
+    assert code == 2 and "no mesh, curve, surface, text or metaball objects are selected" in one_line_error(err)
+    bpy.ops.wm.read_homefile(use_empty=True)
 
 
 def test_scene_rig_without_cameras(capsys, tmp_path, bpy_empty):
     import bpy
 
     bpy.ops.mesh.primitive_cube_add()
-    code, err = run_cli(capsys, *base(tmp_path / "o", "selected"), "--rig", "scene")
+    blend = tmp_path / "cube.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    code, err = run_cli(capsys, *base(tmp_path / "o", "selected"), "--rig", "scene", "--blend", str(blend))
     assert code == 2 and "needs cameras in the scene" in one_line_error(err)
+    bpy.ops.wm.read_homefile(use_empty=True)
 
 
 def test_output_not_writable(capsys, tmp_path, mesh, bpy_empty):

@@ -109,6 +109,14 @@ def run(args) -> int:
     cfg.validate()  # before importing Blender: bad arguments fail fast
     import bpy
 
+    if not args.blend and not bpy.data.filepath:  # Blender's factory scene (its cube, its camera), not the user's
+        wants = [w for w, asked in (("--source selected renders the objects selected", "selected" in cfg.sources),
+                                    ("--rig scene looks through the cameras", cfg.rig == "scene")) if asked]
+        if wants:
+            raise InputError(f"{' and '.join(wants)} in an open .blend file: name it with --blend FILE (without it, "
+                             "that is Blender's factory startup scene; a .blend given as --source is rendered, but "
+                             "its cameras are not read)")
+
     from ..progress import run_with_tqdm
     from ..scene.render import render_dataset
 

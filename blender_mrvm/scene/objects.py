@@ -217,9 +217,17 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
     specs: list[ObjectSpec] = []
     for src in sources:
         if src == "selected":
-            objs = [o for o in bpy.context.selected_objects if o.type == "MESH"] if bpy.context.view_layer else []
+            chosen = list(bpy.context.selected_objects) if bpy.context.view_layer else []
+            objs = [o for o in chosen if o.type in _MESHLIKE and (o.type != "META" or _metaball_basis(o))]
+            parts = sorted(o.name for o in chosen if o.type == "META" and not _metaball_basis(o))
+            if parts and passed_over is not None:
+                passed_over.append(f"selected metaball(s) {', '.join(parts[:3])}{', ...' if len(parts) > 3 else ''} "
+                                   "not rendered on their own: a metaball adds to the surface of its family's first "
+                                   "one (its name without the number), which is rendered when it is selected")
             if not objs:
-                raise InputError("no mesh objects are selected")
+                raise InputError("no mesh, curve, surface, text or metaball objects are selected"
+                                 + (" (of a metaball family, select the one whose name ends in no number)"
+                                    if parts else ""))
             for o in sorted(objs, key=lambda o: o.name):
                 cat = category or str(o.get("mrvm_category", "custom"))
                 specs.append(ObjectSpec("selected", safe_id(cat), safe_id(o.name), names=(o.name,)))
@@ -503,9 +511,10 @@ def filtered_stderr(drop: re.Pattern = _IMPORTER_NOISE):
             sys.stderr.flush()
 
 
-def _import_file(path: Path) -> list[bpy.types.Object]:
+def _import_file(path: Path, frame: list | None = None) -> list[bpy.types.Object]:
     """Import a mesh file with Blender's importers (trimesh for OFF; a .blend's scene appended and reduced to what
-    its render shows); return the new objects, without the file's lights and cameras."""
+    its render shows, its frame put in ``frame``: :func:`_blend_rendered`); return the new objects, without the
+    file's lights and cameras."""
     ext = path.suffix.lower()
     check_mesh_file(path)
     before = {o.as_pointer() for o in bpy.data.objects}
@@ -519,7 +528,7 @@ def _import_file(path: Path) -> list[bpy.types.Object]:
             raise InputError(f"cannot read mesh file {path}: {said}") from None
         new = [o for o in bpy.data.objects if o.as_pointer() not in before]
         if ext == ".blend":
-            new = _blend_rendered(new, scenes)
+            new = _blend_rendered(new, scenes, frame)
         new = _drop_scene_objects(new)
         meshes = [o for o in new if o.type == "MESH" and _has_faces(o)]
         if not meshes:
@@ -1224,62 +1233,142 @@ def _realized_geometry_instances(objs: list, shown: set[int], scene) -> list:
     return made
 
 
-def _blend_rendered(new: list[bpy.types.Object], scenes: list) -> list[bpy.types.Object]:
+def _blend_rendered(new: list[bpy.types.Object], scenes: list, frame: list | None = None) -> list[bpy.types.Object]:
     """Of the objects a .blend's scene brought, those its render shows (not excluded from its view layer, no
-    collection or object hidden from renders), with armatures and parents they need; curves, surfaces, text and
-    metaballs made meshes (the data passes rasterize meshes); the scene itself removed. Objects left out stay in
-    the file's data unlinked. Objects that shown ones use (a boolean's hidden cutter, an armature) come along
-    hidden from renders, so they move with the normalization and the data passes leave them out. Collection
-    instances are made objects of their own (:func:`_realized_instances`); geometry nodes, particle and vertex/face
-    instances are made real meshes (:func:`_realized_geometry_instances`)."""
+    collection or object hidden from renders), as static meshes of what its render shows at the scene's frame
+    (:func:`_bake_evaluated`: modifiers at their render settings, armatures, constraints, drivers and animation
+    evaluated and applied; curves, surfaces, text and metaballs made meshes, at their render resolution; objects
+    hidden in viewports evaluated too); the scene itself removed. Objects left out (an armature, a boolean's hidden
+    cutter, a constraint's target: what the shown ones used) stay in the file's data unlinked. Collection instances
+    are made objects of their own (:func:`_realized_instances`); geometry nodes, particle and vertex/face instances
+    are made real meshes (:func:`_realized_geometry_instances`). What renders but is no surface (hair curves, a
+    volume) is kept as it is, with the parents and objects it uses. ``frame`` (when given) gets the scene's frame
+    and subframe: the render's scene takes them (materials animated)."""
     shown: set[int] = set()
     for sc in scenes:
-        def walk(lc):
-            if lc.exclude or lc.collection.hide_render:
-                return
-            shown.update(o.as_pointer() for o in lc.collection.objects if not o.hide_render)
-            for child in lc.children:
-                walk(child)
-
-        walk(sc.view_layers[0].layer_collection)
+        shown |= render_shown(sc.view_layers[0])
     keep = [o for o in new if o.as_pointer() in shown]
     if scenes:  # (one: _append_blend_scene's)
         keep += _realized_instances(keep, shown, scenes[0])
         keep += _realized_geometry_instances(keep, shown, scenes[0])
+    if not scenes:
+        return keep
+    scene = scenes[0]  # (one: _append_blend_scene's)
+    if frame is not None:
+        frame[:] = [scene.frame_current, scene.frame_subframe]
+    drawn = [o for o in keep if o.as_pointer() in shown and (o.type == "MESH" or o.type in _CURVE_TYPES)]
+    for o in drawn:
+        render_evaluation(o)
+        _render_resolution(o)
+    for c in _scene_collections(scene):  # disabled in viewports: the (viewport) evaluation would leave them out
+        with contextlib.suppress(AttributeError, RuntimeError, TypeError):  # a linked collection cannot be changed
+            c.hide_viewport = False
+    inside = {o.as_pointer() for o in scene.objects}
+    extra = [o for o in drawn if o.as_pointer() not in inside]  # collection instances made objects
+    for o in extra:
+        scene.collection.objects.link(o)
+    try:
+        out = _bake_evaluated(drawn, _scene_depsgraph(scene))
+    finally:
+        for o in extra:
+            scene.collection.objects.unlink(o)
     ptrs = {o.as_pointer() for o in keep}
     appended = {o.as_pointer() for o in new}
-    todo = list(keep)
-    while todo:  # the parents, and the objects modifiers and constraints use (a boolean's cutter, an armature)
+    baked = {o.as_pointer() for o in drawn}
+    others = [o for o in keep if o.as_pointer() not in baked]  # what renders but is no surface of the data passes (hair curves)
+    todo = list(others)
+    while todo:  # their parents, and the objects their modifiers and constraints use
         o = todo.pop()
         for dep in [o.parent, *_object_refs(o.modifiers), *_object_refs(o.constraints)]:
             if dep is not None and dep.as_pointer() in appended and dep.as_pointer() not in ptrs:
                 dep.hide_render = dep.hide_render or dep.as_pointer() not in shown  # moved along, never drawn
-                keep.append(dep)
+                others.append(dep)
                 ptrs.add(dep.as_pointer())
                 todo.append(dep)
-    out = []
-    nodes_depsgraph = None
-    for o in keep:
-        if o.type in _CURVE_TYPES and o.as_pointer() in shown and _node_instancer(o) and scenes \
-                and o.name in scenes[0].objects:
-            # geometry nodes make its surface (instances realized: _realized_geometry_instances): as evaluated
-            nodes_depsgraph = nodes_depsgraph or _scene_depsgraph(scenes[0])
-            me = bpy.data.meshes.new_from_object(o.evaluated_get(nodes_depsgraph))
-            mo = bpy.data.objects.new(o.name + "_mesh", me)
-            mo.matrix_world = o.matrix_world.copy()
-            out.append(mo)
-        elif o.type in _CURVE_TYPES and o.as_pointer() in shown:
-            me = bpy.data.meshes.new_from_object(o)  # its geometry (bevel, extrusion); curve modifiers are rare
-            mo = bpy.data.objects.new(o.name + "_mesh", me)
-            mo.matrix_world = o.matrix_world.copy()
-            out.append(mo)
-        else:
-            out.append(o)
     for sc in scenes:
         bpy.data.scenes.remove(sc)
-    for o in out:
-        if o.type == "MESH":
-            render_evaluation(o)
+    return out + others
+
+
+def render_shown(view_layer) -> set[int]:
+    """Pointers of the objects a render of ``view_layer`` shows: in no collection excluded from it or hidden from
+    renders, and not hidden from renders themselves."""
+    shown: set[int] = set()
+
+    def walk(lc):
+        if lc.exclude or lc.collection.hide_render:
+            return
+        shown.update(o.as_pointer() for o in lc.collection.objects if not o.hide_render)
+        for child in lc.children:
+            walk(child)
+
+    walk(view_layer.layer_collection)
+    return shown
+
+
+def _scene_collections(scene) -> list:
+    out, todo = [], list(scene.collection.children)
+    while todo:
+        c = todo.pop()
+        out.append(c)
+        todo.extend(c.children)
+    return out
+
+
+def _render_resolution(o) -> None:
+    """Make a private curve, surface, text or metaball evaluate at its render resolution (its data is private: a
+    .blend's appended copy)."""
+    d = o.data
+    with contextlib.suppress(AttributeError, RuntimeError, TypeError):  # linked data cannot be changed
+        if o.type == "META" and d.resolution != d.render_resolution:
+            d.resolution = d.render_resolution
+        elif o.type in ("CURVE", "SURFACE", "FONT"):
+            if d.render_resolution_u and d.resolution_u != d.render_resolution_u:
+                d.resolution_u = d.render_resolution_u
+            if o.type == "SURFACE" and d.render_resolution_v and d.resolution_v != d.render_resolution_v:
+                d.resolution_v = d.render_resolution_v
+
+
+def _bake_evaluated(objs: list, depsgraph) -> list:
+    """Make ``objs`` (private objects, made to evaluate as a render does: :func:`render_evaluation`) static meshes of
+    what ``depsgraph`` evaluates of them at its frame: each mesh object gets a new mesh of its evaluated geometry
+    (modifiers, shape keys, armatures, geometry nodes; its UV maps, colour attributes and other attributes, part ids
+    among them, kept) and its evaluated world matrix, and loses its modifiers, constraints, parent, animation and
+    drivers; a curve, surface, text or metaball is replaced by a new mesh object made so (a metaball family's
+    surface is its basis's). Nothing the render shows then depends on other objects or on the frame, so normalizing
+    (:func:`apply_world_transform`) moves every surface alike and Cycles renders what the data passes rasterize.
+    Curves and metaballs that make no faces are left out. Returns the objects."""
+    found = []
+    for o in objs:  # all read first: changing an object tags the evaluation as outdated
+        ev = o.evaluated_get(depsgraph)
+        try:
+            me = bpy.data.meshes.new_from_object(ev, preserve_all_data_layers=True, depsgraph=depsgraph)
+        except RuntimeError:  # nothing to make a mesh of (an empty curve)
+            me = None
+        found.append((o, me, ev.matrix_world.copy()))
+    out = []
+    for o, me, mw in found:
+        if o.type != "MESH":
+            if me is None or len(me.polygons) == 0:
+                if me is not None:
+                    bpy.data.meshes.remove(me)
+                continue
+            mo = bpy.data.objects.new(o.name + "_mesh", me)
+            for k in ("hide_render", "visible_camera", "pass_index", "color"):
+                setattr(mo, k, getattr(o, k))
+            out.append(mo)
+        else:
+            if me is None:
+                me = bpy.data.meshes.new(o.data.name)
+            mo = o
+            mo.modifiers.clear()
+            mo.constraints.clear()
+            mo.animation_data_clear()
+            mo.parent = None
+            mo.data = me
+            mo.instance_type = "NONE"
+            out.append(mo)
+        mo.matrix_world = mw
     return out
 
 
@@ -1714,10 +1803,13 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
     unpacked under ``work_dir`` (:func:`source_file`), which must outlive the render."""
     if spec.kind == "file":
         path = source_file(spec, work_dir)
+        frame: list = []
         try:
-            new = _import_file(path)
+            new = _import_file(path, frame)
         except InputError as e:  # named as the user named it, not where the archive was unpacked
             raise InputError(str(e).replace(str(path), spec.describe())) from None
+        if frame:  # a .blend's: its render's frame (what its materials' animation shows)
+            _follow_frame(collection, *frame)
         lost = drop_missing_textures(new, path.parent)
         if missing_textures is not None:
             missing_textures.extend(lost)
@@ -1752,19 +1844,30 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
                 o.data.materials.append(default)
         return new
     if spec.kind == "selected":
-        out = []
+        user = bpy.context.scene
+        _follow_frame(collection, user.frame_current, user.frame_subframe)
+        srcs, copies, metas = [], [], []
         for name in spec.names:
             src = bpy.data.objects.get(name)
             if src is None:
                 raise InputError(f"object {name!r} no longer exists")
-            ob = src.copy()  # shares mesh/material data: nothing of the user's is modified
-            ob.parent = None
-            ob.matrix_world = src.matrix_world.copy()
-            ob.animation_data_clear()
-            render_evaluation(ob)
+            if src.type == "META":  # its surface is its family's, in the user's scene
+                metas += _baked_metaball(src, user)
+                continue
+            ob = _render_copy(src)  # parent, constraints and animation kept until it is evaluated at the frame
             collection.objects.link(ob)
-            out.append(ob)
-        return out + _realized_selected_instances([bpy.data.objects[name] for name in spec.names], out, collection)
+            srcs.append(src)
+            copies.append(ob)
+        made = _realized_selected_instances(srcs, copies, collection)
+        scenes = _scenes_of(collection)
+        out = _bake_evaluated(copies, _scene_depsgraph(scenes[0])) if copies and scenes else copies
+        for ob in out + metas:
+            if ob.name not in collection.objects:
+                collection.objects.link(ob)
+        for ob in copies:
+            if ob.type != "MESH":  # made a mesh object of its own
+                bpy.data.objects.remove(ob)
+        return out + metas + made
     if spec.kind == "procedural":
         try:
             from . import procedural
@@ -1802,10 +1905,93 @@ def _realized_selected_instances(srcs: list, copies: list, collection) -> list:
         collection.objects.link(o)
     return made
 
+def _scenes_of(collection) -> list:
+    """The scenes ``collection`` is in (as a child collection, at any depth)."""
+    return [sc for sc in bpy.data.scenes if sc.collection == collection
+            or any(c == collection for c in sc.collection.children_recursive)]
+
+
+def _follow_frame(collection, frame: int, subframe: float) -> None:
+    """Put the scenes ``collection`` renders in (the render's own: never the user's current scene) at ``frame``:
+    the frame the objects were evaluated at, which their materials' animation shows too."""
+    for sc in _scenes_of(collection):
+        if sc != bpy.context.scene and (sc.frame_current, sc.frame_subframe) != (frame, subframe):
+            sc.frame_current, sc.frame_subframe = frame, subframe
+
+
+def _metaball_basis(o) -> bool:
+    """Whether a metaball object draws its family's surface (Blender's rule: its name ends in no digit; the others
+    of the family, named as it is with a number, add to that surface)."""
+    return not o.name[-1:].isdigit()
+
+
+def _baked_metaball(src, scene) -> list:
+    """A new mesh object of the surface a selected (basis) metaball's family makes in ``scene`` (the user's, where
+    the family is: :func:`_bake_evaluated`), evaluated at its render resolution (set on the family's metaballs for
+    the moment, then back)."""
+    family = {o.data.as_pointer(): o.data for o in scene.objects if o.type == "META"
+              and (o == src or o.name.rsplit(".", 1)[0] == src.name and o.name.rsplit(".", 1)[-1].isdigit())}
+    was = {p: d.resolution for p, d in family.items()}
+    try:
+        for d in family.values():
+            if d.resolution != d.render_resolution:
+                d.resolution = d.render_resolution
+        return _bake_evaluated([src], _scene_depsgraph(scene))
+    finally:
+        for p, d in family.items():
+            if d.resolution != was[p]:
+                d.resolution = was[p]
+        _scene_depsgraph(scene)
+
+
+def _render_copy(src):
+    """A copy of a selected object that evaluates as a render does (:func:`render_evaluation`; a curve's or text's
+    data copied, at its render resolution), sharing its mesh and materials: nothing of the user's is modified."""
+    ob = src.copy()
+    if ob.type in ("CURVE", "SURFACE", "FONT"):
+        ob.data = src.data.copy()
+        _render_resolution(ob)
+    render_evaluation(ob)
+    return ob
+
+
+@contextlib.contextmanager
+def _rendered_sources(names: tuple[str, ...]):
+    """Inside the block, ``{name: evaluated object}`` of the selected objects ``names`` as a render of the user's
+    scene shows them at its frame: copies (:func:`_render_copy`) evaluated in a scene of their own, a metaball in
+    the user's scene (its family is there). What it made is removed after."""
+    user = bpy.context.scene
+    srcs = []
+    for name in names:
+        src = bpy.data.objects.get(name)
+        if src is None:
+            raise InputError(f"object {name!r} no longer exists")
+        srcs.append(src)
+    before = snapshot_data()
+    scene = bpy.data.scenes.new("MRVM_evaluation")
+    try:
+        scene.frame_current, scene.frame_subframe = user.frame_current, user.frame_subframe
+        copies = {}
+        for src in srcs:
+            if src.type != "META":
+                copies[src.name] = _render_copy(src)
+                scene.collection.objects.link(copies[src.name])
+        depsgraph = _scene_depsgraph(scene) if copies else None
+        user_graph = _scene_depsgraph(user) if len(copies) < len(srcs) else None
+        yield {src.name: (copies[src.name].evaluated_get(depsgraph) if src.name in copies
+                          else src.evaluated_get(user_graph)) for src in srcs}
+    finally:
+        bpy.data.scenes.remove(scene)
+        remove_new_data(before)
+
+
 def render_evaluation(ob: bpy.types.Object) -> None:
     """Make a private copy evaluate as a render does: modifiers shown in renders only, subdivision
-    and multires at their render levels. Normalization and the data passes read the evaluated
-    mesh (a viewport evaluation); Cycles renders the render evaluation, and the two must agree."""
+    and multires at their render levels, and shown in viewports (a viewport evaluation leaves an object hidden in
+    viewports out). Normalization and the data passes read the evaluated mesh (a viewport evaluation); Cycles
+    renders the render evaluation, and the two must agree."""
+    if ob.hide_viewport:
+        ob.hide_viewport = False
     for m in ob.modifiers:
         if m.show_viewport != m.show_render:
             m.show_viewport = m.show_render
@@ -1966,8 +2152,11 @@ def source_fingerprint(spec: ObjectSpec) -> str:
 
     Mesh files: their bytes (and an OBJ's material libraries beside it); inside a zip archive, the archive's bytes.
     Procedural objects: the
-    full generator parameters. Selected objects: their evaluated geometry, placement and material names (their
-    materials themselves, UVs and colours: :func:`appearance_fingerprint`).
+    full generator parameters. Selected objects: their geometry as a render of the user's scene evaluates it at its
+    frame (:func:`_rendered_sources`: render levels, modifiers shown in renders; a viewport-only change leaves it as
+    it was, and where viewport and render agree it is the hash the viewport evaluation gave before, so datasets
+    rendered then resume), placement and material names (their materials themselves, UVs and colours:
+    :func:`appearance_fingerprint`).
     """
     import hashlib
 
@@ -1988,19 +2177,17 @@ def source_fingerprint(spec: ObjectSpec) -> str:
 
         h.update(repr(sorted(procedural.sample_parameters(spec.category, spec.seed, **dict(spec.params)).items())).encode())
     else:
-        depsgraph = bpy.context.evaluated_depsgraph_get()
-        for name in spec.names:
-            src = bpy.data.objects.get(name)
-            if src is None:
-                raise InputError(f"object {name!r} no longer exists")
-            with evaluated_mesh(src.evaluated_get(depsgraph)) as me:
-                co = np.empty(len(me.vertices) * 3, dtype=np.float32)
-                me.vertices.foreach_get("co", co)
-                lv = np.empty(len(me.loops), dtype=np.int32)
-                me.loops.foreach_get("vertex_index", lv)
-                h.update(co.tobytes() + lv.tobytes())
-                h.update(repr([m.name if m else "" for m in me.materials]).encode())
-            h.update(np.array(src.matrix_world, dtype=np.float32).tobytes())
+        with _rendered_sources(spec.names) as evaluated:
+            for name in spec.names:
+                ev = evaluated[name]
+                with evaluated_mesh(ev) as me:
+                    co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+                    me.vertices.foreach_get("co", co)
+                    lv = np.empty(len(me.loops), dtype=np.int32)
+                    me.loops.foreach_get("vertex_index", lv)
+                    h.update(co.tobytes() + lv.tobytes())
+                    h.update(repr([m.name if m else "" for m in me.materials]).encode())
+                h.update(np.array(bpy.data.objects[name].matrix_world, dtype=np.float32).tobytes())
     return "sha256:" + h.hexdigest()
 
 
@@ -2082,24 +2269,27 @@ def appearance_fingerprint(spec: ObjectSpec) -> str | None:
     import hashlib
 
     h = hashlib.sha256()
-    depsgraph = bpy.context.evaluated_depsgraph_get()
     seen: set[int] = set()
-    for name in spec.names:
-        src = bpy.data.objects.get(name)
-        if src is None:
-            raise InputError(f"object {name!r} no longer exists")
-        h.update(repr([(slot.link, _material_description(slot.material, seen)) for slot in src.material_slots]
-                      + [_plain(src.color)]).encode())
-        with evaluated_mesh(src.evaluated_get(depsgraph)) as me:
-            for uv in me.uv_layers:
-                a = np.empty(len(uv.data) * 2, dtype=np.float32)
-                uv.data.foreach_get("uv", a)
-                h.update(uv.name.encode() + b"\0" + a.tobytes())
-            for attr in getattr(me, "color_attributes", ()):
-                a = np.empty(len(attr.data) * 4, dtype=np.float32)
-                attr.data.foreach_get("color", a)
-                h.update(attr.name.encode() + attr.domain.encode() + b"\0" + a.tobytes())
+    with _rendered_sources(spec.names) as evaluated:
+        for name in spec.names:
+            src = bpy.data.objects[name]
+            h.update(repr([(slot.link, _material_description(slot.material, seen)) for slot in src.material_slots]
+                          + [_plain(src.color)]).encode())
+            _hash_looks(h, evaluated[name])
     return "sha256:" + h.hexdigest()
+
+
+def _hash_looks(h, ev) -> None:
+    """Add the UV maps and colour attributes of an evaluated object's mesh to the hash ``h``."""
+    with evaluated_mesh(ev) as me:
+        for uv in me.uv_layers:
+            a = np.empty(len(uv.data) * 2, dtype=np.float32)
+            uv.data.foreach_get("uv", a)
+            h.update(uv.name.encode() + b"\0" + a.tobytes())
+        for attr in getattr(me, "color_attributes", ()):
+            a = np.empty(len(attr.data) * 4, dtype=np.float32)
+            attr.data.foreach_get("color", a)
+            h.update(attr.name.encode() + attr.domain.encode() + b"\0" + a.tobytes())
 
 
 def _procedural_build_fingerprint(spec: ObjectSpec) -> str:

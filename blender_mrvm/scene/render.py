@@ -295,6 +295,7 @@ class RenderSession:
         self.tmpdir = tmpdir
         self._before = O.snapshot_data()
         self._scenes_before = {s.as_pointer() for s in bpy.data.scenes}
+        self._had_render_result = any(im.type == "RENDER_RESULT" for im in bpy.data.images)
         self._own: dict[str, set[int]] | None = None  # what the session made, once sealed
         self._own_scenes: set[int] | None = None
         self.scene = bpy.data.scenes.new("MRVM_render")
@@ -379,6 +380,9 @@ class RenderSession:
             O.remove_new_data(self._before)
         else:
             O.remove_data(self._own)
+        if not self._had_render_result:  # the image the renders made (Blender makes it at the first one)
+            for im in [im for im in bpy.data.images if im.type == "RENDER_RESULT"]:
+                bpy.data.images.remove(im)
 
     # ------------------------------------------------------------------
     def render_colour(self, box: tuple[int, int, int, int] | None) -> dict[str, dict[str, np.ndarray]]:
@@ -553,15 +557,27 @@ def _cameras_record(scene_cams: list[tuple[C.Intrinsics, np.ndarray, str]]) -> t
 
 
 def _scene_cameras(user_scene: bpy.types.Scene, cfg: RenderConfig) -> list[tuple[C.Intrinsics, np.ndarray, str]]:
-    cams = sorted((o for o in user_scene.objects if o.type == "CAMERA"), key=lambda o: o.name)
+    """The cameras of the scene rig: those a render of ``user_scene``'s view layer could look through (in no
+    collection excluded from it or hidden from renders, not hidden from renders themselves), by name, with their
+    poses as the scene evaluates them at its frame (parents, constraints, animation)."""
+    vl = bpy.context.view_layer if bpy.context.scene == user_scene and bpy.context.view_layer else \
+        user_scene.view_layers[0]
+    shown = O.render_shown(vl)
+    cams = sorted((o for o in user_scene.objects if o.type == "CAMERA" and o.as_pointer() in shown),
+                  key=lambda o: o.name)
     if not cams:
-        raise InputError("the 'scene' rig needs cameras in the scene; none found")
+        left = [o.name for o in user_scene.objects if o.type == "CAMERA"]
+        raise InputError("the 'scene' rig needs cameras in the scene; none found" if not left else
+                         f"the 'scene' rig needs cameras a render of the scene shows; its camera(s) "
+                         f"{', '.join(sorted(left)[:3])} are hidden from renders or in a collection excluded from "
+                         "the view layer or hidden from renders")
+    depsgraph = O._scene_depsgraph(user_scene)
     w, h = cfg.resolution
     out = []
     for cam in cams:
         # The camera's lens, sensor and shift at the dataset's resolution.
         with _temporary_resolution(user_scene, w, h):
-            intr, c2w = read_camera(cam, user_scene)
+            intr, c2w = read_camera(cam.evaluated_get(depsgraph), user_scene)
         out.append((intr, c2w, cam.name))
     return out
 
