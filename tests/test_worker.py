@@ -118,16 +118,22 @@ def test_child_streams_progress_and_finishes(tmp_path):
     assert len(list((out / "chair" / "chair_000000" / "rgb").glob("*.png"))) == 3
 
 
-def test_cancel_stops_the_child_and_keeps_finished_views(tmp_path):
-    out = tmp_path / "ds"
-    procs = []
+def _long_render_past_two_views(out, procs: list, grace_s: float):
+    """A worker rendering 400 views, advanced until two are done."""
     gen = W.run_worker("render-dataset", [*RENDER, "--views", "400", "--out", out], sys.executable, env=ENV,
-                       on_start=procs.append, grace_s=10.0)
+                       on_start=procs.append, grace_s=grace_s)
     t0 = time.monotonic()
     for ev in gen:
         if ev.done >= 2:
-            break
+            return gen
         assert time.monotonic() - t0 < 60, "no progress from the child"
+    raise AssertionError("the child ended before two views")
+
+
+def test_cancel_stops_the_child_and_keeps_finished_views(tmp_path):
+    out = tmp_path / "ds"
+    procs = []
+    gen = _long_render_past_two_views(out, procs, 10.0)
     t1 = time.monotonic()
     gen.close()
     (proc,) = procs
@@ -150,13 +156,7 @@ def test_an_interrupt_sent_in_stops_the_child_without_blocking(tmp_path):
     child has exited as interrupted, keeping its finished views."""
     out = tmp_path / "ds"
     procs = []
-    gen = W.run_worker("render-dataset", [*RENDER, "--views", "400", "--out", out], sys.executable, env=ENV,
-                       on_start=procs.append, grace_s=20.0)
-    t0 = time.monotonic()
-    for ev in gen:
-        if ev.done >= 2:
-            break
-        assert time.monotonic() - t0 < 60, "no progress from the child"
+    gen = _long_render_past_two_views(out, procs, 20.0)
     t1 = time.monotonic()
     ev = gen.send(W.INTERRUPT)
     assert time.monotonic() - t1 < 1.0, "the send returned at once"
