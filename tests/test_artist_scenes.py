@@ -60,6 +60,23 @@ def _check(obj_dir, verts, min_iou=0.75):
         assert mask.sum() > 20 and iou > min_iou, (obj_dir.name, i, iou)
 
 
+def _held_by_handle(bpy, scale):
+    """A monkey 'Held' by a Child Of constraint (identity inverse: world = the handle's @ its own) to an empty
+    'Handle' moved, turned and scaled by ``scale``."""
+    from mathutils import Matrix
+
+    handle = bpy.data.objects.new("Handle", None)
+    bpy.context.scene.collection.objects.link(handle)
+    handle.location, handle.rotation_euler, handle.scale = (0, 8, 0), (0, 0, math.radians(45)), scale
+    bpy.ops.mesh.primitive_monkey_add(location=(1, 0, 0))
+    held = bpy.context.active_object
+    held.name = "Held"
+    c = held.constraints.new("CHILD_OF")
+    c.target = handle
+    c.inverse_matrix = Matrix.Identity(4)
+    return handle
+
+
 def _rig_with_skin(bpy, name, location):
     """A two-bone armature posed (the upper bone bent 90 degrees) deforming a subdivided cylinder."""
     arm = bpy.data.armatures.new(name + "Data")
@@ -107,15 +124,7 @@ def test_selected_objects_using_other_objects_render_as_the_scene_shows_them(tmp
     cutter.hide_render = True
     mod = block.modifiers.new("cut", "BOOLEAN")
     mod.operation, mod.object = "DIFFERENCE", cutter
-    handle = bpy.data.objects.new("Handle", None)
-    bpy.context.scene.collection.objects.link(handle)
-    handle.location, handle.rotation_euler, handle.scale = (0, 8, 0), (0, 0, math.radians(45)), (1.5, 2.5, 1.0)
-    bpy.ops.mesh.primitive_monkey_add(location=(1, 0, 0))
-    child = bpy.context.active_object
-    child.name = "Held"
-    c = child.constraints.new("CHILD_OF")
-    c.target = handle
-    c.inverse_matrix = Matrix.Identity(4)  # world = the handle's @ its own
+    handle = _held_by_handle(bpy, (1.5, 2.5, 1.0))
     bpy.ops.mesh.primitive_cone_add(location=(0, 0, 0))
     follower = bpy.context.active_object
     follower.name = "Follower"
@@ -152,15 +161,7 @@ def test_blend_source_renders_its_frame_with_constraints_and_drivers(tmp_path, b
     pb.keyframe_insert("rotation_euler", frame=1)
     pb.rotation_euler = (math.radians(100), 0, 0)
     pb.keyframe_insert("rotation_euler", frame=30)
-    handle = bpy.data.objects.new("Handle", None)
-    scene.collection.objects.link(handle)
-    handle.location, handle.rotation_euler, handle.scale = (0, 8, 0), (0, 0, math.radians(45)), (1.5, 1.5, 1.5)
-    bpy.ops.mesh.primitive_monkey_add(location=(1, 0, 0))
-    held = bpy.context.active_object
-    held.name = "Held"
-    c = held.constraints.new("CHILD_OF")
-    c.target = handle
-    c.inverse_matrix = Matrix.Identity(4)  # world = the handle's @ its own
+    _held_by_handle(bpy, (1.5, 1.5, 1.5))
     knob = bpy.data.objects.new("Knob", None)
     scene.collection.objects.link(knob)
     knob.location = (1.2, 0, 0)
