@@ -111,7 +111,6 @@ def test_selected_objects_using_other_objects_render_as_the_scene_shows_them(tmp
     move, so the colour showed them displaced, stretched or uncut against the masks. Now each is rendered from its
     evaluated geometry and place."""
     import bpy
-    from mathutils import Matrix
 
     _, skin, pb = _rig_with_skin(bpy, "Rig", (0, -4, 0))
     pb.rotation_euler = (math.radians(90), 0, 0)
@@ -146,7 +145,6 @@ def test_blend_source_renders_its_frame_with_constraints_and_drivers(tmp_path, b
     rendered at frame 1 (the render's scene) while the passes held frame 20, Child Of was applied twice after the
     normalization and the driver read the normalized empty. Both are now what the file shows at its frame."""
     import bpy
-    from mathutils import Matrix
 
     scene = bpy_empty
     bpy.ops.mesh.primitive_monkey_add()
