@@ -47,7 +47,7 @@ def test_srn(tmp_path):
     assert L.detect_format(tmp_path) == "srn" and objs == [("srn", obj)]
     sc = L.load_object(*objs[0])
     _check_rays(sc, [INTR] * 3)
-    assert sc.category == "cars_train" and sc.name == "abc"
+    assert sc.category == "cars" and sc.name == "abc"  # pixelNeRF's <cat>_<split> folder: the category
     assert np.allclose(sc.bbox[1], 0.5)
 
 

@@ -149,7 +149,7 @@ def read_compare_to(path: Path) -> dict:
 
 
 def run(args) -> int:
-    from ..datasets.loaders import check_finished, detect_format, list_objects, load_object
+    from ..datasets.loaders import check_finished, detect_format, list_objects, load_object, object_category
     from ..errors import InputError
     from ..progress import run_with_tqdm
     from ..training.checkpoint import load_model
@@ -206,7 +206,9 @@ def run(args) -> int:
         lpips = LPIPS()
     objs = list_objects(args.data, fmt, args.split)
     check_finished(args.data, args.split, objs)
-    objs = per_category(objs, lambda o: Path(o[1]).parent.name, args.max_objects_per_category)
+    # grouped by the category the loaders give (every NeRF-synthetic scene fell in one group, the root's; SRN's
+    # groups were cars_test)
+    objs = per_category(objs, lambda o: object_category(*o), args.max_objects_per_category)
     objs = objs[:args.max_objects or None]
     if not objs:
         raise InputError(f"{args.data}: no objects for split {args.split!r}")

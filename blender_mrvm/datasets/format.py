@@ -170,17 +170,58 @@ def write_png(path: Path, arr: np.ndarray, compress_level: int = 6) -> None:
     atomic_write(path, png_writer(arr, compress_level))
 
 
-def read_png(path: Path) -> np.ndarray:
-    """A PNG's pixels; InputError naming the file when it is missing, truncated or not an image."""
+def read_png(path: Path, colour: bool = False) -> np.ndarray:
+    """A PNG's (or JPEG's) pixels; InputError naming the file when it is missing, truncated or not an image.
+
+    ``colour``: the colours the image shows (:func:`colour_pixels`: a palette image's colours, not its indices;
+    CMYK as RGB), for photos and renders. Without it the stored values come back as they are: a mask's part ids
+    (a palette mask gives its indices; ``models/sem2nerf/render.read_mask_png`` reads its grey entries)."""
     from PIL import Image
 
     try:
         with Image.open(path) as im:
-            return np.asarray(im).copy()
+            return colour_pixels(im, path) if colour else np.asarray(im).copy()
     except FileNotFoundError:
         raise InputError(f"image {path} does not exist") from None
     except (OSError, ValueError, SyntaxError) as e:  # PIL: truncated, not a PNG, decompression bomb
         raise InputError(f"cannot read image {path}: {e}") from None
+
+
+COLOUR_MODES_KEPT = ("RGB", "RGBA", "L", "LA")
+"""PIL modes whose pixels :func:`colour_pixels` returns as they are (uint8)."""
+
+
+def colour_pixels(im, where: Path | str) -> np.ndarray:
+    """An open PIL image's colours as a uint8 (H, W), (H, W, 2), (H, W, 3) or (H, W, 4) array, uint16 for
+    16-bit grey, float32 in [0, 1] for a float image: a palette image (P, PA: what pngquant and optipng write)
+    decodes to RGB, or RGBA where its palette is transparent, never to its indices; CMYK, YCbCr, LAB and HSV to
+    RGB; bilevel to grey. A 32-bit integer image (I) is 16-bit grey when its values fit, a float image (F)
+    must hold values in [0, 1]: InputError otherwise."""
+    mode = im.mode
+    if mode in COLOUR_MODES_KEPT:
+        return np.asarray(im).copy()
+    if mode.startswith("I;16"):
+        return np.asarray(im).astype(np.uint16)
+    if mode == "I":
+        a = np.asarray(im)
+        if a.size and (a.min() < 0 or a.max() > 65535):
+            raise InputError(f"image {where} is a 32-bit integer image with values outside 0..65535: not a colour "
+                             "image this tool reads (save it as 8- or 16-bit PNG)")
+        return a.astype(np.uint16)
+    if mode == "F":
+        a = np.asarray(im, dtype=np.float32)
+        if a.size and (not np.isfinite(a).all() or a.min() < 0.0 or a.max() > 1.0):
+            raise InputError(f"image {where} is a float image with values outside [0, 1]: not a colour image this "
+                             "tool reads (save it as 8- or 16-bit PNG)")
+        return a.copy()
+    if mode == "P":
+        transparent = "transparency" in im.info or getattr(im.palette, "mode", "RGB") == "RGBA"
+        return np.asarray(im.convert("RGBA" if transparent else "RGB")).copy()
+    if mode in ("PA", "RGBa", "RGBX"):
+        return np.asarray(im.convert("RGBA" if mode != "RGBX" else "RGB")).copy()
+    if mode in ("1", "La"):
+        return np.asarray(im.convert("L" if mode == "1" else "LA")).copy()
+    return np.asarray(im.convert("RGB")).copy()  # CMYK, YCbCr, LAB, HSV
 
 
 def exr_writer(channels: dict[str, np.ndarray]) -> Callable[[str], None]:
@@ -385,7 +426,7 @@ class ObjectViews:
         return all(view_paths(self.path, k)[kind].is_file() for k in self.indices)
 
     def rgb(self, i: int) -> np.ndarray:
-        return read_png(self._path("rgb", i))
+        return read_png(self._path("rgb", i), colour=True)
 
     def depth(self, i: int) -> np.ndarray:
         return read_depth(self._path("depth", i))

@@ -1,21 +1,27 @@
 """Multi-view object loaders: our format, SRN (pixelNeRF), NMR/DVR and NeRF-synthetic.
 
-Every loader returns :class:`ObjectScene` objects with OpenCV camera-to-world poses and
-:class:`~..geometry.cameras.Intrinsics` (conversions go through ``geometry/cameras.py``), images as
-float32 RGB in [0, 1] composited on white, and an object box (from ``meta.json`` where the format
-has one, else the format's documented bounds). bpy-free.
+Every loader returns :class:`ObjectScene` objects with OpenCV camera-to-world poses (checked rigid:
+``format.check_pose``) and :class:`~..geometry.cameras.Intrinsics` (conversions go through
+``geometry/cameras.py``), images as float32 RGB in [0, 1] composited on white (palette, CMYK and 16-bit
+files decoded to their colours: ``format.read_png(colour=True)``), object masks where the format has them,
+and an object box (from ``meta.json`` where the format has one, else the format's documented bounds).
+Image suffixes match in any case (.PNG, .JPG). bpy-free.
 
 Layouts read::
 
     ours     <root>/<category>/<object>/{rgb,pose}/NNNNNN.*, intrinsics.txt, meta.json (bbox)
-    srn      <root>/<object>/{rgb/*.png, pose/*.txt, intrinsics.txt}   (pixelNeRF's SRN layout)
-    nmr      <root>/<category>/<object>/{image/*.png, cameras.npz}, <root>/<category>/<split>.lst
-    nerf     <root>/<scene>/transforms_{train,val,test}.json + image files
+    srn      <root>/<cat>_<split>/<object>/{rgb/*.png, pose/*.txt, intrinsics.txt}   (pixelNeRF's SRN layout;
+             also <root>/<split>/<object>, a folder of objects, or one object)
+    nmr      <root>/<category>/<object>/{image/*.png|jpg, mask/*.png, cameras.npz},
+             <root>/<category>/softras_<split>.lst (pixelNeRF's NMR benchmark; preferred) or <split>.lst (DVR's)
+    nerf     <root>/<scene>/transforms_{train,val,test}.json + image files (RGBA: alpha is the mask)
 """
 
 from __future__ import annotations
 
 import json
+import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -64,6 +70,8 @@ class ObjectScene:
     """(N, H, W) float32 planar z-depth in world units (0 where the pixel sees nothing) when asked for
     (``load_dataset(..., depth=True)``) and the source has it for every view (our renders' depth/ EXRs),
     else None. Training reads it for ``train.depth_weight``; nothing else needs it."""
+    split_list: str | None = None
+    """The split list naming this object ('<category>/softras_test.lst' for NMR/DVR), where the format has one."""
 
     def __len__(self) -> int:
         return self.images.shape[0]
@@ -100,6 +108,45 @@ def to_float_rgb(arr: np.ndarray) -> np.ndarray:
     elif x.shape[-1] == 2:  # grey + alpha
         x = np.repeat(x[..., :1] * x[..., 1:] + (1.0 - x[..., 1:]), 3, -1)
     return np.clip(x[..., :3], 0.0, 1.0)
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    """uint8 / uint16 / float pixels as float32 in [0, 1]."""
+    a = np.asarray(a)
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    return a.astype(np.float32)
+
+
+def read_colour(path: Path) -> np.ndarray:
+    """An image file's colours as float32 RGB in [0, 1] on white (palette, CMYK, 16-bit: their colours)."""
+    return to_float_rgb(F.read_png(path, colour=True))
+
+
+def read_binary_mask(path: Path) -> np.ndarray:
+    """(H, W) bool object mask of a mask image (DVR/NMR ``mask/*.png``): object where it is brighter than one half
+    (> 127 of 255), whatever its mode (grey, palette, RGB: the brightest colour channel)."""
+    x = _unit(F.read_png(path, colour=True))
+    if x.ndim == 3:
+        x = x[..., :3].max(-1) if x.shape[-1] >= 3 else x[..., 0]
+    return x > 0.5
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def _files(folder: Path, suffixes: Sequence[str]) -> list[Path]:
+    """The files of ``folder`` whose suffix is one of ``suffixes`` in any case (.png, .PNG), sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes and p.is_file())
+
+
+def _note(msg: str) -> None:
+    print(f"note: {msg}", file=sys.stderr)
 
 
 def _stack(images: Sequence[np.ndarray], where: Path) -> np.ndarray:
@@ -164,86 +211,255 @@ def list_ours(root: Path, split: str | None = None) -> list[Path]:
 
 # --------------------------------------------------------------------------------------------- SRN
 
+def srn_category(obj_dir: Path) -> str:
+    """The category of an SRN object folder: 'cars' of cars_test/<object> (pixelNeRF's <cat>_<split>), the set's
+    folder name of <set>/test/<object>, else the parent folder's name."""
+    obj_dir = Path(obj_dir).absolute()
+    name = obj_dir.parent.name
+    base, _, split = name.rpartition("_")
+    if base and split in F.SPLITS:
+        return base
+    return obj_dir.parent.parent.name if name in F.SPLITS else name
+
+
 def load_srn(obj_dir: Path) -> ObjectScene:
     """pixelNeRF SRN layout: rgb/*.png, pose/*.txt (OpenCV c2w), intrinsics.txt (f cx cy / ... / H W)."""
     obj_dir = Path(obj_dir)
-    rgbs = sorted((obj_dir / "rgb").glob("*.png"))
+    rgbs = _files(obj_dir / "rgb", (".png",))
     if not rgbs:
         raise InputError(f"{obj_dir}: no rgb/*.png (not an SRN object folder)")
+    if not (obj_dir / "intrinsics.txt").is_file():
+        raise InputError(f"{obj_dir}: SRN object without intrinsics.txt (its camera: 'f cx cy 0' / ... / 'H W'); "
+                         "restore it from the data set, or leave the object out")
     intr = F.read_srn_intrinsics(obj_dir / "intrinsics.txt")
     images, poses, ids = [], [], []
     for p in rgbs:
         pose = obj_dir / "pose" / f"{p.stem}.txt"
         if not pose.is_file():
             raise InputError(f"{obj_dir}: {p.name} has no pose/{pose.name}")
-        images.append(to_float_rgb(F.read_png(p)))
+        images.append(read_colour(p))
         poses.append(F.read_srn_pose(pose))
         ids.append(int(p.stem) if p.stem.isdigit() else len(ids))
     images = _stack(images, obj_dir)
     h, w = images.shape[1:3]
     if (intr.width, intr.height) != (w, h):  # SRN intrinsics may be given at another resolution
         intr = intr.scaled(w / intr.width)
-    return ObjectScene(obj_dir.name, obj_dir.parent.name, images, np.stack(poses), [intr] * len(ids),
+    return ObjectScene(obj_dir.name, srn_category(obj_dir), images, np.stack(poses), [intr] * len(ids),
                        (np.full(3, -SRN_BOX), np.full(3, SRN_BOX)), ids)
 
 
 # --------------------------------------------------------------------------------------------- NMR/DVR
 
-def load_nmr(obj_dir: Path) -> ObjectScene:
-    """DVR/NMR: image/*.png + cameras.npz with world_mat_i (3x4 or 4x4 K [R|t], projection) and camera_mat_i.
+RIGID_TOL = 1e-3
+"""How far from orthonormal (max |R^T R - I|) a DVR ``world_mat``'s rotation part may be to be read as a rigid pose
+(``format.check_pose``'s tolerance)."""
 
-    DVR's ``world_mat`` is the world-to-camera [R | t] in OpenCV axes; ``camera_mat`` maps camera
-    coordinates to NDC in [-1, 1] (pixelNeRF: fx_px = camera_mat[0,0] * W / 2, principal point at the
-    image centre plus camera_mat[:2, 2] * size / 2)."""
+
+def decompose_projection(P: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(K with K[2, 2] = 1 and a positive diagonal, rotation R (det +1), t) of a 3x4 projection P = lambda K [R | t]
+    (RQ decomposition, as OpenCV's decomposeProjectionMatrix that pixelNeRF and IDR call); InputError when its
+    3x3 part is singular."""
+    P = np.asarray(P, np.float64)[:3, :4]
+    M = P[:, :3]
+    det = np.linalg.det(M)
+    if not np.isfinite(det) or abs(det) <= 1e-12 * max(np.abs(M).max(), 1e-300) ** 3:
+        raise InputError(f"{where}: its 3x3 part is singular (not a camera)")
+    if det < 0:  # P and -P are the same projection; the one with det > 0 puts the scene in front (lambda > 0)
+        P, M = -P, -M
+    J = np.eye(3)[::-1]
+    q, r = np.linalg.qr((J @ M).T)  # M = (J r^T J)(J q^T): upper triangular times orthogonal
+    K, R = J @ r.T @ J, J @ q.T
+    D = np.diag(np.sign(np.diag(K)))
+    K, R = K @ D, D @ R
+    t = np.linalg.solve(K, P[:, 3])
+    return K / K[2, 2], R, t
+
+
+def dvr_camera(world_mat, camera_mat, scale_mat, w: int, h: int, where: str) -> tuple[np.ndarray, cameras.Intrinsics]:
+    """(OpenCV camera-to-world, intrinsics) of one DVR/NMR view of a ``w`` x ``h`` image.
+
+    ``world_mat`` (3x4 or 4x4) is either the rigid world-to-camera [R | t] of DVR's ShapeNet renders (NMR), with
+    ``camera_mat`` mapping camera coordinates to NDC in [-1, 1] (pixelNeRF: fx_px = camera_mat[0, 0] * W / 2,
+    principal point at the image centre plus camera_mat[:2, 2] * size / 2), or the projection K [R | t] of DVR's
+    multi-view data (DTU: K in pixels), RQ-decomposed into K, R and t as pixelNeRF's DVR loader does (the
+    ``camera_mat`` is then not read, as there). ``scale_mat`` (or None): DVR's normalisation, world = scale_mat @
+    normalised coordinates, a uniform scale and a translation; the cameras come back in normalised coordinates
+    (where the unit-cube box :data:`NMR_BOX` holds), as pixelNeRF's loader returns them. InputError for anything
+    else (a scaled rotation, a skewed or degenerate camera, a non-uniform scale)."""
+    wm = np.asarray(world_mat, np.float64)
+    if wm.shape not in ((3, 4), (4, 4)) or not np.isfinite(wm).all():
+        raise InputError(f"{where}: world_mat must be a finite 3x4 or 4x4 matrix, got shape {wm.shape}")
+    if wm.shape == (4, 4) and np.abs(wm[3] - [0, 0, 0, 1]).max() > 1e-6:
+        raise InputError(f"{where}: world_mat's last row is {wm[3].tolist()}, not 0 0 0 1")
+    m = wm[:3, :3]
+    mtm = m.T @ m
+    s2 = np.trace(mtm) / 3.0
+    neither = (f"{where}: world_mat is neither a rigid world-to-camera pose [R | t] (rotation part orthonormal, "
+               "determinant +1: DVR's ShapeNet/NMR renders) nor a projection K [R | t] with K in pixels (DVR's "
+               "multi-view/DTU data: a pixel camera, no skew)")
+    if np.abs(mtm - np.eye(3)).max() <= RIGID_TOL and np.linalg.det(m) > 0:
+        c2w = cameras.c2w_opencv_from_w2c(wm[:3, :4])
+        if camera_mat is None:
+            raise InputError(f"{where}: a rigid world_mat needs its camera_mat (the intrinsics, in NDC)")
+        cmat = np.asarray(camera_mat, np.float64)
+        if cmat.shape not in ((3, 3), (3, 4), (4, 4)) or not np.isfinite(cmat).all() or cmat[0, 0] <= 0 or cmat[1, 1] <= 0:
+            raise InputError(f"{where}: camera_mat is not an NDC intrinsics matrix (positive focal lengths): {cmat.tolist()}")
+        fx, fy = cmat[0, 0] * w / 2.0, cmat[1, 1] * h / 2.0
+        cx, cy = w / 2.0 + cmat[0, 2] * w / 2.0, h / 2.0 + cmat[1, 2] * h / 2.0
+        intr = cameras.Intrinsics(fx, fy, cx, cy, w, h)
+    elif s2 > 0 and np.abs(mtm / s2 - np.eye(3)).max() <= RIGID_TOL:  # orthonormal up to scale: K would be I
+        raise InputError(f"{neither}: its 3x3 part is a {'mirrored' if np.linalg.det(m) < 0 else 'scaled'} rotation "
+                         f"(scale {math.sqrt(s2):.4g}); a scaled world goes in scale_mat")
+    else:
+        try:
+            K, R, t = decompose_projection(wm, where)
+        except InputError as e:
+            raise InputError(f"{neither}: {e}") from None
+        if abs(K[0, 1]) > 1e-3 * K[0, 0]:
+            raise InputError(f"{neither}: read as a projection its K has skew {K[0, 1]:.4g}")
+        c2w = np.eye(4)
+        c2w[:3, :3] = R.T
+        c2w[:3, 3] = -R.T @ t
+        intr = cameras.Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), w, h)
+    F.check_pose(c2w, where)
+    if scale_mat is not None:
+        S = cameras.as_pose(np.asarray(scale_mat, np.float64)) if np.shape(scale_mat) in ((3, 4), (4, 4)) else None
+        sc = S[0, 0] if S is not None else float("nan")
+        if (S is None or not np.isfinite(S).all() or not sc > 0 or np.abs(S[3] - [0, 0, 0, 1]).max() > 1e-6
+                or np.abs(S[:3, :3] - sc * np.eye(3)).max() > 1e-6 * sc):
+            raise InputError(f"{where}: scale_mat must be a uniform scale and a translation (DVR: world = scale_mat "
+                             f"@ normalised coordinates), got {np.asarray(scale_mat).tolist()}")
+        c2w = c2w.copy()
+        c2w[:3, 3] = (c2w[:3, 3] - S[:3, 3]) / sc  # the camera centre in normalised coordinates; axes unchanged
+    return c2w, intr
+
+
+def load_nmr(obj_dir: Path, split: str | None = None) -> ObjectScene:
+    """DVR/NMR: image/*.png (or .jpg) + cameras.npz with world_mat_i, camera_mat_i and scale_mat_i
+    (:func:`dvr_camera`), and mask/*.png of the same names where the object has them (object > 127).
+    ``split``: record the split list (:func:`nmr_split_list`) that names the object."""
     obj_dir = Path(obj_dir)
-    imgs = sorted((obj_dir / "image").glob("*.png")) or sorted((obj_dir / "image").glob("*.jpg"))
+    imgs = _files(obj_dir / "image", (".png",)) or _files(obj_dir / "image", (".jpg", ".jpeg"))
     cam_file = obj_dir / "cameras.npz"
     if not imgs or not cam_file.is_file():
         raise InputError(f"{obj_dir}: need image/*.png and cameras.npz (NMR/DVR layout)")
-    cams = np.load(cam_file)
-    images, poses, intrs, ids = [], [], [], []
+    try:
+        cams = dict(np.load(cam_file))
+    except (OSError, ValueError) as e:
+        raise InputError(f"cannot read {cam_file}: {e}") from None
+    masks_by_stem = {p.stem: p for p in _files(obj_dir / "mask", (".png",))}
+    images, poses, intrs, ids, masks = [], [], [], [], []
     for k, p in enumerate(imgs):
         i = int(p.stem) if p.stem.isdigit() else k
-        wm, cm = f"world_mat_{i}", f"camera_mat_{i}"
-        if wm not in cams or cm not in cams:
-            raise InputError(f"{cam_file}: missing {wm} / {cm}")
-        im = to_float_rgb(F.read_png(p))
+        wm, cm, sm = f"world_mat_{i}", f"camera_mat_{i}", f"scale_mat_{i}"
+        if wm not in cams:
+            raise InputError(f"{cam_file}: missing {wm} (for {p.name})")
+        im = read_colour(p)
         h, w = im.shape[:2]
-        cmat = np.asarray(cams[cm], np.float64)
-        fx, fy = cmat[0, 0] * w / 2.0, cmat[1, 1] * h / 2.0
-        cx, cy = w / 2.0 + cmat[0, 2] * w / 2.0, h / 2.0 + cmat[1, 2] * h / 2.0
-        w2c = cameras.as_pose(np.asarray(cams[wm], np.float64)[:3, :4])
+        c2w, intr = dvr_camera(cams[wm], cams.get(cm), cams.get(sm), w, h, f"{cam_file} view {i}")
         images.append(im)
-        poses.append(cameras.c2w_opencv_from_w2c(w2c))
-        intrs.append(cameras.Intrinsics(fx, fy, cx, cy, w, h))
+        poses.append(c2w)
+        intrs.append(intr)
         ids.append(i)
-    return ObjectScene(obj_dir.name, obj_dir.parent.name, _stack(images, obj_dir), np.stack(poses), intrs,
-                       (np.full(3, -NMR_BOX), np.full(3, NMR_BOX)), ids)
+        if masks_by_stem:
+            mp = masks_by_stem.get(p.stem)
+            masks.append(None if mp is None else read_binary_mask(mp))
+    images = _stack(images, obj_dir)
+    mask_arr = None
+    if masks:
+        lacking = [imgs[k].name for k, m in enumerate(masks) if m is None]
+        if lacking:
+            _note(f"{obj_dir}/mask has no mask for {', '.join(lacking[:3])}{', ...' if lacking[3:] else ''}: the "
+                  "object is read without masks (no empty-space skipping for it)")
+        else:
+            mask_arr = np.stack(masks) if len({m.shape for m in masks}) == 1 else None
+            if mask_arr is None or mask_arr.shape != images.shape[:3]:
+                raise InputError(f"{obj_dir}: mask/ images are not the size of the views (image/ are "
+                                 f"{images.shape[2]}x{images.shape[1]})")
+    lst = nmr_split_list(obj_dir.parent, split) if split else None
+    listed = None
+    if lst is not None and obj_dir.name in _read_lst(lst):
+        listed = f"{obj_dir.parent.name}/{lst.name}"
+    return ObjectScene(obj_dir.name, obj_dir.parent.name, images, np.stack(poses), intrs,
+                       (np.full(3, -NMR_BOX), np.full(3, NMR_BOX)), ids, mask_arr, split_list=listed)
+
+
+NMR_LIST_PREFIXES = ("softras_", "")
+"""Split lists of a NMR/DVR category, by preference: pixelNeRF's NMR benchmark (``softras_<split>.lst``, the
+SoftRas split the published NMR figures use), then DVR's own (``<split>.lst``)."""
+
+
+def nmr_split_list(category_dir: Path, split: str) -> Path | None:
+    """The split list of a NMR/DVR category folder (:data:`NMR_LIST_PREFIXES`), None when it has neither."""
+    for prefix in NMR_LIST_PREFIXES:
+        p = Path(category_dir) / f"{prefix}{split}.lst"
+        if p.is_file():
+            return p
+    return None
+
+
+def _read_lst(path: Path) -> list[str]:
+    return [ln.strip() for ln in Path(path).read_text().splitlines() if ln.strip()]
 
 
 def list_nmr(root: Path, split: str) -> list[Path]:
-    """NMR/DVR object folders listed in ``<root>/<category>/<split>.lst``."""
-    out = []
-    for lst in sorted(Path(root).glob(f"*/{split}.lst")):
-        out += [lst.parent / ln.strip() for ln in lst.read_text().splitlines() if ln.strip()]
+    """NMR/DVR object folders listed in each ``<root>/<category>/softras_<split>.lst`` (pixelNeRF's NMR
+    benchmark), or ``<split>.lst`` (DVR's) where a category has no softras list. InputError naming the lists
+    there when no category has either, or when a list names a folder that is not there."""
+    root = Path(root)
+    out, lists = [], []
+    for cat in sorted(d for d in root.iterdir() if d.is_dir()) if root.is_dir() else []:
+        lst = nmr_split_list(cat, split)
+        if lst is None:
+            continue
+        lists.append(lst)
+        for name in _read_lst(lst):
+            if not (cat / name).is_dir():
+                raise InputError(f"{lst} lists {name!r}, which is not a folder of {cat}: the data set is incomplete "
+                                 "(restore the object, or remove it from the list)")
+            out.append(cat / name)
+    if not lists:
+        present = sorted(str(p.relative_to(root)) for p in root.glob("*/*.lst"))
+        raise InputError(f"{root}: no NMR/DVR split list for split {split!r}: looked for "
+                         f"<category>/softras_{split}.lst (pixelNeRF's NMR benchmark) and <category>/{split}.lst "
+                         f"(DVR's); " + (f"the lists there: {', '.join(present[:6])}{', ...' if present[6:] else ''}"
+                                         if present else "there are no .lst files"))
     return out
 
 
 # --------------------------------------------------------------------------------------------- NeRF-synthetic
 
+def _frame_image(scene_dir: Path, file_path: str) -> Path:
+    """A NeRF-synthetic frame's image: ``file_path`` as written, else with .png (the release leaves the suffix
+    out) or another image suffix, in any case."""
+    p = Path(scene_dir) / file_path
+    if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file():
+        return p
+    stem = p if p.suffix.lower() not in IMAGE_SUFFIXES else p.with_suffix("")
+    for ext in IMAGE_SUFFIXES:
+        for e in (ext, ext.upper()):
+            q = stem.with_name(stem.name + e)
+            if q.is_file():
+                return q
+    return p if p.suffix else p.with_suffix(".png")  # missing: read_png names it
+
+
 def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
-    """NeRF-synthetic: transforms_<split>.json (OpenGL c2w, camera_angle_x) + RGBA PNGs (on white)."""
+    """NeRF-synthetic: transforms_<split>.json (OpenGL c2w, camera_angle_x) + RGBA PNGs (on white); the alpha
+    (> 0.5) is the object mask where every frame has one. The category is the scene's name."""
     scene_dir = Path(scene_dir)
     tf = scene_dir / f"transforms_{split}.json"
     if not tf.is_file():
         raise InputError(f"{scene_dir}: no transforms_{split}.json")
-    d = json.loads(tf.read_text())
-    images, poses, intrs = [], [], []
-    for fr in d.get("frames", []):
-        p = scene_dir / fr["file_path"]
-        if not p.suffix:
-            p = p.with_suffix(".png")
-        im = to_float_rgb(F.read_png(p))
+    try:
+        d = json.loads(tf.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"{tf} is not valid JSON ({e})") from None
+    images, poses, intrs, masks = [], [], [], []
+    for k, fr in enumerate(d.get("frames", [])):
+        p = _frame_image(scene_dir, fr["file_path"])
+        raw = F.read_png(p, colour=True)
+        im = to_float_rgb(raw)
         h, w = im.shape[:2]
         if "fl_x" in d or "fl_x" in fr:  # nerfstudio-style intrinsics
             g = {**d, **fr}
@@ -251,13 +467,22 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
                                       float(g.get("cy", h / 2)), w, h)
         else:
             intr = cameras.intrinsics_from_fov(float(d["camera_angle_x"]), w, h)
+        try:
+            c2w = cameras.opencv_from_opengl(cameras.as_pose(np.asarray(fr["transform_matrix"], np.float64)))
+        except (ValueError, TypeError, cameras.CameraConventionError) as e:
+            raise InputError(f"{tf}: frame {k} ({fr['file_path']}): transform_matrix is not a 4x4 matrix ({e})") from None
+        F.check_pose(c2w, f"{tf}: frame {k} ({fr['file_path']}) transform_matrix")
         images.append(im)
-        poses.append(cameras.opencv_from_opengl(np.asarray(fr["transform_matrix"], np.float64)))
+        poses.append(c2w)
         intrs.append(intr)
+        masks.append(_unit(raw[..., -1]) > 0.5 if raw.ndim == 3 and raw.shape[-1] in (2, 4) else None)
     if not images:
         raise InputError(f"{tf}: no frames")
-    return ObjectScene(scene_dir.name, "", _stack(images, scene_dir), np.stack(poses), intrs,
-                       (np.full(3, -NERF_SYNTHETIC_BOX), np.full(3, NERF_SYNTHETIC_BOX)), list(range(len(images))))
+    images = _stack(images, scene_dir)
+    mask_arr = np.stack(masks) if all(m is not None for m in masks) else None
+    return ObjectScene(scene_dir.name, scene_dir.name, images, np.stack(poses), intrs,
+                       (np.full(3, -NERF_SYNTHETIC_BOX), np.full(3, NERF_SYNTHETIC_BOX)), list(range(len(images))),
+                       mask_arr)
 
 
 # --------------------------------------------------------------------------------------------- dispatch
@@ -303,25 +528,42 @@ def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> li
         return [("ours", p) for p in list_ours(root, split if has_split else None)]
     if fmt == "srn":
         # pixelNeRF: <root>/<cat>_<split>/<object>/ or a folder of objects
-        if (root / "intrinsics.txt").is_file():
+        if (root / "intrinsics.txt").is_file() or (root / "rgb").is_dir():
             return [("srn", root)]
-        cands = sorted(p.parent for p in root.glob(f"*_{split}/*/intrinsics.txt"))
+        cands = _srn_objects(root, f"*_{split}/*") or _srn_objects(root, f"{split}/*")
         if cands:
             return [("srn", p) for p in cands]
-        # a folder of objects: one split of a set (cars_train), or objects without one
-        named = root.name.rsplit("_", 1)[1] if "_" in root.name else ""
+        # a folder of objects: one split of a set (cars_train, or a plain test/), or objects without one
+        named = root.name.rsplit("_", 1)[-1]
         if named in F.SPLITS and named != split:
             raise InputError(f"{root} is the {named!r} split of an SRN set, not {split!r}: give --split {named}, or "
                              f"the set's folder ({root.parent}) to choose its splits")
-        return [("srn", p) for p in sorted(p.parent for p in root.glob("*/intrinsics.txt"))]
+        return [("srn", p) for p in _srn_objects(root, "*")]
     if fmt == "nmr":
         if (root / "cameras.npz").is_file():
             return [("nmr", root)]
         return [("nmr", p) for p in list_nmr(root, split)]
     if fmt == "nerf":
-        scenes = [root] if any(root.glob("transforms_*.json")) else sorted(p.parent for p in root.glob("*/transforms_train.json"))
+        if any(root.glob("transforms_*.json")):
+            return [("nerf", root)]
+        scenes = sorted(p.parent for p in root.glob(f"*/transforms_{split}.json"))
+        if not scenes:
+            have = sorted({p.stem.split("_", 1)[1] for p in root.glob("*/transforms_*.json")})
+            raise InputError(f"{root}: no NeRF-synthetic scene has transforms_{split}.json"
+                             + (f" (the scenes have split(s) {', '.join(have)})" if have else ""))
         return [("nerf", p) for p in scenes]
     raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
+
+
+def object_category(fmt: str, path: Path) -> str:
+    """The category :func:`load_object` gives the object at ``path``, without loading it (our format: its folder's
+    parent, as meta.json records it; SRN: :func:`srn_category`; NeRF-synthetic: the scene)."""
+    path = Path(path)
+    if fmt == "srn":
+        return srn_category(path)
+    if fmt == "nerf":
+        return path.name
+    return path.parent.name
 
 
 def load_object(fmt: str, path: Path, split: str = "train", depth: bool = False) -> ObjectScene:
@@ -331,10 +573,18 @@ def load_object(fmt: str, path: Path, split: str = "train", depth: bool = False)
     if fmt == "srn":
         return load_srn(path)
     if fmt == "nmr":
-        return load_nmr(path)
+        return load_nmr(path, split)
     if fmt == "nerf":
         return load_nerf_synthetic(path, split)
     raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
+
+
+def _srn_objects(root: Path, pattern: str) -> list[Path]:
+    """SRN object folders matching ``pattern`` under ``root``: those with an intrinsics.txt or an rgb/ folder (one
+    without intrinsics.txt is then refused by :func:`load_srn`, not skipped)."""
+    found = {p.parent for p in Path(root).glob(f"{pattern}/intrinsics.txt")}
+    found |= {p.parent for p in Path(root).glob(f"{pattern}/rgb") if p.is_dir()}
+    return sorted(found)
 
 
 def _check_split_name(root: Path, split: str) -> None:

@@ -357,7 +357,8 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                           "nearest": nearest or None,
                           "pool": None if not nearest else "every other view" if pool is None else list(pool),
                           "target_views": list(target_views) if target_views is not None else "all others",
-                          "max_targets": max_targets, "objects": len(seen_objects), "empty_space_skipping": skip,
+                          "max_targets": max_targets, "objects": len(seen_objects),
+                          "empty_space_skipping": skipping_record(skip, [s for s in scenes if id(s) in seen_objects]),
                           "reference_sizes": sorted([list(x) for x in sizes]),
                           "scored_views": len(records), "lpips": "vgg v0.1" if lpips is not None else None,
                           "adaptation": asdict(adapt) if adapt is not None else None,
@@ -370,6 +371,9 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             paired.pop(k, None)
         report["reprojection_minus_model"] = paired
     report.update(extra or {})
+    lists = sorted({s.split_list for s in scenes if id(s) in seen_objects and getattr(s, "split_list", None)})
+    if lists:  # NMR/DVR: which split lists named the objects (pixelNeRF's softras_ or DVR's own)
+        report["data"] = {**(report.get("data") or {}), "split_lists": lists}
     if out_dir is not None:
         out_dir = Path(out_dir)
         F.atomic_write_text(out_dir / "eval.json", report_json({**report, "views": records}) + "\n")
@@ -378,6 +382,19 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
             F.write_png(out_dir / "eval_grid.png", make_grid(grid_rows))
             report["grid"] = str(out_dir / "eval_grid.png")
     return report
+
+
+def skipping_record(skip: str, scenes: Sequence[ObjectScene]) -> str:
+    """What ``eval.json``'s protocol records as empty-space skipping: ``skip`` as asked where every object has masks
+    (the references' visual hull needs them), "off (no masks)" where none has, and the share otherwise."""
+    if skip == "off" or not scenes:
+        return skip
+    masked = sum(s.masks is not None for s in scenes)
+    if masked == len(scenes):
+        return skip
+    if not masked:
+        return "off (no masks)"
+    return f"{skip} for the {masked} of {len(scenes)} objects with masks, off for the rest"
 
 
 def _reference_geometry(s: ObjectScene, r: int, source: str, image, intr, mask, render):
@@ -540,7 +557,7 @@ def markdown_table(report: dict) -> str:
     return text
 
 
-COMPARED_DATA = ("root", "split", "format")
+COMPARED_DATA = ("root", "split", "format", "split_lists")
 """``eval.json``'s ``data`` entries two evaluations must share to be paired (object names repeat across sets:
 a turntable and a sphere-rig render of the same library, another resolution)."""
 COMPARED_PROTOCOL = ("input_views", "nearest", "pool")
