@@ -7,6 +7,13 @@ once (``read_factory_settings`` would unregister it), and ``empty_scene`` resets
 
 from __future__ import annotations
 
+try:  # before any Blender work: under bpy 5.3 (Python 3.13, a torch with triton) importing triton after Blender
+    # has evaluated or baked scenes in this process crashes it (segmentation fault: two LLVMs); torch imports it the
+    # first time an optimizer is made, which the training tests do after the rendering ones
+    import torch._dynamo  # noqa: F401
+except Exception:  # noqa: BLE001  (torch absent or another build: nothing to pre-load)
+    pass
+
 import os
 import sys
 from pathlib import Path
