@@ -108,6 +108,9 @@ def os_error_message(e: OSError) -> str | None:
     import errno
 
     codes = {getattr(errno, n) for n in DISK_ERRNOS if hasattr(errno, n)} | {errno.EACCES, errno.EPERM}
+    if e.errno == errno.ENAMETOOLONG:  # a name longer than the file system allows (255 bytes)
+        name = str(e.filename or "")
+        return f"{e.strerror or e}{f' ({name[:80]}...)' if name else ''}: choose a shorter name"
     if e.errno not in codes:
         return None
     where = f" ({e.filename})" if e.filename else ""

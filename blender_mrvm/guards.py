@@ -7,14 +7,28 @@ temporary folders or ask the user first.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
 from .errors import OutputError
 
+LOCK_FILE = ".lock"
+"""The lock file of a folder a command writes into (:func:`output_lock`); the folder checks ignore it."""
+
+PARTIAL_PREFIX = ".mrvm-partial-"
+"""Temporary files and folders a command builds inside a folder it holds locked (short: a long but legal
+name must not overflow the 255 bytes of a file name); a run killed leaves them, the next run's
+:func:`sweep_partials` removes them."""
+
 
 def _shown(names: list[str]) -> str:
     return ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+
+
+def _ours_always(name: str) -> bool:
+    """A lock file, or what a killed run left (swept by the next run that holds the folder)."""
+    return name == LOCK_FILE or name.startswith(PARTIAL_PREFIX)
 
 
 def check_new_file(path: Path, force: bool = False, what: str = "file", flag: str = "--force") -> Path:
@@ -38,7 +52,7 @@ def check_output_folder(path: Path, force: bool = False, what: str = "output fol
     if path.exists() and not path.is_dir():
         raise OutputError(f"{what} {path} exists and is not a folder")
     if path.is_dir() and not force:
-        present = sorted(p.name for p in path.iterdir() if p.name not in ours)
+        present = sorted(p.name for p in path.iterdir() if p.name not in ours and not _ours_always(p.name))
         if present:
             raise OutputError(f"{what} {path} already holds files ({_shown(present)}); choose another folder "
                               f"or pass {flag} to write over them")
@@ -68,6 +82,101 @@ def check_not_input(out: Path, inputs: dict[str, Path | None]) -> None:
     for what, p in inputs.items():
         if p is not None and Path(p).expanduser().resolve() == o:
             raise OutputError(f"the output folder {out} is the {what} folder; choose another folder")
+
+
+# ---------------------------------------------------------------------------------------------
+# One process at a time in a folder
+# ---------------------------------------------------------------------------------------------
+
+def _lock_holder(fd: int) -> str:
+    try:
+        pid = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        pid = ""
+    return f" (pid {pid})" if pid.isdigit() else ""
+
+
+@contextlib.contextmanager
+def output_lock(folder: Path, what: str = "output folder"):
+    """Hold ``folder`` (created when missing) for this process: a second command writing into it at the same
+    time is refused with OutputError instead of mixing its files with this one's. A ``flock`` on
+    ``<folder>/.lock`` (released by the system when the process dies, even by SIGKILL). On leaving, the lock file
+    goes, and so does the folder with the parents this call created when they are empty (a refusal or a failure
+    leaves nothing behind). Without ``fcntl`` (Windows) there is no lock: the folder checks alone apply."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{what} {folder} exists and is not a folder")
+    made, p = [], folder
+    while not p.exists() and p.parent != p:
+        made.append(p)
+        p = p.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # Windows: no lock
+        fcntl = None
+    fd = None
+    try:
+        if fcntl is not None:
+            path = folder / LOCK_FILE
+            while True:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    holder = _lock_holder(fd)
+                    os.close(fd)
+                    fd = None
+                    raise OutputError(f"{what} {folder} is in use by another process{holder}; wait for it or "
+                                      "choose another folder") from None
+                try:  # the file may have been removed by its last holder between our open and lock: lock anew
+                    same = os.path.samestat(os.fstat(fd), os.stat(path))
+                except FileNotFoundError:
+                    same = False
+                if same:
+                    break
+                os.close(fd)
+                fd = None
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield folder
+    finally:
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(folder / LOCK_FILE)  # while still held: no one can lock the removed file meanwhile
+            os.close(fd)
+        for m in made:  # innermost first; only empty ones
+            try:
+                m.rmdir()
+            except OSError:
+                break
+
+
+def sweep_partials(folder: Path) -> None:
+    """Remove what a killed run left in ``folder`` (:data:`PARTIAL_PREFIX` names); only under
+    :func:`output_lock`, when no other run can be writing them."""
+    import shutil
+
+    for p in Path(folder).glob(PARTIAL_PREFIX + "*"):
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                p.unlink()
+
+
+def check_name_length(path: Path, what: str = "output", extra: int = 0) -> None:
+    """OutputError when a name in ``path`` is longer than the file system allows (``extra`` characters more for
+    names the command derives from it), before any work."""
+    path = Path(path)
+    try:
+        limit = os.pathconf(next((p for p in path.parents if p.is_dir()), Path(".")), "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # (a parent's name too long itself; no pathconf on Windows)
+        limit = 255
+    for part in path.parts:
+        if len(os.fsencode(part)) + extra > limit:
+            raise OutputError(f"{what} {path}: the name {part[:40]}... is {len(os.fsencode(part))} bytes long; "
+                              f"the file system allows {limit - extra}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -113,7 +222,7 @@ class OwnedFolder:
             raise OutputError(f"output {root} exists and is not a folder")
         if force or not root.is_dir():
             return
-        present = sorted(p.name for p in root.iterdir())
+        present = sorted(p.name for p in root.iterdir() if p.name != LOCK_FILE)
         if not present:
             return
         man = self._manifest()

@@ -39,6 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import Cancelled, InputError, OutputError
+from ..guards import LOCK_FILE
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen
 from . import align
@@ -322,7 +323,7 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise OutputError(f"output {out_dir} exists and is not a folder")
     if out.is_dir():
-        present = sorted(p.name for p in out.iterdir())
+        present = sorted(p.name for p in out.iterdir() if p.name != LOCK_FILE)
         # ours and stopped before meta.json (written last): its marker says so, not names alone (a folder of the
         # user's own frames/, colmap/ or points.ply was wiped as one)
         unfinished = (present and set(present) <= set(OUTPUT_ENTRIES) and "meta.json" not in present
@@ -478,8 +479,16 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
                   verbose: bool = False) -> ProgressGen:
     """Recover camera poses of the photos in ``images_dir`` and write a capture folder to ``out_dir``.
 
-    A generator of :class:`Progress`; its return value is a :class:`CaptureResult`.
+    A generator of :class:`Progress`; its return value is a :class:`CaptureResult`. ``out_dir`` is held for the
+    whole run (``guards.output_lock``): a second run into it is refused (two wrote one COLMAP database).
     """
+    from ..guards import output_lock
+
+    with output_lock(Path(out_dir), "capture folder"):
+        return (yield from _recover_poses(images_dir, out_dir, cfg, verbose))
+
+
+def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose: bool) -> ProgressGen:
     import pycolmap
 
     cfg.validate()
@@ -493,7 +502,7 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     source, video_info = images_dir, None
     if is_video(images_dir):
         cfg = replace(cfg, single_camera=True)  # one camera: its focal length from the view graph (no EXIF)
-        fresh = not out_dir.exists()
+        fresh = not [p for p in out_dir.iterdir() if p.name != LOCK_FILE]  # (held: output_lock made it)
         prepare_output(out_dir, images_dir, cfg.force)
         stamp = run_stamp(images_dir.parent, [images_dir.name], cfg)
         images_dir = out_dir / "frames"
@@ -504,8 +513,8 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
                                                    _STAGE_END["scan"])
             size, turned_photos = check_images(images_dir, names, cfg)
         except BaseException:
-            if fresh:  # a video that cannot be read leaves no output folder behind
-                shutil.rmtree(out_dir, ignore_errors=True)
+            if fresh:  # a video that cannot be read leaves no output folder behind (output_lock removes it empty)
+                remove_entries(out_dir, [p.name for p in out_dir.iterdir() if p.name != LOCK_FILE])
             raise
     else:
         names = list_images(images_dir)

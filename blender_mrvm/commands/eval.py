@@ -149,6 +149,16 @@ def read_compare_to(path: Path) -> dict:
 
 
 def run(args) -> int:
+    """The output folder is held for the run (``guards.output_lock``): a second evaluation into it is refused, so
+    its check holds and eval.json, eval.md, eval_grid.png and compare.json come from one run."""
+    from ..guards import check_name_length, output_lock
+
+    check_name_length(args.out, "--out")
+    with output_lock(args.out, "eval output folder"):
+        return _run(args)
+
+
+def _run(args) -> int:
     from ..datasets.loaders import check_finished, detect_format, list_objects, load_object, object_category
     from ..errors import InputError
     from ..progress import run_with_tqdm

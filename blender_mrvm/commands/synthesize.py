@@ -96,7 +96,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from .. import validation as V
-    from ..guards import check_folder_writable, check_new_file
+    from ..guards import check_folder_writable, check_name_length, check_new_file
     from ..synthesis.views import _check_out
 
     views = parse_views(" ".join(args.views)) if args.views else ()
@@ -128,9 +128,15 @@ def run(args) -> int:
             raise InputError(f"--orbit-elevation must be between -90 and 90 degrees, got {args.orbit_elevation}")
     if args.plane_distance is not None and not (math.isfinite(args.plane_distance) and args.plane_distance > 0):
         raise InputError(f"--plane-distance must be a positive distance, got {args.plane_distance}")
+    check_name_length(args.out, "--out")
     _check_out(args.out, cfg)
     if args.blend is not None:
         _check_blend_path(args.blend)
+        from ..datasets.novel_views import blend_images_folder
+
+        # before any view is synthesized: the .blend and its images' folder (<stem>_novel_views) are named last
+        check_name_length(args.blend, "--blend")
+        check_name_length(blend_images_folder(args.blend), "--blend (its images' folder)")
         check_new_file(args.blend, args.force, ".blend file")
         check_folder_writable(args.blend.resolve().parent, "folder of the .blend file")
     if views_note:  # (once every argument is checked: a bad one is one error line)

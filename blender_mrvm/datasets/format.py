@@ -96,11 +96,30 @@ def move_into(tmp: Path, out: Path) -> None:
     shutil.rmtree(tmp, ignore_errors=True)
 
 
+def disk_full_error(e: BaseException, path: Path) -> OSError | None:
+    """An ``OSError(ENOSPC)`` for an error a writer raised as something else (torch.save's RuntimeError
+    'unexpected pos' / 'iostream error', OpenEXR's 'No space left on device') when the disk of ``path`` is
+    full, so the CLI reports it in one line (``cli.os_error_message``); None otherwise."""
+    import errno
+
+    full = "no space" in str(e).lower()
+    if not full:
+        try:
+            p = Path(path)
+            while not p.exists() and p.parent != p:
+                p = p.parent
+            full = os.statvfs(p).f_bavail == 0
+        except (OSError, AttributeError):  # (no statvfs on Windows)
+            full = False
+    return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path)) if full else None
+
+
 def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = None) -> None:
     """Write a file through ``write(tmp_path)`` then rename it into place (never half-written)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+    # the temporary name is bounded: a long but legal name must not overflow the file system's 255 bytes
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:40]}.", suffix=(suffix or path.suffix)[:16], dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
@@ -233,8 +252,11 @@ def exr_writer(channels: dict[str, np.ndarray]) -> Callable[[str], None]:
     chans = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
 
     def w(tmp: str) -> None:
-        with OpenEXR.File(header, chans) as f:
-            f.write(tmp)
+        try:
+            with OpenEXR.File(header, chans) as f:
+                f.write(tmp)
+        except RuntimeError as e:  # a full disk: "... No space left on device"
+            raise disk_full_error(e, Path(tmp)) or e
     return w
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..datasets.novel_views import Target, blend_images_folder
+from ..guards import PARTIAL_PREFIX
 from ..errors import CameraConventionError, InputError
 from ..geometry import cameras as C
 from . import camera as scam
@@ -324,6 +325,21 @@ def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int
     return cams
 
 
+def _remove_dead_partials(folder: Path) -> None:
+    """Remove the temporary .blend files (and Blender's ``.blend1`` backups) of :func:`write_blend` runs whose
+    process is gone (killed while saving)."""
+    for p in Path(folder).glob(f"{PARTIAL_PREFIX}*.blend*"):
+        pid = p.name[len(PARTIAL_PREFIX):].split(".")[0]
+        if not pid.isdigit() or int(pid) == os.getpid() or not p.is_file():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            p.unlink(missing_ok=True)
+        except (OSError, OverflowError):
+            pass  # alive under another user, or not a process id here
+
+
 def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references: Path | None = None,
                 reference_views: tuple[int, ...] = (), plane_distance: float | None = None, bbox=None,
                 populate: Callable[[bpy.types.Scene], None] | None = None) -> Path:
@@ -364,7 +380,10 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
     replacing = blend_path.exists()
     folder = blend_images_folder(blend_path)
     folder_existed = folder.exists()
-    partial = blend_path.with_name(f".{blend_path.stem}.partial-{os.getpid()}.blend")
+    # a short name (a long but legal .blend name must not overflow 255 bytes) with this process's id: what a killed
+    # run left is removed here, once its process is gone
+    partial = blend_path.with_name(f"{PARTIAL_PREFIX}{os.getpid()}.blend")
+    _remove_dead_partials(blend_path.parent)
     made: list[Path] = []
 
     def remove_partial() -> None:

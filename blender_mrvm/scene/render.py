@@ -460,7 +460,8 @@ def _replace_into(path: str, write) -> None:
     less per-file work: the folders exist, the name is unique to this process, the file is created
     with the umask's permissions. Five files a view made that the writer thread's largest cost."""
     folder, name = os.path.split(path)
-    tmp = os.path.join(folder, f".{name}.{os.getpid()}.{next(_TMP_NAMES)}{os.path.splitext(name)[1]}")
+    # (bounded: a long but legal name must not overflow the file system's 255 bytes)
+    tmp = os.path.join(folder, f".{name[:40]}.{os.getpid()}.{next(_TMP_NAMES)}{os.path.splitext(name)[1][:16]}")
     try:
         write(tmp)
         os.replace(tmp, path)

@@ -613,7 +613,20 @@ def synthesize_views(cfg: SynthesisConfig, before_move: Callable[[Path, Synthesi
 
     ``before_move(folder, summary)`` runs when every file is written into the temporary folder, before it
     moves into ``out`` (``synthesize --blend`` builds its .blend there): an error it raises leaves ``out``
-    as it was, like any other."""
+    as it was, like any other.
+
+    ``out`` is held for the run (``guards.output_lock``; a second synthesis into it is refused, so its checks
+    hold until the views are in); the temporary folder is built inside it (one file system, whatever ``out``
+    links to; a short name) and what a killed run left there is removed first."""
+    from ..guards import output_lock, sweep_partials
+
+    with output_lock(Path(cfg.out)) as out:
+        sweep_partials(out)
+        return (yield from _synthesize_views(cfg, before_move))
+
+
+def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
+    from ..guards import PARTIAL_PREFIX
     from ..threads import render_workers
 
     t0 = time.perf_counter()
@@ -747,12 +760,10 @@ def synthesize_views(cfg: SynthesisConfig, before_move: Callable[[Path, Synthesi
             geometry[k] = C.ray_distances(res["depth_z"], refs.intrinsics[k]).astype(np.float32), seen
         return geometry[k]
 
-    base = out.parent if str(out.parent) else Path(".")
-    made = make_folder(base)
     tmp = None
     done = 0
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=base))
+        tmp = Path(tempfile.mkdtemp(prefix=PARTIAL_PREFIX, dir=out))  # (out is held: output_lock made it)
         for i, t in enumerate(targets):
             ts = time.perf_counter()
             geo, lend = [], []
@@ -791,8 +802,7 @@ def synthesize_views(cfg: SynthesisConfig, before_move: Callable[[Path, Synthesi
     finally:
         if tmp is not None and tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-        if not out.exists():  # failed or cancelled: no folder of this run stays
-            remove_new_folders(made)
+        # failed or cancelled: output_lock removes the folder (and parents) it made when they stay empty
     yield Progress(total, total, f"{len(targets)} view{'s' if len(targets) != 1 else ''} written")
     return summary
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from ..datasets.format import atomic_write_text, ordinary_permissions
+from ..datasets.format import atomic_write_text, disk_full_error, ordinary_permissions
 from ..errors import InputError
 from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
                                        find_checkpoint, model_file_of, read_header_meta)  # noqa: F401 (re-exported)
@@ -47,9 +47,12 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
                 "model_kind": kind or registry.kind_of(model_cfg), "model_config": json.dumps(to_dict(model_cfg))}
         for k, v in (extra_meta or {}).items():
             meta[k] = v if isinstance(v, str) else json.dumps(v)
-        save_model(model, str(tmp / MODEL_FILE), metadata=meta)
-        if trainer_state is not None:
-            torch.save(trainer_state, tmp / STATE_FILE)
+        try:
+            save_model(model, str(tmp / MODEL_FILE), metadata=meta)
+            if trainer_state is not None:
+                torch.save(trainer_state, tmp / STATE_FILE)
+        except RuntimeError as e:  # a full disk: torch's zip writer says 'unexpected pos' or 'iostream error'
+            raise disk_full_error(e, tmp) or e
         ordinary_permissions(tmp)
         final = ck_root / name
         if final.exists():
@@ -64,6 +67,14 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
         if old.name != name:
             shutil.rmtree(old, ignore_errors=True)
     return final
+
+
+def remove_partial_saves(run_dir: Path) -> None:
+    """Remove the temporary folders (``checkpoints/.step_*``) of saves that a killed run left; only while the
+    run folder is held (``guards.output_lock``), when no save can be under way."""
+    for p in (Path(run_dir) / "checkpoints").glob(".step_*"):
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
 
 
 read_meta = read_header_meta
@@ -173,7 +184,21 @@ def load_weights_deepened(model: torch.nn.Module, model_file: Path, device: str 
 
 
 def load_model(path: Path, device: str = "cpu"):
-    """(model, model_cfg, meta) from a checkpoint of any kind (any form :func:`find_checkpoint` accepts)."""
+    """(model, model_cfg, meta) from a checkpoint of any kind (any form :func:`find_checkpoint` accepts).
+
+    A run folder that a training is writing may lose the checkpoint picked (pruned, ``keep_checkpoints``) before
+    it is read: then the newest is picked again (twice at most)."""
+    for tries in range(3):
+        picked = find_checkpoint(path)
+        try:
+            return _load_model(path, device)
+        except (InputError, FileNotFoundError):
+            if tries == 2 or picked is None or picked.exists() or Path(path).is_file():
+                raise
+    raise AssertionError("unreachable")
+
+
+def _load_model(path: Path, device: str = "cpu"):
     model_file, meta = checked_header(path)
     cfg = config_from_meta(meta, model_file)
     model = registry.build_model(cfg, load_pretrained=False)  # the checkpoint holds every weight

@@ -257,7 +257,20 @@ def _set_rng_state(batcher: RayBatcher, gen: torch.Generator, st: dict[str, Any]
 def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[ObjectScene] | None = None,
           force: bool = False):
     """Progress generator; returns a summary dict (final step, last losses, checkpoint path).
-    ``force`` lets a run without ``resume`` replace the run folder's old run (``run_folder.resume_point``)."""
+    ``force`` lets a run without ``resume`` replace the run folder's old run (``run_folder.resume_point``).
+
+    The run folder is held (``guards.output_lock``) from before its state is read until the run ends: a second
+    training into it is refused instead of both writing checkpoints and metrics (rank 0 holds it under torchrun)."""
+    from ..guards import output_lock
+
+    main = int(os.environ.get("RANK", "0")) == 0
+    with output_lock(Path(cfg.out_dir), "run folder") if main else nullcontext():
+        if main:
+            ckpt.remove_partial_saves(Path(cfg.out_dir))  # a save killed half-way (only this process writes there)
+        return (yield from _train(model_cfg, cfg, resume, scenes, force))
+
+
+def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectScene] | None, force: bool):
     from . import run_folder
 
     device = cfg.device
