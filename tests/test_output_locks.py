@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import json
 import os
 import subprocess
 import sys
@@ -19,26 +18,9 @@ import torch
 
 from blender_mrvm.cli import main
 from blender_mrvm.datasets import format as F
-from blender_mrvm.training.synthetic import make_sphere_dataset
+from tests.test_faults import config, data  # noqa: F401  (the fault tests' tiny run and its data fixture)
 
 torch.set_num_threads(1)
-
-TINY = {"encoder": {"widths": [8, 8, 8], "out_dim": 8}, "nerformer": {"d_model": 8},
-        "sampler": {"n_coarse": 4, "n_fine": 2}}
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    return make_sphere_dataset(tmp_path_factory.mktemp("lock_ds"), n_objects=2, n_views=4, resolution=16, seed=3)
-
-
-def config(tmp: Path, data: Path, **train) -> Path:
-    doc = {"model": {"preset": "fast", "overrides": TINY},
-           "train": {"data": str(data), "iterations": 6, "rays_per_object": 16, "max_ref_views": 2, "threads": 1,
-                     "ckpt_every": 2, "log_every": 1, "keep_checkpoints": 3, "lr_warmup": 0, **train}}
-    p = tmp / "run.json"
-    p.write_text(json.dumps(doc))
-    return p
 
 
 @pytest.fixture(scope="module")
