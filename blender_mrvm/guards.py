@@ -152,12 +152,13 @@ def output_lock(folder: Path, what: str = "output folder"):
                 break
 
 
-def sweep_partials(folder: Path) -> None:
-    """Remove what a killed run left in ``folder`` (:data:`PARTIAL_PREFIX` names); only under
-    :func:`output_lock`, when no other run can be writing them."""
+def sweep_partials(folder: Path, pattern: str = PARTIAL_PREFIX + "*") -> None:
+    """Remove what a killed run left in ``folder`` (names matching ``pattern``: :data:`PARTIAL_PREFIX` ones, or a
+    run folder's half-saved ``checkpoints/.step_*``); only under :func:`output_lock`, when no other run can be
+    writing them."""
     import shutil
 
-    for p in Path(folder).glob(PARTIAL_PREFIX + "*"):
+    for p in Path(folder).glob(pattern):
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
         else:

@@ -69,14 +69,6 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
     return final
 
 
-def remove_partial_saves(run_dir: Path) -> None:
-    """Remove the temporary folders (``checkpoints/.step_*``) of saves that a killed run left; only while the
-    run folder is held (``guards.output_lock``), when no save can be under way."""
-    for p in (Path(run_dir) / "checkpoints").glob(".step_*"):
-        if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p, ignore_errors=True)
-
-
 read_meta = read_header_meta
 """A model file's safetensors metadata (unchecked)."""
 

@@ -261,12 +261,12 @@ def train(model_cfg: Any, cfg: TrainConfig, resume: bool = True, scenes: list[Ob
 
     The run folder is held (``guards.output_lock``) from before its state is read until the run ends: a second
     training into it is refused instead of both writing checkpoints and metrics (rank 0 holds it under torchrun)."""
-    from ..guards import output_lock
+    from ..guards import output_lock, sweep_partials
 
     main = int(os.environ.get("RANK", "0")) == 0
     with output_lock(Path(cfg.out_dir), "run folder") if main else nullcontext():
-        if main:
-            ckpt.remove_partial_saves(Path(cfg.out_dir))  # a save killed half-way (only this process writes there)
+        if main:  # the temporary folders of saves a killed run left half-way (only this process writes there)
+            sweep_partials(Path(cfg.out_dir) / "checkpoints", ".step_*")
         return (yield from _train(model_cfg, cfg, resume, scenes, force))
 
 
