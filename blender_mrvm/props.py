@@ -110,7 +110,7 @@ class MRVM_PG_dataset(bpy.types.PropertyGroup):
                                description="Dataset root folder (// is relative to the .blend)")
     rig: EnumProperty(name="Rig", items=RIGS, default="sphere")
     views: IntProperty(name="Views", default=24, min=1, soft_max=250, description="Views per object")
-    resolution: IntProperty(name="Resolution", default=128, min=1, max=8192, description="Image width and height, pixels")
+    resolution: IntProperty(name="Resolution", default=128, min=1, max=8192, description="Image width and height, pixels (the Scene rig: the longer side, in the scene's frame shape)")
     engine: EnumProperty(name="Engine", items=ENGINES, default="CYCLES")
     samples: IntProperty(name="Samples", default=32, min=1, soft_max=1024, description="Cycles / EEVEE samples per pixel")
     rgba: BoolProperty(name="Transparent background", default=False,

@@ -50,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", default="sphere", help="sphere | hemisphere | spiral | turntable | scene (default: sphere)")
     p.add_argument("--views", type=int, default=24, help="views per object (default: 24; --rig scene: one a scene "
                    "camera)")
-    p.add_argument("--resolution", default="128", help="R or WxH pixels (default: 128)")
+    p.add_argument("--resolution", default="128", help="R or WxH pixels (default: 128); with --rig scene, R is the longer side of the scene's frame shape "
+                        "(its resolution and pixel aspect), so the views show what its cameras frame")
     p.add_argument("--engine", default="CYCLES", type=str.upper,
                    help="CYCLES | BLENDER_EEVEE | BLENDER_WORKBENCH (default: CYCLES, on the CPU)")
     p.add_argument("--samples", type=int, default=32, help="samples per pixel (default: 32)")
@@ -124,6 +125,12 @@ def run(args) -> int:
         if not Path(args.blend).is_file():
             raise InputError(f".blend file not found: {args.blend}")
         bpy.ops.wm.open_mainfile(filepath=str(Path(args.blend).resolve()))
+    if cfg.rig == "scene" and "x" not in args.resolution.lower():  # R: the scene's frame shape, longer side R
+        from dataclasses import replace
+
+        from ..scene.render import scene_frame_size
+
+        cfg = replace(cfg, resolution=scene_frame_size(bpy.context.scene, cfg.resolution[0]))
     summary = run_with_tqdm(render_dataset(cfg), desc="render", unit="view")
     print(f"{len(summary.objects)} objects, {summary.views_rendered} views rendered, "
           f"{summary.views_skipped} already done, {summary.seconds:.1f} s -> {summary.out}")

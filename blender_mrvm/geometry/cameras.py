@@ -98,9 +98,23 @@ opengl_from_opencv = blender_from_opencv
 opencv_from_opengl = opencv_from_blender
 
 
+SHEAR_TOLERANCE = 1e-4
+"""Largest cosine between two axes of a camera matrix taken as perpendicular (float32 matrices of rotated,
+scaled cameras reach about 1e-7)."""
+
+
 def remove_scale(c2w: np.ndarray) -> np.ndarray:
-    """Orthonormalize the rotation of a camera matrix (Blender objects may carry scale)."""
+    """Orthonormalize the rotation of a camera matrix (Blender objects may carry scale); a mirrored matrix, or a
+    sheared one (a camera under a parent scaled unevenly and rotated: Blender renders its axes as they are, skewed,
+    which no pinhole pose and intrinsics can express), raises :class:`CameraConventionError`."""
     c2w = as_pose(c2w).copy()
+    axes = c2w[:3, :3] / np.maximum(np.linalg.norm(c2w[:3, :3], axis=0), 1e-300)
+    cos = np.abs(axes.T @ axes - np.eye(3)).max()
+    if cos > SHEAR_TOLERANCE:
+        raise CameraConventionError(
+            f"camera matrix is sheared (its axes are {np.degrees(np.arcsin(min(cos, 1.0))):.2g} degrees off "
+            "perpendicular: a parent scaled unevenly and rotated), which Blender renders skewed and no camera pose "
+            "can express; give the camera a parent with uniform scale, or apply the parent's scale")
     u, _, vt = np.linalg.svd(c2w[:3, :3])
     r = u @ vt
     if np.linalg.det(r) < 0:

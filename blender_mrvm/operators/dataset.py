@@ -17,7 +17,7 @@ from ._modal import ProgressOperator
 
 
 def config_from_props(context) -> "RenderConfig":  # noqa: F821
-    from ..scene.render import RenderConfig
+    from ..scene.render import RenderConfig, scene_frame_size
 
     p = context.scene.mrvm_dataset
     if p.source == "SELECTED":
@@ -40,7 +40,8 @@ def config_from_props(context) -> "RenderConfig":  # noqa: F821
     if out.startswith("//") and not bpy.data.filepath:
         raise MRVMError("save the .blend first or choose an absolute output folder (// is relative to the .blend)")
     return RenderConfig(out=Path(bpy.path.abspath(out)), sources=sources, rig=p.rig, views=p.views,
-                        resolution=(p.resolution, p.resolution), engine=p.engine, samples=p.samples,
+                        resolution=(scene_frame_size(context.scene, p.resolution) if p.rig == "scene"
+                                    else (p.resolution, p.resolution)), engine=p.engine, samples=p.samples,
                         rgba=p.rgba, fov_deg=_degrees(p.fov), elevation_deg=_degrees(p.elevation),
                         seed=p.seed, force=p.force, skip_bad_meshes=p.source == "PATH" and p.skip_bad_meshes)
 

@@ -29,7 +29,10 @@ def blender_camera_of(cam_obj: bpy.types.Object, scene: bpy.types.Scene) -> C.Bl
 def read_camera(cam_obj: bpy.types.Object, scene: bpy.types.Scene) -> tuple[C.Intrinsics, np.ndarray]:
     """Intrinsics and OpenCV camera-to-world of a Blender camera object as ``scene`` renders it."""
     intr = C.intrinsics_from_blender(blender_camera_of(cam_obj, scene))
-    c2w = C.opencv_from_blender(C.remove_scale(C.as_pose(cam_obj.matrix_world)))
+    try:
+        c2w = C.opencv_from_blender(C.remove_scale(C.as_pose(cam_obj.matrix_world)))
+    except C.CameraConventionError as e:  # (which of a scene's cameras)
+        raise C.CameraConventionError(f"camera {cam_obj.name!r}: {e}") from None
     return intr, c2w
 
 

@@ -49,7 +49,7 @@ from ..progress import Progress, ProgressGen
 from . import compat
 from . import objects as O
 from . import raster
-from .camera import apply_intrinsics, apply_pose, new_camera, read_camera, set_clip
+from .camera import apply_intrinsics, apply_pose, new_camera, read_camera, render_size, set_clip
 
 ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH")
 MAX_RESOLUTION = 8192
@@ -177,6 +177,9 @@ class RenderSummary:
     warnings: list[str] = field(default_factory=list)
     """One line each, for the end of the run: what was rendered other than the sources asked (missing textures) or
     not at all (meshes skipped by ``skip_bad_meshes``)."""
+    per_view_intrinsics: list[str] = field(default_factory=list)
+    """Objects rendered in this run whose views differ in intrinsics (the SRN ``intrinsics.txt`` holds the first
+    view's: one warning at the end names them)."""
 
     @property
     def views_per_second(self) -> float:
@@ -332,6 +335,7 @@ class RenderSession:
         compat.set_file_format(s, "OPEN_EXR_MULTILAYER")
         s.color_depth = "32"
         s.exr_codec = "NONE"
+        _rec709_exr(s)
         sc.view_settings.view_transform = "Standard"
         sc.view_layers[0].use_pass_z = False  # colour only: the data passes are rasterized
 
@@ -428,13 +432,44 @@ class RenderSession:
 # Per-view outputs
 # --------------------------------------------------------------------------------------------
 
+REC709 = "Linear Rec.709"
+"""The colour space of the EXR the colour is rendered into, whose numbers :func:`rgb_image` encodes as sRGB."""
+
+
+def working_space() -> str:
+    """The open file's working colour space (Blender 5.0: File > Color Management; Linear Rec.709 before)."""
+    cs = getattr(bpy.data, "colorspace", None)
+    return str(getattr(cs, "working_space", "") or REC709)
+
+
+def _rec709_exr(settings: bpy.types.ImageFormatSettings) -> None:
+    """Make the EXR hold linear Rec.709 whatever the file's working colour space: a render's linear numbers are in
+    the working space (ACEScg or Linear Rec.2020 in a file set so, Blender 5.0), and the dataset's sRGB PNGs encode
+    Rec.709 numbers (the sRGB primaries), so ACEScg numbers written as they are would shift every colour. Blender
+    converts on save with its own OpenColorIO config (the image-format override of the EXR's colour space), for
+    every working space it offers. A Blender without the override (or an OCIO config without Linear Rec.709) can
+    only render a Linear Rec.709 file: another working space is refused in one line."""
+    try:
+        settings.color_management = "OVERRIDE"
+        settings.linear_colorspace_settings.name = REC709
+    except (AttributeError, TypeError) as e:  # no such setting / no such colour space in this OCIO config
+        with contextlib.suppress(AttributeError, TypeError):
+            settings.color_management = "FOLLOW_SCENE"
+        ws = working_space()
+        if ws != REC709:
+            raise InputError(f"cannot render from the working colour space {ws!r}: this Blender cannot convert it to "
+                             f"{REC709} ({e}); set File > Color Management > Working Space to {REC709}") from None
+
+
 def _combined_rgba(passes: dict) -> np.ndarray:
     c = passes["Combined"]
     return np.stack([c["R"], c["G"], c["B"], c["A"]], axis=-1).astype(np.float64)
 
 
 def rgb_image(rgba_premult: np.ndarray, rgba_out: bool) -> np.ndarray:
-    """Linear premultiplied RGBA -> uint8 sRGB on white (H, W, 3) or straight RGBA (H, W, 4)."""
+    """Linear Rec.709 premultiplied RGBA (the EXR: :func:`_rec709_exr`) -> uint8 sRGB on white (H, W, 3) or straight
+    RGBA (H, W, 4), both in linear light as Blender composites and un-premultiplies (``format.composite_on_white``
+    reads the RGBA back as the image on white)."""
     rgb, a = rgba_premult[..., :3], np.clip(rgba_premult[..., 3:4], 0.0, 1.0)
     if not rgba_out:
         return F.to_uint8(F.linear_to_srgb(rgb + (1.0 - a)))
@@ -583,6 +618,32 @@ def _scene_cameras(user_scene: bpy.types.Scene, cfg: RenderConfig) -> list[tuple
     return out
 
 
+def scene_frame_size(scene: bpy.types.Scene, longer: int) -> tuple[int, int]:
+    """The dataset size of the scene rig asked for as one number ``longer`` (``--resolution R``; the panel's
+    Resolution): the scene's own frame shape, pixel aspect included, with its longer side ``longer`` pixels (square
+    pixels), so the views show what the artist framed (a square frame would add or cut a band, by sensor fit)."""
+    r = scene.render
+    aspect = (r.resolution_x * r.pixel_aspect_x) / (r.resolution_y * r.pixel_aspect_y)
+    if aspect >= 1.0:
+        return longer, max(1, round(longer / aspect))
+    return max(1, round(longer * aspect)), longer
+
+
+def _frame_change(scene: bpy.types.Scene, w: int, h: int) -> str | None:
+    """A warning when the scene rig's dataset frame (``w`` x ``h``, square pixels) shows another part of the view than
+    the scene's frame does (another shape: a band added or cut, by the cameras' sensor fit), else None."""
+    r = scene.render
+    sw, sh = render_size(scene)
+    aspect = (r.resolution_x * r.pixel_aspect_x) / (r.resolution_y * r.pixel_aspect_y)
+    if abs(w - h * aspect) <= 1.0 and abs(h - w / aspect) <= 1.0:
+        return None
+    fix = "x".join(map(str, scene_frame_size(scene, max(w, h))))
+    pixels = (f" with pixels {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g}"
+              if r.pixel_aspect_x != r.pixel_aspect_y else "")
+    return (f"the scene's cameras frame {sw}x{sh}{pixels}; the dataset's {w}x{h} views show a band more or less of "
+            f"the scene than that frame (by each camera's sensor fit): --resolution {fix} (or one number) keeps it")
+
+
 class _temporary_resolution:
     def __init__(self, scene, w, h):
         self.r, self.new = scene.render, (w, h, 100, 1.0, 1.0)
@@ -652,6 +713,9 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
     scene_cams = _scene_cameras(user_scene, cfg) if cfg.rig == "scene" else None
     if scene_cams is not None:
         cfg = replace(cfg, scene_cameras=_cameras_record(scene_cams))
+        reframed = _frame_change(user_scene, *cfg.resolution)
+        if reframed:
+            passed_over.append(reframed)
     fresh = not Path(cfg.out).exists() and cfg.shard[1] == 1  # (another shard may be starting into it too)
     prepare_output(cfg)
     n_views = len(scene_cams) if scene_cams else cfg.views
@@ -692,6 +756,13 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
             _remove_if_untouched(Path(cfg.out))
         raise
     write_splits(Path(cfg.out))
+    if summary.per_view_intrinsics:
+        named = summary.per_view_intrinsics
+        summary.warnings.append(
+            f"{len(named)} object(s) ({', '.join(named[:3])}{', ...' if len(named) > 3 else ''}) have views with "
+            "different intrinsics (focal length or principal point): each view's are in transforms.json (which this "
+            "package reads), while the SRN intrinsics.txt can hold only one, the first view's; readers of the SRN "
+            "layout alone (pixelNeRF's) would misplace the other views")
     summary.seconds = time.perf_counter() - t0
     return summary
 
@@ -912,6 +983,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
 
         # Per-object camera files (from the poses, so they are exact whatever was resumed).
         F.atomic_write_text(obj_dir / "intrinsics.txt", F.format_srn_intrinsics(intrs[0]))
+        if meta["per_view_intrinsics"]:
+            summary.per_view_intrinsics.append(spec.key)
         frames = []
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
             n = F.view_name(i)
