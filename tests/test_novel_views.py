@@ -502,6 +502,24 @@ def test_operator_modal_progress_and_finish(ready, tmp_path):
     assert p.status.startswith("1 novel view in collection") and op.reports[-1][0] == "INFO"
     assert len(IP.planes_of(bpy.data.objects["Target"])) == 1
     assert ctx.window_manager.calls[-1] == "end"
+    # the scene renders through AgX (Blender's default): the message says the planes show tone-mapped
+    assert bpy.context.scene.view_settings.view_transform == "AgX"
+    assert "view transform AgX" in p.status and "View Transform Standard" in p.status, p.status
+
+
+def test_colour_management_note_names_what_changes_the_planes(empty_scene):
+    """Planes placed by the panel in a scene under AgX (Blender's default since 4.0) rendered the synthesized white
+    as 197 of 255 and shifted hues, and nothing said so (``synthesize --blend`` sets Standard for its own file; the
+    panel leaves the artist's scene as it is): the success message names what the colour management changes."""
+    from blender_mrvm.scene.image_planes import colour_management_note
+
+    vs = empty_scene.view_settings
+    vs.view_transform = "Standard"
+    assert colour_management_note(empty_scene) == ""
+    vs.exposure = 1.5
+    assert "exposure 1.5" in colour_management_note(empty_scene)
+    vs.exposure, vs.view_transform = 0.0, "Filmic"
+    assert "view transform Filmic" in colour_management_note(empty_scene)
 
 
 def test_operator_modal_escape_stops_the_worker_and_adds_nothing(ready, tmp_path, monkeypatch):

@@ -191,10 +191,14 @@ def import_run(context, run: Sem2NeRFRun) -> str:
         from ..scene.sem2nerf import set_show_semantic
 
         set_show_semantic(True)
+    from ..scene.image_planes import colour_management_note
+
     made = sum(1 for t in job.targets if t.generated)
     n = len(res.planes)
+    note = colour_management_note(context.scene)
     return (f"{n} Sem2NeRF view{'s' if n != 1 else ''} of {job.mask_name} in collection {res.collection.name!r}"
-            + (f" ({made} new cameras)" if made else "") + f", generated in {run.seconds:.1f} s")
+            + (f" ({made} new cameras)" if made else "") + f", generated in {run.seconds:.1f} s"
+            + (f". Note: {note}" if note else ""))
 
 
 class MRVM_OT_sem2nerf_paint_mask(bpy.types.Operator):

@@ -497,6 +497,25 @@ def _plane_object(name: str, mesh: bpy.types.Mesh, cam: bpy.types.Object, coll: 
     return obj
 
 
+def colour_management_note(scene: bpy.types.Scene) -> str:
+    """A note when ``scene`` renders its image planes other than as the images are: a view transform other than
+    Standard (AgX, Blender's default since 4.0, maps the synthesized white to 197 of 255 and shifts hues), a look,
+    exposure or gamma; '' when it shows them as they are. (The planes are emission shaders of the images: what
+    the view transform does to them, it does to every pixel.)"""
+    vs = scene.view_settings
+    changed = [f"view transform {vs.view_transform}" if vs.view_transform != "Standard" else "",
+               f"look {vs.look}" if vs.look not in ("None", "", "Standard - None") else "",
+               f"exposure {vs.exposure:g}" if vs.exposure != 0.0 else "",
+               f"gamma {vs.gamma:g}" if vs.gamma != 1.0 else "",
+               "curves" if vs.use_curve_mapping else ""]
+    changed = [c for c in changed if c]
+    if not changed:
+        return ""
+    return (f"the scene's colour management ({', '.join(changed)}) shows the planes other than synthesized; "
+            "Render Properties > Color Management > View Transform Standard (no look, exposure 0, gamma 1) shows "
+            "them as they are")
+
+
 def planes_of(camera: bpy.types.Object) -> list[bpy.types.Object]:
     """Image planes built for ``camera`` (children tagged with its name)."""
     return [o for o in camera.children if o.get(PLANE_TAG) == camera.name]
