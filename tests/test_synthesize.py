@@ -102,8 +102,11 @@ def test_same_numbers_as_the_models_renderer_and_png_round_trip(setup, tmp_path)
     assert np.abs(res["acc"] - ref["acc"].numpy()).max() < 1e-5
     assert 0 < res["evaluated"] < res["rays"] == 24 * 24  # rays that miss the box are not evaluated
     rgba = S.rgba_image(res["color"], res["acc"]).astype(np.float64) / 255.0
-    over_white = rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])
-    assert np.abs(over_white - res["color"]).max() <= 1.0 / 255.0 + 1e-6
+    over_white = F.composite_on_white(rgba[..., :3], rgba[..., 3:])  # in linear light, as Blender shows it
+    fits = (F.srgb_to_linear(res["color"]) >= 1.0 - rgba[..., 3:]).all(-1)  # a straight colour at this alpha gives it
+    assert fits.mean() > 0.5, fits.mean()
+    assert np.abs(over_white - res["color"])[fits].max() <= 1.0 / 255.0 + 1e-6
+    assert (over_white >= res["color"] - 1.0 / 255.0).all()  # the rest: the straight colour clipped to black
     assert np.array_equal(rgba[..., 3], F.to_uint8(res["acc"]) / 255.0)
 
 

@@ -2,7 +2,7 @@
 
 ::
 
-    <out>/rgb/000000.png        the (undistorted) photos, 8-bit sRGB RGB
+    <out>/rgb/000000.png        the (undistorted) photos, 8-bit sRGB RGB (converted from their ICC profile)
     <out>/pose/000000.txt       OpenCV camera-to-world (SRN), in the normalized world
     <out>/intrinsics.txt        SRN intrinsics of the first view (fx; all views share a size)
     <out>/transforms.json       nerfstudio format; each frame names its photo in ``original_name``
@@ -19,6 +19,8 @@ A capture has no depth, normal or mask images: it is reference views, not a rend
 
 from __future__ import annotations
 
+import functools
+import io
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,13 +51,71 @@ def open_photo(path: Path):
         Image.MAX_IMAGE_PIXELS = limit
 
 
-def photo_rgb8(im) -> np.ndarray:
-    """A photo's pixels as 8-bit RGB (what ``rgb/`` holds): 16- and 32-bit greyscale scaled down from the 16-bit
-    range (Pillow's own conversion clips them at 255: a white image), the rest as Pillow converts them."""
-    if im.mode in ("I", "I;16", "I;16L", "I;16B", "I;16N", "F"):
-        grey = np.clip(np.asarray(im, dtype=np.float64) / 257.0, 0, 255).round().astype(np.uint8)
-        return np.repeat(grey[..., None], 3, axis=2)
-    return np.asarray(im.convert("RGB"))
+@functools.lru_cache(maxsize=16)
+def _srgb_transform(icc: bytes, mode: str):
+    """An lcms transform from the ICC profile ``icc`` of an image of ``mode`` (RGB, L or CMYK) to sRGB, or None when
+    none is needed or none can be made: the profile is sRGB (it maps a grid of colours to themselves within one
+    level: converting would only round), lcms cannot read it, or it does not fit the mode. Cached: a capture's
+    photos share one profile."""
+    from PIL import Image, ImageCms
+
+    space = {"RGB": "RGB", "L": "GRAY", "CMYK": "CMYK"}[mode]
+    try:
+        src = ImageCms.ImageCmsProfile(io.BytesIO(icc))
+        if src.profile.xcolor_space.strip() != space:
+            return None
+        t = ImageCms.buildTransform(src, ImageCms.createProfile("sRGB"), mode, "RGB",
+                                    renderingIntent=1)  # ICC relative colorimetric, as viewers show photos
+        if mode == "CMYK":
+            return t
+        levels = np.linspace(0, 255, 18).round().astype(np.uint8)
+        grid = np.stack(np.meshgrid(levels, levels, levels), -1).reshape(-1, 1, 3) if mode == "RGB" \
+            else levels.reshape(-1, 1)
+        got = np.asarray(ImageCms.applyTransform(Image.fromarray(grid, mode), t)).astype(int)
+        want = grid if mode == "RGB" else np.repeat(grid[..., None], 3, -1)
+        return None if np.abs(got - want).max() <= 1 else t
+    except (ImageCms.PyCMSError, OSError, ValueError):
+        return None
+
+
+def srgb_photo(im):
+    """The photo converted to sRGB (a PIL RGB image) when it carries an ICC profile other than sRGB, else None.
+
+    A photo's numbers are in its profile's colours: an iPhone's (and many Android phones') are Display P3, a
+    camera's may be Adobe RGB. ``rgb/`` holds 8-bit sRGB without a profile, and everything downstream (the loaders,
+    the models, Blender's image planes) reads the numbers as sRGB, so kept as they are they would be the wrong
+    colours (P3 reds and greens duller). Converted with the relative colorimetric intent, as viewers show them. A
+    profile lcms cannot read, or of another colour space than the image's, is ignored: the numbers are taken as
+    sRGB, as a viewer that ignores it shows them. 16-bit and float images are not converted (lcms takes 8 bits)."""
+    icc = im.info.get("icc_profile")
+    if not icc:
+        return None
+    mode = {"RGB": "RGB", "RGBA": "RGB", "RGBX": "RGB", "RGBa": "RGB", "P": "RGB", "PA": "RGB", "L": "L", "LA": "L",
+            "1": "L", "CMYK": "CMYK"}.get(im.mode)
+    t = _srgb_transform(bytes(icc), mode) if mode else None
+    if t is None:
+        return None
+    from PIL import ImageCms
+
+    return ImageCms.applyTransform(im if im.mode == mode else im.convert(mode), t)
+
+
+def photo_rgb8(im, where: Path | str | None = None) -> np.ndarray:
+    """A photo's pixels as 8-bit sRGB RGB (what ``rgb/`` holds): converted from its ICC profile (:func:`srgb_photo`),
+    else its colours as the loaders read them (``format.colour_pixels``, ``format.unit_pixels``: a palette's colours,
+    CMYK as RGB, 16 bits over 257, a float image's [0, 1] times 255; Pillow's own conversion clips 16 bits at 255, a
+    white image, and scaling a float image as 16 bits made it black), alpha dropped, grey repeated."""
+    srgb = srgb_photo(im)
+    if srgb is not None:
+        return np.asarray(srgb)
+    x = F.colour_pixels(im, where if where is not None else (getattr(im, "filename", "") or "photo"))
+    if x.dtype != np.uint8:
+        x = F.to_uint8(F.unit_pixels(x))
+    if x.ndim == 2:
+        x = x[..., None]
+    if x.shape[-1] in (2, 4):
+        x = x[..., :-1]
+    return np.ascontiguousarray(np.repeat(x, 3, -1) if x.shape[-1] == 1 else x)
 
 
 def png_bit_depth(path: Path) -> int | None:
@@ -127,10 +187,11 @@ def write_capture(out_dir: Path, views: list[CaptureView], xyz: np.ndarray, rgb:
             if im.size != (v.intrinsics.width, v.intrinsics.height):
                 raise InputError(f"{v.image_path}: image is {im.size[0]}x{im.size[1]}, its camera says "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
-            if im.format == "PNG" and im.mode == "RGB" and png_bit_depth(v.image_path) == 8:  # what rgb/ holds
+            if im.format == "PNG" and im.mode == "RGB" and png_bit_depth(v.image_path) == 8 \
+                    and srgb_photo(im) is None:  # what rgb/ holds
                 F.atomic_write(dst, lambda tmp, src=v.image_path: shutil.copyfile(src, tmp))
             else:  # (a 16-bit PNG opens as RGB too, but is not 8-bit on disk)
-                F.write_png(dst, photo_rgb8(im), compress_level=1)  # photos: 5x faster, 20 % larger
+                F.write_png(dst, photo_rgb8(im, v.image_path), compress_level=1)  # photos: 5x faster, 20 % larger
         F.write_srn_pose(out_dir / "pose" / f"{name}.txt", v.c2w_opencv)
         k = v.intrinsics
         frames.append({"file_path": f"rgb/{name}.png", "c2w_opencv": v.c2w_opencv, "original_name": v.original_name,

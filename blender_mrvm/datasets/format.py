@@ -4,7 +4,8 @@
 
     <root>/mrvm_dataset.json                 what produced the set (guards against mixing sets)
     <root>/<category>/<object_id>/
-      rgb/000000.png        8-bit sRGB, composited on white (or RGBA, flag in meta.json)
+      rgb/000000.png        8-bit sRGB, composited on white (or RGBA, flag in meta.json; straight alpha, mixed
+                            in linear light: :func:`composite_on_white`)
       depth/000000.exr      float32 planar z-depth, channel "Y"; 0 where the ray hits nothing
       normal/000000.exr     float32 world-space unit normals, channels "R", "G", "B"; 0 on background
       mask/000000.png       uint8 part ids, 0 = background (labels in meta.json)
@@ -171,6 +172,61 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
 
 def to_uint8(x: np.ndarray) -> np.ndarray:
     return np.clip(np.round(np.asarray(x) * 255.0), 0, 255).astype(np.uint8)
+
+
+def unit_pixels(a: np.ndarray) -> np.ndarray:
+    """uint8 / uint16 / float pixels (what :func:`colour_pixels` returns) as float32 in [0, 1]: 8 bits over 255,
+    16 bits over 65535, a float image as it is (its range is [0, 1])."""
+    a = np.asarray(a)
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    return a.astype(np.float32)
+
+
+# Straight alpha, one convention (the dataset format's, Blender's): an RGBA image holds sRGB-encoded straight colour
+# s and alpha a, and it shows over a background b as the mix in linear light, lin(s) a + lin(b) (1 - a). Blender
+# mixes so (image planes, the compositor) and renders so (a view rendered on white is the --rgba one mixed so), not
+# in the sRGB numbers (s a + b (1 - a): a soft edge over white comes out darker).
+
+def _soft_alpha(colour: np.ndarray, alpha) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    c = np.asarray(colour, dtype=np.float64)
+    a = np.broadcast_to(np.clip(np.asarray(alpha, dtype=np.float64), 0.0, 1.0), c.shape)
+    return c, a, (a > 0.0) & (a < 1.0)
+
+
+def composite_on_white(colour: np.ndarray, alpha) -> np.ndarray:
+    """Straight sRGB colour in [0, 1] (..., C) with alpha (..., 1) over white, mixed in linear light; float64.
+
+    Opaque pixels keep their colour exactly and empty ones are white; only the soft ones (0 < a < 1) are mixed."""
+    c, a, soft = _soft_alpha(colour, alpha)
+    out = np.where(a >= 1.0, c, 1.0)
+    out[soft] = linear_to_srgb(srgb_to_linear(c[soft]) * a[soft] + (1.0 - a[soft]))
+    return out
+
+
+def uncomposite(colour: np.ndarray, alpha, background: float = 1.0) -> np.ndarray:
+    """The straight sRGB colour whose linear-light mix with alpha over ``background`` (1 white, 0 black) is
+    ``colour``, the sRGB colour a model rendered on that background: lin(s) = (lin(c) - b (1 - a)) / a, clipped to
+    [0, 1] (a colour darker than the background allows at that alpha has no straight colour); float64.
+
+    Where alpha is 0 the colour is kept as it is (the background); where it is 1 it is the colour."""
+    c, a, soft = _soft_alpha(np.clip(np.asarray(colour, dtype=np.float64), 0.0, 1.0), alpha)
+    out = c.copy()
+    lin = (srgb_to_linear(c[soft]) - float(background) * (1.0 - a[soft])) / a[soft]
+    out[soft] = linear_to_srgb(np.clip(lin, 0.0, 1.0))
+    return out
+
+
+def straight_rgba(colour: np.ndarray, alpha: np.ndarray, background: float = 1.0) -> np.ndarray:
+    """uint8 RGBA (H, W, 4) of a model's colour on ``background`` (H, W, 3) and its opacity (H, W): the alpha as it
+    is stored (8 bits), the straight colour :func:`uncomposite` with that stored alpha, so that mixing the file over
+    the background in linear light gives the colour back to within its 8-bit rounding (where a straight colour can
+    give it: over white, a colour lighter than the white showing through, lin(c) >= 1 - a)."""
+    a8 = to_uint8(np.clip(np.asarray(alpha, dtype=np.float64), 0.0, 1.0))
+    straight = uncomposite(colour, a8[..., None].astype(np.float64) / 255.0, background)
+    return np.concatenate([to_uint8(straight), a8[..., None]], axis=-1)
 
 
 def png_writer(arr: np.ndarray, compress_level: int = 6) -> Callable[[str], None]:

@@ -2,8 +2,9 @@
 
 Every loader returns :class:`ObjectScene` objects with OpenCV camera-to-world poses (checked rigid:
 ``format.check_pose``) and :class:`~..geometry.cameras.Intrinsics` (conversions go through
-``geometry/cameras.py``), images as float32 RGB in [0, 1] composited on white (palette, CMYK and 16-bit
-files decoded to their colours: ``format.read_png(colour=True)``), object masks where the format has them,
+``geometry/cameras.py``), images as float32 RGB in [0, 1] composited on white (straight alpha mixed in linear light,
+as Blender does: :func:`to_float_rgb`; palette, CMYK and 16-bit files decoded to their colours:
+``format.read_png(colour=True)``), object masks where the format has them,
 and an object box (from ``meta.json`` where the format has one, else the format's documented bounds).
 Image suffixes match in any case (.PNG, .JPG). bpy-free.
 
@@ -91,33 +92,22 @@ class ObjectScene:
         return out
 
 
-def to_float_rgb(arr: np.ndarray) -> np.ndarray:
-    """uint8 / uint16 / float image (H, W[, C]) -> float32 RGB in [0, 1], alpha composited on white."""
-    a = np.asarray(arr)
-    if a.dtype == np.uint8:
-        x = a.astype(np.float32) / 255.0
-    elif a.dtype == np.uint16:
-        x = a.astype(np.float32) / 65535.0
-    else:
-        x = a.astype(np.float32)
+def to_float_rgb(arr: np.ndarray, linear_alpha: bool = True) -> np.ndarray:
+    """uint8 / uint16 / float image (H, W[, C]) -> float32 RGB in [0, 1], alpha composited on white.
+
+    Straight alpha is mixed in linear light (``format.composite_on_white``), as Blender renders it on white and
+    shows it over white: an ``--rgba`` dataset loads as the dataset rendered on white. ``linear_alpha=False`` mixes
+    the sRGB numbers (c a + 1 - a), the NeRF-synthetic benchmark's own protocol (NeRF, nerfstudio), kept for its
+    scenes so that scores stay comparable with published ones."""
+    x = F.unit_pixels(arr)
     if x.ndim == 2:
-        x = np.repeat(x[..., None], 3, -1)
-    if x.shape[-1] == 4:
-        alpha = x[..., 3:4]
-        x = x[..., :3] * alpha + (1.0 - alpha)
-    elif x.shape[-1] == 2:  # grey + alpha
-        x = np.repeat(x[..., :1] * x[..., 1:] + (1.0 - x[..., 1:]), 3, -1)
-    return np.clip(x[..., :3], 0.0, 1.0)
-
-
-def _unit(a: np.ndarray) -> np.ndarray:
-    """uint8 / uint16 / float pixels as float32 in [0, 1]."""
-    a = np.asarray(a)
-    if a.dtype == np.uint8:
-        return a.astype(np.float32) / 255.0
-    if a.dtype == np.uint16:
-        return a.astype(np.float32) / 65535.0
-    return a.astype(np.float32)
+        x = x[..., None]
+    if x.shape[-1] in (2, 4):  # grey + alpha, RGBA
+        c, alpha = x[..., :-1], x[..., -1:]
+        x = F.composite_on_white(c, alpha) if linear_alpha else c * alpha + (1.0 - alpha)
+    if x.shape[-1] == 1:
+        x = np.repeat(x, 3, -1)
+    return np.clip(x[..., :3], 0.0, 1.0).astype(np.float32)
 
 
 def read_colour(path: Path) -> np.ndarray:
@@ -128,7 +118,7 @@ def read_colour(path: Path) -> np.ndarray:
 def read_binary_mask(path: Path) -> np.ndarray:
     """(H, W) bool object mask of a mask image (DVR/NMR ``mask/*.png``): object where it is brighter than one half
     (> 127 of 255), whatever its mode (grey, palette, RGB: the brightest colour channel)."""
-    x = _unit(F.read_png(path, colour=True))
+    x = F.unit_pixels(F.read_png(path, colour=True))
     if x.ndim == 3:
         x = x[..., :3].max(-1) if x.shape[-1] >= 3 else x[..., 0]
     return x > 0.5
@@ -459,7 +449,7 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
     for k, fr in enumerate(d.get("frames", [])):
         p = _frame_image(scene_dir, fr["file_path"])
         raw = F.read_png(p, colour=True)
-        im = to_float_rgb(raw)
+        im = to_float_rgb(raw, linear_alpha=False)
         h, w = im.shape[:2]
         if "fl_x" in d or "fl_x" in fr:  # nerfstudio-style intrinsics
             g = {**d, **fr}
@@ -475,7 +465,7 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
         images.append(im)
         poses.append(c2w)
         intrs.append(intr)
-        masks.append(_unit(raw[..., -1]) > 0.5 if raw.ndim == 3 and raw.shape[-1] in (2, 4) else None)
+        masks.append(F.unit_pixels(raw[..., -1]) > 0.5 if raw.ndim == 3 and raw.shape[-1] in (2, 4) else None)
     if not images:
         raise InputError(f"{tf}: no frames")
     images = _stack(images, scene_dir)

@@ -525,18 +525,16 @@ def rgba_image(color_on_white: np.ndarray, acc: np.ndarray, scene: bool = False)
 
     ``scene``: the view shows a whole scene (``background: scene``): the colour as it is, opaque.
 
-    The model's colour is c * a + (1 - a) (white background); the straight colour is
-    (colour - (1 - a)) / a, computed with the 8-bit alpha that is stored so the round trip is exact
-    to within the 8-bit rounding of the colour; where alpha rounds to 0 the colour is kept as is.
+    Compositing is the dataset format's and Blender's, in linear light (``format.uncomposite``): the straight
+    colour s of the model's colour c on white with opacity a has lin(s) = (lin(c) - (1 - a)) / a, so an image plane
+    of the file over white in Blender, and the loaders, give back the model's output (with the sRGB numbers'
+    (c - (1 - a)) / a, soft edges came out lighter there). It is computed with the 8-bit alpha that is stored, so
+    the round trip is exact to within the 8-bit rounding of the colour; where alpha rounds to 0 the colour is kept.
     """
     if scene:
         rgb8 = F.to_uint8(np.clip(color_on_white, 0.0, 1.0))
         return np.concatenate([rgb8, np.full(rgb8.shape[:-1] + (1,), 255, np.uint8)], axis=-1)
-    a8 = F.to_uint8(np.clip(acc, 0.0, 1.0))
-    a = a8.astype(np.float32)[..., None] / 255.0
-    straight = np.where(a > 0, (color_on_white - (1.0 - a)) / np.maximum(a, 1e-6), color_on_white)
-    rgb8 = F.to_uint8(np.clip(straight, 0.0, 1.0))
-    return np.concatenate([rgb8, a8[..., None]], axis=-1)
+    return F.straight_rgba(color_on_white, acc)
 
 
 # ---------------------------------------------------------------------------------------------

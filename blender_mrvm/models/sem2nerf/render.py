@@ -4,7 +4,8 @@
 pose, intrinsics) without torch, so bad input is a one-line :class:`InputError` and nothing is
 written; then it renders into a temporary folder that is moved into place at the end::
 
-    OUT/rgb/NNNNNN.png             RGBA (alpha = the model's opacity), view 0 = the input camera
+    OUT/rgb/NNNNNN.png             RGBA (alpha = the model's opacity, straight colour: mixed over the model's
+                                   background in linear light it is the model's output), view 0 = the input camera
     OUT/semantic/NNNNNN.png        uint8 part ids (argmax of the rendered semantic map)
     OUT/semantic_color/NNNNNN.png  the same, coloured for viewing
     OUT/pose/NNNNNN.txt            OpenCV camera-to-world of each view (SRN format)
@@ -415,9 +416,11 @@ def render_from_mask(req: RenderRequest):
         DF.write_png(tmp / "mask_input.png", p.mask)
         for k, (intr, c2w) in enumerate(p.views):
             img = model.render_image(intr, c2w, code, style)
-            rgba = torch.cat([img["rgb"], img["acc"][..., None]], -1).clamp(0, 1).cpu().numpy()
+            # straight colour (the model's is composited on its background), as synthesize writes it
+            rgba = DF.straight_rgba(img["rgb"].clamp(0, 1).cpu().numpy(), img["acc"].clamp(0, 1).cpu().numpy(),
+                                    1.0 if cfg.white_background else 0.0)
             ids = labels_t[img["semantic"].argmax(-1).cpu()].numpy().astype(np.uint8)
-            DF.write_png(tmp / "rgb" / f"{k:06d}.png", DF.to_uint8(rgba))
+            DF.write_png(tmp / "rgb" / f"{k:06d}.png", rgba)
             DF.write_png(tmp / "semantic" / f"{k:06d}.png", ids)
             DF.write_png(tmp / "semantic_color" / f"{k:06d}.png", colorize(ids))
             DF.write_srn_pose(tmp / "pose" / f"{k:06d}.txt", c2w)
