@@ -728,3 +728,19 @@ def test_compile_on_request_compiles_every_network_but_the_encoder(setup, tmp_pa
     want = [type(m).__name__ for n, m in model.named_children() if n != "encoder" and any(True for _ in m.parameters())]
     assert want and [name for name, _ in seen] == want and all(kw == {"dynamic": True} for _, kw in seen)
     assert json.loads((tmp_path / "compiled" / "synthesis.json").read_text())["compiled"] is True
+
+
+def test_depth_flag_reaches_the_targets_file_and_the_blend(setup, tmp_path, capsys):
+    """``--depth`` with targets made by the command (``--target-views``, ``--orbit``) wrote the depth maps while
+    OUT/targets.json said "depth": false and the .blend had no depth beside its planes: the targets file of the run
+    now says what was written, and the .blend follows it."""
+    root, obj, ck, tg = setup
+    blend = tmp_path / "b" / "s.blend"
+    args = ["synthesize", "--references", str(obj), "--views", "0,1", "--target-views", "3", "--checkpoint", str(ck),
+            "--out", str(tmp_path / "out"), "--device", "cpu", "--threads", "1", "--depth", "--blend", str(blend)]
+    assert main(args) == 0
+    assert json.loads((tmp_path / "out" / "targets.json").read_text())["depth"] is True
+    assert (tmp_path / "out" / "depth" / "000000.exr").is_file()
+    from blender_mrvm.datasets.novel_views import blend_images_folder
+
+    assert list(blend_images_folder(blend).glob("*depth*.exr")), sorted(blend_images_folder(blend).iterdir())

@@ -164,7 +164,9 @@ def _blend_writer(args, targets: Path):
     blend_frame(read_targets(targets)[0])
 
     def write(folder: Path, summary) -> None:
-        write_blend(args.blend, targets, folder, references=args.references,
+        # the run's own targets.json (whether depth maps were written: --depth over the targets file's word)
+        ran = folder / "targets.json" if (folder / "targets.json").is_file() else targets
+        write_blend(args.blend, ran, folder, references=args.references,
                     reference_views=tuple(int(v) for v in summary.references[1]),
                     plane_distance=args.plane_distance, bbox=summary.bbox)
     return write

@@ -41,7 +41,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..datasets import format as F
-from ..datasets.novel_views import MAX_POOL, MAX_REFERENCES, Target, read_targets
+from ..datasets.novel_views import MAX_POOL, MAX_REFERENCES, Target, read_targets, write_targets
 from ..errors import InputError
 from ..geometry import cameras as C
 from ..progress import Progress, ProgressGen, as_step_of
@@ -792,8 +792,9 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
                                     "reference_views": [int(refs.views[k]) for k in used], **extra})
         summary.seconds = time.perf_counter() - t0
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg, cfg))
-        if Path(cfg.targets).resolve() != (out / "targets.json").resolve():
-            shutil.copyfile(cfg.targets, tmp / "targets.json")  # the cameras, beside their images
+        if Path(cfg.targets).resolve() != (out / "targets.json").resolve() or depth != depth_wanted:
+            # the cameras beside their images, saying whether depth maps were written (--depth over the file's word)
+            write_targets(tmp / "targets.json", targets, depth=depth)
         if before_move is not None:
             before_move(tmp, summary)
         F.move_into(tmp, out)
