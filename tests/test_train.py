@@ -1000,3 +1000,34 @@ def test_training_refuses_boxes_no_camera_looks_at(tmp_path, data, capsys):
     assert err.count("warning:") == 1 and f"{away[0].category}/{away[0].name}" in err and f"1 of the {len(away)}" in err
     with pytest.raises(InputError, match="looks at its box .* the run would learn nothing"):
         RayBatcher(away[:1], tcfg, 0.1, seed=0)
+
+
+def test_init_into_a_folder_holding_another_run_is_refused(tmp_path, data):
+    """``train --init X --out <a folder holding a run>`` went on from the run's own step (X never loaded) while
+    config.json took X's settings (a reviewer's GPNR run turned from depth_spacing auto to linear midway, lr 5e-4 to
+    1e-4); with another architecture the message blamed the intact checkpoint ("does not match its model config").
+    Both are refused in one line before anything is written; the same --init as the run began with (a fine-tune run
+    again after Ctrl-C) continues it."""
+    from blender_mrvm.errors import InputError
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "a", root, iterations=2, ckpt_every=2)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    ck = str(tmp_path / "a")
+    run_b = tmp_path / "b"
+    mcfg_b, tcfg_b = _cfgs(run_b, root, iterations=2, ckpt_every=2)
+    run_to_end(train(mcfg_b, tcfg_b, scenes=scenes))  # a run from a random start
+    before = {p.name: p.read_bytes() for p in run_b.iterdir() if p.is_file()}
+    with pytest.raises(InputError, match=r"began from a random initialisation, not --init .*continue the run without"):
+        run_to_end(train(mcfg_b, replace(tcfg_b, init_checkpoint=ck, iterations=4), scenes=scenes))
+    assert {p.name: p.read_bytes() for p in run_b.iterdir() if p.is_file()} == before
+    # another architecture, no --init: the message names both models, not a broken checkpoint
+    wide = model_config("fast", {**TINY, "nerformer": {"d_model": 32, "n_heads": 2}})
+    with pytest.raises(InputError, match=r"trains a nerformer_mrvm model.*this start asks for .*--no-resume --force"):
+        run_to_end(train(wide, replace(tcfg_b, iterations=4), scenes=scenes))
+    # a fine-tune run continued with its own --init
+    run_c = tmp_path / "c"
+    mcfg_c, tcfg_c = _cfgs(run_c, root, iterations=2, ckpt_every=2, init_checkpoint=ck)
+    run_to_end(train(mcfg_c, tcfg_c, scenes=scenes))
+    s = run_to_end(train(mcfg_c, replace(tcfg_c, iterations=4), scenes=scenes))
+    assert s["resumed_from"] == 2 and s["step"] == 4

@@ -323,7 +323,14 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
     init_from = None
     found, state = run_folder.resume_point(run_dir, resume, force, dd.main)
     if found is not None:
-        ckpt.load_weights(model, found / ckpt.MODEL_FILE, device)
+        _check_continues(run_dir, found, cfg, model_cfg)
+        try:
+            ckpt.load_weights(model, found / ckpt.MODEL_FILE, device)
+        except ckpt.WeightsMismatch:  # the checkpoint is fine: this start asked for another model
+            raise InputError(f"the run in {run_dir} trains {_model_words(ckpt.read_model_config(found / ckpt.MODEL_FILE))}"
+                             f" ({found.name}); this start asks for {_model_words(model_cfg)}: continue the run with "
+                             "its own model (no --preset, --model or config model section), start over with "
+                             "--no-resume --force, or give another --out") from None
         if state.get("world_size", 1) != dd.world:
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
                              f"resume with the same number (got {dd.world})")
@@ -789,6 +796,35 @@ def param_digest(model: torch.nn.Module) -> str:
         h.update(k.encode())
         h.update(v.detach().cpu().contiguous().numpy().tobytes())
     return h.hexdigest()
+
+
+def _model_words(model_cfg) -> str:
+    """'a gpnr model (preset fast)': what a run or a start trains, for messages."""
+    name = getattr(model_cfg, "name", None)
+    return f"a {registry.kind_of(model_cfg)} model" + (f" (preset {name})" if name else "")
+
+
+def _same_checkpoint(a: str | None, b: str | None) -> bool:
+    if not a or not b:
+        return a == b
+    return a == b or (not a.startswith("shipped") and Path(a).expanduser().resolve() == Path(b).expanduser().resolve())
+
+
+def _check_continues(run_dir: Path, found: Path, cfg: TrainConfig, model_cfg) -> None:
+    """A start that continues the run in ``run_dir`` must not name another checkpoint to start from: ``--init X``
+    into a folder holding a run was not used (the run went on from its own step) while config.json took X's
+    settings (a reviewer's GPNR run turned from depth_spacing auto to linear midway, lr 5e-4 to 1e-4). The same
+    --init as the run began with (a fine-tune run again after Ctrl-C) continues it."""
+    from .config import recorded_train
+
+    if not cfg.init_checkpoint:
+        return
+    began = (recorded_train(run_dir) or {}).get("init_checkpoint")
+    if not _same_checkpoint(str(cfg.init_checkpoint), str(began) if began else None):
+        raise InputError(f"the run in {run_dir} (at {found.name}) began from "
+                         f"{began if began else 'a random initialisation'}, not --init {cfg.init_checkpoint}, which "
+                         "would not be used: continue the run without --init, fine-tune into another --out, or start "
+                         "over here with --no-resume --force")
 
 
 def _note_a_longer_schedule(found: Path, step: int, cfg: TrainConfig, main: bool) -> None:
