@@ -95,6 +95,27 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {msg}", file=sys.stderr)
         return 2
+    except (RuntimeError, MemoryError) as e:
+        msg = memory_error_message(e)
+        if msg is None:
+            raise
+        print(f"error: {msg}", file=sys.stderr)
+        return 2
+
+
+def memory_error_message(e: BaseException) -> str | None:
+    """One line for running out of memory (torch's CPU allocator, CUDA, numpy's MemoryError): the sizes a user
+    can lower, not a traceback; None for other errors (bugs keep their traceback). Files are written atomically,
+    so what was finished before is whole."""
+    text = str(e)
+    cuda = type(e).__name__ == "OutOfMemoryError" or "CUDA out of memory" in text
+    if not (cuda or isinstance(e, MemoryError) or "can't allocate memory" in text
+            or "not enough memory" in text or "failed to allocate" in text.lower()):
+        return None
+    where = "the GPU" if cuda else "this machine"
+    first = text.strip().splitlines()[0][:160] if text.strip() else type(e).__name__
+    return (f"out of memory on {where} ({first}): lower --chunk (rays per forward pass), the image or reference "
+            "size, or the batch; what was finished before is kept")
 
 
 DISK_ERRNOS = ("ENOSPC", "EDQUOT", "EROFS", "EFBIG")

@@ -223,3 +223,24 @@ def test_temporary_blends_of_killed_runs_are_removed(tmp_path):
     alive.write_bytes(b"x")
     _remove_dead_partials(tmp_path)
     assert sorted(q.name for q in tmp_path.iterdir()) == [alive.name]
+
+
+@pytest.mark.parametrize("exc", [RuntimeError("DefaultCPUAllocator: can't allocate memory: you tried to allocate "
+                                              "17179869184 bytes. Error code 12 (Cannot allocate memory)"),
+                                 MemoryError("Unable to allocate 16.0 GiB for an array")])
+def test_out_of_memory_is_one_line(exc, monkeypatch, capsys):
+    """``synthesize --chunk 65536`` of a 256 px orbit on a smaller machine ended in torch's allocator traceback
+    (exit 1): running out of memory is one line naming what to lower, exit 2; other errors keep their traceback."""
+    from blender_mrvm import cli
+    from blender_mrvm.commands import contact_sheet
+
+    def boom(args):
+        raise exc
+
+    monkeypatch.setattr(contact_sheet, "run", boom)
+    rc = cli.main(["contact-sheet", "--dataset", "d", "--out", "s.png"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("error: out of memory on this machine") and "--chunk" in err[0]
+    monkeypatch.setattr(contact_sheet, "run", lambda args: (_ for _ in ()).throw(RuntimeError("a bug")))
+    with pytest.raises(RuntimeError, match="a bug"):
+        cli.main(["contact-sheet", "--dataset", "d", "--out", "s.png"])
