@@ -133,6 +133,17 @@ def check_image_side(label: str, value: int, low: int = 1, high: int = MAX_IMAGE
         raise InputError(f"{label} must be between {low} and {high} pixels, got {value}")
 
 
+def check_ref_size(label: str, value: int) -> None:
+    """``--ref-size``: 0 (the model's training size), -1 (the first reference's own) or a longer side in pixels."""
+    if value in (0, -1) and not isinstance(value, bool):
+        return
+    try:
+        check_image_side(label, value, 1, MAX_REFERENCE_SIDE)
+    except InputError:  # (say that 0 and -1 are legal too)
+        raise InputError(f"{label} must be 0 (the model's size), -1 (the first reference's size) or 1 to "
+                         f"{MAX_REFERENCE_SIDE} pixels, got {value!r}") from None
+
+
 def check_count(label: str, value: int, low: int = 0, high: int | None = None) -> None:
     """A count given on the command line (``--views``, ``--objects``, ``--chunk``, ``--threads``)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):

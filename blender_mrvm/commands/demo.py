@@ -73,8 +73,7 @@ def check_args(args) -> None:
     V.check_count("--views", args.views, 3, 360)
     V.check_image_side("--resolution", args.resolution, 8, 1024)
     V.check_image_side("--scene-resolution", args.scene_resolution, 8, 4096)
-    if args.ref_size not in (0, -1):
-        V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    V.check_ref_size("--ref-size", args.ref_size)
     V.check_count("--threads", args.threads, 0, 4096)
     V.check_device_name("--device", args.device)
     if args.device.strip().lower().startswith("cuda"):  # found before the dataset renders, not after

@@ -97,8 +97,7 @@ def check_args(args) -> None:
     from ..datasets.novel_views import MAX_REFERENCES
 
     V.check_count("--nearest", args.nearest, 0, MAX_REFERENCES)
-    if args.ref_size not in (0, -1):
-        V.check_image_side("--ref-size", args.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    V.check_ref_size("--ref-size", args.ref_size)
     from ..training.adapt import from_args as adapt_from_args
 
     from ..errors import InputError

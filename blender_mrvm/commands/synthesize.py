@@ -84,7 +84,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="write into an output folder that holds files and replace "
                    "an existing --blend file (never the reference folder)")
     p.add_argument("--plane-distance", type=float, default=None,
-                   help="image planes' distance from their cameras for --blend (default: through the object's centre)")
+                   help="image planes' distance from their cameras for --blend (default: half the depth of the object's "
+                        "box centre, median over the targets: the planes float between camera and object)")
 
 
 def run(args) -> int:

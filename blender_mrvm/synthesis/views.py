@@ -142,8 +142,7 @@ def _validate_config(c: SynthesisConfig) -> None:
     if c.precision == "int8" and c.compile:
         raise InputError("--precision int8 and --compile do not combine (torch.compile takes float layers); "
                          "leave one out")
-    if c.ref_size not in (0, -1):
-        V.check_image_side("--ref-size (synthesis.ref_size)", c.ref_size, 1, V.MAX_REFERENCE_SIDE)
+    V.check_ref_size("--ref-size (synthesis.ref_size)", c.ref_size)
     V.check_count("--chunk (synthesis.chunk_rays)", c.chunk_rays, 0, 1 << 22)
     V.check_count("--nearest (synthesis.nearest)", c.nearest, 0, MAX_REFERENCES)
     V.check_count("--threads (synthesis.threads)", c.threads, 0, 4096)
