@@ -889,7 +889,11 @@ def test_model_kind_with_init_fine_tunes_the_checkpoints_own_model(tmp_path, dat
     p.write_text(json.dumps({"model": {"kind": "nerformer_mrvm"}}))
     with pytest.raises(InputError, match="the config's model section .* holds a gpnr model"):
         load_run_config(p, over)
-    assert load_run_config(None, over, kind="gpnr", preset="fast")[0].name == "fast"  # a preset named: that one
+    # a preset named beside it: the checkpoint's own (its weights fit no other preset), or refused
+    assert load_run_config(None, over, kind="gpnr", preset="balanced")[0] == own
+    with pytest.raises(InputError, match=r"--preset fast builds a new gpnr model, but --init .* holds a gpnr model "
+                                         r"\(preset balanced\)"):
+        load_run_config(None, over, kind="gpnr", preset="fast")
 
 
 def test_min_ref_views_above_an_objects_views_is_refused_before_training(tmp_path, data):
@@ -1031,3 +1035,20 @@ def test_init_into_a_folder_holding_another_run_is_refused(tmp_path, data):
     run_to_end(train(mcfg_c, tcfg_c, scenes=scenes))
     s = run_to_end(train(mcfg_c, replace(tcfg_c, iterations=4), scenes=scenes))
     assert s["resumed_from"] == 2 and s["step"] == 4
+
+
+def test_preset_beside_init_fine_tunes_that_model_or_is_refused_clearly(tmp_path):
+    """``train --preset fast --init shipped:gpnr`` said "the run config a nerformer_mrvm model; leave the run config's
+    model section out" to a user who gave no run config (--preset quietly meant a new NeRFormer). A preset that names
+    the checkpoint's own model fine-tunes it; another is refused naming --preset and both models."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models import registry
+
+    over = {"init_checkpoint": "shipped:gpnr", "data": "x", "out_dir": str(tmp_path / "run")}
+    m, _ = load_run_config(None, over, preset="fast")
+    assert registry.kind_of(m) == "gpnr" and m.name == "fast"
+    with pytest.raises(InputError, match=r"--preset balanced builds a new nerformer_mrvm model, but --init "
+                                         r"shipped:gpnr holds a gpnr model \(preset fast\).*drop --preset"):
+        load_run_config(None, over, preset="balanced")
+    with pytest.raises(InputError, match=r"--preset fast builds a new nerformer_mrvm model.*holds a gpnr"):
+        load_run_config(None, over, preset="fast", kind="nerformer_mrvm")

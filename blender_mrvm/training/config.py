@@ -196,6 +196,15 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     validate(tcfg)
     from ..models import registry
 
+    if preset and tcfg.init_checkpoint and not data.get("model"):  # --preset beside --init, no model section
+        theirs = init_model_config(tcfg.init_checkpoint)
+        k_theirs = registry.kind_of(theirs)
+        if getattr(theirs, "name", None) != preset or (kind and registry.kind(kind).name != k_theirs):
+            made = registry.kind(kind).name if kind else "nerformer_mrvm"
+            raise InputError(f"--preset {preset} builds a new {made} model, but --init {tcfg.init_checkpoint} holds a "
+                             f"{k_theirs} model (preset {getattr(theirs, 'name', '?')}) whose weights would not fit it: "
+                             "drop --preset to fine-tune the checkpoint's own model")
+        m = {}  # the checkpoint's own model: what --preset names
     named_kind = registry.kind(m["kind"]).name if m.get("kind") else None
     if kind and named_kind and registry.kind(kind).name != named_kind:
         raise InputError(f"--model {kind} conflicts with the config's own {named_kind} model; drop --model or the "
