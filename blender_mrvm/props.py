@@ -193,7 +193,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                     "rendered from its nearest ones, see Per view) or indices, e.g. '0 1'")
     nearest: IntProperty(name="Per view", default=0, min=0, max=10,
                          description="References each view is rendered from: its nearest ones by direction and "
-                         "distance (fewer is faster). 0 = every reference when there are at most 10, else the 5 nearest")
+                         "distance (fewer is faster). 0 = every reference when there are at most 5, else the 5 nearest")
     photo_colours: EnumProperty(name="Photo colours", items=[
         ("AUTO", "Auto", "Lay the references' own colours over each view where they see its surface when each view is "
          "rendered from its nearest of many references (sharper; each reference is rendered once more for its depth)"),

@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nearest", type=int, default=0, metavar="K",
                    help="render each view from its K nearest references (by direction and distance; fewer is faster, "
                    "docs/guide/novel_views.md, 'Many references'); 0 (default) = every reference when there are "
-                   "at most 10, else the 5 nearest")
+                   "at most 5, else the 5 nearest")
     p.add_argument("--reproject", choices=("auto", "on", "off"), default="auto",
                    help="lay the references' own colours over each view where they see its surface, through the model's "
                    "depth (each reference used is rendered once more): auto (default) = on when each view is rendered "
