@@ -47,7 +47,7 @@ from .check import pair_pose_check, photo_spacing, spacing_advice, spacing_camer
 from .check import warning as check_warning
 from .config import CONVERTED_EXTENSIONS, IMAGE_EXTENSIONS, CaptureConfig
 from .video import VIDEO_EXTENSIONS, extract_frames, is_video, up_from_rotation
-from ..datasets.format import remove_entries
+from ..datasets.format import colour_pixels, remove_entries
 from .export import OUTPUT_ENTRIES, RUN_MARKER, CaptureView, open_photo, photo_rgb8, write_capture
 
 POLL_S = 0.1
@@ -158,9 +158,10 @@ def choose_matcher(cfg: CaptureConfig, names: list[str]) -> str:
 
 
 def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tuple[tuple[int, int], list[str]]:
-    """Check count, readability and sizes; return the common (width, height) and the photos of the transposed size
-    (one camera held both ways, the turn baked into the pixels, as photo apps export them), read turned to the
-    common size (:func:`readable_photos`)."""
+    """Check count, readability, values and sizes; return the common (width, height) and the photos of the transposed
+    size (one camera held both ways, the turn baked into the pixels, as photo apps export them), read turned to the
+    common size (:func:`readable_photos`). A float photo with values outside [0, 1] (or a 32-bit integer one outside
+    0..65535) is refused here, before pycolmap reads it (it clipped it, and the export refused it after mapping)."""
     need = cfg.required_images
     if len(names) < need:
         hint = "" if cfg.allow_pair or len(names) != 2 else " (a stereo pair needs --pair)"
@@ -177,6 +178,8 @@ def check_images(images_dir: Path, names: list[str], cfg: CaptureConfig) -> tupl
         try:
             with open_photo(images_dir / n) as im:
                 im.load()
+                if im.mode in ("F", "I"):  # their values must be colours: InputError naming the photo otherwise
+                    colour_pixels(im, images_dir / n)
                 sizes.setdefault(im.size, []).append(n)
         except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
             raise InputError(f"cannot read image {images_dir / n}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from e
@@ -223,12 +226,26 @@ def _heif_opener(images_dir: Path) -> None:
     pillow_heif.register_heif_opener()
 
 
-def converted_name(name: str, names: list[str]) -> str:
-    """The JPEG name of a photo pycolmap cannot read: its stem + .jpg, or its whole name + .jpg where that is
-    taken by another photo."""
-    stem = Path(name).stem + ".jpg"
+def converted_name(name: str, names: list[str], ext: str = ".jpg") -> str:
+    """The name of the copy of a photo pycolmap cannot read as it is: its stem + ``ext`` (.jpg, or .png), or its
+    whole name + ``ext`` where that is taken by another photo."""
+    stem = Path(name).stem + ext
     taken = {n.lower() for n in names if n != name}
-    return stem if stem.lower() not in taken else name + ".jpg"
+    return stem if stem.lower() not in taken else name + ext
+
+
+def wide_photo(path: Path) -> bool:
+    """Whether a photo is a float or 32-bit integer image (a TIFF's: Pillow's modes F and I). pycolmap reads a float
+    image in [0, 1] right, but writes its undistorted copy as a 3-channel float TIFF, which Pillow cannot open (the
+    export failed on it), and reads a 32-bit integer one as black; :func:`readable_photos` gives it an 8-bit copy.
+    Only the header is read."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return False
+    try:
+        with open_photo(path) as im:
+            return im.mode in ("F", "I")
+    except (OSError, SyntaxError, ValueError):
+        return False
 
 
 def readable_photos(images_dir: Path, names: list[str], work: Path, turned: list[str] = ()) -> ProgressGen:
@@ -236,10 +253,16 @@ def readable_photos(images_dir: Path, names: list[str], work: Path, turned: list
     else ``work/photos`` with the other formats (:data:`CONVERTED_EXTENSIONS`) and the ``turned`` photos (of the
     transposed size) converted to JPEG (quality 95, the photo's EXIF kept, so the focal length prior stays; the
     stored pixels, as a JPEG's are read, except that a HEIF's are turned as libheif shows them, and a turned photo
-    is turned a quarter counter-clockwise, which :func:`photo_ups` turns its up by) and the rest copied. A progress
-    generator; returns (folder, names there, {name there: photo's name} of those renamed)."""
+    is turned a quarter counter-clockwise, which :func:`photo_ups` turns its up by), float and 32-bit integer photos
+    (:func:`wide_photo`) to 8-bit PNG (lossless: the pixels ``rgb/`` holds of them), and the rest copied. A progress
+    generator; returns (folder, names there, {name there: photo's name} of those renamed).
+
+    Every conversion is to 8-bit sRGB (``export.photo_rgb8``: an ICC profile converted); a photo copied as it is
+    keeps its profile, which COLMAP's undistortion keeps in the copies it writes (JPEG, PNG, TIFF; pycolmap 4.2),
+    so ``rgb/`` is sRGB whether or not the photos were undistorted (``export.write_capture`` converts)."""
     turned = set(turned)
-    todo = [n for n in names if Path(n).suffix.lower() in CONVERTED_EXTENSIONS or n in turned]
+    wide = {n for n in names if wide_photo(images_dir / n)}
+    todo = [n for n in names if Path(n).suffix.lower() in CONVERTED_EXTENSIONS or n in turned or n in wide]
     if not todo:
         return images_dir, names, {}
     from PIL import Image
@@ -253,15 +276,18 @@ def readable_photos(images_dir: Path, names: list[str], work: Path, turned: list
     out, renamed = [], {}
     for i, n in enumerate(names):
         if n in todo:
-            new = converted_name(n, names)
+            new = converted_name(n, names, ".png" if n in wide else ".jpg")
             with open_photo(images_dir / n) as im:
                 exif = im.getexif()
-                rgb = Image.fromarray(photo_rgb8(im))
+                rgb = Image.fromarray(photo_rgb8(im, images_dir / n))
             if n in turned:
                 rgb = rgb.transpose(Image.Transpose.ROTATE_90)  # counter-clockwise: to the common size
             if Path(n).suffix.lower() in (".heic", ".heif"):
                 exif[0x0112] = 1  # libheif turned the pixels as the photo is shown (its size as check_images saw)
-            rgb.save(photos / new, "JPEG", quality=95, exif=exif.tobytes())  # others: as a JPEG's stored pixels
+            if n in wide:
+                rgb.save(photos / new, "PNG", compress_level=1, exif=exif.tobytes())
+            else:
+                rgb.save(photos / new, "JPEG", quality=95, exif=exif.tobytes())  # others: as a JPEG's stored pixels
             renamed[new] = n
             yield Progress(i + 1, len(names), f"{'turning' if n in turned else 'converting'} {n} for pycolmap")
         else:
@@ -745,7 +771,8 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
         "num_points": int(len(xyz)), "mean_reprojection_error_px": reproj,
         "normalization": norm_json, "timings_s": timings, "cpu_timings_s": cpu_timings,
         "config": asdict(cfg),
-        # photos pycolmap cannot read (HEIC, WebP) were read as JPEG copies: {copy's name: photo's name}
+        # photos pycolmap cannot read as they are (HEIC, WebP) were read as JPEG copies, float and 32-bit TIFFs as
+        # 8-bit PNG copies: {copy's name: photo's name}
         "converted_photos": renamed,
         # photos stored turned (a phone held upright): their EXIF orientation, which gave the scene's up
         "exif_orientation": turned,

@@ -1787,6 +1787,154 @@ def opaque_invisible_materials(objs: list[bpy.types.Object]) -> list[str]:
     return sorted(fixed)
 
 
+# Working colour spaces. Blender takes a colour given as numbers (a node socket's value, a colour ramp's stops, a
+# material's Viewport Display colour, a float colour attribute) in the open file's working space, which Blender 5.0
+# lets a file set to ACEScg or Linear Rec.2020 (File > Color Management > Working Space). The procedural library's
+# colours and the colours mesh files hold (an OBJ's Kd, a glTF's baseColorFactor, PLY and OBJ vertex colours, FBX
+# and USD colours, assimp's) are linear Rec.709, and Blender 5.0's importers keep their numbers as they are: in an
+# ACEScg file they rendered other colours (an orange OBJ 31/255 off). Converted here when they are made; a .blend
+# appended as a source is converted by Blender itself, and the user's own materials are already in the file's space.
+
+_VECTOR_COLOUR_NODES = frozenset({"ShaderNodeNormalMap", "ShaderNodeVectorDisplacement"})
+"""Nodes whose colour socket holds a vector, not a colour (Blender's own change of working space leaves them)."""
+
+
+def rec709_to_scene_linear() -> np.ndarray | None:
+    """The 3x3 matrix that takes linear Rec.709 numbers to the open file's working space (scene linear), from
+    Blender's own OpenColorIO conversion; None where the two are one: a Linear Rec.709 file, and every file before
+    Blender 5.0 (one working space, whose conversion is the identity to about 1e-5 there: left exact)."""
+    from mathutils import Color
+
+    if not hasattr(Color, "from_rec709_linear_to_scene_linear"):
+        return None
+    m = np.array([Color(tuple(e)).from_rec709_linear_to_scene_linear()[:] for e in np.eye(3)], dtype=np.float64).T
+    return None if np.abs(m - np.eye(3)).max() < 1e-4 else m
+
+
+def rec709_colours_to_working_space(materials=(), meshes=(), node_groups=()) -> None:
+    """Convert colours made from linear Rec.709 numbers into the open file's working space (nothing to do in a
+    Linear Rec.709 file: :func:`rec709_to_scene_linear`): ``materials``' Viewport Display colours and their node
+    trees' colour sockets and colour ramps, the same in ``node_groups`` (with their inputs' defaults), and
+    ``meshes``' float colour attributes (8-bit ones hold sRGB, which Blender converts itself). Each once. Only for
+    what the package makes or imports: never the user's own data, which is in the file's space already."""
+    m = rec709_to_scene_linear()
+    if m is None:
+        return
+
+    def conv(v) -> tuple:
+        v = tuple(v)
+        return (*(m @ np.asarray(v[:3], dtype=np.float64)).tolist(), *v[3:])
+
+    def tree(t) -> None:
+        if t is None or t.as_pointer() in done:
+            return
+        done.add(t.as_pointer())
+        for n in t.nodes:
+            if n.bl_idname in _VECTOR_COLOUR_NODES:
+                continue
+            for s in (*n.inputs, *n.outputs):
+                if s.type == "RGBA" and hasattr(s, "default_value"):
+                    s.default_value = conv(s.default_value)
+            ramp = getattr(n, "color_ramp", None)
+            for e in (ramp.elements if ramp is not None else ()):
+                e.color = conv(e.color)
+        interface = getattr(t, "interface", None)
+        for item in (interface.items_tree if interface is not None else ()):
+            if getattr(item, "item_type", "") == "SOCKET" and getattr(item, "socket_type", "") == "NodeSocketColor":
+                item.default_value = conv(item.default_value)
+
+    done: set[int] = set()
+    for mat in materials:
+        if mat is None or mat.as_pointer() in done:
+            continue
+        done.add(mat.as_pointer())
+        mat.diffuse_color = conv(mat.diffuse_color)
+        mat.specular_color = conv(mat.specular_color)
+        tree(mat.node_tree)
+    for g in node_groups:
+        tree(g)
+    for me in meshes:
+        if me is None or me.as_pointer() in done:
+            continue
+        done.add(me.as_pointer())
+        for attr in getattr(me, "color_attributes", ()):
+            if attr.data_type != "FLOAT_COLOR" or not len(attr.data):
+                continue
+            rgba = np.empty(len(attr.data) * 4, dtype=np.float32)
+            attr.data.foreach_get("color", rgba)
+            rgba = rgba.reshape(-1, 4)
+            rgba[:, :3] = rgba[:, :3].astype(np.float64) @ m.T
+            attr.data.foreach_set("color", rgba.ravel())
+
+
+def _imported_to_working_space(before: dict[str, set[int]]) -> None:
+    """The colours of the materials, node groups and meshes made since ``before`` (:func:`snapshot_data`; a mesh
+    file's import), from linear Rec.709 into the file's working space."""
+    made = {name: [d for d in getattr(bpy.data, name) if d.as_pointer() not in before[name]] for name in before}
+    rec709_colours_to_working_space(made["materials"], made["meshes"], made["node_groups"])
+
+
+# Workbench draws each material's Viewport Display colour (Material.diffuse_color), not its shader: a material whose
+# node tree is coloured while that colour is Blender's default grey (how artists leave it) renders grey there.
+
+_DEFAULT_VIEWPORT_COLOUR = (0.8, 0.8, 0.8)
+"""Blender's default Viewport Display colour of a material, and the default colour of a Principled or Diffuse
+BSDF (grey: the same numbers in every working space)."""
+
+
+def _default_grey(rgb) -> bool:
+    return bool(np.abs(np.asarray(tuple(rgb)[:3], dtype=np.float64) - _DEFAULT_VIEWPORT_COLOUR).max() < 1e-3)
+
+
+def _shader_coloured(tree) -> bool:
+    """Whether a Principled or Diffuse BSDF that the material's output renders (upstream of its active output) has
+    a base colour other than the default grey: a value, or anything linked to it (a texture, vertex colours)."""
+    outputs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL"]
+    active = [n for n in outputs if n.is_active_output] or outputs
+    todo, seen = list(active), set()
+    while todo:
+        n = todo.pop()
+        if n.as_pointer() in seen:
+            continue
+        seen.add(n.as_pointer())
+        socket = (n.inputs.get("Base Color") if n.type == "BSDF_PRINCIPLED" else
+                  n.inputs.get("Color") if n.type == "BSDF_DIFFUSE" else None)
+        if socket is not None and (socket.is_linked or not _default_grey(socket.default_value)):
+            return True
+        todo.extend(lk.from_node for s in n.inputs for lk in s.links if not lk.is_muted)
+    return False
+
+
+def viewport_grey_materials(objs: list[bpy.types.Object]) -> list[str]:
+    """Names (sorted, once each) of the materials of these objects whose Viewport Display colour is Blender's default
+    grey while their shader's base colour is not (:func:`_shader_coloured`): what a Workbench render draws grey
+    though Cycles and EEVEE render it coloured. Nothing is modified (a .blend's or the user's own materials)."""
+    names: set[str] = set()
+    done: set[int] = set()
+    for o in objs:
+        for slot in getattr(o, "material_slots", ()):
+            mat = slot.material
+            if mat is None or mat.as_pointer() in done:
+                continue
+            done.add(mat.as_pointer())
+            if (_default_grey(mat.diffuse_color) and compat.uses_nodes(mat) and mat.node_tree is not None
+                    and _shader_coloured(mat.node_tree)):
+                names.add(mat.name)
+    return sorted(names)
+
+
+def viewport_grey_warning(names: list[str]) -> str | None:
+    """One line for the end of a Workbench run about the materials :func:`viewport_grey_materials` found (None for
+    none): named up to 3."""
+    if not names:
+        return None
+    n = len(names)
+    return (f"{n} material(s) ({', '.join(names[:3])}{', ...' if n > 3 else ''}) rendered grey: Workbench draws each "
+            "material's Viewport Display colour (Material Properties > Viewport Display > Color, left at its default "
+            "grey) while their shaders are coloured; Cycles or EEVEE (--engine CYCLES or BLENDER_EEVEE) render the "
+            "shader")
+
+
 def _top_level(objs: list[bpy.types.Object]) -> list[bpy.types.Object]:
     ids = {o.as_pointer() for o in objs}
     return [o for o in objs if o.parent is None or o.parent.as_pointer() not in ids]
@@ -1799,11 +1947,13 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
     textures that are missing are dropped (:func:`drop_missing_textures`) and their names appended to
     ``missing_textures``; its materials read as fully transparent are made opaque (:func:`opaque_invisible_materials`)
     and their names appended to ``made_opaque`` (each when given). An OBJ's material libraries that are nowhere
-    beside it are appended to ``missing_libraries``. A file inside a zip archive is read where the archive is
-    unpacked under ``work_dir`` (:func:`source_file`), which must outlive the render."""
+    beside it are appended to ``missing_libraries``. A mesh file's colours (linear Rec.709) are converted into the
+    file's working space (:func:`rec709_colours_to_working_space`). A file inside a zip archive is read where the
+    archive is unpacked under ``work_dir`` (:func:`source_file`), which must outlive the render."""
     if spec.kind == "file":
         path = source_file(spec, work_dir)
         frame: list = []
+        made_before = snapshot_data(("materials", "meshes", "node_groups"))
         try:
             new = _import_file(path, frame)
         except InputError as e:  # named as the user named it, not where the archive was unpacked
@@ -1842,6 +1992,8 @@ def load_into(spec: ObjectSpec, collection: bpy.types.Collection, missing_textur
                     bsdf.inputs["Roughness"].default_value = 0.6
                 o.data.materials.clear()
                 o.data.materials.append(default)
+        if path.suffix.lower() != ".blend":  # (an appended .blend's colours: converted by Blender on append)
+            _imported_to_working_space(made_before)
         return new
     if spec.kind == "selected":
         user = bpy.context.scene

@@ -180,6 +180,9 @@ class RenderSummary:
     per_view_intrinsics: list[str] = field(default_factory=list)
     """Objects rendered in this run whose views differ in intrinsics (the SRN ``intrinsics.txt`` holds the first
     view's: one warning at the end names them)."""
+    viewport_grey: list[str] = field(default_factory=list)
+    """Materials a Workbench run drew in their default grey Viewport Display colour while their shaders are coloured
+    (``objects.viewport_grey_materials``; one warning at the end names them)."""
 
     @property
     def views_per_second(self) -> float:
@@ -756,6 +759,9 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
             _remove_if_untouched(Path(cfg.out))
         raise
     write_splits(Path(cfg.out))
+    grey = O.viewport_grey_warning(summary.viewport_grey)
+    if grey:
+        summary.warnings.append(grey)
     if summary.per_view_intrinsics:
         named = summary.per_view_intrinsics
         summary.warnings.append(
@@ -818,6 +824,9 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
         made_opaque: list[str] = []
         missing_mtl: list[str] = []
         objs = O.load_into(spec, session.coll, missing_tex, made_opaque, work_dir=tmpdir, missing_libraries=missing_mtl)
+        if cfg.engine == "BLENDER_WORKBENCH" and (spec.kind == "selected" or (
+                spec.kind == "file" and Path(spec.member or spec.path).suffix.lower() == ".blend")):
+            summary.viewport_grey.extend(n for n in O.viewport_grey_materials(objs) if n not in summary.viewport_grey)
         if spec.kind == "file":  # names relative to the mesh's folder (an archive's: where it is unpacked)
             images_base = O.archive_root(spec, tmpdir) if spec.member else Path(spec.path).parent
         else:

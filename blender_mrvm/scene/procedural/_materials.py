@@ -3,7 +3,9 @@
 A generator names a material *kind* per part ("wood", "metal", "fabric", ...); :func:`make_material`
 draws colour/roughness/metallic within that kind's range from the object's random generator and
 builds a new material (its node tree is embedded, so the material is the only new datablock).
-``diffuse_color`` / ``metallic`` / ``roughness`` are also set, so Workbench shows the colour.
+``diffuse_color`` / ``metallic`` / ``roughness`` are also set, so Workbench shows the colour. Colours are drawn as
+linear Rec.709 and converted into the open file's working space (ACEScg or Linear Rec.2020 in a Blender 5.0 file
+set so: ``objects.rec709_colours_to_working_space``), so an object renders the same colours in every file.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ def _linear(c: float) -> float:
 
 
 def draw_color(rng: np.random.Generator, kind: str) -> tuple[float, float, float]:
-    """A linear RGB colour of ``kind``."""
+    """A linear Rec.709 colour of ``kind``."""
     h, s, v = KINDS[kind][:3]
     hsv = (rng.uniform(*h), rng.uniform(*s), rng.uniform(*v))
     return tuple(_linear(c) for c in colorsys.hsv_to_rgb(*hsv))
@@ -48,7 +50,7 @@ def draw_color(rng: np.random.Generator, kind: str) -> tuple[float, float, float
 
 def make_material(name: str, kind: str, rng: np.random.Generator, pass_index: int,
                   color: tuple[float, float, float] | None = None) -> bpy.types.Material:
-    """A new material of ``kind`` whose ``pass_index`` is the part label."""
+    """A new material of ``kind`` whose ``pass_index`` is the part label (``color``: linear Rec.709, as drawn)."""
     if kind not in KINDS:
         raise KeyError(kind)
     _, _, _, rough_r, metallic, texture = KINDS[kind]
@@ -108,4 +110,7 @@ def make_material(name: str, kind: str, rng: np.random.Generator, pass_index: in
         ramp.inputs["To Max"].default_value = min(rough + 0.15, 1.0)
         nt.links.new(tex.outputs["Fac"], ramp.inputs["Value"])
         nt.links.new(ramp.outputs["Result"], bsdf.inputs["Roughness"])
+    from ..objects import rec709_colours_to_working_space
+
+    rec709_colours_to_working_space([mat])  # the numbers above are linear Rec.709
     return mat
