@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
-from .errors import MRVMError
+from .errors import InputError, MRVMError, OutputError
 from .threads import apply_omp_defaults
 
 apply_omp_defaults()  # before any command imports torch (see threads.py)
@@ -81,13 +82,18 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    rank, world = _torchrun_rank()
     try:
         return int(args._module.run(args) or 0)
     except MRVMError as e:
-        print(f"error: {e}", file=sys.stderr)
+        if rank == 0 or not isinstance(e, (InputError, OutputError)):  # (every rank finds the same bad input)
+            print(f"error: {e}", file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt:
-        print("error: interrupted; finished work is kept", file=sys.stderr)
+        if rank == 0:
+            print("error: interrupted; finished work is kept" if world <= 1 else
+                  "error: interrupted; the checkpoints saved so far are kept (under torchrun the steps since the "
+                  "last one are not)", file=sys.stderr)
         return 130
     except OSError as e:
         msg = os_error_message(e)
@@ -101,6 +107,15 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {msg}", file=sys.stderr)
         return 2
+
+
+def _torchrun_rank() -> tuple[int, int]:
+    """(rank, world size) of this process under torchrun (its RANK / WORLD_SIZE), (0, 1) otherwise: a message every
+    rank would print alike (a bad argument, Ctrl-C) is printed by rank 0 only, not once a process."""
+    try:
+        return int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
+    except ValueError:
+        return 0, 1
 
 
 def memory_error_message(e: BaseException) -> str | None:

@@ -244,3 +244,32 @@ def test_out_of_memory_is_one_line(exc, monkeypatch, capsys):
     monkeypatch.setattr(contact_sheet, "run", lambda args: (_ for _ in ()).throw(RuntimeError("a bug")))
     with pytest.raises(RuntimeError, match="a bug"):
         cli.main(["contact-sheet", "--dataset", "d", "--out", "s.png"])
+
+
+def test_torchrun_ranks_print_a_bad_input_once(monkeypatch, capsys):
+    """Under torchrun every rank finds the same bad argument: the error line was printed once a rank (3 times with
+    3 ranks), and Ctrl-C said 'finished work is kept' twice though the steps since the last checkpoint are lost
+    there. Rank 0 prints them, once, saying what is kept; other errors are printed by the rank that has them."""
+    from blender_mrvm import cli
+    from blender_mrvm.commands import contact_sheet
+    from blender_mrvm.errors import InputError, TrainingStopped
+
+    def raising(exc):
+        def run(args):
+            raise exc
+        return run
+
+    argv = ["contact-sheet", "--dataset", "d", "--out", "s.png"]
+    for rank, printed in (("0", 1), ("1", 0)):
+        monkeypatch.setenv("RANK", rank)
+        monkeypatch.setenv("WORLD_SIZE", "2")
+        monkeypatch.setattr(contact_sheet, "run", raising(InputError("no dataset")))
+        assert cli.main(argv) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == printed
+        monkeypatch.setattr(contact_sheet, "run", raising(KeyboardInterrupt()))
+        assert cli.main(argv) == 130
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == printed and (not printed or "steps since the last one are not" in err[0]), err
+        monkeypatch.setattr(contact_sheet, "run", raising(TrainingStopped("loss is NaN")))
+        cli.main(argv)
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1  # (what one rank alone may meet)

@@ -333,7 +333,7 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
                              "--no-resume --force, or give another --out") from None
         if state.get("world_size", 1) != dd.world:
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
-                             f"resume with the same number (got {dd.world})")
+                             f"resume with the same number (got {dd.world}), or start over with --no-resume --force")
         start = int(state["step"])
         if start > cfg.iterations:  # before anything is written: config.json would record steps never trained
             raise InputError(f"the run in {run_dir} is at step {start} ({found.name}), past train.iterations "
