@@ -391,3 +391,22 @@ def write_ase_quad(path: Path, texture: str, tiling: float) -> Path:
 }}
 """)
     return path
+
+
+# Display P3 (D65) -> linear Rec.709, from the primaries (independent of lcms and of Blender's OCIO config).
+P3_TO_709 = np.array([[1.2249401, -0.2249404, 0.0], [-0.0420569, 1.0420571, 0.0], [-0.0196376, -0.0786361, 1.0982735]])
+
+
+def p3_profile() -> bytes:
+    """Display P3 ICC profile shipped with Blender's colour management (found without importing bpy); skips the
+    test where bpy's datafiles are not here."""
+    import importlib.util
+
+    import pytest
+
+    spec = importlib.util.find_spec("bpy")
+    found = sorted(Path(spec.origin).parent.glob("*/datafiles/colormanagement/icc/srgb_p3d65_display.icc")) \
+        if spec and spec.origin else []
+    if not found:
+        pytest.skip("no Display P3 ICC profile (bpy's datafiles) here")
+    return found[0].read_bytes()

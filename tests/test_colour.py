@@ -9,27 +9,13 @@ photos come into ``rgb/`` as 8-bit sRGB (float images scaled from [0, 1], ICC pr
 
 from __future__ import annotations
 
-import importlib.util
-import io
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from blender_mrvm.datasets import format as F
-
-# Display P3 (D65) -> linear Rec.709, from the primaries (independent of lcms and of Blender's OCIO config).
-P3_TO_709 = np.array([[1.2249401, -0.2249404, 0.0], [-0.0420569, 1.0420571, 0.0], [-0.0196376, -0.0786361, 1.0982735]])
-
-
-def _p3_profile() -> bytes:
-    """Display P3 ICC profile shipped with Blender's colour management (no import of bpy)."""
-    spec = importlib.util.find_spec("bpy")
-    found = sorted(Path(spec.origin).parent.glob("*/datafiles/colormanagement/icc/srgb_p3d65_display.icc")) \
-        if spec and spec.origin else []
-    if not found:
-        pytest.skip("no Display P3 ICC profile (bpy's datafiles) here")
-    return found[0].read_bytes()
+from tests.helpers import P3_TO_709, p3_profile
 
 
 def _mix_over_white(straight: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -210,7 +196,7 @@ def test_p3_photos_are_converted_to_srgb(tmp_path):
     from blender_mrvm.geometry.cameras import Intrinsics
     from blender_mrvm.progress import run_to_end
 
-    icc = _p3_profile()
+    icc = p3_profile()
     cols = np.array([(230, 40, 40), (40, 200, 60), (210, 170, 140), (200, 200, 200)], np.uint8)  # red green skin grey
     a = np.repeat(np.repeat(cols[None], 8, 0), 8, 1)  # 8 x 32
     want = F.to_uint8(F.linear_to_srgb(F.srgb_to_linear(cols / 255.0) @ P3_TO_709.T))

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from blender_mrvm.datasets import format as F
+from tests.helpers import P3_TO_709, p3_profile
 
 ORANGE = (0.8, 0.2, 0.05)
 
@@ -236,20 +237,6 @@ def test_workbench_grey_viewport_colours_are_named(bpy_empty):
 
 # --------------------------------------------------------------------------------------------- problem 3
 
-# Display P3 (D65) -> linear Rec.709, from the primaries (as tests/test_colour.py).
-P3_TO_709 = np.array([[1.2249401, -0.2249404, 0.0], [-0.0420569, 1.0420571, 0.0], [-0.0196376, -0.0786361, 1.0982735]])
-
-
-def _p3_profile() -> bytes:
-    import importlib.util
-
-    spec = importlib.util.find_spec("bpy")
-    found = sorted(Path(spec.origin).parent.glob("*/datafiles/colormanagement/icc/srgb_p3d65_display.icc")) \
-        if spec and spec.origin else []
-    if not found:
-        pytest.skip("no Display P3 ICC profile (bpy's datafiles) here")
-    return found[0].read_bytes()
-
 
 def test_float_photos_outside_0_1_are_refused_before_colmap(tmp_path):
     """A float TIFF with values beyond [0, 1] (an HDR or a raw sensor dump) was read by pycolmap clipped, mapped,
@@ -282,7 +269,7 @@ def test_colmap_undistortion_keeps_a_photos_icc_profile(tmp_path):
     converts it to sRGB as it converts the photos themselves. A guard: a pycolmap that drops it fails here."""
     from PIL import Image
 
-    icc = _p3_profile()
+    icc = p3_profile()
     a = np.zeros((48, 64, 3), np.uint8)
     a[:] = (200, 60, 30)
     for ext, kw in ((".jpg", {"quality": 98}), (".png", {}), (".tif", {})):
@@ -308,7 +295,7 @@ def test_float_and_p3_photos_come_into_rgb_as_srgb_through_undistortion(ring, tm
     from blender_mrvm.capture.sfm import recover_poses
     from blender_mrvm.progress import run_to_end
 
-    icc = _p3_profile()
+    icc = p3_profile()
     d = tmp_path / "in"
     d.mkdir()
     tint = np.array([1.0, 0.55, 0.25])  # (a colour P3 changes)
