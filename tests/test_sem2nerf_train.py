@@ -329,3 +329,119 @@ def test_non_finite_weights_are_refused_and_nan_renders_name_the_checkpoint(tmp_
     code = model.encode(torch.from_numpy(build_inputs(mask, cfg.labels))[None], c2w[None], intr)
     with pytest.raises(InputError, match=f"the checkpoint {ck / 'model.safetensors'} is probably broken"):
         model.render_image(intr, c2w, code, model.default_style())
+
+
+def _tiny(data, out, **kw):
+    base = dict(data=str(data), out_dir=str(out), preset="fast", model_overrides=TINY_MODEL, iterations=2,
+                objects_per_step=1, patch_size=4, lpips_weight=0.0, checkpoint_every=1, log_every=1, threads=1)
+    return T.train_config(**{**base, **kw})
+
+
+def _files(folder):
+    return {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_a_second_run_into_the_same_folder_is_refused_while_the_first_runs(data, tmp_path):
+    """Two `sem2nerf train` into one run folder had both gone ahead (checkpoints overwriting each other, metrics.jsonl
+    interleaved, config.json the last one's): the run folder is held for the whole run, as `train` holds it."""
+    from blender_mrvm.errors import OutputError
+
+    out = tmp_path / "run"
+    first = T.train(_tiny(data, out, iterations=3, seed=1))
+    next(first)  # step 1 done, the run goes on
+    with pytest.raises(OutputError, match=f"run folder {out} is in use by another process"):
+        run_to_end(T.train(_tiny(data, out, iterations=3, seed=2, lr=1e-3)))
+    assert run_to_end(first)["step"] == 3
+    assert json.loads((out / "config.json").read_text())["train"]["seed"] == 1
+    assert [json.loads(x)["step"] for x in (out / "metrics.jsonl").read_text().splitlines()] == [1, 2, 3]
+    assert not (out / ".lock").exists()  # released at the end: the next run goes ahead
+    assert run_to_end(T.train(_tiny(data, out, iterations=4, seed=1)))["step"] == 4
+
+
+def test_a_resume_on_other_objects_is_refused(data, tmp_path):
+    """The checkpoint's per-object style codes belong to the objects it records: a resume on as many other objects
+    had given them to the wrong objects silently. Refused in one line naming the first differing object."""
+    objs = T.load_masked_dataset(data) + T.load_masked_dataset(data, "test")  # 3 objects
+    out = tmp_path / "run"
+    run_to_end(T.train(_tiny(data, out), objects=objs[:2]))
+    before = _files(out)
+    names = [f"{o.category}/{o.name}" for o in objs]
+    with pytest.raises(InputError, match=f"its object 2 is {names[1]}, this data's is {names[2]}: resume it on the "
+                                         "same objects .*--no-resume --force"):
+        run_to_end(T.train(_tiny(data, out, iterations=3), objects=[objs[0], objs[2]]))
+    with pytest.raises(InputError, match=f"this data has 1 more, the first {names[2]}"):
+        run_to_end(T.train(_tiny(data, out, iterations=3), objects=objs))
+    assert _files(out) == before
+    assert run_to_end(T.train(_tiny(data, out, iterations=3), objects=objs[:2]))["step"] == 3
+
+
+def test_a_resume_with_another_model_is_refused(data, tmp_path):
+    """A resume had trained on as the checkpoint's model while config.json recorded the --preset / --model it was
+    given. Refused before anything is written, naming the run's own options, as `train` refuses a resume whose model
+    is not the run's; so is an --init the run did not begin from (`train`'s _check_continues)."""
+    out = tmp_path / "run"
+    run_to_end(T.train(_tiny(data, out, iterations=3)))
+    before = _files(out)
+    with pytest.raises(InputError, match=r"trains a sem2nerf model with preset=fast; this start \(--preset balanced\) "
+                                         r"asks for preset=balanced and 9 more setting\(s\), which would not be used: "
+                                         r"continue it with its own model \(--preset fast --model vgg_layers=4 "
+                                         r"--model encoder_hidden=32 .*--model n_fine=2\), start over with "
+                                         r"--no-resume --force, or give another --out"):
+        run_to_end(T.train(_tiny(data, out, iterations=4, preset="balanced", model_overrides=())))
+    with pytest.raises(InputError, match=r"with preset=fast; this start \(--preset balanced --model hidden=16 .*\) "
+                                         r"asks for preset=balanced, which"):  # the same fields, another preset
+        run_to_end(T.train(_tiny(data, out, iterations=4, preset="balanced")))
+    with pytest.raises(InputError, match="with n_coarse=6; this start .* asks for n_coarse=8, which"):
+        run_to_end(T.train(_tiny(data, out, iterations=4, model_overrides=TINY_MODEL + (("n_coarse", 8),))))
+    with pytest.raises(InputError, match="began from a random initialisation, not --init"):
+        run_to_end(T.train(_tiny(data, out, iterations=4, init_checkpoint=str(tmp_path / "other"))))
+    assert _files(out) == before
+    # the same options (the overrides in any order) continue it; a larger --iterations is fine
+    s = run_to_end(T.train(_tiny(data, out, iterations=4, model_overrides=tuple(reversed(TINY_MODEL)))))
+    assert s["step"] == 4 and json.loads((out / "config.json").read_text())["train"]["iterations"] == 4
+
+
+def test_half_saved_checkpoints_of_a_killed_run_are_swept_at_the_next_start(data, tmp_path):
+    """kill -9 during a checkpoint save leaves its temporary checkpoints/.step_* folder; the next start removes it
+    under the run folder's lock (guards.sweep_partials, as `train`)."""
+    out = tmp_path / "run"
+    run_to_end(T.train(_tiny(data, out, iterations=1)))
+    left = out / "checkpoints" / ".step_0000002.x1y2z3"
+    left.mkdir()
+    (left / "model.safetensors").write_bytes(b"half")
+    run_to_end(T.train(_tiny(data, out, iterations=2)))
+    assert not left.exists() and sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "latest", "step_0000001", "step_0000002"]
+
+
+def test_a_fine_tune_gives_learned_codes_to_their_own_objects_only(data, tmp_path):
+    """--init takes the per-object codes the checkpoint learned for the objects it trained, by name: on as many
+    other objects they had been taken by position. A resume of the fine-tune without --init goes on (the run's own
+    init recorded)."""
+    objs = T.load_masked_dataset(data) + T.load_masked_dataset(data, "test")  # 3 objects
+    run_to_end(T.train(_tiny(data, tmp_path / "old", iterations=1), objects=objs[:2]))
+    old = torch.load(tmp_path / "old" / "checkpoints" / "step_0000001" / "trainer_state.pt", weights_only=True)
+    ft = tmp_path / "ft"
+    cfg = _tiny(data, ft, iterations=1, init_checkpoint=str(tmp_path / "old"), code_lr=0.0)
+    run_to_end(T.train(cfg, objects=[objs[1], objs[2]]))
+    new = torch.load(ft / "checkpoints" / "step_0000001" / "trainer_state.pt", weights_only=True)
+    assert torch.equal(new["codes"][0], old["codes"][1])  # objs[1] keeps its own code
+    assert not any(torch.equal(new["codes"][1], c) for c in old["codes"])  # objs[2]: a fresh one
+    s = run_to_end(T.train(T.train_config(**{**cfg.__dict__, "init_checkpoint": "", "iterations": 2}),
+                           objects=[objs[1], objs[2]]))
+    assert s["step"] == 2
+    assert json.loads((ft / "config.json").read_text())["train"]["init_checkpoint"] == str(tmp_path / "old")
+
+
+def test_a_resume_below_the_runs_step_is_refused(data, tmp_path):
+    """--iterations below the run's step had exited 0 with nothing trained and config.json recording the lower
+    number; refused before anything is written, as `train` refuses it. The run's own step is fine (nothing to do)."""
+    out = tmp_path / "run"
+    run_to_end(T.train(_tiny(data, out, iterations=3)))
+    before = _files(out)
+    with pytest.raises(InputError, match=r"the run in .* is at step 3 \(step_0000003\), past --iterations \(2\): "
+                                         r"raise it to 3 or more to continue the run, or start it over "
+                                         r"\(--no-resume --force\)"):
+        run_to_end(T.train(_tiny(data, out)))
+    assert _files(out) == before
+    assert run_to_end(T.train(_tiny(data, out, iterations=3)))["step"] == 3

@@ -6,6 +6,10 @@
   python -m blender_mrvm sem2nerf eval --checkpoint runs/s2n --data data/shapenet13_all --holdout 3 --out eval/s2n
   python -m blender_mrvm sem2nerf bench --out docs --force  # -> docs/bench_sem2nerf_inputs.csv
 
+train resumes the run in --out as it is (its objects, its --preset and --model, the --init it began from, an
+--iterations not below its step) or refuses in one line before anything is written; it holds the run folder
+(.lock) while it runs, and removes the half-saved checkpoints a killed run left.
+
 render writes OUT/rgb, OUT/semantic (uint8 part ids), OUT/semantic_color, OUT/pose and sem2nerf.json;
 bad input (labels the checkpoint does not know, an empty mask, a mask of another size, a missing
 pose) is one line `error: ...` and nothing is written.
@@ -23,8 +27,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub.required = True
     t = sub.add_parser("train", help="train a Sem2NeRF model on a dataset with part masks")
     t.add_argument("--data", required=True, help="dataset root (our format, mask/*.png part ids)")
-    t.add_argument("--out", required=True, help="run folder (resumed from its latest checkpoint)")
-    t.add_argument("--preset", default="balanced", help="model preset: fast or balanced (default balanced)")
+    t.add_argument("--out", required=True, help="run folder (resumed from its latest checkpoint, on the same objects "
+                   "with the same --preset and --model; a second training into it is refused while one runs)")
+    t.add_argument("--preset", default="balanced", help="model preset: fast or balanced (default balanced; a resumed "
+                   "run must name its own)")
     t.add_argument("--split", default="train", help="split to train on (default train)")
     t.add_argument("--holdout", type=int, default=0, help="leave out the last N objects of every category")
     t.add_argument("--max-objects", type=int, default=0, help="use at most this many objects (0 = all)")

@@ -108,6 +108,15 @@ def resume_point(run_dir: Path, resume: bool = True, force: bool = False,
     return None, None
 
 
+def check_not_past(run_dir: Path, found: Path, step: int, iterations: int, flag: str, how: str = "") -> None:
+    """A resume of the run at ``step`` (checkpoint ``found``) with fewer ``iterations`` is refused before anything
+    is written: config.json would record steps never trained while the model is further on (``train`` and
+    ``sem2nerf train``; ``flag`` names the setting, ``how`` where the user sets it)."""
+    if step > iterations:
+        raise InputError(f"the run in {run_dir} is at step {step} ({Path(found).name}), past {flag} ({iterations}): "
+                         f"raise it{how} to {step} or more to continue the run, or start it over (--no-resume --force)")
+
+
 def trim_metrics(path: Path, step: int) -> int:
     """Drop the lines of ``metrics.jsonl`` past ``step`` (written after the checkpoint a run resumes from,
     so a resumed run does not repeat them) and any torn line (a full disk); returns how many went."""

@@ -112,9 +112,10 @@ class Sem2NeRFTrainConfig:
     device: str = "cpu"
     """Torch device ('cpu', 'cuda')."""
     init_checkpoint: str = ""
-    """Fine-tune: start from this Sem2NeRF checkpoint's weights (and its per-object codes when the objects
-    are the same) with ``model_overrides`` applied to its config, instead of the preset at random; the
-    optimizer starts afresh. Ignored when the run folder has a checkpoint to resume from."""
+    """Fine-tune: start from this Sem2NeRF checkpoint's weights (and the per-object codes it learned for the
+    objects this run trains too, matched by name) with ``model_overrides`` applied to its config, instead of the
+    preset at random; the optimizer starts afresh. A run folder with a checkpoint resumes from it instead: an ``init_checkpoint`` other
+    than the one its run began from is then refused (it would not be used), as ``train`` refuses it."""
 
 
 MAX_LR = 1.0
@@ -312,11 +313,16 @@ NEW_HEADS = ("field.style_part_rgb.",)
 """Parameters a fine-tuning run may add to an older checkpoint's model (zero-initialised heads)."""
 
 
-def init_model(path, overrides: dict[str, Any], device: str = "cpu"):
+def init_model(path, overrides: dict[str, Any], device: str = "cpu", objects: list[str] | None = None):
     """(model, config, codes or None) to fine-tune from a Sem2NeRF checkpoint: its config with ``overrides``
     applied (e.g. ``style_part_colours=true``), its weights, and heads the overrides add (:data:`NEW_HEADS`)
     at their zero start; the per-object codes of its trainer state when it has one. InputError when the
-    overrides change the shape of a weight it has."""
+    overrides change the shape of a weight it has.
+
+    With ``objects`` (the fine-tuning run's ``category/name`` list) the codes are a list, one entry per object:
+    the code the checkpoint learned for that object, or None for an object it did not train (matched by the
+    names its trainer state records, :func:`object_names`; a state that records none is matched by position
+    when the counts agree), so no object takes another's style."""
     from safetensors.torch import load_file
 
     from ..models.checkpoint_files import STATE_FILE
@@ -335,8 +341,100 @@ def init_model(path, overrides: dict[str, Any], device: str = "cpu"):
     if lost:
         raise InputError(f"init checkpoint {model_file} does not fit the overridden model (weights {lost[:3]})")
     state = model_file.parent / STATE_FILE
-    codes = torch.load(state, map_location="cpu", weights_only=True)["codes"] if state.is_file() else None
+    st = torch.load(state, map_location="cpu", weights_only=True) if state.is_file() else None
+    codes = st["codes"] if st is not None else None
+    if objects is not None and codes is not None:
+        theirs = st.get("objects")
+        if theirs is None:  # an older state: by position, only when the counts agree
+            theirs = [str(i) for i in range(len(codes))] if len(codes) == len(objects) else []
+            objects = [str(i) for i in range(len(objects))]
+        at = {str(n): i for i, n in enumerate(theirs)}
+        codes = [codes[at[n]] if n in at else None for n in objects]
     return model.to(device), cfg, codes
+
+
+def object_names(objects: list[MaskedObject]) -> list[str]:
+    """``category/name`` of each training object, in the order of its style code (recorded in the trainer state:
+    a resume or a fine-tune gives every learned code back to its own object)."""
+    return [f"{o.category}/{o.name}" for o in objects]
+
+
+def _check_same_objects(out: Path, ck: Path, recorded: list | None, names: list[str], n_codes: int) -> None:
+    """InputError when a resume's objects are not those the run in ``out`` learned its per-object style codes
+    for (the same count of other objects took them silently, each the code of the object at its place before)."""
+    if recorded is None:  # a state from before the names were recorded: the count at least
+        if n_codes != len(names):
+            raise InputError(f"run {out} was trained on {n_codes} objects, this data has {len(names)}")
+        return
+    recorded = [str(n) for n in recorded]
+    if recorded == names:
+        return
+    i = next((i for i, (a, b) in enumerate(zip(recorded, names)) if a != b), min(len(recorded), len(names)))
+    if i < len(recorded) and i < len(names):
+        what = f"its object {i + 1} is {recorded[i]}, this data's is {names[i]}"
+    elif i < len(recorded):
+        what = f"this data has only {len(names)}, not its object {i + 1} ({recorded[i]})"
+    else:
+        what = f"this data has {len(names) - len(recorded)} more, the first {names[i]}"
+    raise InputError(f"the run in {out} ({ck.name}) learned style codes for its {len(recorded)} objects, but {what}: "
+                     "resume it on the same objects (its --data, --split, --holdout, --max-objects), start over with "
+                     "--no-resume --force, or give another --out")
+
+
+IGNORED_MODEL_FIELDS = ("name", "labels", "label_names", "image_size")
+"""Model config fields a resume does not compare with its options: the preset's name (informational) and what the
+data decide (checked on their own)."""
+
+
+def _model_flags(mcfg) -> str:
+    """'--preset fast --model n_coarse=6 ...': the options that build ``mcfg`` (for messages)."""
+    from ..models.config import to_dict
+    from ..models.sem2nerf.config import PRESETS
+
+    base = PRESETS.get(mcfg.name)
+    if base is None:
+        return "the --preset and --model it began with"
+    have, ref = to_dict(mcfg), to_dict(base)
+    return " ".join([f"--preset {mcfg.name}"] + [_model_flag(k, v) for k, v in have.items()
+                                                 if k not in IGNORED_MODEL_FIELDS and v != ref.get(k)])
+
+
+def _model_flag(key: str, value) -> str:
+    return f"--model {key}={_word(value)}"
+
+
+def _word(value) -> str:
+    """A config value as ``--model`` takes it (``true``, not ``True``)."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def _check_same_model(out: Path, ck: Path, mcfg, cfg: Sem2NeRFTrainConfig, from_init: bool) -> None:
+    """InputError when a resume asks for another model than the run in ``out`` trains (``--preset``, ``--model``):
+    the run goes on as its checkpoint's model, so config.json would have recorded options that were not used (as
+    ``train`` refuses a resume whose model does not fit the run's). A run fine-tuned from a checkpoint (``from_init``)
+    is its checkpoint's model: only its ``--model`` overrides are compared."""
+    from ..models.config import merge, to_dict
+    from ..models.sem2nerf.config import sem2nerf_config, validate
+
+    overrides = dict(cfg.model_overrides)
+    if from_init:
+        want = validate(merge(mcfg, overrides))
+        asked, how = "--model", "without --model"
+    else:
+        want = sem2nerf_config(cfg.preset, overrides, image_size=mcfg.image_size, labels=mcfg.labels,
+                               label_names=mcfg.label_names)
+        asked = " ".join([f"--preset {cfg.preset}"] + [_model_flag(k, v) for k, v in overrides.items()])
+        how = _model_flags(mcfg)
+    have, got = to_dict(mcfg), to_dict(want)
+    diff = [(k, have[k], got.get(k)) for k in have if k not in IGNORED_MODEL_FIELDS and have[k] != got.get(k)]
+    if not from_init and cfg.preset != mcfg.name:  # (also when --model overrides make the two presets alike)
+        diff.insert(0, ("preset", mcfg.name, cfg.preset))
+    if diff:
+        k, a, b = diff[0]
+        more = f" and {len(diff) - 1} more setting(s)" if len(diff) > 1 else ""
+        raise InputError(f"the run in {out} ({ck.name}) trains a sem2nerf model with {k}={_word(a)}; this start "
+                         f"({asked}) asks for {k}={_word(b)}{more}, which would not be used: continue it with its own "
+                         f"model ({how}), start over with --no-resume --force, or give another --out")
 
 
 def _normalized_rays(intr, c2w, px: np.ndarray, box: float):
@@ -349,9 +447,23 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
           force: bool = False):
     """Progress generator: trains, writes checkpoints and metrics.jsonl; returns a summary dict.
 
-    ``resume``: continue from the run folder's newest checkpoint (its metrics past that step are dropped).
-    Without it, a run folder that holds a run is refused unless ``force``, which removes that run first
-    (``run_folder.resume_point``, as ``train --no-resume --force``)."""
+    ``resume``: continue from the run folder's newest checkpoint (its metrics past that step are dropped). A
+    resume must continue that run as it is: the same objects (their learned style codes), the same model
+    (``--preset``, ``--model``), the ``--init`` it began from or none, and ``iterations`` not below its step;
+    anything else is refused before anything is written. Without it, a run folder that holds a run is refused
+    unless ``force``, which removes that run first (``run_folder.resume_point``, as ``train --no-resume --force``).
+
+    The run folder is held (``guards.output_lock``) from before its state is read until the run ends, as ``train``
+    holds it: a second training into it is refused instead of both writing checkpoints and metrics; the
+    temporary folders of checkpoint saves a killed run left half-way are removed under it."""
+    from ..guards import output_lock, sweep_partials
+
+    with output_lock(Path(cfg.out_dir), "run folder"):
+        sweep_partials(Path(cfg.out_dir) / "checkpoints", ".step_*")
+        return (yield from _train(cfg, resume, objects, force))
+
+
+def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] | None, force: bool):
     from ..models.checkpoint_files import STATE_FILE, find_checkpoint
     from ..models.sem2nerf.config import sem2nerf_config
     from ..models.sem2nerf.inputs import build_inputs, to_index
@@ -372,15 +484,31 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
     if h != w:
         raise InputError(f"Sem2NeRF trains on square images; these are {w}x{h}")
     labels, names = label_table(objects)
+    obj_names = object_names(objects)
 
     ck = find_checkpoint(out) if resume and out.exists() else None
     torch.manual_seed(cfg.seed)
     init_codes = None
+    st = None
+    if ck is not None:  # a resume continues the run as it is, or is refused before anything is written
+        from . import run_folder
+        from .config import recorded_train
+        from .trainer import _check_continues
+
+        _check_continues(out, ck, cfg, None)  # an --init it did not begin from would not be used
+        began = (recorded_train(out) or {}).get("init_checkpoint") or ""
+        if began and not cfg.init_checkpoint:  # config.json keeps what the run began from
+            cfg = replace(cfg, init_checkpoint=str(began))
+        st = torch.load(Path(ck) / STATE_FILE, map_location="cpu", weights_only=True)
+        _check_same_objects(out, ck, st.get("objects"), obj_names, st["codes"].shape[0])
+        run_folder.check_not_past(out, ck, int(st["step"]), cfg.iterations, "--iterations")
     if ck is not None or cfg.init_checkpoint:
         if ck is not None:
             model, mcfg, _ = load_sem2nerf(ck, cfg.device)
+            _check_same_model(out, ck, mcfg, cfg, from_init=bool(cfg.init_checkpoint))
         else:
-            model, mcfg, init_codes = init_model(cfg.init_checkpoint, dict(cfg.model_overrides), cfg.device)
+            model, mcfg, init_codes = init_model(cfg.init_checkpoint, dict(cfg.model_overrides), cfg.device,
+                                                 objects=obj_names)
         src = f"run {out}" if ck is not None else f"init checkpoint {cfg.init_checkpoint}"
         if mcfg.image_size != h:
             raise InputError(f"{src} was trained at {mcfg.image_size} px; this data is {h} px")
@@ -405,13 +533,12 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         d_opt = torch.optim.Adam(disc.parameters(), lr=cfg.disc_lr, betas=(0.0, 0.99))
     start = 0
     rng = np.random.default_rng(cfg.seed)
-    if init_codes is not None and init_codes.shape == codes.shape:  # the same objects: keep their styles
+    if init_codes is not None:  # the objects it trained keep their styles (by name: never another object's)
         with torch.no_grad():
-            codes.copy_(init_codes.to(dev))
-    if ck is not None:
-        st = torch.load(Path(ck) / STATE_FILE, map_location="cpu", weights_only=True)
-        if st["codes"].shape[0] != n_obj:
-            raise InputError(f"run {out} was trained on {st['codes'].shape[0]} objects, this data has {n_obj}")
+            for i, c in enumerate(init_codes):
+                if c is not None and c.shape == codes[i].shape:
+                    codes[i] = c.to(dev)
+    if st is not None:
         with torch.no_grad():
             codes.copy_(st["codes"].to(dev))
         opt.load_state_dict(st["opt"])
@@ -460,7 +587,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
         trained(done)  # (the style mean too: the mean of the mapping network's outputs)
         state = {"step": done, "codes": codes.detach().cpu(), "opt": opt.state_dict(),
                  "rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
-                 "objects": [f"{o.category}/{o.name}" for o in objects]}
+                 "objects": obj_names}
         if disc is not None:
             state["disc"] = disc.state_dict()
             state["d_opt"] = d_opt.state_dict()
@@ -562,7 +689,7 @@ def train(cfg: Sem2NeRFTrainConfig, resume: bool = True, objects: list[MaskedObj
                 raise
     finally:
         metrics_f.close()
-    return {"step": max(start, cfg.iterations), "checkpoint": str(last_ck) if last_ck else None,
+    return {"step": cfg.iterations, "checkpoint": str(last_ck) if last_ck else None,
             "resumed_from": str(ck) if ck else None, "labels": list(labels), "objects": n_obj}
 
 

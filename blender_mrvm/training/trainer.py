@@ -335,10 +335,8 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
                              f"resume with the same number (got {dd.world}), or start over with --no-resume --force")
         start = int(state["step"])
-        if start > cfg.iterations:  # before anything is written: config.json would record steps never trained
-            raise InputError(f"the run in {run_dir} is at step {start} ({found.name}), past train.iterations "
-                             f"({cfg.iterations}): raise it (--iterations, the panel's Iterations) to {start} or more "
-                             "to continue the run, or start it over (--no-resume --force)")
+        run_folder.check_not_past(run_dir, found, start, cfg.iterations, "train.iterations",
+                                  " (--iterations, the panel's Iterations)")
         _note_a_longer_schedule(found, start, cfg, dd.main)
         opt.load_state_dict(state["optimizer"])
         if scaler is not None and state.get("grad_scaler"):  # fp16: its loss scale and growth count, found so far
