@@ -85,10 +85,13 @@ def test_tiny_unseen_set_renders_with_splits_and_part_masks(bpy_empty, tmp_path)
     assert code == 0
     assert json.loads((out / "bench" / "bench_000000" / "meta.json").read_text())["settings"]["resolution"] == [12, 12]
     assert len(read_split(out, "test")) == 10
-    # Another setting into the same folder: the finished objects move to the splits this plan gives them (they
-    # kept their old split, so the unseen protocol's test categories were trained on, or the other way round)
-    code = main(["make-shapenet", "--setting", "all", "--objects-per-category", "1", "--views", "4",
-                 "--resolution", "12", "--samples", "1", "--out", str(out)])
+    # Another setting into the same folder is another plan: refused before rendering without --force (shards of
+    # two plans mixed their objects into one set); with it, the finished objects move to the splits this plan gives
+    # them (they kept their old split, so the unseen protocol's test categories were trained on, or the other way)
+    argv = ["make-shapenet", "--setting", "all", "--objects-per-category", "1", "--views", "4",
+            "--resolution", "12", "--samples", "1", "--out", str(out)]
+    assert main(argv) == 2
+    code = main(argv + ["--force"])
     assert code == 0
     assert len(read_split(out, "train")) == 13 and read_split(out, "test") == []
     assert json.loads((out / "bench" / "bench_000000" / "meta.json").read_text())["split"] == "train"
@@ -130,3 +133,149 @@ def test_preview_library_refuses_zero_samples(tmp_path, capsys):
     assert main(["preview-library", "--engine", "CYCLES", "--samples", "0", "--seeds", "1", "--categories", "chair",
                  "--out", str(tmp_path / "p.png")]) == 2
     assert "--samples must be at least 1" in capsys.readouterr().err and not (tmp_path / "p.png").exists()
+
+
+# ---- shards (--shard i/n): the plan recorded in splits/plan.json -------------------------------------------------
+
+TINY = ["make-shapenet", "--views", "3", "--resolution", "8", "--engine", "BLENDER_WORKBENCH"]
+
+
+def _summary(capsys) -> tuple[str, str]:
+    cap = capsys.readouterr()
+    return next(line for line in cap.out.splitlines() if line.startswith("wrote ")), cap.err
+
+
+@pytest.mark.slow
+def test_a_shard_says_how_much_of_the_plan_is_finished_and_which_shards_remain(bpy_empty, tmp_path, capsys):
+    """After --shard 0/2 alone the summary said '13 train, 0 val, 0 test objects' while the lists held 7; shards of
+    another count (1/3, 2/3) ended with 11 of 13 listed and no word."""
+    from blender_mrvm.cli import main
+    from blender_mrvm.datasets.format import read_split
+
+    out = tmp_path / "sn"
+    argv = TINY + ["--objects-per-category", "1", "--out", str(out)]
+    assert main(argv + ["--shard", "0/2"]) == 0
+    line, err = _summary(capsys)
+    assert "7 of 13 planned objects finished" in line and line.endswith("run the other shards: --shard 1/2")
+    assert "the split lists hold the 7 finished objects only" in err
+    assert len(read_split(out, "train")) == 7
+    rec = json.loads((out / "splits" / M.PLAN_FILE).read_text())  # the plan: its parameters and every object
+    assert (rec["setting"], rec["objects_per_category"], rec["seed"]) == ("all", 1, 0) and len(rec["categories"]) == 13
+    assert len(rec["objects"]["train"]) == 13 and "chair/chair_000000" in rec["objects"]["train"]
+    missing, planned = M.planned_but_unlisted(out, "train")  # what a reader of the set (train, eval) can ask
+    assert planned == 13 and len(missing) == 6
+    from blender_mrvm.datasets.loaders import load_dataset
+    from blender_mrvm.errors import InputError
+
+    with pytest.raises(InputError, match=r"half-rendered: 6 of 13 objects make-shapenet planned for split 'train'"):
+        load_dataset(out, "train")  # train and eval took the 7 finished objects as the whole set
+    # shards of another count: the summary names the shards of that count still to run
+    assert main(argv + ["--shard", "1/3"]) == 0
+    line, _ = _summary(capsys)
+    assert "9 of 13 planned objects finished" in line and line.endswith("--shard 0/3 --shard 2/3")
+    assert main(argv + ["--shard", "2/3"]) == 0
+    line, _ = _summary(capsys)
+    assert "11 of 13 planned objects finished" in line and line.endswith("run the other shards: --shard 0/3")
+    assert main(argv + ["--shard", "0/3"]) == 0
+    line, err = _summary(capsys)
+    assert "(all: 13 train, 0 val, 0 test objects;" in line and "planned" not in line and "finished objects" not in err
+    assert M.planned_but_unlisted(out, "train") == ([], 13)
+
+
+@pytest.mark.slow
+def test_a_shard_of_another_plan_is_refused_before_rendering(bpy_empty, tmp_path, capsys, monkeypatch):
+    """Shards run with another --objects-per-category mixed two plans into one folder without a word (val.lst held
+    objects the current plan has no val for, categories without a test object)."""
+    from blender_mrvm.cli import main
+    from blender_mrvm.datasets.format import read_split
+    import blender_mrvm.scene.render as R
+
+    out = tmp_path / "sn"
+    base = TINY + ["--out", str(out)]
+    assert main(base + ["--objects-per-category", "2", "--shard", "1/2"]) == 0
+    capsys.readouterr()
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    render = R.render_dataset
+
+    def no_render(cfg):
+        raise AssertionError("rendered before the plan was compared")
+
+    monkeypatch.setattr(R, "render_dataset", no_render)
+    for extra, named in ((["--objects-per-category", "3", "--shard", "0/2"], "--objects-per-category 2 there, 3 here"),
+                         (["--objects-per-category", "2", "--seed", "5"], "--seed 0 there, 5 here"),
+                         (["--objects-per-category", "10", "--setting", "unseen"], "--setting all there, unseen here")):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith("error: ") and named in err
+        assert "--force" in err and "another folder" in err
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before  # nothing written, nothing rendered
+    monkeypatch.setattr(R, "render_dataset", render)
+
+    # --force replaces the plan. Its seed-1 objects are train (test in the old plan, where shard 1/2 finished
+    # them) and in its shard 1/2: they stay out of the lists until that shard moves them (test.lst held them)
+    assert main(base + ["--objects-per-category", "3", "--shard", "0/2", "--force"]) == 0
+    line, err = _summary(capsys)
+    assert "plan replaces the one recorded in" in err and "(--objects-per-category 2 there, 3 here)" in err
+    assert "20 of 39 planned objects finished (13 of 26 train, 7 of 13 test)" in line
+    assert line.endswith("run the other shards: --shard 1/2")
+    rec = json.loads((out / "splits" / M.PLAN_FILE).read_text())
+    assert rec["objects_per_category"] == 3
+    for split in ("train", "test"):
+        assert set(read_split(out, split)) <= set(rec["objects"][split])
+    assert not [k for k in read_split(out, "test") if k.endswith("_000001")]
+    assert main(base + ["--objects-per-category", "2", "--shard", "0/2"]) == 2  # the old plan's shards: refused
+    assert "--objects-per-category 3 there, 2 here" in capsys.readouterr().err
+    assert main(base + ["--objects-per-category", "3", "--shard", "1/2"]) == 0
+    line, _ = _summary(capsys)
+    assert "(all: 26 train, 0 val, 13 test objects;" in line
+
+
+@pytest.mark.slow
+def test_a_dataset_without_a_recorded_plan_records_it(bpy_empty, tmp_path, capsys):
+    """Datasets rendered before plans were recorded go on: the next shard records its plan."""
+    from blender_mrvm.cli import main
+
+    out = tmp_path / "sn"
+    argv = TINY + ["--objects-per-category", "1", "--out", str(out)]
+    assert main(argv + ["--shard", "0/2"]) == 0
+    (out / "splits" / M.PLAN_FILE).unlink()
+    capsys.readouterr()
+    assert main(argv + ["--shard", "1/2"]) == 0
+    line, _ = _summary(capsys)
+    assert "(all: 13 train, 0 val, 0 test objects;" in line
+    assert json.loads((out / "splits" / M.PLAN_FILE).read_text())["objects_per_category"] == 1
+    assert main(TINY + ["--objects-per-category", "2", "--shard", "0/2", "--out", str(out)]) == 2
+
+
+def _plan(**kw):
+    from types import SimpleNamespace
+
+    args = SimpleNamespace(**{"setting": "all", "objects_per_category": 2, "seed": 0, **kw})
+    g = M.plan(args.setting, args.objects_per_category, args.seed)
+    keys = {split: [src.split(":")[1] + "/" + src.replace(":", "_") for src in srcs] for split, srcs in g.items()}
+    return M.plan_record(args, keys)
+
+
+def test_plans_differ_by_the_parameter_named(tmp_path):
+    """Every parameter that moves objects between splits makes another plan (bpy-free)."""
+    from blender_mrvm.errors import OutputError
+
+    a = _plan()
+    assert M.plan_difference(a, _plan()) is None
+    assert M.plan_difference(a, _plan(objects_per_category=3)) == "--objects-per-category 2 there, 3 here"
+    assert M.plan_difference(a, _plan(seed=4)) == "--seed 0 there, 4 here"
+    assert M.plan_difference(a, _plan(setting="unseen")) == "--setting all there, unseen here"
+    assert "categories: 12 there" in M.plan_difference(dict(a, categories=a["categories"][:12]), a)
+    assert "split rule" in M.plan_difference(dict(a, split_rule="per category: 30% to test"), a)
+    moved = dict(a, objects={"train": a["objects"]["test"], "val": [], "test": a["objects"]["train"]})
+    assert "other objects" in M.plan_difference(moved, a)
+    # recorded once: a shard that finds another plan there (one starting at the same moment) is refused, the same
+    # plan passes, --force replaces it
+    M._record_plan(tmp_path, a, force=False)
+    assert json.loads((tmp_path / "splits" / M.PLAN_FILE).read_text()) == a
+    M._record_plan(tmp_path, _plan(), force=False)
+    with pytest.raises(OutputError, match="--seed 0 there, 1 here"):
+        M._record_plan(tmp_path, _plan(seed=1), force=False)
+    M._record_plan(tmp_path, _plan(seed=1), force=True)
+    assert json.loads((tmp_path / "splits" / M.PLAN_FILE).read_text())["seed"] == 1
+    assert [p.name for p in (tmp_path / "splits").iterdir()] == [M.PLAN_FILE]  # no temporary left behind

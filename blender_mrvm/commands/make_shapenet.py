@@ -14,14 +14,23 @@ poses and intrinsics (``transforms.json`` frames, ``meta.json`` "cameras"). The
 evaluation protocol is fixed and written next to the split lists: ``splits/eval_views.json``
 names the input view ids for 1-view and 2-view tests and the remaining target views;
 ``splits/test_views.lst`` repeats it per test object (``category/object_id inputs1 | inputs2``).
+
+The plan (its parameters and every planned object with its split) is recorded in ``splits/plan.json`` before
+anything renders: a shard (``--shard i/n``) whose plan differs from the recorded one is refused (two plans' shards
+mixed their objects into one set), and each shard's summary says how many planned objects are finished and which
+shards are still to run (the split lists hold the finished objects only).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import tempfile
 from pathlib import Path
+
+from ..datasets.format import PLAN_FILE, plan_path, planned_but_unlisted, read_plan  # noqa: F401
 
 UNSEEN_TRAIN = ("airplane", "car", "chair")
 SETTINGS = ("all", "unseen")
@@ -29,6 +38,15 @@ RIGS = ("turntable", "sphere", "hemisphere")
 TURNTABLE_ELEVATION = 30.0
 FOV_DEFAULT = (30.0, 60.0)  # = geometry.rigs.FOV_RANGE_DEG (not imported: --help stays instant)
 DIST_DEFAULT = (0.85, 1.6)  # = geometry.rigs.DISTANCE_RANGE
+SPLIT_RULES = {  # how plan() splits a category's objects (recorded: another rule is another plan)
+    "all": "per category: 20% of the objects to test (at least 1), 10% to val (rounded), the rest to train; "
+           "a category of 1 object: train only",
+    "unseen": f"{', '.join(UNSEEN_TRAIN)}: 10% of the objects to val (rounded down), the rest to train; "
+              "the other categories: every object to test",
+}
+# the plan's parameters, in the order a difference is named, and how the command line calls them
+PLAN_PARAMETERS = (("setting", "--setting"), ("objects_per_category", "--objects-per-category"), ("seed", "--seed"),
+                   ("categories", "categories"), ("split_rule", "split rule"))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,12 +59,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--views", type=int, default=24, help="views per object (NMR uses 24)")
     p.add_argument("--resolution", type=int, default=64, help="square image size in pixels (NMR uses 64)")
     p.add_argument("--out", required=True, help="dataset root folder")
-    p.add_argument("--shard", default="0/1", help="i/n: render only this deterministic share of the objects")
+    p.add_argument("--shard", default="0/1", help="i/n: render only this deterministic share of the objects (every "
+                   "shard of a folder runs the plan recorded in its splits/plan.json)")
     p.add_argument("--engine", default="CYCLES", type=str.upper, choices=("CYCLES", "BLENDER_EEVEE", "BLENDER_WORKBENCH"),
                    help="render engine, as render-dataset's")
     p.add_argument("--samples", type=int, default=8, help="samples per pixel")
     p.add_argument("--seed", type=int, default=0, help="first object seed (objects use seed .. seed+N-1)")
-    p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset")
+    p.add_argument("--force", action="store_true", help="write into a folder that holds another dataset, or another "
+                   "plan (replacing the plan recorded in its splits/plan.json)")
     p.add_argument("--rig", choices=RIGS, default="turntable",
                    help="turntable (default: NMR layout, 30 degrees elevation), or sphere / hemisphere with a field "
                         "of view and a distance drawn per view (seeded per object)")
@@ -179,47 +199,172 @@ def protocol_rig(cams: dict) -> dict:
     return rec
 
 
+def plan_record(args, objects: dict[str, list[str]]) -> dict:
+    """What splits/plan.json records: the plan's parameters and its objects (``category/object_id``) per split."""
+    from ..scene.procedural._registry import CATEGORIES
+
+    return {"command": "make-shapenet", "setting": args.setting, "objects_per_category": args.objects_per_category,
+            "seed": args.seed, "categories": list(CATEGORIES), "split_rule": SPLIT_RULES[args.setting],
+            "objects": {split: list(keys) for split, keys in objects.items()}}
+
+
+def plan_difference(old: dict, new: dict) -> str | None:
+    """The first parameter in which two plans differ, in words (None: the same plan)."""
+    for key, name in PLAN_PARAMETERS:
+        if old.get(key) != new[key]:
+            if key == "categories":
+                return (f"categories: {len(old.get(key) or [])} there, this version's {len(new[key])} here"
+                        if isinstance(old.get(key), list) else "categories: none recorded there")
+            if key == "split_rule":
+                return "split rule: this version splits a category's objects otherwise"
+            return f"{name} {old.get(key)} there, {new[key]} here"
+    if old.get("objects") != new["objects"]:
+        return "objects: these parameters give other objects in this version"
+    return None
+
+
+def _refuse_other_plan(out: Path, old: dict, new: dict) -> None:
+    diff = plan_difference(old, new) if old else f"{plan_path(out)} cannot be read"
+    if diff is not None:
+        from ..errors import OutputError
+
+        raise OutputError(f"{out} holds the shards of another make-shapenet plan ({diff}; splits/{PLAN_FILE}): "
+                          "shards of two plans mix their objects into one set; run with that plan's parameters, use "
+                          "--force to replace the plan (objects finished with these render settings are kept and "
+                          "move to this plan's splits), or choose another folder")
+
+
+def _record_plan(out: Path, record: dict, force: bool) -> None:
+    """Write splits/plan.json: created only where none is (two shards starting at once with other plans cannot
+    both record theirs: the second finds the first's and is refused), replaced with ``force``."""
+    from ..datasets import format as F
+
+    path = plan_path(out)
+    if force:
+        F.atomic_write_json(path, record)
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{PLAN_FILE}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(json.dumps(record, indent=2) + "\n")
+        F.ordinary_permissions(Path(tmp))
+        try:
+            os.link(tmp, path)  # whole, and only if there is none
+        except FileExistsError:
+            pass
+        except OSError:  # a file system without hard links
+            if not path.exists():
+                F.atomic_write_json(path, record)
+    finally:
+        os.unlink(tmp)
+    old = read_plan(out)
+    if old is not None:
+        _refuse_other_plan(out, old, record)
+
+
+def _remove_if_untouched(out: Path) -> None:
+    """Remove a folder this run created if it holds nothing but the root manifest, the plan and empty folders."""
+    import shutil
+
+    from ..datasets import format as F
+
+    keep = {out / F.ROOT_MANIFEST, plan_path(out)}
+    if all(p.is_dir() or p in keep for p in out.rglob("*")):
+        shutil.rmtree(out, ignore_errors=True)
+
+
 def run(args) -> int:
     from ..datasets import format as F
+    from ..errors import OutputError
     from ..progress import run_with_tqdm
     from ..scene.objects import resolve_sources
-    from ..scene.render import render_dataset, write_splits
+    from ..scene.render import prepare_output, render_dataset, write_splits
+    from .render_dataset import parse_shard
 
     cams = camera_settings(args)
     cfgs = render_configs(args)
+    shard = parse_shard(args.shard)
     protocol = eval_views(args.views, cams["rig"])
     groups = plan(args.setting, args.objects_per_category, args.seed)
+    out = Path(args.out)
+    objects = {split: [spec.key for spec in resolve_sources(tuple(srcs), None, [])] if srcs else []
+               for split, srcs in groups.items()}
+    record = plan_record(args, objects)
+    # Before anything renders: shards of another plan (other objects a category, seed, setting) in this folder
+    # would mix two plans' objects into one set's lists
+    old_plan = read_plan(out)
+    if old_plan is not None and not args.force:
+        _refuse_other_plan(out, old_plan, record)
+    elif old_plan is not None and (not old_plan or plan_difference(old_plan, record) is not None):
+        print(f"note: --force: this run's plan replaces the one recorded in {plan_path(out)} ("
+              f"{plan_difference(old_plan, record) if old_plan else 'unreadable'})", file=sys.stderr)
     empty = [split for split in ("val", "test") if not groups[split]]
     if empty:  # legal (a training set; the held-out sets' --seed 1000 recipe), but eval then finds nothing
         print(f"note: --setting {args.setting} with --objects-per-category {args.objects_per_category} gives no "
               f"{' and no '.join(empty)} objects (see --help)", file=sys.stderr)
-    out = Path(args.out)
+    fresh = not out.exists() and shard[1] == 1  # (another shard may be starting into it too)
     total_views = 0
-    for split, cfg in cfgs:
-        summary = run_with_tqdm(render_dataset(cfg), desc=f"{args.setting}/{split}", unit="view")
-        total_views += summary.views_rendered
-        for w in summary.warnings:
-            print(f"warning: {w}", file=sys.stderr)
-    # The splits are this plan's objects: objects of an earlier plan in the same folder (more objects a category,
-    # another setting) stay on disk but out of the lists, so the protocol's categories hold
-    planned = {spec.key for spec in resolve_sources(tuple(sum(groups.values(), [])), None, [])}
-    lists = write_splits(out, only=planned)
-    others = sum(1 for p in out.glob("*/*/meta.json")) - sum(len(v) for v in lists.values())
+    try:
+        if cfgs:
+            prepare_output(cfgs[0][1])  # the folder is this dataset's (or refused) before the plan goes into it
+        _record_plan(out, record, args.force)
+        for split, cfg in cfgs:
+            summary = run_with_tqdm(render_dataset(cfg), desc=f"{args.setting}/{split}", unit="view")
+            total_views += summary.views_rendered
+            for w in summary.warnings:
+                print(f"warning: {w}", file=sys.stderr)
+    except Exception:
+        if fresh and total_views == 0:  # e.g. refused before rendering: leave no empty dataset behind
+            _remove_if_untouched(out)
+        raise
+    now = read_plan(out)
+    if now is not None and (not now or plan_difference(now, record) is not None):
+        raise OutputError(f"the plan recorded in {plan_path(out)} was replaced while this shard rendered (another run "
+                          "with --force); this shard's objects are on disk, the split lists are that plan's")
+    # The splits are this plan's objects, each in the split the plan gives it: objects of an earlier plan in the
+    # same folder (more objects a category, another setting) stay on disk but out of the lists, and so does a
+    # planned object finished in another split before (its shard moves it when it runs)
+    split_of = {key: split for split, keys in objects.items() for key in keys}
+    only = set()
+    for key, split in split_of.items():
+        try:
+            meta = json.loads((out / key / "meta.json").read_text())
+        except (OSError, ValueError):
+            meta = None
+        if not isinstance(meta, dict) or meta.get("split") in (None, split):
+            only.add(key)
+    lists = write_splits(out, only=only)
+    others = sum(1 for p in out.glob("*/*/meta.json") if f"{p.parent.parent.name}/{p.parent.name}" not in split_of)
     if others > 0:
-        print(f"note: {others} object folder(s) in {out} are not part of this plan (an earlier run's, or not "
-              "finished yet in another shard) and are left out of the split lists", file=sys.stderr)
+        print(f"note: {others} object folder(s) in {out} are not part of this plan (an earlier plan's) and are left "
+              "out of the split lists", file=sys.stderr)
+    finished = {key for keys in lists.values() for key in keys}
+    # each split's objects are sharded on their own (render_configs: one render per split), sorted by key
+    remaining = sorted({k % shard[1] for keys in objects.values() for k, key in enumerate(sorted(keys))
+                        if key not in finished})
     splits_dir = out / "splits"
     splits_dir.mkdir(parents=True, exist_ok=True)
     test_ids = F.read_split(out, "test") if (splits_dir / "test.lst").exists() else []
-    record = dict(protocol, setting=args.setting,
-                  train_categories=sorted({s.split(":")[1] for s in groups["train"]}),
-                  test_categories=sorted({s.split(":")[1] for s in groups["test"]}),
-                  **protocol_rig(cams))
-    F.atomic_write_json(splits_dir / "eval_views.json", record)
+    proto = dict(protocol, setting=args.setting,
+                 train_categories=sorted({s.split(":")[1] for s in groups["train"]}),
+                 test_categories=sorted({s.split(":")[1] for s in groups["test"]}),
+                 **protocol_rig(cams))
+    F.atomic_write_json(splits_dir / "eval_views.json", proto)
     lines = [f"{t} {' '.join(map(str, protocol['input_views_1']))} | {' '.join(map(str, protocol['input_views_2']))}"
              for t in test_ids]
     F.atomic_write_text(splits_dir / "test_views.lst", "\n".join(lines) + ("\n" if lines else ""))
-    print(f"wrote {out} ({args.setting}: {len(groups['train'])} train, {len(groups['val'])} val, "
-          f"{len(groups['test'])} test objects; {total_views} views rendered in this shard)")
-    print(json.dumps({k: record[k] for k in ("input_views_1", "input_views_2")}))
+    n_planned = len(split_of)
+    if not remaining:
+        print(f"wrote {out} ({args.setting}: {len(lists['train'])} train, {len(lists['val'])} val, "
+              f"{len(lists['test'])} test objects; {total_views} views rendered in this shard)")
+    else:
+        parts = ", ".join(f"{len(lists[s])} of {len(objects[s])} {s}" for s in F.SPLITS if objects[s])
+        todo = ("run the other shards: " + " ".join(f"--shard {i}/{shard[1]}" for i in remaining)
+                if shard[1] > 1 else "run again to finish them")
+        print(f"wrote {out} ({args.setting}: {len(finished)} of {n_planned} planned objects finished ({parts}); "
+              f"{total_views} views rendered in this shard); {todo}")
+        print(f"note: the split lists hold the {len(finished)} finished objects only: train and eval refuse the set "
+              "until the shards named have run (or those still running have finished)", file=sys.stderr)
+    print(json.dumps({k: proto[k] for k in ("input_views_1", "input_views_2")}))
     return 0

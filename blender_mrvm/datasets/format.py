@@ -600,3 +600,41 @@ def differing_settings(old: dict, new: dict) -> list[str]:
 def settings_match(old, new: dict) -> bool:
     """Whether views rendered with the recorded settings ``old`` belong with this run's ``new`` ones."""
     return isinstance(old, dict) and not differing_settings(old, new)
+
+
+# ---------------------------------------------------------------------------------------------
+# make-shapenet's plan (the objects every shard of a folder renders, per split)
+# ---------------------------------------------------------------------------------------------
+
+PLAN_FILE = "plan.json"
+"""In ``<root>/splits/``: the plan every make-shapenet shard of the folder renders (``commands/make_shapenet.py``)."""
+
+
+def plan_path(root) -> Path:
+    return Path(root) / "splits" / PLAN_FILE
+
+
+def read_plan(root) -> dict | None:
+    """The plan recorded in a dataset root (None: none recorded, a dataset made before plans were; {}: unreadable)."""
+    path = plan_path(root)
+    try:
+        rec = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):
+        return {}
+    return rec if isinstance(rec, dict) else {}
+
+
+def planned_but_unlisted(root, split: str) -> tuple[list[str], int] | None:
+    """(objects the recorded plan puts in ``split`` that its list lacks, the plan's count there); None: no plan.
+
+    For readers of the set (train, eval): a list that holds part of its plan is a set whose other shards have not
+    finished (bpy-free)."""
+    rec = read_plan(root)
+    if not rec or not isinstance(rec.get("objects"), dict):
+        return None
+    planned = list(rec["objects"].get(split) or [])
+    lst = Path(root) / "splits" / f"{split}.lst"
+    listed = set(lst.read_text().split()) if lst.exists() else set()
+    return [k for k in planned if k not in listed], len(planned)

@@ -645,3 +645,8 @@ def check_finished(root: Path, split: str, objs: list) -> None:
         if bad:
             raise InputError(f"{root} is half-rendered: {len(bad)} of {total} objects of split {split!r} are missing "
                              f"or unfinished (e.g. {bad[0]}); finish it with render-dataset (a rerun resumes)")
+        left = F.planned_but_unlisted(Path(root), split)  # a make-shapenet set whose other shards have not run
+        if left and left[0]:
+            raise InputError(f"{root} is half-rendered: {len(left[0])} of {left[1]} objects make-shapenet planned for "
+                             f"split {split!r} are not finished (e.g. {left[0][0]}); run its other shards (a rerun "
+                             "of any shard names them)")
