@@ -948,3 +948,88 @@ def test_recover_poses_operator_creates_cameras(ring, tmp_path, empty_scene):
         bpy.ops.mrvm.recover_poses()
     assert "already holds files" in p.status
     assert hasattr(bpy.types, "MRVM_PT_capture")
+
+
+# --------------------------------------------------------------------------------------------
+# Ctrl-C while a pycolmap stage runs in its worker thread
+# --------------------------------------------------------------------------------------------
+
+def test_ctrl_c_while_a_stage_runs_cancels_it_and_waits_for_its_thread():
+    """A Ctrl-C landing in the wait for a stage's worker thread cancels the stage and waits for the thread to end, a
+    second Ctrl-C meanwhile included. (Python 3.11's Thread.join, interrupted, marks the thread stopped while it runs:
+    the stage was neither cancelled nor waited for, and the process died under pycolmap's thread at exit, 'terminate
+    called without an active exception' and a native stack trace, exit 134.)"""
+    import signal
+    import threading
+    import time
+
+    from blender_mrvm.capture.sfm import _run_in_thread
+
+    assert threading.current_thread() is threading.main_thread()
+
+    class Token:  # pycolmap.CancellationToken's part that _run_in_thread uses
+        def __init__(self):
+            self.event = threading.Event()
+
+        def cancel(self):
+            self.event.set()
+
+        def is_cancelled(self):
+            return self.event.is_set()
+
+    token, ended = Token(), threading.Event()
+
+    def stage():  # runs until cancelled, then stops within its current image
+        token.event.wait(30)
+        time.sleep(1.5)
+        ended.set()
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    main_id = threading.main_thread().ident
+    ctrl_c = [threading.Timer(t, signal.pthread_kill, (main_id, signal.SIGINT)) for t in (0.3, 0.8)]
+    gen = _run_in_thread(stage, token, "extracting features", 35, poll=30.0)  # in the wait when Ctrl-C comes
+    try:
+        for t in ctrl_c:
+            t.start()
+        with pytest.raises(KeyboardInterrupt):
+            next(gen)
+        assert token.is_cancelled(), "the interrupt did not cancel the stage"
+        assert ended.is_set(), "the interrupt did not wait for the stage's thread"
+        assert not [t for t in threading.enumerate() if t.name.startswith("mrvm-capture")]
+    finally:
+        for t in ctrl_c:
+            t.cancel()
+            t.join()
+        token.cancel()
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_recover_poses_ctrl_c_during_extraction_exits_130_with_one_line(tmp_path):
+    """The CLI: SIGINT while features are extracted ends with exit 130 and one line (it died with 'terminate called
+    without an active exception', a native stack trace and exit 134); the database and the stage log are kept."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 256, (300, 400, 3)).astype(np.uint8)  # texture enough for SIFT to take a while
+    photos = tmp_path / "photos"
+    for i in range(12):
+        F.write_png(photos / f"{i:03d}.png", np.roll(base, 3 * i, axis=1))
+    out = tmp_path / "cap"
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root), TQDM_DISABLE="1", OMP_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "blender_mrvm", "recover-poses", "--images", str(photos), "--out",
+                             str(out), "--threads", "1", "--single-camera"], cwd=root, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None and not (out / "colmap" / "database.db").is_file():
+        time.sleep(0.02)
+    time.sleep(0.3)  # extraction is under way in pycolmap's thread
+    assert proc.poll() is None, "recover-poses ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert [line for line in err.splitlines() if line.strip()] == ["error: interrupted; finished work is kept"], err
+    assert (out / "colmap" / "database.db").is_file() and not (out / "transforms.json").exists()

@@ -294,3 +294,136 @@ def test_training_on_captures_draws_the_targets_nearest_views_as_references(tiny
                       for w in d["cams"].w2c.numpy())
         others = [v for v in range(len(s)) if v != tgt]
         assert refs == sorted(others[i] for i in nearest_views([s.c2w[v] for v in others], s.c2w[tgt], centre, 2))
+
+
+# --------------------------------------------------------------------------------------------
+# Runs: one at a time in a scene, Ctrl-C between views, resume per view
+# --------------------------------------------------------------------------------------------
+
+SMALL = ["--scenes", "1", "--views", "6", "--resolution", "16", "--samples", "1", "--seed", "7"]
+"""One scene of 6 views at 16 px, Cycles at 1 sample (about a second)."""
+SCENE = "captures/scene_000007"
+
+
+def _on_view(monkeypatch, view: int, action) -> None:
+    """Run ``action()`` while view ``view`` of a scene renders (inside Cycles' render, as a signal or a second run
+    arrives), once."""
+    from blender_mrvm.scene import capture_scenes as CS
+
+    render = CS._CaptureSession.render_colour
+    calls = []
+
+    def render_colour(self, box):
+        calls.append(1)
+        if len(calls) == view + 1:
+            action()
+        return render(self, box)
+
+    monkeypatch.setattr(CS._CaptureSession, "render_colour", render_colour)
+
+
+def _files(scene_dir):
+    """Identity of each view's files (a file written again is a new inode)."""
+    return {p.relative_to(scene_dir).as_posix(): (p.stat().st_ino, p.stat().st_mtime_ns)
+            for d in ("rgb", "depth", "normal", "mask", "pose") for p in (scene_dir / d).iterdir()
+            if not p.name.startswith(".")}
+
+
+def test_a_second_run_into_a_scene_being_rendered_is_refused(tmp_path, capsys, monkeypatch, bpy_empty):
+    """A second make-captures reaching the scene another one renders is refused in one line and touches nothing; the
+    first finishes whole. (It removed the first one's unfinished scene, which then died with 'cannot write the dataset
+    files'.)"""
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.scene.render import view_intact
+
+    out = tmp_path / "caps"
+    second = {}
+
+    def second_run():
+        capsys.readouterr()
+        second["rc"] = main(["make-captures", *SMALL, "--out", str(out)])
+        second["err"] = capsys.readouterr().err
+
+    _on_view(monkeypatch, 2, second_run)
+    assert main(["make-captures", *SMALL, "--out", str(out)]) == 0
+    errors = [line for line in second["err"].splitlines() if line.startswith("error:")]
+    assert second["rc"] == 2 and len(errors) == 1 and "in use by another process" in errors[0], second["err"]
+    scene = out / SCENE
+    meta = json.loads((scene / "meta.json").read_text())
+    assert meta["complete"] and all(view_intact(scene, v) for v in range(6))
+    assert F.read_split(out, "train") == [SCENE] and not (scene / ".lock").exists()
+
+
+def test_ctrl_c_stops_after_the_view_in_flight_and_keeps_the_finished_ones(tmp_path, capsys, monkeypatch, bpy_empty):
+    """SIGINT to a headless make-captures while Cycles renders: exit 130 and one line after the view in flight is
+    written (Blender swallowed the KeyboardInterrupt in Cycles' callback, printed its traceback, and the run went on
+    to the end with exit 0)."""
+    import signal
+
+    from blender_mrvm.scene.render import view_intact
+
+    def ctrl_c():
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:  # raised inside Cycles' Python callback, Blender catches and prints it
+            pass
+
+    _on_view(monkeypatch, 2, ctrl_c)
+    out = tmp_path / "caps"
+    assert main(["make-captures", *SMALL, "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["error: interrupted; finished work is kept"]
+    scene = out / SCENE
+    assert sorted(p.name for p in (scene / "pose").iterdir()) == [f"{v:06d}.txt" for v in range(3)]
+    assert all(view_intact(scene, v) for v in range(3))  # the view in flight (2) is written too
+    assert not json.loads((scene / "meta.json").read_text())["complete"]
+    assert not list(scene.rglob(".*")), "no lock or temporary files left behind"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Ctrl-C is Python's again
+
+
+def test_a_rerun_after_kill_keeps_the_finished_views_of_the_same_scene(tmp_path, capsys, bpy_empty):
+    """A scene a killed run left unfinished resumes at its first missing view when it is the same scene (its
+    meta.json but 'complete' and 'split'); the killed run's lock and temporary files are swept. (It was rendered again
+    from view 0.) A scene built otherwise (another version's room, path, ...) is rendered again whole."""
+    from blender_mrvm.datasets.loaders import load_dataset
+    from blender_mrvm.scene.render import view_intact
+
+    out = tmp_path / "caps"
+    args = ["make-captures", *SMALL, "--out", str(out)]
+    assert main(args) == 0
+    scene = out / SCENE
+
+    def killed_after(n):  # what kill -9 during view n leaves: views before it, a lock, temporaries, no records
+        meta = json.loads((scene / "meta.json").read_text())
+        (scene / "meta.json").write_text(json.dumps({**meta, "complete": False}))
+        for v in range(n, 6):
+            for d, ext in (("rgb", "png"), ("depth", "exr"), ("normal", "exr"), ("mask", "png"), ("pose", "txt")):
+                (scene / d / f"{v:06d}.{ext}").unlink()
+        for name in ("transforms.json", "intrinsics.txt"):
+            (scene / name).unlink()
+        (scene / ".lock").write_text("999999\n")
+        (scene / "rgb" / f".{n:06d}.png.999999.3.png").write_bytes(b"\x89PNG half")
+        (scene / ".transforms.json.k2j4x.json").write_text("{")
+        return meta
+
+    meta = killed_after(4)
+    kept = _files(scene)
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "2 views rendered, 4 already done" in capsys.readouterr().out
+    now = _files(scene)
+    assert all(now[k] == v for k, v in kept.items()), "a finished view was rendered again"
+    assert all(view_intact(scene, v) for v in range(6)) and json.loads((scene / "meta.json").read_text())["complete"]
+    assert not list(scene.rglob(".*")), "the killed run's lock and temporaries are swept"
+    (loaded,) = load_dataset(out, "train")
+    assert len(loaded) == 6
+
+    meta = killed_after(3)
+    moved = {**meta["path"], "distance": meta["path"]["distance"] * 1.1}  # the views of another camera path
+    (scene / "meta.json").write_text(json.dumps({**meta, "complete": False, "path": moved}))
+    kept = _files(scene)
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "6 views rendered, 0 already done" in capsys.readouterr().out
+    now = _files(scene)
+    assert all(now[k] != v for k, v in kept.items())
+    assert json.loads((scene / "meta.json").read_text())["path"] == meta["path"]

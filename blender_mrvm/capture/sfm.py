@@ -437,32 +437,51 @@ class StageLog:
 
 def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: Callable[[], str] | None = None,
                    poll: float = POLL_S) -> ProgressGen:
-    """Run ``fn`` in a worker thread, yielding Progress while it runs; cancel it if closed."""
+    """Run ``fn`` in a worker thread, yielding Progress while it runs; cancel it if closed or interrupted.
+
+    The thread's end is its own event, not ``Thread.is_alive``: a Ctrl-C that lands in ``Thread.join`` makes Python
+    3.11 mark the thread stopped while it still runs (the bpo-45274 handling in ``_wait_for_tstate_lock``), so the
+    stage was neither cancelled nor waited for, and the interpreter exited under pycolmap's running C++ thread
+    ("terminate called without an active exception", a native stack trace, exit 134 instead of 130)."""
     out: dict[str, Any] = {}
+    finished = threading.Event()
 
     def target() -> None:
         try:
             out["value"] = fn()
         except BaseException as e:  # noqa: BLE001  (re-raised in the generator's thread)
             out["error"] = e
+        finally:
+            finished.set()
 
     th = threading.Thread(target=target, name=f"mrvm-capture-{label}", daemon=True)
     t0 = time.perf_counter()
     th.start()
     try:
-        while th.is_alive():
-            th.join(poll)
+        while not finished.wait(poll):
             extra = status() if status else ""
             yield Progress(done, 100, f"{label}{' ' + extra if extra else ''} ({time.perf_counter() - t0:.0f}s)")
     finally:
-        if th.is_alive():  # the generator was closed: cancel the pycolmap stage and wait for it
+        if not finished.is_set():  # closed or interrupted: cancel the pycolmap stage and wait for it
             token.cancel()
-            th.join()
+            _wait_through_interrupts(finished, poll)
+        th.join()  # (finished: only the thread's last bytecodes are left)
     if "error" in out:
         if token.is_cancelled():
             raise Cancelled(f"{label} cancelled")
         raise out["error"]
     return out.get("value")
+
+
+def _wait_through_interrupts(finished: threading.Event, poll: float) -> None:
+    """Wait for a cancelled stage to end, a Ctrl-C more included: the process cannot end safely while pycolmap's
+    thread runs (a cancelled stage stops within its current image or pair)."""
+    while True:
+        try:
+            if finished.wait(poll):
+                return
+        except KeyboardInterrupt:
+            continue
 
 
 def _pair_stats(db_path: Path, min_inliers: int) -> tuple[int, int, set[int]]:

@@ -14,6 +14,10 @@ meta.json with ``"background": "scene"`` and the room's box as ``bbox``), with t
   (of this run's ``--scenes``: more scenes on an existing set re-label the kept ones as a fresh run would, and
   the split lists name this run's scenes only).
 
+Runs: a second run reaching a scene another one is rendering is refused (shards of one set, --shard i/n, render
+their own scenes into one folder side by side); Ctrl-C stops after the view in flight (exit 130); a rerun keeps the
+finished views of an unfinished scene when it builds the same scene, and goes on from there.
+
 Example: python -m blender_mrvm make-captures --scenes 12 --views 24 --resolution 64 --out data/captures64
 """
 

@@ -14,13 +14,19 @@ ids (``raster.py``, all surfaces: the object's parts and the room's floor and wa
 - Per scene, seeded: room size and materials, the object (category and seed), the sun's direction,
   strength and colour, the sky's colour and strength, a second (area) light, and the camera path
   (``geometry/paths.py``) and its field of view.
+
+Runs, as ``render_dataset``'s: a scene folder is held (``guards.output_lock``) while it is checked and rendered, so a
+second run reaching it is refused in one line instead of removing the first one's unfinished views (shards rendering
+one set into one folder hold different scenes and go on side by side); a headless Ctrl-C stops after the view in
+flight (``render._sigint_between_views``); a rerun keeps the intact views of an unfinished scene when the scene it
+builds is the one they were rendered of (its meta.json, all but ``complete`` and ``split``, is the same), else
+renders the scene again from its first view.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -34,12 +40,14 @@ from ..datasets import format as F
 from ..errors import InputError
 from ..geometry import cameras as C
 from ..geometry import paths as P
+from ..guards import LOCK_FILE, output_lock, sweep_partials
 from ..progress import Progress, ProgressGen
 from . import compat
 from . import objects as O
 from . import raster
 from .camera import apply_intrinsics, apply_pose, set_clip
-from .render import ENGINES, MAX_RESOLUTION, RenderSession, _Writer, prepare_output, view_intact, write_view
+from .render import (ENGINES, MAX_RESOLUTION, RenderSession, _sigint_between_views, _Writer, prepare_output,
+                     view_intact, write_view)
 
 CATEGORY = "captures"
 """Category folder of every scene (the subject's own category is in meta.json)."""
@@ -301,14 +309,18 @@ def render_captures(cfg: CaptureConfig) -> ProgressGen:
     done = 0
     t0 = time.perf_counter()
     yield Progress(0, total, "starting")
-    with tempfile.TemporaryDirectory(prefix="mrvm_captures_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="mrvm_captures_") as tmp, _sigint_between_views() as interrupted:
         for k in mine:
+            if interrupted:  # (a Ctrl-C while the last scene's records were written: no next one)
+                raise KeyboardInterrupt
             gen = _render_scene(cfg, k, ids[k], splits[k], Path(tmp), summary)
             try:
                 for msg in gen:
                     done += 1
                     summary.seconds = time.perf_counter() - t0
                     yield Progress(done, total, msg, skipped=summary.views_skipped)
+                    if interrupted:
+                        raise KeyboardInterrupt  # between views: closing the scene writes the view in flight
             finally:
                 gen.close()
             summary.scenes.append(ids[k])
@@ -328,25 +340,80 @@ def write_capture_splits(root: Path, cfg: CaptureConfig) -> dict[str, list[str]]
     return splits
 
 
+def _clear_scene(obj_dir: Path) -> None:
+    """Remove what a scene folder holds but its lock file (held by this run: removing it would let another lock it)."""
+    F.remove_entries(obj_dir, [p.name for p in obj_dir.iterdir() if p.name != LOCK_FILE])
+
+
+RESUME_IGNORES = ("complete", "split")
+"""meta.json entries that may differ between a scene's unfinished views and a rerun that keeps them."""
+
+
+def _same_record(a, b) -> bool:
+    """Equal JSON records, numbers to float rounding (a scene built again in another process)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same_record(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same_record(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return (isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool)
+                and not isinstance(b, bool) and math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-9))
+    return a == b
+
+
+def same_scene(old: dict, new: dict) -> bool:
+    """Whether views recorded under meta.json ``old`` are views of the scene ``new`` describes: everything but
+    :data:`RESUME_IGNORES` is the same (settings, generator and Blender versions, subject, room, lights, camera path,
+    field of view, boxes, labels)."""
+    new = json.loads(json.dumps(new))  # as written: tuples are lists
+    return isinstance(old, dict) and _same_record({k: v for k, v in old.items() if k not in RESUME_IGNORES},
+                                                  {k: v for k, v in new.items() if k not in RESUME_IGNORES})
+
+
+def _view_kept(obj_dir: Path, v: int, c2w: np.ndarray) -> bool:
+    """View ``v`` of an unfinished render of this scene is whole and was taken from pose ``c2w``."""
+    if not view_intact(obj_dir, v):
+        return False
+    try:
+        return bool(np.allclose(F.read_srn_pose(F.view_paths(obj_dir, v)["pose"]), c2w, atol=1e-6))
+    except Exception:  # noqa: BLE001  (unreadable: render it again)
+        return False
+
+
 def _render_scene(cfg: CaptureConfig, k: int, scene_id: str, split: str, tmpdir: Path, summary: CaptureSummary):
+    """One scene's views (a message per view, rendered or kept), its folder held for the while
+    (``guards.output_lock``): another run rendering the same scene is refused, not mixed with this one."""
     obj_dir = Path(cfg.out) / CATEGORY / scene_id
+    with output_lock(obj_dir, "scene folder"):
+        yield from _render_held_scene(cfg, k, scene_id, split, tmpdir, summary, obj_dir)
+
+
+def _render_held_scene(cfg: CaptureConfig, k: int, scene_id: str, split: str, tmpdir: Path, summary: CaptureSummary,
+                       obj_dir: Path):
     meta_path = obj_dir / "meta.json"
     settings = cfg.settings()
     seed = scene_seed(cfg, k)
+    old = None
     if meta_path.exists():
         try:
             old = json.loads(meta_path.read_text())
         except ValueError:
-            old = {}
-        if F.settings_match(old.get("settings"), settings) and old.get("complete") and \
-                all(view_intact(obj_dir, v) for v in range(old.get("n_views", -1))):
+            old = None
+        if not isinstance(old, dict) or not F.settings_match(old.get("settings"), settings):
+            _clear_scene(obj_dir)  # another render of this scene (prepare_output guarded the root)
+            old = None
+        elif old.get("complete") and all(view_intact(obj_dir, v) for v in range(old.get("n_views", -1))):
             if old.get("split") != split:  # the split changes no pixel: it follows this run's --scenes, as a fresh
                 F.atomic_write_json(meta_path, {**old, "split": split})  # render of that many scenes assigns it
             for v in range(old["n_views"]):
                 summary.views_skipped += 1
                 yield f"{scene_id}: view {v + 1}/{old['n_views']} (done before)"
             return
-        shutil.rmtree(obj_dir)  # another or an unfinished render of this scene (prepare_output guarded the root)
+    # what a killed run was writing (the views' and records' temporary names; the folder is held: no one else's)
+    for d in F.VIEW_DIRS:
+        sweep_partials(obj_dir / d, ".*")
+    for name in ("meta.json", "transforms.json", "intrinsics.txt"):
+        sweep_partials(obj_dir, f".{name}.*")
 
     rng = np.random.default_rng([seed, 17])
     session = _CaptureSession(cfg, tmpdir)
@@ -431,10 +498,17 @@ def _render_scene(cfg: CaptureConfig, k: int, scene_id: str, split: str, tmpdir:
             "room": {k2: v for k2, v in room.items() if k2 != "objects"}, "lights": lights,
             "path": path.record(),
         }
+        keep = old is not None and same_scene(old, meta)
+        if old is not None and not keep:  # an unfinished render of this scene as another version built it
+            _clear_scene(obj_dir)
         F.atomic_write_json(meta_path, meta)
         for d in F.VIEW_DIRS:
             (obj_dir / d).mkdir(exist_ok=True)
         for v, c2w in enumerate(poses):
+            if keep and _view_kept(obj_dir, v, c2w):  # rendered before this scene was interrupted
+                summary.views_skipped += 1
+                yield f"{scene_id}: view {v + 1}/{cfg.views} (done before)"
+                continue
             apply_pose(session.camera, c2w)
             colour = session.render_colour(None)
             writer.submit(_make_view, obj_dir, v, colour, tris, intr, c2w, clip, labelled)
