@@ -538,7 +538,9 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
 
     cfg.validate()
     images_dir, out_dir = Path(images_dir), Path(out_dir)
-    pycolmap.logging.minloglevel = 0 if verbose else 2
+    # Without --verbose COLMAP says nothing: its errors ('Failed to create any sparse model', twice) came before our
+    # own one-line error that names the problem and what to try; --verbose shows its whole log.
+    pycolmap.logging.minloglevel = 0 if verbose else 3
     timings: dict[str, float] = {}
     cpu_timings: dict[str, float] = {}  # process CPU seconds (all threads): robust to a busy machine
     t, c = time.perf_counter(), time.process_time()

@@ -48,7 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=d.num_threads, help="CPU threads (0 or -1 = all; default all)")
     p.add_argument("--seed", type=int, default=d.seed, help="seed of COLMAP's random sampling (RANSAC, the mapper)")
     p.add_argument("--force", action="store_true", help="overwrite an output folder that holds files")
-    p.add_argument("--verbose", action="store_true", help="show COLMAP's log")
+    p.add_argument("--verbose", action="store_true", help="show COLMAP's log (without it COLMAP prints nothing, its errors included: "
+                   "the command's own error line says what failed)")
 
 
 FLAGS = {"num_threads": "--threads", "max_num_features": "--max-features", "max_image_size": "--max-image-size",
