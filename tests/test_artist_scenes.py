@@ -416,6 +416,10 @@ def test_scene_rig_keeps_the_scenes_frame(tmp_path, capsys, empty_scene):
     assert main([*base, "--resolution", "32x32", "--out", str(tmp_path / "b")]) == 0
     err = capsys.readouterr().err
     assert "frame 128x64" in err and "--resolution 32x16" in err, err
+    # a dataset rendered square (as one number gave before session 54): the refusal says how to resume it
+    assert main([*base, "--resolution", "32", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "--resolution 32x32 resumes this dataset" in err and "cameras != " not in err, err
     # the panel: its one Resolution number is the longer side too
     from blender_mrvm.operators.dataset import config_from_props
 

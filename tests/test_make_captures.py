@@ -266,6 +266,8 @@ def test_eval_scores_each_held_out_view_from_its_neighbours(tiny):
     assert model.calls == [[tuple(np.round(s.c2w[i][:3, 3], 6)) for i in (1, 3)]]
     assert report["overall"]["n"] == 1 and report["protocol"]["input_views"] == "per target"
     assert report["overall"]["baseline_nearest"]["psnr"] is not None
+    # a room's masks hold every pixel: eval.md said 'IoU of opacity with the mask 1.000', a figure of nothing
+    assert s.masks is not None and s.masks[2].all() and "alpha" not in report["overall"]
     blend = np.mean([s.images[1], s.images[3]], 0)  # the two neighbours' pixel-wise mean, as the stub answers
     assert report["overall"]["baseline_blend"]["psnr"] == pytest.approx(report["overall"]["psnr"], abs=1e-4)
     assert report["overall"]["baseline_blend"]["psnr"] == pytest.approx(

@@ -194,10 +194,19 @@ class RenderSummary:
 # --------------------------------------------------------------------------------------------
 
 def _settings_diff(a: dict, b: dict) -> str:
-    def value(v, k):
-        return f"{len(v)} cameras" if k == "scene_cameras" and isinstance(v, list) else v
+    def one(k):
+        va, vb = a.get(k), b.get(k)
+        if k == "scene_cameras" and isinstance(va, list) and isinstance(vb, list):
+            return (f"scene_cameras {len(va)} cameras != {len(vb)} cameras" if len(va) != len(vb) else
+                    "scene_cameras: the cameras' names, intrinsics or poses differ")
+        return f"{k} {va} != {vb}"
 
-    return ", ".join(f"{k} {value(a.get(k), k)} != {value(b.get(k), k)}" for k in F.differing_settings(a, b)[:3])
+    said = ", ".join(one(k) for k in F.differing_settings(a, b)[:3])
+    if (a.get("rig") == b.get("rig") == "scene" and isinstance(a.get("resolution"), list)
+            and a.get("resolution") != b.get("resolution")):  # one --resolution number: the scene's frame shape
+        said += ("; with --rig scene one --resolution number is the longer side of the scene's frame (since session "
+                 f"54; R meant RxR before), so --resolution {'x'.join(map(str, a['resolution']))} resumes this dataset")
+    return said
 
 
 def _own_temporary(name: str) -> bool:
@@ -644,7 +653,8 @@ def _frame_change(scene: bpy.types.Scene, w: int, h: int) -> str | None:
     pixels = (f" with pixels {r.pixel_aspect_x:g}:{r.pixel_aspect_y:g}"
               if r.pixel_aspect_x != r.pixel_aspect_y else "")
     return (f"the scene's cameras frame {sw}x{sh}{pixels}; the dataset's {w}x{h} views show a band more or less of "
-            f"the scene than that frame (by each camera's sensor fit): --resolution {fix} (or one number) keeps it")
+            f"the scene than that frame (by each camera's sensor fit): --resolution {fix} (or one number) keeps it, in "
+            "a new dataset")
 
 
 class _temporary_resolution:

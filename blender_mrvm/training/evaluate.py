@@ -342,7 +342,7 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
                    "inputs": [int(s.view_ids[r]) for r in refs], **sc["model"]}  # what --compare-to pairs on
             if reproject != "off":
                 rec.update({"model_only": sc["model_only"], "reference_share": share})
-            if s.masks is not None:
+            if s.masks is not None and not s.masks[t].all():  # (a room's masks hold every pixel: nothing to score)
                 rec["alpha"] = alpha_scores(out["acc"].numpy(), s.masks[t])
             if s.depths is not None:
                 rec.update(depth_scores(out["depth"].numpy(), s.depths[t], s.intrinsics[t]))
