@@ -745,3 +745,19 @@ def test_depth_flag_reaches_the_targets_file_and_the_blend(setup, tmp_path, caps
     from blender_mrvm.datasets.novel_views import blend_images_folder
 
     assert list(blend_images_folder(blend).glob("*depth*.exr")), sorted(blend_images_folder(blend).iterdir())
+
+
+def test_force_replaces_an_earlier_synthesis_as_a_whole(setup, tmp_path):
+    """``synthesize --force`` into the folder of an earlier --orbit 6 --depth run kept four of its images and all six
+    depth maps beside the two new views (depth/000000.exr of another camera beside the new rgb/000000.png), and
+    nothing said which files belonged to which run: the earlier views go; files of other names stay."""
+    root, obj, ck, tg = setup
+    out = tmp_path / "out"
+    base = ["synthesize", "--references", str(obj), "--views", "0,1", "--checkpoint", str(ck), "--out", str(out),
+            "--device", "cpu", "--threads", "1"]
+    assert main(base + ["--orbit", "6", "--depth"]) == 0
+    (out / "notes.txt").write_text("mine")
+    assert main(base + ["--target-views", "2,3", "--force"]) == 0
+    assert sorted(p.name for p in (out / "rgb").iterdir()) == ["000000.png", "000001.png"]
+    assert not list((out / "depth").glob("*.exr")) and (out / "notes.txt").read_text() == "mine"
+    assert len(json.loads((out / "targets.json").read_text())["targets"]) == 2

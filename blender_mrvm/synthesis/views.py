@@ -582,6 +582,19 @@ def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
     check_folder_writable(out)
 
 
+def _stale_views(out: Path, new: Path) -> list[Path]:
+    """The views (``rgb/NNNNNN.png``, ``depth/NNNNNN.exr``) an earlier synthesis left in ``out`` that this one,
+    finished in ``new``, does not write: ``--force`` replaces a run's outputs as a whole (an --orbit 6 --depth run
+    overwritten by --target-views 2,3 kept four old images and six old depth maps beside the new views, and nothing
+    said which belonged to which run). Files of other names are left alone."""
+    stale = []
+    for sub, suffix in (("rgb", ".png"), ("depth", ".exr")):
+        for f in sorted((Path(out) / sub).glob(f"[0-9][0-9][0-9][0-9][0-9][0-9]{suffix}")):
+            if not (Path(new) / sub / f.name).exists():
+                stale.append(f)
+    return stale
+
+
 def make_folder(path: Path) -> list[Path]:
     """Create the folder ``path`` with its missing parents; return the folders this call created (outermost
     first) for :func:`remove_new_folders` to take back when the command fails."""
@@ -796,6 +809,9 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
             write_targets(tmp / "targets.json", targets, depth=depth)
         if before_move is not None:
             before_move(tmp, summary)
+        if cfg.force:  # views of an earlier synthesis there that this one does not replace would sit beside its own
+            for stale in _stale_views(out, tmp):
+                stale.unlink()
         F.move_into(tmp, out)
     finally:
         if tmp is not None and tmp.exists():
