@@ -536,9 +536,13 @@ def test_a_procedural_object_built_otherwise_by_a_later_library_is_not_resumed(t
     monkeypatch.undo()
     meta = json.loads(meta_path.read_text())
     meta.pop("appearance_hash")  # rendered before the built object was hashed
-    meta["complete"] = False
     meta_path.write_text(json.dumps(meta))
-    assert _render(**kw).views_skipped == 2
+    assert _render(**kw).views_skipped == 2, "finished: its views are of one version, kept"
+    meta["complete"] = False  # interrupted under that version: resumed, it mixed two chairs (an upgrade review)
+    meta_path.write_text(json.dumps(meta))
+    with pytest.raises(OutputError, match="unfinished views of .* from a version that did not record the object"):
+        _render(**kw)
+    assert _render(**kw, force=True).views_rendered == 2
 
 
 def test_shards_starting_into_one_new_folder_do_not_refuse_each_other(tmp_path):
