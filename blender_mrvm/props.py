@@ -37,6 +37,11 @@ SHIPPED_MODELS = [
 ]
 """The shipped novel-view models the panel offers (``models.pretrained``: ``auto``'s choice by the cameras, one per
 kind, then named models)."""
+SHIPPED_MODELS = [(*item, number) for number, item in enumerate(SHIPPED_MODELS)]
+# A .blend stores an enum choice as its item's number, which without one is its position: inserting "auto" first
+# (8fb737e, 2026-11-27) made files saved before open on the next model up (gpnr -> nerformer_mrvm). The numbers are
+# now fixed: a new model is appended with a new number, never inserted (tests/test_addon.py pins them). Files saved
+# before 2026-11-27 still open one item up (the panel shows which; no file says its add-on version).
 
 DEVICES = [
     ("AUTO", "Auto", "CUDA when available, else CPU"),

@@ -612,3 +612,21 @@ def test_the_manifest_asks_for_the_clipboard():
     reason = manifest["permissions"]["clipboard"]
     assert reason and len(reason) <= 64 and reason[-1].isalnum()
     assert "context.window_manager.clipboard" in (ROOT / "blender_mrvm" / "prefs.py").read_text()
+
+
+def test_shipped_model_choices_keep_their_numbers_in_saved_files(empty_scene, tmp_path):
+    """A .blend stores an enum choice as its item's number, which without one is its position: inserting "auto"
+    first made files saved before open on the next model up (a saved 'gpnr' came back as 'nerformer_mrvm'). The
+    numbers are pinned: a new model is appended with a new number, never inserted."""
+    import bpy
+
+    from blender_mrvm.props import SHIPPED_MODELS
+
+    pinned = {"auto": 0, "nerformer_mrvm": 1, "gpnr": 2, "gpnr_captures": 3, "mrvm_anyview": 4, "mrvm_quality": 5}
+    assert {i[0]: i[3] for i in SHIPPED_MODELS if i[0] in pinned} == pinned
+    numbers = [i[3] for i in SHIPPED_MODELS]
+    assert len(set(numbers)) == len(numbers)
+    empty_scene.mrvm_novel_views.shipped_model = "gpnr"
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "s.blend"))
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "s.blend"))
+    assert bpy.context.scene.mrvm_novel_views.shipped_model == "gpnr"
