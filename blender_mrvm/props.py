@@ -397,13 +397,73 @@ def _end_jobs(keep: set = frozenset()) -> None:
                 group.running, group.progress, group.status = False, 0.0, ""
 
 
+def _relative_paths():
+    """(group, property name, value) of every panel path relative to the .blend (``//``) in every scene."""
+    for scene in bpy.data.scenes:
+        for name in SCENE_PROPERTIES:
+            group = getattr(scene, name, None)
+            if group is None:
+                continue
+            for prop in group.bl_rna.properties:
+                if prop.type == "STRING" and prop.subtype in ("FILE_PATH", "DIR_PATH"):
+                    value = getattr(group, prop.identifier)
+                    if value.startswith("//"):
+                        yield group, prop.identifier, value
+
+
+_rebased: list[tuple] = []
+"""What :func:`rebase_paths_on_save` changed for a Save Copy (the open file stays where it was: put back after)."""
+
+
+@persistent
+def rebase_paths_on_save(filepath, *_args) -> None:
+    """``save_pre``: on Save As into another folder, the panel's ``//`` paths are rebased onto the new location, so
+    they name the same folders and files as before, as Blender's Remap Relative does for images and libraries (they
+    were left as typed: Render Dataset rendered a whole new dataset beside the new .blend instead of resuming, and
+    Synthesize looked for its references there). Paths on another drive become absolute."""
+    import os
+
+    old = bpy.data.filepath
+    _rebased.clear()
+    if not old or not filepath or os.path.dirname(os.path.abspath(old)) == os.path.dirname(os.path.abspath(filepath)):
+        return
+    new_dir = os.path.dirname(os.path.abspath(filepath))
+    for group, ident, value in list(_relative_paths()):
+        target = bpy.path.abspath(value, start=os.path.dirname(old))
+        try:
+            rebased = "//" + os.path.relpath(target, new_dir).replace(os.sep, "/")
+        except ValueError:  # another drive (Windows): no relative path
+            rebased = os.path.normpath(target)
+        if value.endswith(("/", os.sep)) and not rebased.endswith("/"):
+            rebased += "/"
+        if rebased != value:
+            setattr(group, ident, rebased)
+            _rebased.append((group, ident, value))
+
+
+@persistent
+def restore_paths_after_copy(filepath, *_args) -> None:
+    """``save_post``: after a Save Copy the open file is still the old one: its paths are put back."""
+    import os
+
+    if _rebased and os.path.abspath(bpy.data.filepath or "") != os.path.abspath(filepath or ""):
+        for group, ident, value in _rebased:
+            setattr(group, ident, value)
+    _rebased.clear()
+
+
+_HANDLERS = (("load_post", end_jobs_of_loaded_file), ("save_pre", rebase_paths_on_save),
+             ("save_post", restore_paths_after_copy))
+
+
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     for name, cls in SCENE_PROPERTIES.items():
         setattr(bpy.types.Scene, name, PointerProperty(type=cls))
-    if end_jobs_of_loaded_file not in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.append(end_jobs_of_loaded_file)
+    for when, fn in _HANDLERS:
+        if fn not in getattr(bpy.app.handlers, when):
+            getattr(bpy.app.handlers, when).append(fn)
     if not bpy.app.timers.is_registered(end_jobs_after_register):
         bpy.app.timers.register(end_jobs_after_register, first_interval=0)
 
@@ -411,8 +471,9 @@ def register() -> None:
 def unregister() -> None:
     if bpy.app.timers.is_registered(end_jobs_after_register):
         bpy.app.timers.unregister(end_jobs_after_register)
-    while end_jobs_of_loaded_file in bpy.app.handlers.load_post:
-        bpy.app.handlers.load_post.remove(end_jobs_of_loaded_file)
+    for when, fn in _HANDLERS:
+        while fn in getattr(bpy.app.handlers, when):
+            getattr(bpy.app.handlers, when).remove(fn)
     for name in SCENE_PROPERTIES:
         if hasattr(bpy.types.Scene, name):
             delattr(bpy.types.Scene, name)

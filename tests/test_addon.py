@@ -630,3 +630,31 @@ def test_shipped_model_choices_keep_their_numbers_in_saved_files(empty_scene, tm
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "s.blend"))
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "s.blend"))
     assert bpy.context.scene.mrvm_novel_views.shipped_model == "gpnr"
+
+
+def test_save_as_elsewhere_keeps_the_panels_paths_on_the_same_folders(empty_scene, tmp_path):
+    """Save As into another folder left the panel's // paths as typed, so they named folders beside the new .blend:
+    Render Dataset rendered a whole new dataset there instead of resuming, Synthesize looked for its references there.
+    They are rebased as Blender's Remap Relative does for images: the same folders, from the new file; a Save Copy
+    rebases the copy only; a save into the same folder changes nothing."""
+    import os
+
+    import bpy
+
+    d, nv = empty_scene.mrvm_dataset, empty_scene.mrvm_novel_views
+    (tmp_path / "p1").mkdir()
+    (tmp_path / "p2" / "sub").mkdir(parents=True)
+    (tmp_path / "p3").mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "p1" / "s.blend"))
+    d.output_dir, nv.dataset_dir, nv.checkpoint = "//mrvm_dataset", "//mrvm_dataset/chair/c0/", "/abs/run"
+    where = {k: bpy.path.abspath(v) for k, v in (("out", d.output_dir), ("refs", nv.dataset_dir))}
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "p1" / "s2.blend"))
+    assert d.output_dir == "//mrvm_dataset"  # the same folder: as typed
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "p2" / "sub" / "t.blend"))
+    assert d.output_dir == "//../../p1/mrvm_dataset" and nv.dataset_dir == "//../../p1/mrvm_dataset/chair/c0/"
+    assert os.path.normpath(bpy.path.abspath(d.output_dir)) == os.path.normpath(where["out"])
+    assert nv.checkpoint == "/abs/run"
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "p3" / "c.blend"), copy=True)
+    assert d.output_dir == "//../../p1/mrvm_dataset", "the open file is still t.blend"
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "p3" / "c.blend"))
+    assert bpy.context.scene.mrvm_dataset.output_dir == "//../p1/mrvm_dataset"
