@@ -1263,7 +1263,7 @@ def test_vertices_no_face_uses_are_left_out_of_the_bounds_and_named(tmp_path, bp
     s = _render(out=tmp_path / "d", sources=(*(str(tmp_path / f"{n}.ply") for n in ("scan", "clean", "inside")),
                                               "selected"), views=2, resolution=(16, 16), samples=1)
     assert sorted(w.split(":")[0] for w in s.warnings) == ["custom/Tet", "custom/scan"], s.warnings
-    assert all("1 vertices that no face uses" in w for w in s.warnings), s.warnings
+    assert all("1 vertices that no face of some area uses" in w for w in s.warnings), s.warnings
     meta = {n: json.loads((tmp_path / "d" / "custom" / n / "meta.json").read_text())
             for n in ("scan", "clean", "inside", "Tet")}
     assert meta["scan"]["normalization"] == meta["clean"]["normalization"] == meta["inside"]["normalization"]
@@ -1377,3 +1377,45 @@ def test_blend_file_linked_libraries_are_part_of_what_its_views_were_rendered_fr
                                          r"missing: the linked file .*parts.blend cannot be read"):
         _render(**{**kw, "out": tmp_path / "d2"})
     assert not (tmp_path / "d2" / "custom").exists()
+
+
+def test_faces_of_no_area_far_away_do_not_frame_the_object(tmp_path, bpy_empty):
+    """A box OBJ with one zero-area face 20 units away (three vertices at one point, or a sliver on a line) was framed
+    by that face: scale 0.049 instead of 0.86, one mask pixel a view, no word. Faces of no area render nothing and
+    are left out of the bounds, as loose vertices are, and named."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(1.0, 0.5, 0.3))
+    v, f = box.vertices.tolist(), box.faces.tolist()
+    for name, extra_v in (("point", [[20, 0, 0]] * 3), ("sliver", [[0.5, 0, 0], [10, 0, 0], [20, 0, 0]])):
+        n = len(v)
+        lines = [f"v {x} {y} {z}" for x, y, z in v + extra_v] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
+        lines.append(f"f {n + 1} {n + 2} {n + 3}")
+        (tmp_path / f"{name}.obj").write_text("\n".join(lines) + "\n")
+    (tmp_path / "clean.obj").write_text("\n".join([f"v {x} {y} {z}" for x, y, z in v]
+                                                  + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]) + "\n")
+    s = _render(out=tmp_path / "d", sources=tuple(str(tmp_path / f"{n}.obj") for n in ("point", "sliver", "clean")),
+                views=2, resolution=(16, 16), samples=1)
+    meta = {n: json.loads((tmp_path / "d" / "custom" / n / "meta.json").read_text()) for n in ("point", "sliver", "clean")}
+    assert meta["point"]["normalization"]["scale"] == pytest.approx(meta["clean"]["normalization"]["scale"], rel=1e-6)
+    assert meta["sliver"]["normalization"]["scale"] == pytest.approx(meta["clean"]["normalization"]["scale"], rel=1e-6)
+    assert sorted(w.split(":")[0] for w in s.warnings if "no face of some area" in w) == ["custom/point", "custom/sliver"]
+
+
+def test_vertices_stored_far_from_the_origin_and_objects_that_cover_no_pixel_are_said(tmp_path, bpy_empty):
+    """A scan in UTM coordinates (5.3e6 units away) snapped to Blender's float32 grid of half a unit: its sphere came
+    out blocky and the colour 1-5 px off the masks, without a word; a 1e-5 x 1e-5 x 1 needle rendered views with empty
+    masks, 'complete'. Both are named in a warning; the same box near the origin is no news."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(4.0, 3.0, 2.0))
+    box.export(tmp_path / "near.ply")
+    far = box.copy()
+    far.apply_translation((452000.0, 5300000.0, 310.0))
+    (tmp_path / "far.ply").write_bytes(trimesh.exchange.ply.export_ply(far, encoding="ascii"))
+    trimesh.creation.box(extents=(1e-5, 1e-5, 1.0)).export(tmp_path / "needle.ply")
+    s = _render(out=tmp_path / "d", sources=tuple(str(tmp_path / f"{n}.ply") for n in ("near", "far", "needle")),
+                views=2, resolution=(16, 16), samples=1)
+    said = {w.split(":")[0]: w for w in s.warnings}
+    assert "float32" in said.get("custom/far", "") and "custom/near" not in said, s.warnings
+    assert "covers no pixel in any of the 2 views" in said.get("custom/needle", ""), s.warnings

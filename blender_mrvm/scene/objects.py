@@ -2156,8 +2156,16 @@ def renders(o: bpy.types.Object) -> bool:
     return o.type == "MESH" and not o.hide_render and getattr(o, "visible_camera", True)
 
 
+DEGENERATE_AREA = 1e-9
+"""A face whose area is below this share of its mesh's squared bounding-box diagonal renders nothing (three vertices
+at one point, a sliver on a line): its vertices do not count as used for the bounds (:func:`_world_vertices`)."""
+
+
 def _world_vertices(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer):
-    """(world-space vertices, whether a face uses each) of each evaluated, render-visible mesh of ``objs``."""
+    """(world-space vertices, whether a face of some area uses each) of each evaluated, render-visible mesh of ``objs``.
+
+    A face of no area (:data:`DEGENERATE_AREA`) does not count: one such face 20 units from a 1-unit box set the
+    bounds the box was framed by, and it rendered as one pixel a view, without a word."""
     out = []
     for _, ev in rendered_meshes(objs, view_layer):
         with evaluated_mesh(ev) as me:
@@ -2165,8 +2173,17 @@ def _world_vertices(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLaye
             me.vertices.foreach_get("co", co)
             corners = np.empty(len(me.loops), dtype=np.int32)
             me.loops.foreach_get("vertex_index", corners)
+            area = np.empty(len(me.polygons), dtype=np.float64)
+            me.polygons.foreach_get("area", area)
+            total = np.empty(len(me.polygons), dtype=np.int32)
+            me.polygons.foreach_get("loop_total", total)  # (a face's corners follow each other, faces in order)
         used = np.zeros(len(co) // 3, dtype=bool)
-        used[corners] = True
+        pts = co.reshape(-1, 3)
+        if len(corners):
+            span = pts[corners]
+            diag2 = float(np.sum((span.max(axis=0) - span.min(axis=0)) ** 2)) if np.isfinite(span).all() else 0.0
+            kept = corners[np.repeat(area > DEGENERATE_AREA * diag2, total)] if diag2 > 0 else corners
+            used[kept if len(kept) else corners] = True  # (all of no area: the size checks refuse it)
         m = np.array(ev.matrix_world, dtype=np.float64)
         out.append((co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3], used))
     return out
@@ -2284,6 +2301,35 @@ def mesh_triangles(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer
 MAX_COORDINATE = 1e9
 """Vertex coordinates beyond this (scene units) mark a broken mesh: normalization would squeeze the
 real geometry into a point and every view would come out blank."""
+
+
+FLOAT32_STEP = 1e-3
+"""Largest float32 spacing of a mesh's stored vertex coordinates, as a share of its size, rendered without a warning
+(:func:`float32_precision_warning`)."""
+
+
+def float32_precision_warning(objs: list[bpy.types.Object], view_layer: bpy.types.ViewLayer, name: str) -> str | None:
+    """A warning when a mesh's vertices are stored so far from its origin, for its size, that float32 (Blender's vertex
+    type) snaps them to a grid coarser than :data:`FLOAT32_STEP` of the object: a scan in UTM coordinates (5.3e6
+    units away) snapped to half a unit, its sphere rendered blocky and the colour (Cycles, float32) 1-5 px off the
+    masks and depth (float64). Placed far by the object's location instead, the mesh stays exact. None when fine."""
+    worst = 0.0
+    for _, ev in rendered_meshes(objs, view_layer):
+        with evaluated_mesh(ev) as me:
+            co = np.empty(len(me.vertices) * 3, dtype=np.float64)
+            me.vertices.foreach_get("co", co)
+        pts = co.reshape(-1, 3)
+        if not len(pts) or not np.isfinite(pts).all():
+            continue
+        size = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+        if size > 0:
+            worst = max(worst, float(np.spacing(np.float32(np.abs(pts).max()))) / size)
+    if worst <= FLOAT32_STEP:
+        return None
+    return (f"{name}: its vertices are stored so far from the mesh's origin, for its size, that Blender's float32 "
+            f"coordinates snap them to a grid of {100 * worst:.2g}% of the object (its shape is coarsened and the "
+            "colour can be off the masks and depth by a pixel or more); move it near the origin before exporting "
+            "(e.g. subtract the scan's offset)")
 
 
 def check_vertices(verts: np.ndarray, what: str) -> None:

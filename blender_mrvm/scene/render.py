@@ -876,6 +876,9 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 "put the files where the mesh's materials name them and render again with --force")
         vl = session.view_layer
         O.check_vertices(O.mesh_vertices_world(objs, vl), spec.describe())
+        imprecise = O.float32_precision_warning(objs, vl, spec.key)
+        if imprecise:
+            summary.warnings.append(imprecise)
         norm = O.normalization_matrix(O.mesh_vertices_world(objs, vl), spec.describe())
         loose = O.loose_vertices(objs, vl)  # left out of the bounds (a scan's stray points): said, as they moved them
         old_norm = ((old or {}).get("normalization") or {}).get("matrix") if meta_path.exists() else None
@@ -889,8 +892,8 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             shutil.rmtree(obj_dir)
         if loose is not None:
             summary.warnings.append(
-                f"{spec.key}: {loose['count']} vertices that no face uses (stray points, loose vertices or edges: "
-                "they render nothing) left out of the bounds it is normalized and framed by; they reached well beyond "
+                f"{spec.key}: {loose['count']} vertices that no face of some area uses (stray points, loose vertices "
+                "or edges, faces of no area: they render nothing) left out of the bounds it is normalized and framed by; they reached well beyond "
                 "its faces (meta.json: loose_vertices)")
         O.apply_world_transform(objs, norm, vl)
         radius = float(np.linalg.norm(O.mesh_vertices_world(objs, vl), axis=1).max())
@@ -991,6 +994,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
 
         current_intr = None
         opacity: list[tuple] = []  # per rendered view (inside, outside the mask), from the writer thread
+        rendered_now = 0
         for i, (intr, c2w) in enumerate(zip(intrs, poses)):
             msg = f"{spec.key}: view {i + 1}/{len(poses)}"
             if view_intact(obj_dir, i):
@@ -1006,8 +1010,14 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             # Rasterized and written on the writer thread while the next view renders.
             writer.submit(_make_view, obj_dir, i, colour, tris, intr, c2w, clip, labelled, cfg.rgba, opacity)
             summary.views_rendered += 1
+            rendered_now += 1
             yield msg
         writer.wait()
+        if rendered_now and not opacity:  # (the writer appends a view's figures only where its mask has a pixel)
+            summary.warnings.append(
+                f"{spec.key}: covers no pixel in any of the {rendered_now} views rendered (its masks are empty): it is "
+                f"too thin or too small to show at {intrs[0].width}x{intrs[0].height} (e.g. a needle or a sheet seen "
+                "edge-on, or a part far larger than the rest sets the framing); check the mesh")
 
         # Per-object camera files (from the poses, so they are exact whatever was resumed).
         F.atomic_write_text(obj_dir / "intrinsics.txt", F.format_srn_intrinsics(intrs[0]))
