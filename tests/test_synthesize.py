@@ -138,6 +138,7 @@ def test_references_shrink_to_the_trained_size_by_default(setup, tmp_path, capsy
     assert main(_args(root, obj, big, refused)) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "smaller than the 64 px" in err[0] and not refused.exists()
+    assert "in the panel: Reference size Custom 64, or As they are" in err[0]  # (the panel shows it too)
     refs = S.load_references(obj, (0, 1), 0, None, max_size=8)
     k = S.load_references(obj, (0, 1)).intrinsics[0]
     assert refs.images.shape == (2, 8, 8, 3) and refs.intrinsics[0].fx == pytest.approx(k.fx / 2)

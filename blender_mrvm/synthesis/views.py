@@ -654,7 +654,8 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
     if cfg.ref_size == 0 and max_size and side < max_size:
         raise InputError(f"the reference images are {refs.intrinsics[0].width}x{refs.intrinsics[0].height}, smaller than "
                          f"the {max_size} px this model was trained on; pass --ref-size {max_size} to upsample them "
-                         "or --ref-size -1 to use them as they are")
+                         "or --ref-size -1 to use them as they are (in the panel: Reference size Custom "
+                         f"{max_size}, or As they are)")
     device = resolve_device(cfg.device)
     from ..models.precision import CPU_BF16_NOTE, autocast, check_precision, for_precision, resolve_precision
 
