@@ -311,15 +311,16 @@ def test_file_names_never_overwrite_another_planes_image(empty_scene, tmp_path):
         img = bpy.data.images[plane["mrvm_image"]]
         img.reload()
         assert _images_equal(img, _test_image(40, 28, seed)) <= 0.51
-    # Rebuilding a camera's plane reuses its own file name.
+    # Rebuilding a camera's plane takes a new file name: the saved .blend (or undo) may still show the old one.
     IP.build_image_planes(scene, [IP.NovelView("Cam_1", _test_image(40, 28, 3))], cfg)
-    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["Cam_1.png", "Cam_1_1.png"]
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["Cam_1.png", "Cam_1_1.png", "Cam_1_2.png"]
+    assert Path(bpy.path.abspath(bpy.data.images[IP.planes_of(b)[0]["mrvm_image"]].filepath)).name == "Cam_1_2.png"
 
 
 def test_blend_files_sharing_a_folder_keep_their_own_images(empty_scene, tmp_path):
     """Two .blend files saved in one folder, each with a camera "Camera" and the default image folder: the second
     one's plane takes a new file name, so reopening the first still shows its own image; rebuilding a plane in the
-    first file reuses its file."""
+    first file takes a third name, so the second's image stays as it was."""
     import bpy
 
     from blender_mrvm.scene import image_planes as IP
@@ -342,5 +343,145 @@ def test_blend_files_sharing_a_folder_keep_their_own_images(empty_scene, tmp_pat
     assert Path(bpy.path.abspath(img.filepath)) == a and _images_equal(img, _test_image(40, 28, 1)) <= 0.51
     IP.build_image_planes(bpy.context.scene, [IP.NovelView("Camera", _test_image(40, 28, 3))],
                           IP.PlaneConfig(distance=1.0))
-    assert sorted(p.name for p in a.parent.iterdir()) == ["Camera.png", "Camera_1.png"]
+    assert sorted(p.name for p in a.parent.iterdir()) == ["Camera.png", "Camera_1.png", "Camera_2.png"]
     assert _images_equal(bpy.data.images["MRVM Camera"], _test_image(40, 28, 3)) <= 0.51
+
+
+def test_a_rerun_never_writes_over_an_image_a_saved_blend_shows(empty_scene, tmp_path):
+    """Re-running for a camera that has a plane writes new files (CamA_1.png, ...), never over the old plane's: a
+    .blend saved as a new version beside the original (both share //mrvm_novel_views), and the saved file after
+    File > Revert (or quitting without saving), still show their own images. The replaced plane's files stay."""
+    import bpy
+
+    from blender_mrvm.scene import image_planes as IP
+
+    v1, v2 = tmp_path / "scene.blend", tmp_path / "scene_v2.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(v1))
+    _scene_camera(bpy.context.scene, "CamA", CAMERAS["shifted"])
+    depth = np.ones((28, 40), np.float32)
+
+    def build(seed: int) -> str:
+        IP.build_image_planes(bpy.context.scene, [IP.NovelView("CamA", _test_image(40, 28, seed), depth=depth * seed)],
+                              IP.PlaneConfig(distance=1.0))
+        return bpy.data.images["MRVM CamA"].filepath
+
+    def shows(blend: Path, path: str, seed: int) -> None:
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        img = bpy.data.images["MRVM CamA"]
+        assert img.filepath == path, blend.name
+        img.reload()
+        assert _images_equal(img, _test_image(40, 28, seed)) <= 0.51, blend.name
+
+    folder = tmp_path / "mrvm_novel_views"
+    assert build(1) == "//mrvm_novel_views/CamA.png"
+    bpy.ops.wm.save_mainfile()
+    saved = {p.name: p.read_bytes() for p in folder.iterdir()}
+    # a new version saved beside it, synthesized again
+    bpy.ops.wm.save_as_mainfile(filepath=str(v2))
+    assert build(2) == "//mrvm_novel_views/CamA_1.png"
+    bpy.ops.wm.save_mainfile()
+    # a third run in v2, discarded (File > Revert)
+    assert build(3) == "//mrvm_novel_views/CamA_2.png"
+    bpy.ops.wm.revert_mainfile()
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.name in saved} == saved
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "CamA.png", "CamA_1.png", "CamA_1_depth.exr", "CamA_2.png", "CamA_2_depth.exr", "CamA_depth.exr"]
+    shows(v2, "//mrvm_novel_views/CamA_1.png", 2)
+    shows(v1, "//mrvm_novel_views/CamA.png", 1)
+    from blender_mrvm.datasets.format import read_depth
+
+    assert np.array_equal(read_depth(folder / "CamA_depth.exr"), depth)
+
+
+def test_a_camera_keeps_one_plane_per_collection_and_another_features_plane_is_hidden(empty_scene, tmp_path,
+                                                                                        monkeypatch):
+    """Synthesize ("MRVM novel views") and Sem2NeRF ("MRVM Sem2NeRF") on one camera: each build replaces the
+    camera's plane in its own collection only; the other feature's plane is kept, hidden in the viewport and the
+    render (at the same distance the two would z-fight; nearer, one covers the other in the camera's view), and the
+    note says so. A build that fails shows it again."""
+    import bpy
+
+    from blender_mrvm.scene import image_planes as IP
+
+    scene = empty_scene
+    cam = _scene_camera(scene, "Cam", CAMERAS["shifted"])
+    nv = IP.PlaneConfig(distance=1.0, folder=str(tmp_path / "nv"))
+    s2n = IP.PlaneConfig(distance=1.0, folder=str(tmp_path / "s2n"), collection="MRVM Sem2NeRF")
+    sem = np.full((28, 40, 3), 60, np.uint8)
+
+    def shown(o) -> bool:
+        return not o.hide_render and not o.hide_get()
+
+    first = IP.build_image_planes(scene, [IP.NovelView("Cam", _test_image(40, 28, 1))], nv)
+    (synth,) = first.planes
+    res = IP.build_image_planes(scene, [IP.NovelView("Cam", _test_image(40, 28, 2), semantic=sem)], s2n)
+    (gen,) = res.planes
+    assert set(IP.planes_of(cam)) == {synth, gen}, "Sem2NeRF keeps Synthesize's plane"
+    assert first.hidden == [] and IP.hidden_note(first) == ""
+    assert IP.planes_of(cam, bpy.data.collections["MRVM novel views"]) == [synth]
+    assert not shown(synth) and shown(gen) and res.hidden == [("Cam", synth)]
+    assert IP.hidden_note(res) == (
+        "the plane of 'Cam' in collection 'MRVM novel views' is hidden, not removed (a camera shows one plane at a "
+        "time; show it again with the eye and camera icons in the Outliner)")
+    img = bpy.data.images[synth["mrvm_image"]]
+    img.reload()
+    assert _images_equal(img, _test_image(40, 28, 1)) <= 0.51, "its image is untouched"
+    # again in Sem2NeRF: its own plane is replaced, nothing more is hidden
+    res = IP.build_image_planes(scene, [IP.NovelView("Cam", _test_image(40, 28, 3), semantic=sem)], s2n)
+    (gen,) = res.planes
+    assert set(IP.planes_of(cam)) == {synth, gen} and res.hidden == [] and not shown(synth)
+    assert IP.planes_of(cam, bpy.data.collections["MRVM Sem2NeRF"]) == [gen]
+    # Synthesize again: its own (hidden) plane is replaced by a shown one, Sem2NeRF's is hidden
+    res = IP.build_image_planes(scene, [IP.NovelView("Cam", _test_image(40, 28, 4))], nv)
+    (synth,) = res.planes
+    assert set(IP.planes_of(cam)) == {synth, gen} and shown(synth) and not shown(gen)
+    assert res.hidden == [("Cam", gen)] and "in collection 'MRVM Sem2NeRF' is hidden" in IP.hidden_note(res)
+    # a Sem2NeRF build that fails leaves Synthesize's plane shown
+    monkeypatch.setattr(IP, "_material", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("simulated")))
+    with pytest.raises(RuntimeError, match="simulated"):
+        IP.build_image_planes(scene, [IP.NovelView("Cam", _test_image(40, 28, 5), semantic=sem)], s2n)
+    assert set(IP.planes_of(cam)) == {synth, gen} and shown(synth) and not shown(gen)
+
+
+def test_the_finish_messages_say_which_plane_of_another_feature_was_hidden(empty_scene, tmp_path):
+    """Sem2NeRF's views on a camera with a Synthesize plane (and the converse): the success message names the plane
+    kept hidden, so nothing of the scene changes silently."""
+    import types
+
+    import bpy
+
+    from blender_mrvm.datasets.format import write_png
+    from blender_mrvm.datasets.novel_views import Target
+    from blender_mrvm.operators import sem2nerf as OS
+    from blender_mrvm.operators import synthesize as OY
+    from blender_mrvm.scene import camera as scam
+    from blender_mrvm.scene import image_planes as IP
+    from blender_mrvm.scene.sem2nerf import COLLECTION
+
+    scene = empty_scene
+    scene.view_settings.view_transform = "Standard"
+    cam = _scene_camera(scene, "CamA", CAMERAS["shifted"])
+    intr, c2w = scam.read_camera(cam, scene)
+    target = Target("CamA", intr, c2w)
+
+    def run(seed: int, name: str):
+        job_dir = tmp_path / name
+        write_png(job_dir / "out" / target.rgb_path(0), _test_image(40, 28, seed))
+        write_png(job_dir / "out" / target.semantic_path(0), np.full((28, 40, 3), 80, np.uint8))
+        return job_dir
+
+    synth = IP.PlaneConfig(distance=1.0, folder=str(tmp_path / "nv"))
+    s2n = IP.PlaneConfig(distance=1.0, folder=str(tmp_path / "s2n"), collection=COLLECTION)
+    msg = OY.import_run(bpy.context, OY.SynthesisRun(types.SimpleNamespace(targets=(target,), planes=synth, depth=False),
+                                                     run(1, "j1"), 1.0))
+    assert "hidden" not in msg, msg
+    msg = OS.import_run(bpy.context, OS.Sem2NeRFRun(types.SimpleNamespace(targets=(target,), planes=s2n,
+                                                                          mask_name="mask m.png"), run(2, "j2"), 1.0))
+    assert msg.startswith("1 Sem2NeRF view of mask m.png in collection 'MRVM Sem2NeRF'"), msg
+    assert msg.endswith(". Note: the plane of 'CamA' in collection 'MRVM novel views' is hidden, not removed (a camera "
+                        "shows one plane at a time; show it again with the eye and camera icons in the Outliner)"), msg
+    assert len(IP.planes_of(cam)) == 2
+    msg = OY.import_run(bpy.context, OY.SynthesisRun(types.SimpleNamespace(targets=(target,), planes=synth, depth=False),
+                                                     run(3, "j3"), 1.0))
+    assert "Note: the plane of 'CamA' in collection 'MRVM Sem2NeRF' is hidden, not removed" in msg, msg
+    assert len(IP.planes_of(cam)) == 2 and not (tmp_path / "j3").exists()

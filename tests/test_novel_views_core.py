@@ -1,4 +1,5 @@
-"""bpy-free parts of novel views: the orbit rig, targets.json, reference view lists."""
+"""bpy-free parts of novel views: the orbit rig, targets.json, reference view lists; and (with Blender) where the
+.blend of a synthesis stores its images."""
 
 from __future__ import annotations
 
@@ -127,3 +128,47 @@ def test_dependency_report_lines(tmp_path):
     assert lines[-1] == ('Install with: "/py" -m pip install "torch==2.13.0" "openexr>=3.3"', False)
     bad = W.dependency_report(str(tmp_path / "nope"))
     assert bad.interpreter is None and bad.lines() == [(f"the worker Python set in the add-on preferences does not exist: {tmp_path / 'nope'}", False)]
+
+
+def test_write_blend_stores_the_reference_images_relative_so_a_moved_project_finds_them(empty_scene, tmp_path):
+    """``write_blend`` (``synthesize --blend``, ``make demo``'s scene.blend): the reference cameras' background
+    images are stored relative to the .blend, as its image planes are, so a project folder that is copied shows its
+    own references and one that is moved still finds them."""
+    import shutil
+    from pathlib import Path
+
+    import bpy
+
+    from blender_mrvm.capture.export import CaptureView, write_capture
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.geometry import cameras as C
+    from blender_mrvm.scene.novel_views import write_blend
+
+    k = C.intrinsics_from_fov(0.8, 16, 16)
+    proj, out = tmp_path / "proj", tmp_path / "out"
+    views = []
+    for i in range(2):
+        F.write_png(tmp_path / f"p{i}.png", np.full((16, 16, 3), 50 * (i + 1), np.uint8))
+        views.append(CaptureView(f"p{i}.png", tmp_path / f"p{i}.png", k, C.look_at_opencv((3.0 * math.cos(i), 3.0 * math.sin(i), 1.0))))
+    refs = proj / "dataset" / "obj"
+    write_capture(refs, views, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"registered": 2, "total": 2})
+    write_targets(out / "targets.json", [Target("view", k, C.look_at_opencv((0.0, -3.0, 1.0)))])
+    F.write_png(out / "rgb" / "000000.png", np.full((16, 16, 4), 200, np.uint8))
+    blend = write_blend(proj / "scene.blend", out / "targets.json", out, references=refs, reference_views=(0, 1),
+                        plane_distance=1.0)
+
+    def paths() -> dict[str, str]:
+        got = {o.name: o.data.background_images[0].image.filepath for o in bpy.data.objects
+               if o.type == "CAMERA" and len(o.data.background_images)}
+        got["plane"] = bpy.data.images["MRVM view"].filepath
+        return got
+
+    assert paths() == {"MRVM reference 000": "//dataset/obj/rgb/000000.png",
+                       "MRVM reference 001": "//dataset/obj/rgb/000001.png", "plane": "//scene_novel_views/view.png"}
+    shutil.copytree(proj, tmp_path / "copy")
+    proj.rename(tmp_path / "moved proj")
+    for where in ("copy", "moved proj"):
+        bpy.ops.wm.open_mainfile(filepath=str(tmp_path / where / blend.name))
+        for path in paths().values():
+            p = Path(bpy.path.abspath(path))
+            assert p.is_file() and (tmp_path / where) in p.parents, (where, path)

@@ -165,7 +165,8 @@ def test_semantic_planes_replace_and_switch(empty_scene, tmp_path):
     (plane,) = IP.planes_of(cam)
     assert plane.name == "MRVM plane Cam" and plane["mrvm_semantic_image"] == "MRVM semantic Cam"
     assert sorted(i.name for i in bpy.data.images) == ["MRVM Cam", "MRVM semantic Cam"]
-    assert DF.read_png(tmp_path / "p" / "Cam_semantic.png")[0, 0, 0] == 80
+    assert DF.read_png(tmp_path / "p" / "Cam_1_semantic.png")[0, 0, 0] == 80  # a new file: a re-run writes over none
+    assert DF.read_png(tmp_path / "p" / "Cam_semantic.png")[0, 0, 0] == 40
     assert set_show_semantic(True) == 1 and plane[IP.SHOW_SEMANTIC] == 1
     nodes = plane.active_material.node_tree.nodes
     attr = next(n for n in nodes if n.type == "ATTRIBUTE")

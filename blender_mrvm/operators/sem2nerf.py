@@ -12,7 +12,9 @@ The model runs in the worker process (``python -m blender_mrvm sem2nerf render -
 2. the worker's Python is checked (torch), the job folder written, the worker runs modally with its
    progress; Esc interrupts it and removes the job folder, so nothing is created;
 3. on the main thread ``scene.novel_views.import_results`` creates the orbit cameras and one image
-   plane per view, each with its semantic map, all or nothing, in the collection "MRVM Sem2NeRF".
+   plane per view, each with its semantic map, all or nothing, in the collection "MRVM Sem2NeRF" (a selected
+   camera's plane there is replaced; its Synthesize plane, in "MRVM novel views", is hidden, not removed, and the
+   message says so).
 """
 
 from __future__ import annotations
@@ -179,7 +181,9 @@ def run_job(job: Sem2NeRFJob, interp) -> "ProgressGen":
 
 
 def import_run(context, run: Sem2NeRFRun) -> str:
-    """Create the cameras and image planes (image + semantic map) of a finished run; the success message."""
+    """Create the cameras and image planes (image + semantic map) of a finished run; the success message (it names
+    the planes of the same cameras in another collection, Synthesize's, that were hidden, not removed:
+    ``image_planes.hidden_note``)."""
     from ..scene.novel_views import import_results
 
     job = run.job
@@ -191,11 +195,11 @@ def import_run(context, run: Sem2NeRFRun) -> str:
         from ..scene.sem2nerf import set_show_semantic
 
         set_show_semantic(True)
-    from ..scene.image_planes import colour_management_note
+    from ..scene.image_planes import colour_management_note, hidden_note
 
     made = sum(1 for t in job.targets if t.generated)
     n = len(res.planes)
-    note = colour_management_note(context.scene)
+    note = "; ".join(x for x in (hidden_note(res), colour_management_note(context.scene)) if x)
     return (f"{n} Sem2NeRF view{'s' if n != 1 else ''} of {job.mask_name} in collection {res.collection.name!r}"
             + (f" ({made} new cameras)" if made else "") + f", generated in {run.seconds:.1f} s"
             + (f". Note: {note}" if note else ""))

@@ -233,14 +233,16 @@ def run_note(out: Path) -> str:
 
 
 def import_run(context, run: SynthesisRun) -> str:
-    """Create the cameras and image planes of a finished run (all or nothing); the success message."""
-    from ..scene.image_planes import colour_management_note
+    """Create the cameras and image planes of a finished run (all or nothing); the success message (it names the
+    planes of the same cameras in another collection, Sem2NeRF's, that were hidden: ``image_planes.hidden_note``)."""
+    from ..scene.image_planes import colour_management_note, hidden_note
     from ..scene.novel_views import import_results
 
     job = run.job
     try:
         res = import_results(context.scene, list(job.targets), run.job_dir / "out", job.planes, depth=job.depth)
-        note = "; ".join(n for n in (run_note(run.job_dir / "out"), colour_management_note(context.scene)) if n)
+        note = "; ".join(n for n in (hidden_note(res), run_note(run.job_dir / "out"),
+                                     colour_management_note(context.scene)) if n)
     finally:
         shutil.rmtree(run.job_dir, ignore_errors=True)
     made = sum(1 for t in job.targets if t.generated)

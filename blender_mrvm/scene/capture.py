@@ -3,8 +3,9 @@
 - :func:`import_capture` reads a capture folder written by ``capture.export`` (our dataset format:
   ``transforms.json`` + ``points.ply``) and creates, in one collection, a camera per registered
   photo (intrinsics through :func:`scene.camera.apply_intrinsics`, pose through
-  :func:`scene.camera.apply_pose`), the photo as the camera's background image, and the sparse
-  points as a mesh with a ``Col`` vertex-colour attribute.
+  :func:`scene.camera.apply_pose`), the photo as the camera's background image (its path stored relative to
+  the .blend when the .blend is saved: :func:`load_image_relative`), and the sparse points as a mesh with a
+  ``Col`` vertex-colour attribute.
 - :func:`render_textured_ring` renders a procedurally textured scene from a ring of known cameras
   (Cycles, emission shading, so a few samples are noise-free): ground truth for tests and the
   capture benchmark. Procedural noise / Voronoi textures, not checkerboards, which break SfM.
@@ -47,6 +48,19 @@ def _pixel_aspect(intr: C.Intrinsics) -> float:
     return intr.fx / intr.fy
 
 
+def load_image_relative(path: Path) -> bpy.types.Image:
+    """``bpy.data.images.load`` of ``path`` (an image already loaded from it is reused), its path stored as the
+    image planes store theirs (``scene.image_planes.blend_relative``): relative to the .blend when the .blend is
+    saved, so a copied or moved project folder finds its own photos; absolute when the .blend is unsaved or the
+    file lies on another drive."""
+    from .image_planes import blend_relative
+
+    img = bpy.data.images.load(str(path), check_existing=True)
+    if img.library is None and img.packed_file is None:
+        img.filepath_raw = blend_relative(Path(path))
+    return img
+
+
 def import_capture(capture_dir: Path, scene: bpy.types.Scene, collection_name: str = "MRVM Capture",
                    background_alpha: float = 0.5, point_size: float = 0.0) -> dict:
     """Create cameras, background photos and the point cloud of a capture folder in ``scene``.
@@ -82,7 +96,7 @@ def import_capture(capture_dir: Path, scene: bpy.types.Scene, collection_name: s
         obj["mrvm_file_path"] = f.file_path
         img_path = capture_dir / f.file_path
         if img_path.is_file():
-            img = bpy.data.images.load(str(img_path), check_existing=True)
+            img = load_image_relative(img_path)
             cam = obj.data
             cam.show_background_images = True
             bg = cam.background_images.new()

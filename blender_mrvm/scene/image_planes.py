@@ -12,11 +12,18 @@ and invisible to shadow / diffuse / glossy / transmission rays, so it neither li
 scene.
 
 Images are written as PNG (depth as EXR and a semantic map as ``<stem>_semantic.png`` when given) into a folder (default ``//mrvm_novel_views``
-next to the .blend; paths are stored relative to the .blend; a file already there is never written over
-unless it is an image of a plane being replaced, since several .blend files may share the folder) or packed
-into the .blend. Everything is
-created in the collection "MRVM novel views". Building is a transaction: on any error every
-datablock and file it created is removed and every file it replaced is restored.
+next to the .blend; paths are stored relative to the .blend) or packed into the .blend. A file already in the
+folder is never written over, not even the image of a plane being replaced: another .blend saved beside this one
+(Save As), or this .blend's saved state (File > Revert, quitting without saving, Ctrl-Z), may show it; a re-run
+takes a new name (``CamA_1.png``, ...) and the replaced plane's files stay on disk. Only a folder that belongs to
+one .blend alone (``PlaneConfig.own_folder``: ``synthesize --blend X --force`` rewriting X) has its files replaced.
+
+Everything is created in the collection of ``PlaneConfig.collection`` ("MRVM novel views" for Synthesize,
+"MRVM Sem2NeRF" for Sem2NeRF). A camera keeps one plane per collection: building replaces the camera's plane in
+that collection only, and hides (never removes) its planes in other collections, another feature's, which would
+otherwise cover the new image in the camera's view or z-fight with it at the same distance
+(:attr:`PlaneResult.hidden`, :func:`hidden_note` for the message). Building is a transaction: on any error every
+datablock and file it created is removed, every file it replaced is restored and every plane it hid is shown.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import contextlib
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import bpy
@@ -75,14 +82,15 @@ class PlaneConfig:
     collection: str = COLLECTION
     """Collection that receives planes (and generated cameras)."""
     replace: bool = True
-    """Remove earlier planes of the same cameras once the new ones are built."""
+    """Remove earlier planes of the same cameras in ``collection`` once the new ones are built (and hide their
+    planes in other collections)."""
     interpolation: str = "Linear"
     """Image texture interpolation (Linear, Closest, Cubic)."""
     own_folder: bool = False
     """``folder`` belongs to this .blend alone (``scene.novel_views.write_blend`` replacing a .blend and its
     ``<stem>_novel_views/``): files there of the cameras' names are replaced. Otherwise a file already in the
-    folder is never written over unless it is an image of a plane this build replaces: another .blend saved in
-    the same folder may show it (a new file name is taken instead)."""
+    folder is never written over, not even an image of a plane this build replaces: another .blend saved in the
+    same folder, or this .blend's saved state, may show it (a new file name is taken instead)."""
 
     def validate(self) -> "PlaneConfig":
         if not (np.isfinite(self.distance) and self.distance > 0):
@@ -102,6 +110,8 @@ class PlaneResult:
     planes: list
     images: list
     files: list
+    hidden: list = field(default_factory=list)
+    """(camera name, plane object) of the planes of the same cameras in other collections that this build hid."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -326,23 +336,11 @@ def ensure_collection(scene: bpy.types.Scene, name: str, txn: Transaction) -> bp
     return coll
 
 
-def _plane_image_names(planes: list[bpy.types.Object]) -> set[str]:
-    """Names of the images ``planes`` show or carry (colour, semantic map, depth)."""
-    names = set()
-    for o in planes:
-        for s in o.material_slots:
-            if s.material and s.material.node_tree:
-                names |= {n.image.name for n in s.material.node_tree.nodes if n.type == "TEX_IMAGE" and n.image}
-        names.add(o.get("mrvm_depth_image", ""))
-    return names
-
-
-def _image_paths(inside: bool, planes: list[bpy.types.Object]) -> set[str]:
-    """Resolved file paths of the file's images that ``planes`` show (``inside``) or that they do not."""
-    names = _plane_image_names(planes)
+def _image_paths() -> set[str]:
+    """Resolved file paths of the file's images (packed ones aside), those of the planes being replaced included."""
     out = set()
     for img in bpy.data.images:
-        if (img.name in names) != inside or not img.filepath or img.packed_file is not None:
+        if not img.filepath or img.packed_file is not None:
             continue
         try:
             out.add(str(Path(bpy.path.abspath(img.filepath, library=img.library)).resolve()))
@@ -351,15 +349,15 @@ def _image_paths(inside: bool, planes: list[bpy.types.Object]) -> set[str]:
     return out
 
 
-def _unique_stems(cameras: list[str], folder: Path | None, old: list[bpy.types.Object], own_folder: bool) -> list[str]:
-    """File stems per camera, distinct within the run, that overwrite no file but those of the ``old`` planes
-    this build replaces: not a file another image of the .blend shows, nor (unless ``own_folder``) a file
-    already on disk, which another .blend in the folder may show."""
-    in_use, replaced = _image_paths(False, old), _image_paths(True, old)
+def _unique_stems(cameras: list[str], folder: Path | None, own_folder: bool) -> list[str]:
+    """File stems per camera, distinct within the run, that overwrite nothing: not a file an image of the .blend
+    shows (a plane being replaced included: undo brings it back), nor (unless ``own_folder``) a file already on
+    disk, which another .blend in the folder, or this .blend's saved state, may show."""
+    in_use = _image_paths()
 
     def taken(p: Path) -> bool:
         p = str(p.resolve())
-        return p in in_use or (not own_folder and p not in replaced and os.path.lexists(p))
+        return p in in_use or (not own_folder and os.path.lexists(p))
 
     used: set[str] = set()
     out = []
@@ -516,9 +514,54 @@ def colour_management_note(scene: bpy.types.Scene) -> str:
             "them as they are")
 
 
-def planes_of(camera: bpy.types.Object) -> list[bpy.types.Object]:
-    """Image planes built for ``camera`` (children tagged with its name)."""
-    return [o for o in camera.children if o.get(PLANE_TAG) == camera.name]
+def planes_of(camera: bpy.types.Object, collection: bpy.types.Collection | None = None) -> list[bpy.types.Object]:
+    """Image planes built for ``camera`` (children tagged with its name); with ``collection``, those in it."""
+    return [o for o in camera.children if o.get(PLANE_TAG) == camera.name
+            and (collection is None or o.name in collection.objects)]
+
+
+def _shown(obj: bpy.types.Object, scene: bpy.types.Scene) -> bool:
+    """Whether ``obj`` renders or shows in one of ``scene``'s view layers."""
+    if not obj.hide_render:
+        return True
+    for vl in scene.view_layers:
+        try:
+            if not obj.hide_get(view_layer=vl):
+                return True
+        except RuntimeError:  # not in that view layer
+            pass
+    return False
+
+
+def _hide(obj: bpy.types.Object, scene: bpy.types.Scene, txn: Transaction) -> None:
+    """Hide ``obj`` in the render and in ``scene``'s view layers (the Outliner's eye and camera), undone on rollback."""
+    before = [(vl, obj.hide_get(view_layer=vl)) for vl in scene.view_layers if vl.objects.get(obj.name) is not None]
+    render = obj.hide_render
+
+    def restore() -> None:
+        obj.hide_render = render
+        for vl, h in before:
+            obj.hide_set(h, view_layer=vl)
+    txn.on_rollback(restore)
+    obj.hide_render = True
+    for vl, _ in before:
+        obj.hide_set(True, view_layer=vl)
+
+
+def hidden_note(res: "PlaneResult") -> str:
+    """What the message says of the planes a build hid ('' if none): which, of which cameras, where, and how to
+    show them again."""
+    if not res.hidden:
+        return ""
+    by_coll: dict[str, list[str]] = {}
+    for cam, obj in res.hidden:
+        coll = obj.users_collection[0].name if obj.users_collection else "no collection"
+        by_coll.setdefault(coll, []).append(cam)
+    parts = [f"the plane{'s' if len(cams) > 1 else ''} of {', '.join(repr(c) for c in cams)} in collection {coll!r}"
+             for coll, cams in by_coll.items()]
+    many = len(res.hidden) > 1
+    return (f"{' and '.join(parts)} {'are' if many else 'is'} hidden, not removed (a camera shows one plane at a "
+            f"time; show {'them' if many else 'it'} again with the eye and camera icons in the Outliner)")
 
 
 def _remove_planes(objs: list[bpy.types.Object]) -> None:
@@ -583,10 +626,16 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
     # ---- build (rolled back on any error)
     with transaction(txn) as t:
         coll = ensure_collection(scene, cfg.collection, t)
-        old = [p for c in cams for p in planes_of(c)] if cfg.replace else []
+        old = [p for c in cams for p in planes_of(c, coll)] if cfg.replace else []
+        # the cameras' planes in other collections (another feature's: Sem2NeRF's, Synthesize's) are kept, hidden:
+        # shown, they would cover the new image in the camera's view, or z-fight with it at the same distance
+        hidden = ([(c.name, p) for c in cams for p in planes_of(c) if p.name not in coll.objects and _shown(p, scene)]
+                  if cfg.replace else [])
+        for _, p in hidden:
+            _hide(p, scene, t)
         work = t.tmpdir() if cfg.pack else None
         planes, images, files = [], [], []
-        stems = _unique_stems([c.name for c in cams], folder, old, cfg.own_folder)
+        stems = _unique_stems([c.name for c in cams], folder, cfg.own_folder)
         for v, cam, intr, stem in zip(views, cams, intrs, stems):
             png = _write_png(t, v.rgba, (work or folder) / f"{stem}.png")
             stored = (f"{stored_folder.rstrip('/')}/{stem}.png" if cfg.pack else blend_relative(png))
@@ -632,4 +681,4 @@ def build_image_planes(scene: bpy.types.Scene, views: list[NovelView], cfg: Plan
                         img = bpy.data.images[obj[key]]
                         img.name = name  # Blender adds a suffix when another image holds the name
                         obj[key] = img.name
-    return PlaneResult(coll, planes, images, files)
+    return PlaneResult(coll, planes, images, files, hidden)

@@ -302,10 +302,12 @@ def reference_views_in_frame(folder: Path, views: tuple[int, ...],
 
 
 def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int, ...]) -> list[bpy.types.Object]:
-    """Cameras of reference ``views`` of an object folder, each showing its image (by its absolute path,
-    so the .blend opens from anywhere) as background image; InputError for a view the scene's frame cannot
-    show (:func:`reference_views_in_frame` says which)."""
+    """Cameras of reference ``views`` of an object folder, each showing its image as background image (its path
+    relative to the .blend, which :func:`write_blend` has saved by now, as the image planes' are: a copied or
+    moved project folder finds its own images; absolute when the .blend is unsaved or on another drive);
+    InputError for a view the scene's frame cannot show (:func:`reference_views_in_frame` says which)."""
     from ..datasets.format import read_object, view_paths
+    from .capture import load_image_relative
 
     ov = read_object(Path(folder))
     pos = {v: k for k, v in enumerate(ov.indices)}
@@ -317,7 +319,7 @@ def add_reference_cameras(scene: bpy.types.Scene, folder: Path, views: tuple[int
         k = pos[v]
         intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
         cam = _create_camera(scene, Target(f"MRVM reference {v:03d}", intr, ov.c2w_opencv[k], True), coll)
-        img = bpy.data.images.load(str(view_paths(Path(folder), v)["rgb"].resolve()), check_existing=True)
+        img = load_image_relative(view_paths(Path(folder), v)["rgb"].resolve())
         bg = cam.data.background_images.new()
         bg.image = img
         cam.data.show_background_images = True
