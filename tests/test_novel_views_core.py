@@ -172,3 +172,24 @@ def test_write_blend_stores_the_reference_images_relative_so_a_moved_project_fin
         for path in paths().values():
             p = Path(bpy.path.abspath(path))
             assert p.is_file() and (tmp_path / where) in p.parents, (where, path)
+
+
+def test_created_cameras_see_past_the_object_at_any_scale(empty_scene, tmp_path):
+    """Created cameras clipped at twice the plane distance (the plane sits at half the object's centre depth): in a
+    scene scaled x1e4 (centre 15350 away) the clip end fell exactly on the object's centre, cutting it in half seen
+    through them. They now reach well past it, and the plane stays inside the range."""
+    import bpy
+
+    from blender_mrvm.datasets import format as F
+    from blender_mrvm.geometry import cameras as C
+    from blender_mrvm.scene.novel_views import write_blend
+
+    k = C.intrinsics_from_fov(0.8, 16, 16)
+    out = tmp_path / "out"
+    write_targets(out / "targets.json", [Target("view", k, C.look_at_opencv((0.0, -15350.0, 0.0)))])
+    F.write_png(out / "rgb" / "000000.png", np.full((16, 16, 4), 200, np.uint8))
+    bbox = np.array([[-3000.0, -3000.0, -3000.0], [3000.0, 3000.0, 3000.0]])
+    write_blend(tmp_path / "s.blend", out / "targets.json", out, bbox=bbox)
+    d = bpy.data.objects["view"].data
+    far_corner = 15350.0 + 3000.0 * math.sqrt(3)
+    assert d.clip_start < 15350.0 / 2 < d.clip_end and d.clip_end > far_corner, (d.clip_start, d.clip_end)

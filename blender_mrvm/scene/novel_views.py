@@ -192,6 +192,11 @@ def _shape(k: C.Intrinsics) -> str:
     return f"{k.width}x{k.height}" + ("" if math.isclose(k.fx, k.fy, rel_tol=1e-6) else f", fy/fx {k.fy / k.fx:.4g}")
 
 
+CLIP_END_PLANES = 20.0
+"""A created camera's clip end, in plane distances (at least Blender's default): about 10 times the depth of the
+object's centre when the plane sits at half of it (the default), so the object and what is around it are seen."""
+
+
 def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection,
                    plane_distance: float | None = None) -> bpy.types.Object:
     """A camera that renders exactly ``t.intrinsics`` (at any scale) from ``t.c2w_opencv``; with a
@@ -206,7 +211,9 @@ def _create_camera(scene: bpy.types.Scene, t: Target, coll: bpy.types.Collection
     d.lens, d.shift_x, d.shift_y = bc.lens, bc.shift_x, bc.shift_y
     if plane_distance is not None:
         d.clip_start = min(d.clip_start, plane_distance / 2.0)
-        d.clip_end = max(d.clip_end, plane_distance * 2.0)
+        # far past the object too: planes float at about half its centre's depth, and 2x that clip end cut a scene
+        # scaled x1e4 at the object's centre (4-5 of its box's 8 corners beyond it), seen through these cameras
+        d.clip_end = max(d.clip_end, plane_distance * CLIP_END_PLANES)
     cam.matrix_world = Matrix(C.blender_from_opencv(t.c2w_opencv).tolist())
     intr, _ = scam.read_camera(cam, scene)
     if not _same_view(intr, t.intrinsics):
