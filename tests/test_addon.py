@@ -658,3 +658,27 @@ def test_save_as_elsewhere_keeps_the_panels_paths_on_the_same_folders(empty_scen
     assert d.output_dir == "//../../p1/mrvm_dataset", "the open file is still t.blend"
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "p3" / "c.blend"))
     assert bpy.context.scene.mrvm_dataset.output_dir == "//../p1/mrvm_dataset"
+
+
+def test_wheels_folder_in_the_caches_layout_builds_offline(tmp_path, capsys):
+    """install.md's offline build, `--wheels .cache/extension_wheels`, failed: the cache keeps a subfolder a Python and
+    platform, and --wheels read only loose wheels ('not a folder of .whl files'), or, where older loose wheels lay
+    beside the subfolders, bundled those instead. Subfolders are taken in place of loose wheels."""
+    from blender_mrvm.cli import main
+
+    cache = tmp_path / "extension_wheels"
+    for sub, name in (("py3.11-manylinux_2_28_x86_64", "demo_pkg-1.0-cp311-cp311-manylinux_2_28_x86_64.whl"),
+                      ("py3.13-manylinux_2_28_x86_64", "demo_pkg-1.0-cp313-cp313-manylinux_2_28_x86_64.whl"),
+                      ("py3.11-manylinux_2_28_x86_64", "pure_pkg-2.0-py3-none-any.whl"),
+                      ("py3.13-manylinux_2_28_x86_64", "pure_pkg-2.0-py3-none-any.whl")):
+        (cache / sub).mkdir(parents=True, exist_ok=True)
+        with zipfile.ZipFile(cache / sub / name, "w") as z:
+            z.writestr("x.txt", "x")
+    with zipfile.ZipFile(cache / "stale_pkg-0.1-py3-none-any.whl", "w") as z:
+        z.writestr("x.txt", "x")
+    assert main(["build-extension", "--out", str(tmp_path / "d"), "--wheels", str(cache)]) == 0
+    (zip_path,) = (tmp_path / "d").glob("*.zip")
+    m = tomllib.loads(zipfile.ZipFile(zip_path).read("blender_manifest.toml").decode())
+    names = sorted(Path(w).name for w in m["wheels"])
+    assert names == ["demo_pkg-1.0-cp311-cp311-manylinux_2_28_x86_64.whl",
+                     "demo_pkg-1.0-cp313-cp313-manylinux_2_28_x86_64.whl", "pure_pkg-2.0-py3-none-any.whl"], names

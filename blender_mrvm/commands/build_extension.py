@@ -232,7 +232,9 @@ def run(args) -> int:
                   "'no module': build again where the index can be reached", file=sys.stderr)
     elif args.wheels != "none":
         folder = Path(args.wheels)
-        wheels = sorted(folder.glob("*.whl")) if folder.is_dir() else []
+        # the wheel cache keeps a subfolder a Python and platform (fetch_wheels): those, else the folder's own
+        found = (sorted(folder.glob("*/*.whl")) or sorted(folder.glob("*.whl"))) if folder.is_dir() else []
+        wheels = list({w.name: w for w in found}.values())  # (a pure wheel sits in several subfolders)
         if not wheels:
             raise MRVMError(f"--wheels {args.wheels}: not a folder of .whl files (or auto, or none)")
     missing = [py for py in BLENDER_PYTHONS if wheels and py not in wheel_pythons(wheels)]

@@ -3,7 +3,7 @@
 References are an object folder of our dataset format (a rendered object, a recovered capture, or
 scene cameras exported by the add-on). Targets are a targets.json (see datasets/novel_views.py), the
 cameras of views of the reference folder (--target-views, to compare with their images), or an
-orbit around the object (--orbit N). Writes OUT/rgb/NNNNNN.png (RGBA, alpha = the model's opacity),
+orbit around the object (--orbit N). Writes OUT/rgb/NNNNNN.png (RGBA, alpha = the model's opacity, raised where its colour needs more),
 OUT/depth/NNNNNN.exr with --depth (planar z-depth), OUT/targets.json and OUT/synthesis.json;
 nothing is written when anything fails. With --blend it also writes a .blend holding the target
 cameras and their image planes (needs the bpy module).
