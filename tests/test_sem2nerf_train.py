@@ -445,3 +445,13 @@ def test_a_resume_below_the_runs_step_is_refused(data, tmp_path):
         run_to_end(T.train(_tiny(data, out)))
     assert _files(out) == before
     assert run_to_end(T.train(_tiny(data, out, iterations=3)))["step"] == 3
+
+
+def test_a_misspelt_split_is_refused_not_every_object(data):
+    """``sem2nerf train --split trian`` trained on every object, test objects included, and ``sem2nerf eval --split
+    tset`` scored them all, both exit 0 (no ``splits/<split>.lst``: every object): refused as ``eval`` refuses it."""
+    from blender_mrvm.errors import InputError
+
+    for typo in ("trian", "tset"):
+        with pytest.raises(InputError, match=rf"has no split '{typo}' \(it has"):
+            T.load_masked_dataset(data, typo)

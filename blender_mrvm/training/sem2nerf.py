@@ -203,12 +203,14 @@ def split_holdout(dirs: list[Path], holdout: int) -> tuple[list[Path], list[Path
 
 def load_masked_dataset(root: Path, split: str = "train", limit: int = 0, holdout: int = 0,
                         held_out: bool = False) -> list[MaskedObject]:
-    from ..datasets.loaders import list_ours
+    from ..datasets.loaders import _check_split_name, list_ours
 
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"dataset {root} does not exist")
     has_split = (root / "splits" / f"{split}.lst").is_file()
+    if not has_split:  # a misspelt split trained (or scored) on every object, test objects included, with exit 0
+        _check_split_name(root, split)
     dirs = list_ours(root, split if has_split else None)
     if not dirs:
         raise InputError(f"{root}: no objects of our format for split {split!r}")
