@@ -607,12 +607,18 @@ def test_skip_bad_meshes_goes_on_past_a_refused_mesh(tmp_path, bpy_empty, capsys
     err = capsys.readouterr().err
     assert "a_bad.obj" in err and "the other 2 object(s) without it: --skip-bad-meshes" in err, err
     assert main(args + ["--out", str(tmp_path / "d"), "--skip-bad-meshes"]) == 0
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     warn = [ln for ln in err.splitlines() if ln.startswith("warning: ")]
     assert len(warn) == 2 and "a_bad" in warn[0] and "b_empty" in warn[1], err
+    assert "1 objects, 2 views rendered, 0 already done, 2 meshes skipped as unusable" in out, out  # in the summary too
     assert [p.parent.name for p in (tmp_path / "d").glob("*/*/meta.json")] == ["c_good"]
     assert F.read_split(tmp_path / "d", "train") + F.read_split(tmp_path / "d", "val") + \
         F.read_split(tmp_path / "d", "test") == ["custom/c_good"]
+    # every mesh bad: an empty dataset with exit 0 before; now one error line, and nothing left behind
+    (src / "c_good.obj").unlink()
+    assert main(args + ["--out", str(tmp_path / "e"), "--skip-bad-meshes"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: every mesh was skipped as unusable (2: ") and not (tmp_path / "e").exists(), err
 
 
 def _export_in_every_format(folder: Path) -> list[str]:

@@ -132,8 +132,9 @@ def run(args) -> int:
 
         cfg = replace(cfg, resolution=scene_frame_size(bpy.context.scene, cfg.resolution[0]))
     summary = run_with_tqdm(render_dataset(cfg), desc="render", unit="view")
+    skipped = f", {len(summary.skipped)} meshes skipped as unusable" if summary.skipped else ""
     print(f"{len(summary.objects)} objects, {summary.views_rendered} views rendered, "
-          f"{summary.views_skipped} already done, {summary.seconds:.1f} s -> {summary.out}")
+          f"{summary.views_skipped} already done{skipped}, {summary.seconds:.1f} s -> {summary.out}")
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return 0

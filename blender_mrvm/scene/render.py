@@ -177,6 +177,8 @@ class RenderSummary:
     warnings: list[str] = field(default_factory=list)
     """One line each, for the end of the run: what was rendered other than the sources asked (missing textures) or
     not at all (meshes skipped by ``skip_bad_meshes``)."""
+    skipped: list[str] = field(default_factory=list)
+    """Objects left out as unusable meshes (``skip_bad_meshes``; each also a warning)."""
     per_view_intrinsics: list[str] = field(default_factory=list)
     """Objects rendered in this run whose views differ in intrinsics (the SRN ``intrinsics.txt`` holds the first
     view's: one warning at the end names them)."""
@@ -758,6 +760,7 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
                     if not (cfg.skip_bad_meshes and skippable):
                         raise
                     summary.warnings.append(f"{spec.key} skipped: {e}")
+                    summary.skipped.append(spec.key)
                     done += n_views
                     yield Progress(done, total, f"{spec.key}: skipped ({e})", skipped=summary.views_skipped)
                     continue
@@ -768,6 +771,12 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
         if fresh and done == 0:  # e.g. the first mesh cannot be read: leave no empty dataset behind
             _remove_if_untouched(Path(cfg.out))
         raise
+    if summary.skipped and not summary.objects:  # (--skip-bad-meshes wrote an empty dataset with exit 0)
+        if fresh:
+            _remove_if_untouched(Path(cfg.out))
+        raise InputError(f"every mesh was skipped as unusable ({len(summary.skipped)}: "
+                         f"{', '.join(summary.skipped[:3])}{', ...' if len(summary.skipped) > 3 else ''}); nothing "
+                         "was rendered")
     write_splits(Path(cfg.out))
     grey = O.viewport_grey_warning(summary.viewport_grey)
     if grey:
