@@ -928,7 +928,8 @@ def test_a_resume_below_its_step_is_refused_and_a_finished_run_reports_its_step(
         run_to_end(train(mcfg, replace(tcfg, iterations=1), scenes=scenes))
     assert {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir() if p.is_file()} == before
     s = run_to_end(train(mcfg, tcfg, scenes=scenes))
-    assert s["step"] == 2 and s["resumed_from"] == 2 and s["checkpoint"] is None
+    # the checkpoint it is at (a null one failed `eval --checkpoint "$ck"` in a script)
+    assert s["step"] == 2 and s["resumed_from"] == 2 and s["checkpoint"].endswith("step_0000002")
 
 
 def test_a_resume_with_more_iterations_says_the_schedule_changes(tmp_path, data, capsys):
@@ -1052,3 +1053,23 @@ def test_preset_beside_init_fine_tunes_that_model_or_is_refused_clearly(tmp_path
         load_run_config(None, over, preset="balanced")
     with pytest.raises(InputError, match=r"--preset fast builds a new nerformer_mrvm model.*holds a gpnr"):
         load_run_config(None, over, preset="fast", kind="nerformer_mrvm")
+
+
+def test_a_rerun_of_a_finished_run_keeps_its_summary_and_reports_its_checkpoint(tmp_path, data, capsys):
+    """Rerunning a finished `train` printed "checkpoint": null and rewrote summary_rank0.json with an empty "last",
+    losing the run's final loss: the rerun reports the checkpoint it found and leaves the record alone."""
+    from blender_mrvm.cli import main
+
+    root, _ = data
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps({"model": {"preset": "fast", "overrides": TINY},
+                               "train": {"iterations": 2, "rays_per_object": 16, "objects_per_step": 1, "threads": 1,
+                                         "max_ref_views": 2, "lr_warmup": 0, "ckpt_every": 2}}))
+    args = ["train", "--config", str(cfg), "--data", str(root), "--out", str(tmp_path / "run")]
+    assert main(args) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    record = (tmp_path / "run" / "summary_rank0.json").read_text()
+    assert main(args) == 0
+    again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert again["checkpoint"] == first["checkpoint"] and again["checkpoint"].endswith("step_0000002")
+    assert (tmp_path / "run" / "summary_rank0.json").read_text() == record

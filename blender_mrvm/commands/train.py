@@ -86,7 +86,9 @@ def run(args) -> int:
                             disable=True if rank else None, between_units=single)
     out = Path(tcfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"summary_rank{summary['rank']}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    record = out / f"summary_rank{summary['rank']}.json"
+    if summary["resumed_from"] < summary["step"] or not record.exists():  # (a rerun that trained nothing keeps it)
+        record.write_text(json.dumps(summary, indent=2) + "\n")
     if rank == 0:
         print(json.dumps({k: summary[k] for k in ("step", "checkpoint", "resumed_from", "initialized_from", "world_size")}))
     return 0

@@ -293,7 +293,7 @@ def on_train_result(context, run: TrainRun) -> str:
     """Pick the run for novel views (when asked) and say what was trained."""
     p = context.scene.mrvm_train
     ck = run.summary.get("checkpoint")
-    if not ck and run.summary.get("resumed_from", 0) >= run.job.iterations:
+    if run.summary.get("resumed_from", 0) >= run.job.iterations:  # (its checkpoint: the one it was already at)
         raise InputError(f"the run in {run.job.run_dir} is already at step {run.summary['resumed_from']}; "
                          "raise Iterations to train further")
     if not ck:

@@ -691,7 +691,8 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
                 raise
     finally:
         metrics_f.close()
-    return {"step": cfg.iterations, "checkpoint": str(last_ck) if last_ck else None,
+    newest = last_ck if last_ck else ck  # (a rerun of a finished run saves nothing: the checkpoint it found)
+    return {"step": cfg.iterations, "checkpoint": str(newest) if newest else None,
             "resumed_from": str(ck) if ck else None, "labels": list(labels), "objects": n_obj}
 
 

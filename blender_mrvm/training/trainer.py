@@ -459,7 +459,10 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
         if log:
             log.close()
     # the model's step: a resume past train.iterations was refused above
-    return {"step": cfg.iterations, "last": last, "checkpoint": str(saved) if saved else None,
+    # a rerun of a finished run trains nothing and saves nothing: its checkpoint is the one it found (it printed null,
+    # and `eval --checkpoint "$ck"` in a script then failed)
+    newest = saved if saved else found
+    return {"step": cfg.iterations, "last": last, "checkpoint": str(newest) if newest else None,
             "resumed_from": start, "initialized_from": str(init_from) if init_from else None,
             "world_size": dd.world, "rank": dd.rank, "param_digest": param_digest(model)}
 
