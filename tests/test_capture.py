@@ -1085,3 +1085,24 @@ def test_imported_photos_are_stored_relative_to_the_saved_blend(empty_scene, tmp
         for path in backgrounds().values():
             p = Path(bpy.path.abspath(path))
             assert p.is_file() and p.parent.parent.parent == tmp_path / where, (where, path)
+
+
+def test_pairs_tried_without_a_match_are_counted(tmp_path):
+    """recover-poses said 'none of 0 image pairs share enough matched features' when 45 pairs had been tried and none
+    matched: pycolmap's read_two_view_geometries leaves out pairs without a match; the matches table has them all."""
+    import itertools
+
+    import pycolmap
+
+    from blender_mrvm.capture.sfm import _pair_stats
+
+    db = pycolmap.Database.open(str(tmp_path / "database.db"))
+    try:
+        cid = db.write_camera(pycolmap.Camera(model="SIMPLE_PINHOLE", width=16, height=16, params=[10, 8, 8]))
+        ids = [db.write_image(pycolmap.Image(name=f"{i}.png", camera_id=cid)) for i in range(4)]
+        for a, b in itertools.combinations(ids, 2):
+            db.write_matches(a, b, np.zeros((0, 2), np.uint32))
+            db.write_two_view_geometry(a, b, pycolmap.TwoViewGeometry())
+    finally:
+        db.close()
+    assert _pair_stats(tmp_path / "database.db", 15) == (0, 6, set())

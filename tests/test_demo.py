@@ -120,13 +120,45 @@ def test_demo_without_a_model_renders_the_dataset(tmp_path, addon, monkeypatch, 
 
     monkeypatch.setattr(pretrained, "default_checkpoint", missing)
     monkeypatch.setattr(demo, "DATASET_ONLY_OBJECTS", ("procedural:chair:0",))
-    monkeypatch.setattr(demo, "DATASET_ONLY_VIEWS", 2)
+    monkeypatch.setattr(demo, "DATASET_ONLY_VIEWS", 3)  # the demo's least --views, now checked here too
     monkeypatch.setattr(demo, "DATASET_ONLY_RESOLUTION", 16)
     assert main(["demo", "--out", str(tmp_path / "d")]) == 0
-    text = capsys.readouterr().out
+    cap = capsys.readouterr()
+    text = cap.err
     assert "note: the shipped default checkpoint X is missing" in text and "renders the dataset" in text
+    assert "note:" not in cap.out
     assert (tmp_path / "d" / "contact_sheet.png").is_file()
-    assert len(list((tmp_path / "d" / "dataset").glob("*/*/rgb/*.png"))) == 2
+    assert len(list((tmp_path / "d" / "dataset").glob("*/*/rgb/*.png"))) == 3
+
+
+def test_demo_without_a_model_honours_objects_views_and_resolution(tmp_path, addon, monkeypatch, capsys):
+    """Without a model the demo rendered its fixed 4 objects x 12 views at 128 px whatever --objects, --views and
+    --resolution said, and printed its notes on stdout; now it renders what was asked and notes on stderr."""
+    from PIL import Image
+
+    from blender_mrvm.commands import demo
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models import pretrained
+
+    def missing():
+        raise InputError("the shipped default checkpoint X is missing")
+
+    monkeypatch.setattr(pretrained, "default_checkpoint", missing)
+    out = tmp_path / "d"
+    assert main(["demo", "--out", str(out), "--objects", "1", "--views", "3", "--resolution", "16",
+                 "--no-lpips", "--no-picture"]) == 0
+    cap = capsys.readouterr()
+    assert "note:" not in cap.out, cap.out
+    err = [ln for ln in cap.err.splitlines() if ln.startswith("note:")]
+    assert err == ["note: the shipped default checkpoint X is missing",
+                   "note: without a model the demo renders the dataset and its contact sheet only"]
+    pngs = sorted((out / "dataset").glob("*/*/rgb/*.png"))
+    assert len(pngs) == 3 and {p.parent.parent.name for p in pngs} == {"chair_000000"}
+    assert Image.open(pngs[0]).size == (16, 16)
+    assert (out / "contact_sheet.png").is_file()
+    # more objects than the dataset-only list: the other categories' held-out ones
+    assert demo.dataset_only_sources(6)[:4] == demo.DATASET_ONLY_OBJECTS
+    assert demo.dataset_only_sources(6)[4:] == ("procedural:sofa:1004", "procedural:table:1005")
 
 
 def test_references_the_model_would_refuse_are_refused_before_rendering(tmp_path, capsys):

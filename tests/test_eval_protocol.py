@@ -247,3 +247,26 @@ def test_eval_with_nothing_to_score_is_an_error(two_category_set, checkpoint, tm
                  "--input-views", "0,1,2,3,4,5", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nothing to score" in err[0] and not out.exists(), err
+
+
+def test_eval_stdout_is_one_json_line_with_the_comparison_inside(two_category_set, checkpoint, tmp_path, capsys):
+    """eval's stdout had been an indented JSON report (~30 lines) and, with --compare-to, a second indented document
+    after it: neither `json.load(stdout)` nor `tail -n1 | jq` read it. Now: one JSON line, the comparison inside."""
+    base = ["eval", "--checkpoint", str(checkpoint), "--data", str(two_category_set), "--no-lpips", "--threads", "1",
+            "--max-objects", "1", "--max-targets", "1"]
+    a, b = tmp_path / "a", tmp_path / "b"
+    capsys.readouterr()
+    assert main([*base, "--out", str(a)]) == 0
+    out = capsys.readouterr().out
+    assert len(out.splitlines()) == 1, out
+    rep = json.loads(out)
+    assert rep["out"] == str(a) and rep["overall"]["n"] == 1 and "compare" not in rep
+    assert main([*base, "--out", str(b), "--compare-to", str(a / "eval.json")]) == 0
+    out = capsys.readouterr().out
+    assert len(out.splitlines()) == 1, out
+    rep = json.loads(out)
+    assert rep["out"] == str(b) and rep["overall"]["n"] == 1
+    c = rep["compare"]
+    assert c["file"] == str(b / "compare.json") and c["this"] == c["other"] == str(checkpoint)
+    assert c["this_minus_other"] == json.loads((b / "compare.json").read_text())["overall"]
+    assert c["this_minus_other"]["psnr"]["diff"] == pytest.approx(0.0, abs=1e-9)

@@ -470,3 +470,14 @@ def test_categories_differ_from_each_other(silhouettes):
             assert acc >= 0.85, (cats[a], cats[b], acc)
             cross = iou_matrix(silhouettes[cats[a]], silhouettes[cats[b]]).mean()
             assert cross < max(within[cats[a]], within[cats[b]]), (cats[a], cats[b], cross)
+
+
+def test_preview_library_keeps_blenders_log_off_stdout(bpy_empty, tmp_path, capfd):
+    """preview-library printed Blender's `render | Saved: '/tmp/tmpXXXX/chair_0.png'` per tile on stdout (fd 1), where
+    only its own `wrote <path>` line belongs."""
+    from blender_mrvm.cli import main
+
+    out = tmp_path / "sheet.png"
+    capfd.readouterr()
+    assert main(["preview-library", "--out", str(out), "--seeds", "2", "--categories", "chair", "--size", "16"]) == 0
+    assert capfd.readouterr().out.splitlines() == [f"wrote {out}"]

@@ -485,19 +485,21 @@ def _wait_through_interrupts(finished: threading.Event, poll: float) -> None:
 
 
 def _pair_stats(db_path: Path, min_inliers: int) -> tuple[int, int, set[int]]:
-    """(verified pairs, matched pairs, ids of images in a verified pair)."""
+    """(verified pairs, pairs tried, ids of images in a verified pair). The pairs tried are the matches table's rows:
+    ``read_two_view_geometries`` leaves out pairs without a match, so it counted 0 of 45 pairs tried, none matching."""
     import pycolmap
 
     db = pycolmap.Database.open(str(db_path))
     try:
         pair_ids, geoms = db.read_two_view_geometries()
+        tried = max(len(pair_ids), int(db.num_matched_image_pairs()))
         verified, connected = 0, set()
         for pid, g in zip(pair_ids, geoms):
             if len(g.inlier_matches) >= min_inliers and g.config not in (
                     pycolmap.TwoViewGeometryConfiguration.UNDEFINED, pycolmap.TwoViewGeometryConfiguration.DEGENERATE):
                 verified += 1
                 connected.update(_pair_to_ids(pid))
-        return verified, len(pair_ids), connected
+        return verified, tried, connected
     finally:
         db.close()
 

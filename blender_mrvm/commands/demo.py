@@ -13,7 +13,8 @@
    ``demo_out/contact_sheet.png`` (per view: references, prediction, ground truth).
 
 A copy of the package without the shipped checkpoint (and no --checkpoint) renders the dataset
-and its contact sheet only, and says why.
+and its contact sheet only, and says why on stderr: 4 objects, 12 views each at 128 px unless
+--objects, --views or --resolution say otherwise.
 """
 
 from __future__ import annotations
@@ -29,6 +30,10 @@ DEMO_SEED = 1000
 """First object seed of the demo: training sets use seeds 0 .. objects-per-category - 1."""
 DATASET_ONLY_OBJECTS = ("procedural:chair:0", "procedural:car:2", "procedural:airplane:1", "procedural:lamp:3")
 DATASET_ONLY_VIEWS, DATASET_ONLY_RESOLUTION = 12, 128
+"""Without a model: what is rendered when --objects, --views and --resolution are not given (the objects first, then
+the other categories' held-out objects when --objects asks for more)."""
+DEMO_OBJECTS, DEMO_VIEWS, DEMO_RESOLUTION = 4, 24, 64
+"""With a model: the defaults of --objects, --views (the test split's 24) and --resolution (the training set's 64)."""
 SCENE_TARGETS = 6
 """Target cameras (image planes) in scene.blend: evenly spaced around the first object."""
 
@@ -36,9 +41,12 @@ SCENE_TARGETS = 6
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     p.add_argument("--checkpoint", type=Path, default=None, help="model checkpoint, or shipped:<kind> (default: the shipped model)")
-    p.add_argument("--objects", type=int, default=4, help=f"held-out objects, one per category of {', '.join(DEMO_CATEGORIES)}")
-    p.add_argument("--views", type=int, default=24, help="turntable views per object (the test split has 24)")
-    p.add_argument("--resolution", type=int, default=64, help="image size in pixels (the training set's, 64)")
+    p.add_argument("--objects", type=int, default=None, help=f"held-out objects, one per category of "
+                   f"{', '.join(DEMO_CATEGORIES)} (default {DEMO_OBJECTS}; without a model {len(DATASET_ONLY_OBJECTS)})")
+    p.add_argument("--views", type=int, default=None, help=f"turntable views per object (default {DEMO_VIEWS}, the "
+                   f"test split's; without a model {DATASET_ONLY_VIEWS})")
+    p.add_argument("--resolution", type=int, default=None, help=f"image size in pixels (default {DEMO_RESOLUTION}, "
+                   f"the training set's; without a model {DATASET_ONLY_RESOLUTION})")
     p.add_argument("--scene-resolution", type=int, default=128, help="size of the image planes' views in scene.blend")
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model: 0 (default) shrinks "
                    "references larger than the model's training images to that size, -1 keeps them, N pixels")
@@ -65,10 +73,30 @@ def demo_folder(out) -> "OwnedFolder":
                        ("dataset", "novel", blend_images_folder(Path(out) / "scene.blend").name))
 
 
+def fill_defaults(args, with_model: bool = True) -> None:
+    """--objects, --views and --resolution not given (None): the demo's defaults, or without a model the
+    dataset-only ones (``DATASET_ONLY_*``)."""
+    defaults = ((DEMO_OBJECTS, DEMO_VIEWS, DEMO_RESOLUTION) if with_model else
+                (len(DATASET_ONLY_OBJECTS), DATASET_ONLY_VIEWS, DATASET_ONLY_RESOLUTION))
+    for name, value in zip(("objects", "views", "resolution"), defaults):
+        if getattr(args, name, None) is None:
+            setattr(args, name, value)
+
+
+def dataset_only_sources(n: int) -> tuple[str, ...]:
+    """The first ``n`` objects the demo renders without a model: ``DATASET_ONLY_OBJECTS``, then the held-out objects
+    of the categories they leave out."""
+    used = {s.split(":")[1] for s in DATASET_ONLY_OBJECTS}
+    more = tuple(f"procedural:{c}:{DEMO_SEED + i}" for i, c in enumerate(DEMO_CATEGORIES) if c not in used)
+    return (tuple(DATASET_ONLY_OBJECTS) + more)[:n]
+
+
 def check_args(args) -> None:
     """Every number, the device and the output folder, before anything is rendered or written."""
     from .. import validation as V
     from ..errors import InputError
+
+    fill_defaults(args)  # (run fills them first, knowing whether there is a model)
 
     V.check_count("--views", args.views, 3, 360)
     V.check_image_side("--resolution", args.resolution, 8, 1024)
@@ -104,18 +132,24 @@ def check_reference_size(args, ck: Path) -> None:
 
 
 def run(args) -> int:
+    import sys
+
     from ..errors import InputError
 
-    check_args(args)
+    missing = None
     if args.checkpoint is None:
         from ..models.pretrained import default_checkpoint
 
         try:
             args.checkpoint = default_checkpoint()
         except InputError as e:
-            print(f"note: {e}")
-            print("note: without a model the demo renders the dataset and its contact sheet only")
-            return dataset_only(args)
+            missing = e
+    fill_defaults(args, with_model=missing is None)  # without a model: the dataset-only defaults, unless given
+    check_args(args)
+    if missing is not None:  # notes on stderr, as every command's: stdout holds what was done
+        print(f"note: {missing}", file=sys.stderr)
+        print("note: without a model the demo renders the dataset and its contact sheet only", file=sys.stderr)
+        return dataset_only(args)
     return novel_views_demo(args)
 
 
@@ -131,8 +165,8 @@ def dataset_only(args) -> int:
     out = Path(args.out)
     owned = demo_folder(out)
     owned.claim()
-    cfg = RenderConfig(out=out / "dataset", sources=DATASET_ONLY_OBJECTS, views=DATASET_ONLY_VIEWS,
-                       resolution=(DATASET_ONLY_RESOLUTION, DATASET_ONLY_RESOLUTION), force=args.force)
+    cfg = RenderConfig(out=out / "dataset", sources=dataset_only_sources(args.objects), views=args.views,
+                       resolution=(args.resolution, args.resolution), force=args.force)
     summary = run_with_tqdm(render_dataset(cfg), desc="render", unit="view")
     sheet = dataset_contact_sheet(out / "dataset", out / "contact_sheet.png")
     owned.wrote("contact_sheet.png")

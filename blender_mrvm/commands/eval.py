@@ -244,7 +244,7 @@ def _run(args) -> int:
                                         pool=views if args.nearest and source == "--input-views" else None,
                                         reproject=reproject, reproject_cfg=reproject_from_args(args)),
                                desc="eval", unit="view")
-    print(report_json({"overall": report["overall"], "out": str(args.out)}))
+    result = {"overall": report["overall"], "out": str(args.out)}
     (args.out / "compare.json").unlink(missing_ok=True)  # an earlier run's (--force): not of this eval.json
     if other is not None:
         from ..datasets.format import atomic_write_json
@@ -253,7 +253,10 @@ def _run(args) -> int:
         cmp = {"this": str(args.checkpoint), "other": other.get("checkpoint", {}).get("path"),
                **compare_to(args, this, other)}
         atomic_write_json(args.out / "compare.json", cmp)
-        print(json.dumps({"this minus other": cmp["overall"]}, indent=2))
+        result["compare"] = {"file": str(args.out / "compare.json"), "this": cmp["this"], "other": cmp["other"],
+                             "this_minus_other": cmp["overall"]}
+    # one JSON line, last on stdout (as synthesize, train and sem2nerf): `json.load` or `tail -n1 | jq` reads it
+    print(report_json(result, indent=None))
     return 0
 
 

@@ -497,10 +497,10 @@ def make_grid(rows: list[list[np.ndarray]], pad: int = 2) -> np.ndarray:
     return F.to_uint8(out)
 
 
-def report_json(report: dict) -> str:
+def report_json(report: dict, indent: int | None = 2) -> str:
     """The report as JSON; a non-finite number (an SSIM of a NaN render) is null, as a missing mean is: NaN is not
-    JSON, and readers other than Python's refuse it."""
-    return json.dumps(_finite(report), indent=2, allow_nan=False)
+    JSON, and readers other than Python's refuse it. ``indent=None``: one line (what `eval` prints last on stdout)."""
+    return json.dumps(_finite(report), indent=indent, allow_nan=False)
 
 
 def _finite(v):

@@ -92,8 +92,12 @@ def _setup_scene(scene, engine: str, size: int, samples: int):
 
 
 def render_object_png(scene, obj, path: Path) -> None:
+    """Render the tile to ``path``; Blender's own log lines (``render | Saved: '/tmp/...png'``) kept off stdout."""
+    from ..objects import quiet_stdout
+
     scene.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True)
+    with quiet_stdout():
+        bpy.ops.render.render(write_still=True)
 
 
 def _flat_part_colour(mat, rgb) -> None:
