@@ -451,3 +451,21 @@ def test_scene_rig_of_several_lenses_says_intrinsics_txt_holds_one(tmp_path, bpy
     bpy.context.scene.objects["CamB"].data.lens = 50
     s = _render(out=tmp_path / "f", sources=("selected",), rig="scene")
     assert not [w for w in s.warnings if "intrinsics.txt" in w], s.warnings
+
+
+def test_render_dataset_of_a_blend_prints_only_its_summary_on_stdout(tmp_path, capfd, bpy_empty):
+    """Blender's own 'Read blend: ...' line reached stdout before the command's summary (a script reading the
+    summary line got Blender's log first)."""
+    import bpy
+
+    from blender_mrvm.cli import main
+
+    bpy.ops.mesh.primitive_monkey_add()
+    bpy.context.active_object.select_set(True)
+    blend = tmp_path / "a.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    capfd.readouterr()
+    assert main(["render-dataset", "--source", "selected", "--blend", str(blend), "--views", "1", "--resolution", "16",
+                 "--engine", "BLENDER_WORKBENCH", "--samples", "1", "--out", str(tmp_path / "d")]) == 0
+    out = [ln for ln in capfd.readouterr().out.splitlines() if ln.strip()]
+    assert len(out) == 1 and out[0].startswith("1 objects, 1 views rendered"), out

@@ -1425,3 +1425,23 @@ def test_vertices_stored_far_from_the_origin_and_objects_that_cover_no_pixel_are
     said = {w.split(":")[0]: w for w in s.warnings}
     assert "float32" in said.get("custom/far", "") and "custom/near" not in said, s.warnings
     assert "covers no pixel in any of the 2 views" in said.get("custom/needle", ""), s.warnings
+
+
+def test_names_that_are_not_utf8(tmp_path, bpy_empty, capsys):
+    """A mesh named with Latin-1 bytes (ch\\xe9ir.obj, from an old archive) crashed render-dataset with a
+    UnicodeEncodeError traceback while hashing its name; an --out of such bytes failed in the EXR writer with a
+    half-written object. The mesh renders; the folder is refused up front in one line."""
+    import os
+
+    from blender_mrvm.cli import main
+
+    src = tmp_path / os.fsdecode(b"ch\xe9ir.obj")
+    write_mesh(src)
+    base = ["render-dataset", "--source", str(src), "--views", "1", "--resolution", "16", "--samples", "1"]
+    assert main(base + ["--out", str(tmp_path / "d")]) == 0
+    assert len(list((tmp_path / "d").glob("custom/*/meta.json"))) == 1
+    capsys.readouterr()
+    bad = tmp_path / os.fsdecode(b"o\xe9ut")
+    assert main(base + ["--out", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not UTF-8 text" in err[0] and not bad.exists(), err

@@ -124,7 +124,10 @@ def run(args) -> int:
     if args.blend:
         if not Path(args.blend).is_file():
             raise InputError(f".blend file not found: {args.blend}")
-        bpy.ops.wm.open_mainfile(filepath=str(Path(args.blend).resolve()))
+        from ..scene.objects import quiet_stdout
+
+        with quiet_stdout():  # (Blender's 'Read blend: ...' line on stdout, before the command's summary)
+            bpy.ops.wm.open_mainfile(filepath=str(Path(args.blend).resolve()))
     if cfg.rig == "scene" and "x" not in args.resolution.lower():  # R: the scene's frame shape, longer side R
         from dataclasses import replace
 

@@ -2368,7 +2368,7 @@ def source_fingerprint(spec: ObjectSpec) -> str:
         if path.suffix.lower() == ".obj":
             files += _obj_material_libraries(path)
         for f in files:
-            h.update(f.name.encode() + b"\0")
+            h.update(f.name.encode("utf-8", "surrogateescape") + b"\0")  # (a name's bytes need not be UTF-8)
             _hash_file(h, f, f"cannot read mesh file {f}")
     elif spec.kind == "procedural":
         from . import procedural
@@ -2565,7 +2565,7 @@ def _named_files_hash(named, named_by: str) -> str:
 
     h = hashlib.sha256()
     for name, f in named:
-        h.update(name.encode() + b"\0")
+        h.update(name.encode("utf-8", "surrogateescape") + b"\0")
         if f is None:
             h.update(b"missing\0")
         else:

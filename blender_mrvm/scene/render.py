@@ -109,6 +109,11 @@ class RenderConfig:
     ``render_dataset`` fills in from the scene: another set of cameras is another dataset. Not a user option."""
 
     def validate(self) -> None:
+        try:  # OpenEXR writes depth and normals only under UTF-8 paths (a ValueError, after a half-written object)
+            str(self.out).encode("utf-8")
+        except UnicodeEncodeError:
+            raise InputError(f"output folder {str(self.out).encode('utf-8', 'surrogateescape')!r}: its name is not "
+                             "UTF-8 text, which the EXR writer cannot write into; rename it") from None
         w, h = self.resolution
         if not (isinstance(w, int) and isinstance(h, int)) or w < 1 or h < 1:
             raise InputError(f"resolution must be at least 1x1, got {w}x{h}")
