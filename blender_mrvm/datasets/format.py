@@ -580,21 +580,25 @@ SETTINGS_ADDED_LATER = ("scene_cameras",)
 """Settings that newer versions record: a dataset rendered before one was kept (its settings lack it) still resumes."""
 
 
-def _same_setting(a, b) -> bool:
-    """Equal, numbers to float rounding (the panel's angles are float32: 40 degrees reads 39.99999883637168; a scene
-    camera's pose read again moves by ~1e-7)."""
+def same_json(a, b, rel_tol: float = 1e-6, abs_tol: float = 1e-5) -> bool:
+    """Equal JSON values (dicts, lists, numbers), numbers to float rounding: settings (the panel's angles are float32:
+    40 degrees reads 39.99999883637168; a scene camera's pose read again moves by ~1e-7) and records built again in
+    another process (``scene.capture_scenes.same_scene``, with tighter tolerances)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same_json(a[k], b[k], rel_tol, abs_tol) for k in a)
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same_setting(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(same_json(x, y, rel_tol, abs_tol) for x, y in zip(a, b))
     if isinstance(a, float) or isinstance(b, float):
         return (isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool)
-                and not isinstance(b, bool) and math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-5))
+                and not isinstance(b, bool) and math.isclose(a, b, rel_tol=rel_tol, abs_tol=abs_tol))
     return a == b
+
 
 
 def differing_settings(old: dict, new: dict) -> list[str]:
     """The keys whose values differ between a dataset's recorded settings and this run's (:func:`settings_match`)."""
     return [k for k in sorted(set(old) | set(new))
-            if not (k in SETTINGS_ADDED_LATER and k not in old) and not _same_setting(old.get(k), new.get(k))]
+            if not (k in SETTINGS_ADDED_LATER and k not in old) and not same_json(old.get(k), new.get(k))]
 
 
 def settings_match(old, new: dict) -> bool:

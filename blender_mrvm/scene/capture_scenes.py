@@ -351,14 +351,7 @@ RESUME_IGNORES = ("complete", "split")
 
 def _same_record(a, b) -> bool:
     """Equal JSON records, numbers to float rounding (a scene built again in another process)."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same_record(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same_record(x, y) for x, y in zip(a, b))
-    if isinstance(a, float) or isinstance(b, float):
-        return (isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool)
-                and not isinstance(b, bool) and math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-9))
-    return a == b
+    return F.same_json(a, b, rel_tol=1e-9, abs_tol=1e-9)
 
 
 def same_scene(old: dict, new: dict) -> bool:
