@@ -304,6 +304,12 @@ def test_ddp_two_cpu_processes(tmp_path, data):
     state = ckpt.load_trainer_state(ckpt.find_checkpoint(tmp_path / "ddp"))
     assert state["world_size"] == 2 and len(state["rng"]) == 2
     assert state["rng"][0]["numpy"] != state["rng"][1]["numpy"]  # each rank drew its own batches
+    # the losses logged are the mean over the ranks' batches (metrics.jsonl had rank 0's alone): every rank's
+    # summary holds the same mean, and rank 0 logged it
+    lines = [json.loads(x) for x in (tmp_path / "ddp" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in lines] == [1, 2]
+    for k in ("loss", "mse_fine", "hit", "psnr_fine"):
+        assert sums[0]["last"][k] == sums[1]["last"][k] == lines[-1][k], k
 
 
 def test_cli_init_flag(tmp_path, data, capsys):

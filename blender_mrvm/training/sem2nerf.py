@@ -593,9 +593,13 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
         if disc is not None:
             state["disc"] = disc.state_dict()
             state["d_opt"] = d_opt.state_dict()
+        # train_config: the whole train record (config.json's), under the key the other kinds' checkpoints use, so a
+        # run whose config.json is lost still knows the --init it began from (training.config.recorded_train);
+        # `train` (the four fields checkpoints recorded before) is kept for whoever reads it
         return save_checkpoint(out, done, model, h, state, keep=cfg.keep,
                                extra_meta={"train": {"data": cfg.data, "split": cfg.split,
-                                                     "iterations": cfg.iterations, "gan_weight": cfg.gan_weight}})
+                                                     "iterations": cfg.iterations, "gan_weight": cfg.gan_weight},
+                                           "train_config": json.dumps(dict(cfg.__dict__), default=list)})
 
     P = cfg.patch_size
     last_ck = None

@@ -13,8 +13,8 @@ Distributed: under ``torchrun`` (``WORLD_SIZE > 1``) each rank draws its own bat
 parameters start identical (broadcast from rank 0) and gradients are averaged with one all-reduce
 per step (gloo on CPU, nccl on GPU) - the same update as DistributedDataParallel, without requiring
 every parameter to be used in every phase (the MRVM head is idle while finetuning). Rank 0 writes
-logs and checkpoints; every rank's RNG state is stored, so resume is exact on any world size that
-matches the saved one.
+logs (each loss the mean over the ranks' batches) and checkpoints; every rank's RNG state is stored, so
+resume is exact on any world size that matches the saved one.
 """
 
 from __future__ import annotations
@@ -90,6 +90,20 @@ def _allreduce_grads(params: list[torch.nn.Parameter], world: int) -> None:
         n = p.numel()
         p.grad = flat[off:off + n].view_as(p).clone()
         off += n
+
+
+def _mean_over_ranks(parts: dict[str, float], world: int) -> dict[str, float]:
+    """A step's logged losses as the mean over the ranks of a torchrun job: each rank's are of its own batch only,
+    and metrics.jsonl (written by rank 0) had held rank 0's alone while the update is of every rank's mean gradient. One
+    gather at logging steps only (training steps are unchanged); a gather of the dicts, not an all-reduce of a
+    tensor, because a part can be missing on a rank (no object of its batch had depth, or rays to render): it
+    counts 0 there, as it does for such an object within a rank's step."""
+    import torch.distributed as dist
+
+    every: list[Any] = [None] * world
+    dist.all_gather_object(every, parts)
+    names = list(dict.fromkeys(k for d in every for k in d))
+    return {k: sum(float(d.get(k, 0.0)) for d in every) / world for k in names}
 
 
 # ------------------------------------------------------------------------------------------- data
@@ -350,6 +364,8 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
                       f"identity ({', '.join(added)})", file=sys.stderr, flush=True)
         if dd.world > 1:
             _broadcast_params(model)
+        if dd.main:
+            _note_linear_depths_inside(model_cfg, cfg, scenes, model.box_padding)
     if cfg.compile:
         registry.compile_networks(model)  # after the weights are in place (compiling keeps the state dict's keys)
     if dd.main:
@@ -429,10 +445,13 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
                 opt.step()
             model.after_step(phase)
             done = step + 1
+            logged = done % cfg.log_every == 0 or done == cfg.iterations or done == start + 1
+            if logged and dd.world > 1:  # the same steps on every rank: the collective is met by all
+                tot = _mean_over_ranks(tot, dd.world)
             last = {"step": done, "lr": lr, **phase.logs, "grad_norm": float(gnorm),
                     "psnr_fine": -10 * math.log10(max(tot["mse_fine"], 1e-10)), **tot,
                     "time_s": time.perf_counter() - t0}
-            if log and (done % cfg.log_every == 0 or done == cfg.iterations or done == start + 1):
+            if log and logged:
                 log.write(json.dumps(last) + "\n")
                 log.flush()
             if done % cfg.ckpt_every == 0 or done == cfg.iterations:
@@ -849,6 +868,36 @@ def _note_a_longer_schedule(found: Path, step: int, cfg: TrainConfig, main: bool
           f"step before, {lr_at(step, cfg):.3g} now)" + (
               f", and masked pretraining ends at step {int(cfg.pretrain_frac * cfg.iterations)} (was "
               f"{int(cfg.pretrain_frac * before)})" if 0 < cfg.pretrain_frac < 1 else ""), file=sys.stderr)
+
+
+def _cameras_inside_box(scenes: list[ObjectScene], padding: float) -> tuple[int, int]:
+    """(views whose camera is inside the box rays are clipped to, i.e. its scene's box as a model pads it, all views):
+    a room or a scene filmed from within, where GPNR's depth spacing matters (``models/gpnr``: 'auto')."""
+    inside = total = 0
+    for s in scenes:
+        ns = normalized_scene(s.bbox[0], s.bbox[1], padding)
+        off = np.abs((np.asarray(s.c2w)[:, :3, 3] - ns.centre) / ns.scale).max(axis=1)
+        inside += int((off <= ns.box).sum())
+        total += len(off)
+    return inside, total
+
+
+def _note_linear_depths_inside(model_cfg, cfg: TrainConfig, scenes: list[ObjectScene], padding: float) -> None:
+    """Warn when a new GPNR run samples depths 'linear' while its cameras are inside the box (rooms): such a run
+    works, but 'auto' (even in inverse depth there) is what room models use, 0.5-0.8 dB better on held-out rooms at
+    the same budget (docs/gpnr_rooms.md); the object model (shipped:gpnr) is 'linear', and --init keeps its model, so
+    a room fine-tune from it had kept 'linear' silently. Not refused: the weights fit either spacing and a run may
+    keep it on purpose (a comparison); a resume keeps the run's model, so only a new start is told."""
+    if registry.kind_of(model_cfg) != "gpnr" or getattr(model_cfg, "depth_spacing", None) != "linear":
+        return
+    inside, total = _cameras_inside_box(scenes, padding)
+    if not inside:
+        return  # (cameras outside the box: 'auto' is 'linear' there, bit for bit)
+    came = f"kept from --init {cfg.init_checkpoint}" if cfg.init_checkpoint else "the model config's"
+    print(f"warning: gpnr depth_spacing is 'linear' ({came}), but {inside} of {total} training views have their camera "
+          "inside the box (a room): room models use 'auto' (depths even in inverse depth from the camera; +0.5 to "
+          "+0.8 dB on held-out rooms, docs/gpnr_rooms.md); to use it, train with a --config holding "
+          '{"model": {"overrides": {"depth_spacing": "auto"}}} (the weights fit either)', file=sys.stderr, flush=True)
 
 
 def _grad_scaler(cfg: TrainConfig, device: str):
