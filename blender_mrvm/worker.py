@@ -131,7 +131,7 @@ def probe(python: str, timeout: float = 30.0, needs: tuple[str, ...] = ()) -> di
         return cached
     try:
         cp = subprocess.run([str(p), "-c", _PROBE, *[m for m, _, _ in DEPENDENCIES]], capture_output=True, text=True,
-                            timeout=timeout, env=_clean_env(), stdin=subprocess.DEVNULL)
+                            timeout=timeout, env=clean_env(), stdin=subprocess.DEVNULL)
     except subprocess.TimeoutExpired:  # its message would hold the whole probe script
         raise InputError(f"worker Python {python} did not answer within {timeout:g} s") from None
     except OSError as e:
@@ -203,7 +203,8 @@ def require(interp: Interpreter, needs: tuple[str, ...] = ("torch",)) -> None:
 # Running
 # ---------------------------------------------------------------------------------------------
 
-def _clean_env() -> dict[str, str]:
+def clean_env() -> dict[str, str]:
+    """This environment for a child Python, without the variables that point Blender's own Python elsewhere."""
     env = dict(os.environ)
     for k in ("PYTHONHOME", "PYTHONSTARTUP", "PYTHONEXECUTABLE"):  # Blender's, not the child's
         env.pop(k, None)
@@ -251,7 +252,7 @@ def worker_env(extra: dict[str, str] | None = None, python: str = "") -> dict[st
     cache (:func:`weights_dir` of ``python``) in ``MRVM_WEIGHTS_DIR``."""
     from .progress import PROGRESS_ENV
 
-    env = _clean_env()
+    env = clean_env()
     parent = str(PACKAGE_DIR.parent)
     env["PYTHONPATH"] = os.pathsep.join([parent, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]])
     env[PROGRESS_ENV] = "json"

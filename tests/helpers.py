@@ -410,3 +410,18 @@ def p3_profile() -> bytes:
     if not found:
         pytest.skip("no Display P3 ICC profile (bpy's datafiles) here")
     return found[0].read_bytes()
+
+
+def pycolmap_stages_in_this_process(monkeypatch) -> None:
+    """Run recover-poses' pycolmap stages that go to a child process (``sfm._run_in_child``: matching, the focal
+    length from the view graph) in this process instead, so that a test's monkeypatch of a pycolmap function
+    reaches them."""
+    import pycolmap
+
+    from blender_mrvm.capture import sfm
+
+    def in_process(call, args, kwargs, *rest, **options):
+        return getattr(pycolmap, call)(*args, **kwargs)
+        yield  # (a generator, as the stage it stands for)
+
+    monkeypatch.setattr(sfm, "_run_in_child", in_process)

@@ -19,6 +19,7 @@ import torch
 from blender_mrvm.cli import main
 from blender_mrvm.datasets import format as F
 from blender_mrvm.training.synthetic import make_sphere_dataset
+from tests.helpers import pycolmap_stages_in_this_process
 
 torch.set_num_threads(1)
 
@@ -387,6 +388,7 @@ def test_recover_poses_resumes_finished_stages(ring, tmp_path, monkeypatch, caps
     def not_again(*a, **k):
         raise AssertionError("a finished stage ran again")
 
+    pycolmap_stages_in_this_process(monkeypatch)  # (where the patch below reaches matching)
     for name in ("extract_features", "match_exhaustive", "match_sequential"):
         monkeypatch.setattr(pycolmap, name, not_again)
     capsys.readouterr()

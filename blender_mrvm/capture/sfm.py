@@ -1,11 +1,13 @@
 """Pose recovery with pycolmap: photos folder -> capture folder in our dataset format.
 
 :func:`recover_poses` is a progress generator (see ``progress.py``). Each pycolmap stage runs in a
-worker thread (pycolmap releases the GIL), and the generator yields a :class:`Progress` every
-``poll`` seconds while it waits, so a Blender modal operator stepping it per timer tick never
-blocks the UI for longer than that. Closing the generator (``gen.close()``, Ctrl-C on the CLI)
-cancels the running stage through pycolmap's ``CancellationToken`` and raises nothing further;
-what was finished stays in ``<out>/colmap``.
+worker thread (pycolmap releases the GIL), or in a child Python for the stages that work on the
+database alone (matching, the focal length from the view graph: a native crash there is an error line,
+not the end of this process), and the generator yields a :class:`Progress` every ``poll`` seconds while
+it waits, so a Blender modal operator stepping it per timer tick never blocks the UI for longer than
+that. Closing the generator (``gen.close()``, Ctrl-C on the CLI) cancels the running stage through
+pycolmap's ``CancellationToken`` (or kills the child) and raises nothing further; what was finished
+stays in ``<out>/colmap``.
 
 Stages and what they check (each failure is one line naming the problem):
 
@@ -473,6 +475,88 @@ def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: 
     return out.get("value")
 
 
+_CHILD_STAGE = """
+import pickle, signal, sys
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the parent's: it kills this process
+sys.path[:0] = [p for p in pickle.load(sys.stdin.buffer) if p not in sys.path]
+import pycolmap
+call, args, kwargs, level = pickle.load(sys.stdin.buffer)
+pycolmap.logging.minloglevel = level
+try:
+    out = ("value", getattr(pycolmap, call)(*args, **kwargs))
+except Exception as e:
+    out = ("error", f"{type(e).__name__}: {e}")
+with open(sys.argv[1], "wb") as f:
+    pickle.dump(out, f)
+"""
+
+
+def _run_in_child(call: str, args: tuple, kwargs: dict, label: str, done: int, work: Path, verbose: bool,
+                  hint: str = "", poll: float = POLL_S) -> ProgressGen:
+    """``pycolmap.<call>(*args, **kwargs)`` in a child Python, yielding Progress while it runs; its return value.
+
+    For the stages that work on the database alone (matching, the focal length from the view graph). A native crash
+    there ends the child, not this process: pycolmap's shared-focal relative-pose solver (poselib's
+    ``relpose_6pt_shared_focal``) segfaulted in matching on photos of one shared camera whose pairs are all
+    homographies (a flat subject photographed moving sideways), and recover-poses died with exit 139 and no word
+    (tests/test_capture.py). It is one line now, naming ``hint``. Closing this generator or a Ctrl-C kills the child
+    and waits for it (so the focal-length step, which pycolmap gives no cancel token, is cancellable too); SQLite
+    rolls a killed write back on the next open. The child's stderr goes to ``work/pycolmap_stage.log`` unless
+    ``verbose``."""
+    import pickle
+    import signal
+    import subprocess
+    import sys
+
+    from ..worker import clean_env
+
+    result = work / f".{call}.result"
+    log = work / "pycolmap_stage.log"
+    result.unlink(missing_ok=True)
+    with open(log, "wb") as err:
+        proc = subprocess.Popen([sys.executable, "-c", _CHILD_STAGE, str(result)], stdin=subprocess.PIPE,
+                                stdout=None if verbose else subprocess.DEVNULL, stderr=None if verbose else err,
+                                env=clean_env())
+    t0 = time.perf_counter()
+    try:
+        proc.stdin.write(pickle.dumps([p for p in sys.path if p]))
+        proc.stdin.write(pickle.dumps((call, args, kwargs, 0 if verbose else 3)))
+        proc.stdin.close()
+    except BrokenPipeError:  # the child ended at once; its return code says how
+        pass
+    try:
+        while True:
+            try:
+                proc.wait(timeout=poll)
+                break
+            except subprocess.TimeoutExpired:
+                yield Progress(done, 100, f"{label} ({time.perf_counter() - t0:.0f}s)")
+    finally:
+        if proc.returncode is None:  # closed or interrupted
+            proc.kill()
+            while True:
+                try:
+                    proc.wait()
+                    break
+                except KeyboardInterrupt:
+                    continue
+    rc = proc.returncode
+    try:
+        status, value = pickle.loads(result.read_bytes()) if rc == 0 and result.is_file() else (None, None)
+    finally:
+        result.unlink(missing_ok=True)
+    if status == "value":
+        return value
+    if status == "error":
+        raise RuntimeError(f"pycolmap {call}: {value}")
+    try:
+        how = f"signal {signal.Signals(-rc).name}" if rc < 0 else f"exit {rc}"
+    except ValueError:
+        how = f"signal {-rc}"
+    logged = "" if verbose or not log.is_file() or not log.stat().st_size else f" (its log: {log})"
+    raise InputError(f"pycolmap crashed ({how}) while {label}{hint}; what was finished is kept in {work}{logged}")
+
+
 def _wait_through_interrupts(finished: threading.Event, poll: float) -> None:
     """Wait for a cancelled stage to end, a Ctrl-C more included: the process cannot end safely while pycolmap's
     thread runs (a cancelled stage stops within its current image or pair)."""
@@ -607,19 +691,20 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
     mopts.num_threads = threads
     ver = pycolmap.TwoViewGeometryOptions()
     ver.ransac.random_seed = cfg.seed
-    if matcher == "exhaustive":
-        fn = lambda: pycolmap.match_exhaustive(db_path, matching_options=mopts, verification_options=ver,  # noqa: E731
-                                               device=pycolmap.Device.cpu, cancellation_token=token)
-    else:
+    kwargs = dict(matching_options=mopts, verification_options=ver, device=pycolmap.Device.cpu)
+    if matcher != "exhaustive":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = cfg.sequential_overlap
         pairing.quadratic_overlap = True
         pairing.loop_detection = False
-        fn = lambda: pycolmap.match_sequential(db_path, matching_options=mopts, pairing_options=pairing,  # noqa: E731
-                                               verification_options=ver, device=pycolmap.Device.cpu,
-                                               cancellation_token=token)
+        kwargs["pairing_options"] = pairing
+    # one camera shared by all photos: the pairs' verification estimates its focal length with the solver that crashed
+    again = ("extract the video's frames into a folder and run on them" if video_info is not None else "run again")
+    shared = (f"; with one camera for all photos pycolmap was seen to crash so on photos of a flat subject taken "
+              f"moving sideways: {again} without --single-camera") if cfg.shared_camera else ""
     if "match" not in stages.done:
-        yield from _run_in_thread(fn, token, f"{matcher} matching", _STAGE_END["extract"])
+        yield from _run_in_child(f"match_{matcher}", (db_path,), kwargs, f"{matcher} matching", _STAGE_END["extract"],
+                                 work, verbose, hint=shared)
         stages.finish("match")
     verified, tried, connected = _pair_stats(db_path, ver.min_num_inliers)
     timings["match"], cpu_timings["match"] = time.perf_counter() - t, time.process_time() - c
@@ -635,9 +720,9 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
     if focal_from_view_graph:
         vgc = pycolmap.ViewGraphCalibrationOptions()
         vgc.random_seed = cfg.seed
-        focal_from_view_graph = yield from _run_in_thread(
-            lambda: pycolmap.calibrate_view_graph(db_path, vgc), token, "estimating the focal length",
-            _STAGE_END["match"])
+        focal_from_view_graph = yield from _run_in_child(
+            "calibrate_view_graph", (db_path, vgc), {}, "estimating the focal length", _STAGE_END["match"], work,
+            verbose, hint="; --no-focal-from-views skips this step")
     need = max(cfg.required_images, math.ceil(cfg.min_registered_fraction * len(names)))
     mopt = pycolmap.IncrementalPipelineOptions()
     mopt.num_threads = threads
