@@ -84,7 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rank, world = _torchrun_rank()
     try:
-        return int(args._module.run(args) or 0)
+        try:
+            return int(args._module.run(args) or 0)
+        except (ImportError, RuntimeError) as e:
+            if interrupted_import(e):  # Ctrl-C while a library loaded: an interrupt, not a broken install
+                raise KeyboardInterrupt from e
+            raise
     except MRVMError as e:
         if rank == 0 or not isinstance(e, (InputError, OutputError)):  # (every rank finds the same bad input)
             print(f"error: {e}", file=sys.stderr)
@@ -116,6 +121,19 @@ def _torchrun_rank() -> tuple[int, int]:
         return int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
     except ValueError:
         return 0, 1
+
+
+def interrupted_import(e: BaseException) -> bool:
+    """Whether ``e`` is a library's import failing because Ctrl-C came while it loaded: pycolmap re-raises the
+    KeyboardInterrupt its C++ module's initialisation got as 'RuntimeError: Cannot import the C++ backend ... Make
+    sure that you successfully install the package', a traceback that blamed the install."""
+    seen, cause = set(), e
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
 
 
 def memory_error_message(e: BaseException) -> str | None:

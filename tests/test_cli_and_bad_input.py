@@ -237,3 +237,31 @@ def test_orbit_options_without_orbit_and_a_missing_gpu_in_demo_are_refused_first
     if not torch.cuda.is_available():
         assert main(["demo", "--device", "cuda", "--out", str(tmp_path / "d")]) == 2
         assert "no CUDA GPU" in capsys.readouterr().err and not (tmp_path / "d").exists()
+
+
+def test_ctrl_c_while_a_library_loads_is_an_interrupt_not_a_broken_install(capsys, monkeypatch, tmp_path):
+    """Ctrl-C in the first second of recover-poses landed in pycolmap's import, which re-raises it as 'RuntimeError:
+    Cannot import the C++ backend ... Make sure that you successfully install the package' (exit 1, a traceback
+    blaming the install): exit 130 and the CLI's one interrupt line. A library's own RuntimeError keeps its
+    traceback."""
+    from blender_mrvm.commands import recover_poses
+
+    def interrupted_import(args):
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as k:
+                raise ImportError("initialization failed") from k
+        except ImportError as e:
+            raise RuntimeError("Cannot import the C++ backend pycolmap._core.") from e
+
+    monkeypatch.setattr(recover_poses, "run", interrupted_import)
+    assert main(["recover-poses", "--images", str(tmp_path), "--out", str(tmp_path / "o")]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["error: interrupted; finished work is kept"]
+
+    def broken(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(recover_poses, "run", broken)
+    with pytest.raises(RuntimeError, match="a bug"):
+        main(["recover-poses", "--images", str(tmp_path), "--out", str(tmp_path / "o")])
