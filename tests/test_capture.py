@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -1111,6 +1112,47 @@ def test_a_stage_child_that_dies_is_one_error_line_and_a_closed_stage_kills_its_
     assert time.perf_counter() - t < 10
     with pytest.raises(ProcessLookupError):  # killed and waited for (no zombie left)
         os.kill(pid, 0)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_stage_child_ends_with_the_process_that_started_it(tmp_path):
+    """A worker the panel had to kill (its grace over) left the matching child running on, writing the database a
+    new run may hold: the child ends with its parent."""
+    import subprocess
+    import time
+
+    pid_file = tmp_path / "child.pid"
+    script = f"""
+import sys
+from pathlib import Path
+from blender_mrvm.capture import sfm
+prelude = sfm._CHILD_STAGE.split("sys.path[:0]")[0]
+sfm._CHILD_STAGE = prelude + "import time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
+for _ in sfm._run_in_child("match_exhaustive", (), {{}}, "matching", 35, Path({str(tmp_path)!r}), False):
+    pass
+"""
+    root = Path(__file__).resolve().parents[1]
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=root, env=dict(os.environ, PYTHONPATH=str(root)))
+    try:
+        deadline = time.monotonic() + 60
+        while not (pid_file.is_file() and pid_file.read_text()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        child = int(pid_file.read_text())
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            with open(f"/proc/{child}/stat") as f:
+                if f.read().split(")")[-1].split()[0] == "Z":  # a zombie (its reaper is init): ended
+                    break
+        except FileNotFoundError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(child, 9)
+        raise AssertionError("the stage's child outlived the process that started it")
 
 
 def _tiny_capture(folder: Path, n: int = 2, w: int = 16, h: int = 12) -> Path:

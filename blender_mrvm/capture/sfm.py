@@ -476,8 +476,16 @@ def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: 
 
 
 _CHILD_STAGE = """
-import pickle, signal, sys
+import os, pickle, signal, sys
 signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the parent's: it kills this process
+if sys.platform.startswith("linux"):  # and so does the parent's end (a worker killed by the panel): no orphan writes
+    try:
+        import ctypes
+        ctypes.CDLL(None).prctl(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
+    except Exception:
+        pass
+if os.getppid() != int(sys.argv[2]):  # (the parent ended before that)
+    sys.exit(1)
 sys.path[:0] = [p for p in pickle.load(sys.stdin.buffer) if p not in sys.path]
 import pycolmap
 call, args, kwargs, level = pickle.load(sys.stdin.buffer)
@@ -502,7 +510,8 @@ def _run_in_child(call: str, args: tuple, kwargs: dict, label: str, done: int, w
     (tests/test_capture.py). It is one line now, naming ``hint``. Closing this generator or a Ctrl-C kills the child
     and waits for it (so the focal-length step, which pycolmap gives no cancel token, is cancellable too); SQLite
     rolls a killed write back on the next open. The child's stderr goes to ``work/pycolmap_stage.log`` unless
-    ``verbose``."""
+    ``verbose``. On Linux the child also ends with this process (a worker the panel had to kill)."""
+    import os
     import pickle
     import signal
     import subprocess
@@ -514,7 +523,8 @@ def _run_in_child(call: str, args: tuple, kwargs: dict, label: str, done: int, w
     log = work / "pycolmap_stage.log"
     result.unlink(missing_ok=True)
     with open(log, "wb") as err:
-        proc = subprocess.Popen([sys.executable, "-c", _CHILD_STAGE, str(result)], stdin=subprocess.PIPE,
+        proc = subprocess.Popen([sys.executable, "-c", _CHILD_STAGE, str(result), str(os.getpid())],
+                                stdin=subprocess.PIPE,
                                 stdout=None if verbose else subprocess.DEVNULL, stderr=None if verbose else err,
                                 env=clean_env())
     t0 = time.perf_counter()
