@@ -137,7 +137,7 @@ def run(args) -> int:
     summary = run_with_tqdm(render_dataset(cfg), desc="render", unit="view")
     skipped = f", {len(summary.skipped)} meshes skipped as unusable" if summary.skipped else ""
     print(f"{len(summary.objects)} objects, {summary.views_rendered} views rendered, "
-          f"{summary.views_skipped} already done{skipped}, {summary.seconds:.1f} s -> {summary.out}")
+          f"{summary.views_skipped} already done{skipped}, {summary.seconds:.1f} s -> {Path(summary.out).resolve()}")
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return 0

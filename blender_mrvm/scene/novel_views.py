@@ -16,6 +16,7 @@ inside Blender"); this module is its main-thread half:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -349,6 +350,34 @@ def _remove_dead_partials(folder: Path) -> None:
             pass  # alive under another user, or not a process id here
 
 
+def _images_shown(folder: Path, blend: Path | None = None) -> set[Path]:
+    """The image files in ``folder`` that the open file (or the .blend ``blend``, read without opening it: its
+    images linked for the while) shows; an unreadable ``blend`` (not a .blend at all) shows none."""
+    from .objects import quiet_stdout
+
+    def inside(images) -> set[Path]:
+        found = set()
+        for im in images:
+            if im.source == "FILE" and im.filepath and im.packed_file is None:
+                f = Path(bpy.path.abspath(im.filepath, library=im.library)).resolve()
+                if f.parent == folder.resolve():
+                    found.add(f)
+        return found
+
+    if blend is None:
+        return inside(bpy.data.images)
+    libraries = {lib.as_pointer() for lib in bpy.data.libraries}
+    try:
+        with quiet_stdout(), bpy.data.libraries.load(str(blend), link=True) as (src, dst):
+            dst.images = list(src.images)
+        return inside(im for im in dst.images if im is not None)
+    except (OSError, RuntimeError, ValueError):
+        return set()
+    finally:  # (its linked images go with it)
+        for lib in [lib for lib in bpy.data.libraries if lib.as_pointer() not in libraries]:
+            bpy.data.libraries.remove(lib)
+
+
 def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references: Path | None = None,
                 reference_views: tuple[int, ...] = (), plane_distance: float | None = None, bbox=None,
                 populate: Callable[[bpy.types.Scene], None] | None = None) -> Path:
@@ -356,7 +385,8 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
     target of a finished synthesis (``out_dir``) in the targets' frame (:func:`blend_frame`), the reference
     cameras that frame shows (their images as background images; a note names those left out), and
     whatever ``populate(scene)`` adds; images next to it in ``<stem>_novel_views/``, which a replaced .blend
-    leaves to it.
+    leaves to it: the images there that the replaced .blend showed and this one does not (the planes of other
+    targets) are removed once it is in place, files it did not show (a user's) stay.
 
     All or nothing: the .blend is built in a temporary file beside it and moved into place at the end, so an
     error leaves an existing .blend, its images and the folders as they were."""
@@ -389,6 +419,7 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
     replacing = blend_path.exists()
     folder = blend_images_folder(blend_path)
     folder_existed = folder.exists()
+    earlier = _images_shown(folder, blend_path) if replacing and folder_existed else set()
     # a short name (a long but legal .blend name must not overflow 255 bytes) with this process's id: what a killed
     # run left is removed here, once its process is gone
     partial = blend_path.with_name(f"{PARTIAL_PREFIX}{os.getpid()}.blend")
@@ -415,6 +446,7 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
                 populate(scene)
             with quiet_stdout():
                 bpy.ops.wm.save_as_mainfile(filepath=str(partial), check_existing=False)
+            stale = earlier - _images_shown(folder)
             os.replace(partial, blend_path)
     except BaseException:
         remove_partial()
@@ -423,6 +455,9 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
         remove_new_folders(made)
         raise
     remove_partial()
+    for f in stale:  # the replaced .blend's planes' images that this one does not show
+        with contextlib.suppress(OSError):
+            f.unlink()
     with quiet_stdout():
         bpy.ops.wm.open_mainfile(filepath=str(blend_path))
     return blend_path

@@ -18,6 +18,10 @@ thread rasterizes and writes view i while Cycles renders view i + 1 (the render 
 What each view was rendered from is recorded (``source_hash`` in ``meta.json``, and for a mesh file
 ``linked_files_hash``: the textures and buffers it names) and checked on resume, and a finished view
 counts only if its files are intact (a truncated PNG is rendered again).
+
+Runs: an object folder is held (``guards.output_lock``) while it is checked and rendered, so a second run reaching
+it is refused in one line (shards rendering into one folder hold different objects and go on side by side), and
+what a killed run was writing there (temporary names) is removed first.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from ..datasets import format as F
 from ..errors import InputError, OutputError
 from ..geometry import cameras as C
 from ..geometry import rigs
+from ..guards import LOCK_FILE, output_lock, sweep_partials
 from ..progress import Progress, ProgressGen
 from . import compat
 from . import objects as O
@@ -798,8 +803,28 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
 
 
 def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Path, summary: RenderSummary):
-    """Render one object; yields a message per view (rendered or skipped)."""
+    """Render one object; yields a message per view (rendered or skipped). Its folder is held for the while
+    (``guards.output_lock``): a second run reaching it (the same command twice) is refused in one line instead of
+    removing or mixing in this one's views; shards rendering one dataset into one folder hold different objects and
+    go on side by side (a lock of the whole dataset would refuse them). What a killed run was writing there is
+    removed first (its temporary names; the folder is held: no one else's)."""
     obj_dir = Path(cfg.out) / spec.category / spec.object_id
+    with output_lock(obj_dir, "object folder"):
+        for d in F.VIEW_DIRS:  # _replace_into's names: hidden, the view's number first (not a user's .DS_Store)
+            sweep_partials(obj_dir / d, ".[0-9]*")
+        for name in ("meta.json", "transforms.json", "intrinsics.txt"):  # format.atomic_write's
+            sweep_partials(obj_dir, f".{name}.*")
+        return (yield from _render_held_object(cfg, spec, scene_cams, tmpdir, summary, obj_dir))
+
+
+def _clear_object(obj_dir: Path) -> None:
+    """Remove what an object folder holds but its lock file (held by this run: removing it would let another run
+    lock the folder while this one renders into it)."""
+    F.remove_entries(obj_dir, [p.name for p in obj_dir.iterdir() if p.name != LOCK_FILE])
+
+
+def _render_held_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Path, summary: RenderSummary,
+                        obj_dir: Path):
     settings = cfg.settings()
     meta_path = obj_dir / "meta.json"
     source_hash = O.source_fingerprint(spec)
@@ -819,7 +844,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
             if not cfg.force:
                 raise OutputError(f"{obj_dir} holds another render of {spec.key} "
                                   f"({old.get('source')}); use --force (in the panel: Overwrite) to overwrite it")
-            shutil.rmtree(obj_dir)
+            _clear_object(obj_dir)
         elif (old.get("source_hash") not in (None, source_hash)  # None: rendered before hashes were kept
               or old.get("linked_files_hash") not in (None, linked_hash)
               or old.get("appearance_hash") not in (None, looks_hash)):
@@ -828,7 +853,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                                   "(its content, its materials, or a texture, buffer or linked .blend file it names, "
                                   "differs from what they were rendered from); use --force (in the panel: Overwrite) "
                                   "to render it again")
-            shutil.rmtree(obj_dir)
+            _clear_object(obj_dir)
         elif spec.kind == "procedural" and old.get("appearance_hash") is None and not old.get("complete"):
             # interrupted under a version that kept no hash of the built object: the library's geometry has changed
             # since for some seeds (chairs' arm posts, 74a022c), and a resume mixed two chairs in one object's views
@@ -837,7 +862,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                                   "not record the object it built (the library has changed some objects since), so "
                                   "they cannot be checked against this one's; use --force (in the panel: Overwrite) "
                                   "to render it again")
-            shutil.rmtree(obj_dir)
+            _clear_object(obj_dir)
         elif old.get("complete") and all(view_intact(obj_dir, i) for i in range(old.get("n_views", -1))):
             update = {"split": assign_split(cfg, spec.key), "source": spec.describe()}
             if any(old.get(k) != v for k, v in update.items()):  # neither changes a pixel: the record follows the run
@@ -872,7 +897,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} rendered with other images than "
                                   "its materials read now (a texture changed, appeared or went); use --force (in the "
                                   "panel: Overwrite) to render it again")
-            shutil.rmtree(obj_dir)
+            _clear_object(obj_dir)
         if made_opaque:
             summary.warnings.append(
                 f"{spec.key}: {len(made_opaque)} material(s) read as fully transparent ({', '.join(made_opaque[:3])}"
@@ -903,7 +928,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
                 raise OutputError(f"{obj_dir} holds views of {spec.describe()} normalized to other bounds than it has "
                                   "now (this version frames objects by the vertices their faces use, and renders "
                                   "collection instances); use --force (in the panel: Overwrite) to render it again")
-            shutil.rmtree(obj_dir)
+            _clear_object(obj_dir)
         if loose is not None:
             summary.warnings.append(
                 f"{spec.key}: {loose['count']} vertices that no face of some area uses (stray points, loose vertices "
