@@ -389,6 +389,27 @@ def end_jobs_after_register() -> None:
     _end_jobs(live_sections())
 
 
+@persistent
+def sync_jobs_after_undo(*_args) -> None:
+    """``undo_post`` / ``redo_post``: each section's ``running`` says again whether a job of it runs. Undo and redo
+    load a state saved before or during a job (the sections' status is saved in each undo step): Ctrl-Z while a job
+    ran set its section idle, so the panel offered its button again and a second job started beside the first (into
+    the same dataset or run folder); undoing the result of a job (a Synthesize) went back to a step saved while it
+    ran, which showed a progress bar and refused every run ("already running") until the file was opened again.
+    Render Dataset's render scenes such a step holds are removed (``operators.dataset``)."""
+    from .operators._modal import live_sections
+    from .operators.dataset import remove_render_scenes_undo_brought_back
+
+    remove_render_scenes_undo_brought_back()
+    live = live_sections()
+    _end_jobs(live)
+    for scene in bpy.data.scenes:
+        for name in SCENE_PROPERTIES:
+            group = getattr(scene, name, None)
+            if group is not None and not group.running and (scene.session_uid, name) in live:
+                group.running = True  # its progress and status come back at the job's next step
+
+
 def _end_jobs(keep: set = frozenset()) -> None:
     for scene in bpy.data.scenes:
         for name in SCENE_PROPERTIES:
@@ -452,8 +473,19 @@ def restore_paths_after_copy(filepath, *_args) -> None:
     _rebased.clear()
 
 
+@persistent
+def keep_job_data_out_of_saves(*_args) -> None:
+    """``save_pre``: what running jobs made for themselves stays out of the file (``operators.dataset``: Render
+    Dataset's render scene)."""
+    from .operators.dataset import keep_render_scenes_out_of_saves
+
+    keep_render_scenes_out_of_saves()
+
+
 _HANDLERS = (("load_post", end_jobs_of_loaded_file), ("save_pre", rebase_paths_on_save),
-             ("save_post", restore_paths_after_copy))
+             ("save_pre", keep_job_data_out_of_saves),
+             ("save_post", restore_paths_after_copy), ("undo_post", sync_jobs_after_undo),
+             ("redo_post", sync_jobs_after_undo))
 
 
 def register() -> None:

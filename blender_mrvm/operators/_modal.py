@@ -150,7 +150,7 @@ class ProgressOperator:
 
     def invoke(self, context, event):
         props = self._props(context)
-        if props.running:
+        if props.running or self._live_in(context.scene):
             self.report({"WARNING"}, f"{self.job_name} is already running")
             return {"CANCELLED"}
         try:
@@ -169,6 +169,13 @@ class ProgressOperator:
                                            scene=context.scene)
         _live.append(self)
         return {"RUNNING_MODAL"}
+
+    def _live_in(self, scene) -> bool:
+        """Whether a job of this section runs in ``scene`` now, whatever its ``running`` says (a script, or a state
+        of an undo step, may have set it idle: a second job would run beside the first, into its folders)."""
+        uid = getattr(scene, "session_uid", None)
+        return any(job.props_attr == self.props_attr and (job._scene is scene or uid is not None
+                                                          and job._scene_uid == uid) for job in _live)
 
     def _finish(self, context, cancelled: bool, message: str, level: str = "INFO"):
         _live[:] = [job for job in _live if job is not self]
@@ -231,6 +238,13 @@ class ProgressOperator:
             if self._stopping and isinstance(e, Cancelled):  # the worker wound down after Esc, as asked
                 return self._finish(context, True, self._cancel_message(), "WARNING")
             return self._finish(context, True, str(e), "ERROR")
+        except ReferenceError as e:  # the job's own Blender data (Render Dataset's scene) was freed under it: undo
+            import traceback  # reloads the data saved before the job made it, or the artist deleted it
+
+            traceback.print_exception(e)
+            hint = f"; {self.cancel_hint}" if self.cancel_hint else ""
+            return self._finish(context, True, f"{self.job_name} stopped: an undo (or a deletion) removed the Blender "
+                                               f"data it was working on{hint}", "ERROR")
         except Exception as e:  # the generator has ended with it; the timer and the progress bar end here
             return self._finish(context, True, unexpected_error(e), "ERROR")
         props = self._props(context)

@@ -52,6 +52,75 @@ def _degrees(angle: float) -> float:
     return round(math.degrees(angle), 5)
 
 
+def rendering_into(out: Path) -> str | None:
+    """The name of the scene whose Render Dataset job renders into ``out`` now, or None. Two scenes' jobs into one
+    folder rendered the same views twice, turn about (they share Blender's main thread), or the second was refused as
+    "in use by another process" naming Blender's own process id."""
+    from ._modal import _live
+
+    for job in _live:
+        if job.props_attr == "mrvm_dataset" and getattr(job, "_out", None) and _same_folder(job._out, out):
+            scene = job._job_scene(None)
+            return scene.name if scene is not None else "?"
+    return None
+
+
+def _same_folder(a: Path, b: Path) -> bool:
+    return Path(a).resolve() == Path(b).resolve()
+
+
+def _data_uids() -> frozenset:
+    from ..scene.objects import all_id_collections
+
+    return frozenset(d.session_uid for name in all_id_collections() for d in getattr(bpy.data, name))
+
+
+def private_render_data(before=frozenset()) -> list:
+    """The data-blocks made since ``before`` (``session_uid``s) for a Render Dataset job's own render scene: its
+    scenes named "MRVM_render", and what was made since that only they use (collection, objects, meshes, materials,
+    images, camera, light, world). The artist's own data, new or not, is used by the artist's scenes: never in it."""
+    from ..scene.objects import all_id_collections
+
+    new = [d for name in all_id_collections() for d in getattr(bpy.data, name) if d.session_uid not in before]
+    private = {d.session_uid for d in new if isinstance(d, bpy.types.Scene) and d.name.startswith("MRVM_render")}
+    if not private:
+        return []
+    users = bpy.data.user_map(subset=new)
+    grew = True
+    while grew:
+        grew = False
+        for d in new:
+            by = users.get(d, ())
+            if d.session_uid not in private and by and all(u.session_uid in private for u in by):
+                private.add(d.session_uid)
+                grew = True
+    return [d for d in new if d.session_uid in private]
+
+
+def keep_render_scenes_out_of_saves() -> None:
+    """Before a save (``save_pre``): the render scene of each Render Dataset job running, and what only it uses, are
+    marked runtime data, which Blender does not write. Ctrl-S during a render saved them into the artist's .blend:
+    a scene "MRVM_render" with the object being rendered, a camera, a sun and a world, there each time it was
+    opened. The render goes on (it removes them when it ends, as always)."""
+    from ._modal import _live
+
+    for job in list(_live):
+        if job.props_attr == "mrvm_dataset" and getattr(job, "_before", None):
+            for d in private_render_data(job._before):
+                d.is_runtime_data = True
+
+
+def remove_render_scenes_undo_brought_back() -> None:
+    """After an undo or a redo (``undo_post``, ``redo_post``): remove the render scenes of Render Dataset jobs, and
+    what only they use, from the state loaded. An undo step saved while a render ran (the artist went on working)
+    holds its render scene: undoing to it after the render had ended brought back a scene "MRVM_render" with the
+    object rendered, its camera, sun and world, for good (saved with the file). None is in use: a render running when
+    the undo came has lost its data with it (it stops at its next view, its finished views kept)."""
+    stale = private_render_data()
+    if stale:
+        bpy.data.batch_remove(stale)
+
+
 class MRVM_OT_render_dataset(ProgressOperator, bpy.types.Operator):
     """Render a ShapeNet-style multi-view dataset (RGB, depth, normals, part masks, poses) of the chosen objects"""
 
@@ -63,10 +132,22 @@ class MRVM_OT_render_dataset(ProgressOperator, bpy.types.Operator):
     job_name = "Dataset render"
     cancel_hint = "finished views are kept (render again to resume)"
 
+    _out = None
+    """The dataset folder this job renders into (:func:`rendering_into`)."""
+    _before = frozenset()
+    """``session_uid`` of every data-block when the job started (:func:`private_render_data`)."""
+
     def start(self, context):
+        from ..errors import OutputError
         from ..scene.render import render_dataset
 
-        return render_dataset(config_from_props(context))
+        cfg = config_from_props(context)
+        other = rendering_into(cfg.out)
+        if other is not None:
+            raise OutputError(f"the Dataset section of scene {other!r} is rendering into {cfg.out}; wait for it to "
+                              "finish or choose another output folder")
+        self._out, self._before = cfg.out, _data_uids()
+        return render_dataset(cfg)
 
     def on_result(self, context, s) -> str:
         for w in s.warnings:  # e.g. a mesh's missing textures: in the Info log, one line each

@@ -64,6 +64,8 @@ class Sem2NeRFJob:
     """... by this factor."""
     quality: str = "full"
     """The render command's --quality: full or preview."""
+    target_uids: tuple = ()
+    """``session_uid`` of each target's camera (None: one the results create): ``synthesize.targets_now``."""
 
 
 def _path_setting(raw: str, what: str) -> Path:
@@ -92,6 +94,7 @@ def plan_from_props(context) -> Sem2NeRFJob:
     from ..models.sem2nerf import render as R
     from ..scene import image_planes as IP
     from ..scene import sem2nerf as S
+    from .synthesize import target_uids
 
     p = context.scene.mrvm_sem2nerf
     scene = context.scene
@@ -127,7 +130,7 @@ def plan_from_props(context) -> Sem2NeRFJob:
     IP.check_clip_range([bpy.data.objects.get(t.name) for t in targets], cfg.distance)
     return Sem2NeRFJob(info.model_file, mask, where, c2w, intr, tuple(targets), p.device.lower(), cfg,
                        p.style_seed if p.style == "SEED" else None,
-                       p.mix_seed if p.mix > 0 else None, float(p.mix), p.quality.lower())
+                       p.mix_seed if p.mix > 0 else None, float(p.mix), p.quality.lower(), target_uids(targets))
 
 
 def prepare(context, job: Sem2NeRFJob):
@@ -185,10 +188,12 @@ def import_run(context, run: Sem2NeRFRun) -> str:
     the planes of the same cameras in another collection, Synthesize's, that were hidden, not removed:
     ``image_planes.hidden_note``)."""
     from ..scene.novel_views import import_results
+    from .synthesize import targets_now
 
     job = run.job
     try:
-        res = import_results(context.scene, list(job.targets), run.job_dir / "out", job.planes, semantic=True)
+        targets = targets_now(job.targets, getattr(job, "target_uids", ()))  # cameras renamed or deleted since
+        res = import_results(context.scene, targets, run.job_dir / "out", job.planes, semantic=True)
     finally:
         shutil.rmtree(run.job_dir, ignore_errors=True)
     if getattr(context.scene.mrvm_sem2nerf, "show_semantic", False):  # new planes as the panel's checkbox says
@@ -197,7 +202,7 @@ def import_run(context, run: Sem2NeRFRun) -> str:
         set_show_semantic(True)
     from ..scene.image_planes import colour_management_note, hidden_note
 
-    made = sum(1 for t in job.targets if t.generated)
+    made = sum(1 for t in targets if t.generated)
     n = len(res.planes)
     note = "; ".join(x for x in (hidden_note(res), colour_management_note(context.scene)) if x)
     return (f"{n} Sem2NeRF view{'s' if n != 1 else ''} of {job.mask_name} in collection {res.collection.name!r}"

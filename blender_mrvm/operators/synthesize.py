@@ -68,6 +68,9 @@ class SynthesisJob:
     precision: str = "auto"
     """The synthesize command's --precision: auto (bf16 on a GPU; on the CPU int8 where it pays, else fp32), fp32,
     bf16, fp16 or int8."""
+    target_uids: tuple = ()
+    """``session_uid`` of each target's camera (None: one the results create), found again by it at import
+    (:func:`targets_now`); empty: by the targets' names."""
 
 
 def default_checkpoint(kind: str | None = None) -> Path | None:
@@ -118,6 +121,42 @@ def _checkpoint(context, p) -> Path | str:
     return ck
 
 
+def target_uids(targets) -> tuple:
+    """The ``session_uid`` of each target's scene camera (None: a camera the results create): what the job finds
+    them by when its results arrive (:func:`targets_now`), whatever they are named then."""
+    objs = [None if t.generated else bpy.data.objects.get(t.name) for t in targets]
+    return tuple(None if o is None else o.session_uid for o in objs)
+
+
+def targets_now(targets, uids) -> list:
+    """A job's targets as the scene names them when its results arrive (the artist goes on working while the worker
+    runs): a camera renamed since under its new name (its plane was refused: "removed while synthesizing", the
+    results thrown away); one deleted an InputError, also when another object took its name (which got the plane
+    made for the deleted camera's view); cameras to create under names no object holds now (another job's results,
+    Synthesize in another scene, took the names chosen at the start: "already exists", the results thrown away)."""
+    from dataclasses import replace
+
+    from ..scene.novel_views import fresh_names
+
+    if not uids:
+        return list(targets)
+    by_uid = {o.session_uid: o for o in bpy.data.objects}
+    out = []
+    for t, uid in zip(targets, uids):
+        if not t.generated:
+            obj = by_uid.get(uid)
+            if obj is None:
+                raise InputError(f"target camera {t.name!r} was deleted while the job ran; nothing was added")
+            t = replace(t, name=obj.name) if obj.name != t.name else t
+        out.append(t)
+    new = [k for k, t in enumerate(out) if t.generated]
+    if any(out[k].name in bpy.data.objects for k in new):
+        names = fresh_names(out[new[0]].name.rsplit(" ", 1)[0], len(new))
+        for k, name in zip(new, names):
+            out[k] = replace(out[k], name=name)
+    return out
+
+
 def plan_from_props(context) -> SynthesisJob:
     """Check the Novel views settings and the scene; no side effects. MRVMError on bad input."""
     from ..datasets.novel_views import MAX_POOL, parse_views
@@ -164,7 +203,7 @@ def plan_from_props(context) -> SynthesisJob:
     ref_size = {"AUTO": 0, "NATIVE": -1}.get(p.reference_sizing, int(p.reference_size))
     return SynthesisJob(ref_dir, ref_cams, views, tuple(targets), _checkpoint(context, p), p.device.lower(), cfg,
                         p.save_depth, ref_size, p.quality.lower(), int(p.adapt_steps), int(p.nearest),
-                        p.photo_colours.lower(), p.precision.lower())
+                        p.photo_colours.lower(), p.precision.lower(), target_uids(targets))
 
 
 def prepare(context, job: SynthesisJob):
@@ -240,12 +279,13 @@ def import_run(context, run: SynthesisRun) -> str:
 
     job = run.job
     try:
-        res = import_results(context.scene, list(job.targets), run.job_dir / "out", job.planes, depth=job.depth)
+        targets = targets_now(job.targets, getattr(job, "target_uids", ()))
+        res = import_results(context.scene, targets, run.job_dir / "out", job.planes, depth=job.depth)
         note = "; ".join(n for n in (hidden_note(res), run_note(run.job_dir / "out"),
                                      colour_management_note(context.scene)) if n)
     finally:
         shutil.rmtree(run.job_dir, ignore_errors=True)
-    made = sum(1 for t in job.targets if t.generated)
+    made = sum(1 for t in targets if t.generated)
     return (f"{len(res.planes)} novel view{'s' if len(res.planes) != 1 else ''} in collection {res.collection.name!r}"
             + (f" ({made} new cameras)" if made else "") + f", synthesized in {run.seconds:.1f} s"
             + (f". Note: {note}" if note else ""))
