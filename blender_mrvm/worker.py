@@ -336,9 +336,10 @@ def _signal(proc: subprocess.Popen, sig) -> None:
         pass
 
 
-def stop(proc: subprocess.Popen, grace_s: float = 5.0) -> int | None:
-    """Interrupt ``proc`` (the CLI then closes its work cleanly), then terminate, then kill."""
-    steps = [(signal.SIGINT, grace_s), (signal.SIGTERM, 2.0)]
+def stop(proc: subprocess.Popen, grace_s: float = 5.0, interrupted: bool = False) -> int | None:
+    """Interrupt ``proc`` (the CLI then closes its work cleanly), then terminate, then kill; ``interrupted``: it
+    has been interrupted already (and was asked to stop at once): terminate, then kill."""
+    steps = ([] if interrupted else [(signal.SIGINT, grace_s)]) + [(signal.SIGTERM, 2.0)]
     if hasattr(signal, "SIGKILL"):
         steps.append((signal.SIGKILL, 5.0))
     for sig, wait in steps:
@@ -438,8 +439,9 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
                 wind_down((yield last))
         rc = proc.wait()
     finally:
-        if proc.poll() is None:
-            stop(proc, grace_s)
+        if proc.poll() is None:  # closed: after an INTERRUPT, that is Esc again, "stops at once": no second grace
+            stop(proc, grace_s, interrupted=bool(stopping))  # (the child ignores a second SIGINT while it winds
+            # down, and Blender's UI was frozen for the whole grace: up to 30 s for Train)
         for t in threads:
             t.join(timeout=1.0)
         for s in (proc.stdout, proc.stderr):

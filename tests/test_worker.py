@@ -193,6 +193,26 @@ def test_a_child_that_ignores_the_interrupt_is_terminated_after_the_grace(tmp_pa
     assert proc.poll() is not None
 
 
+def test_esc_again_after_an_interrupt_stops_the_child_at_once(tmp_path, monkeypatch):
+    """Esc again (the generator closed after INTERRUPT was sent in: 'Esc again stops at once') sent SIGINT a second
+    time and waited the whole grace for it, which a winding-down child ignores (the CLI's sigint_flag), with
+    Blender's UI frozen (up to 30 s for Train): it terminates the child at once."""
+    script = tmp_path / "winding_down.py"
+    script.write_text("import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
+                      "time.sleep(60)\n")
+    monkeypatch.setattr(W, "worker_argv", lambda python, command, args: [python, str(script)])
+    procs = []
+    gen = W.run_worker("x", [], sys.executable, env=ENV, on_start=procs.append, grace_s=20.0)
+    next(gen)
+    time.sleep(1.5)  # the child has set its signal handler
+    gen.send(W.INTERRUPT)
+    next(gen)
+    t1 = time.monotonic()
+    gen.close()
+    assert time.monotonic() - t1 < 5.0, "Esc again waited for the grace"
+    assert procs[0].poll() is not None
+
+
 def test_child_error_is_one_line(tmp_path):
     gen = W.run_worker("render-dataset", ["--source", str(tmp_path / "nothing.obj"), "--out", tmp_path / "o"],
                        sys.executable, env=ENV)
