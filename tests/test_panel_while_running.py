@@ -279,3 +279,47 @@ def test_undo_after_render_dataset_brings_back_no_render_scene(empty_scene, tmp_
     assert bpy.context.scene.frame_current == 5 and _names() == artist
     assert bpy.ops.ed.undo() == {"FINISHED"} and _names() == artist
     assert bpy.ops.ed.redo() == {"FINISHED"} and _names() == artist
+
+
+def _two_selected_cubes(scene, tmp_path):
+    import bpy
+
+    for name, x in (("A", -1.0), ("B", 1.0)):
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata([(x + dx, dy, dz) for dx in (0, .5) for dy in (0, .5) for dz in (0, .5)], [],
+                         [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)])
+        ob = bpy.data.objects.new(name, mesh)
+        scene.collection.objects.link(ob)
+        ob.select_set(True)
+    p = scene.mrvm_dataset
+    p.source = "SELECTED"
+    p.views, p.resolution, p.engine, p.output_dir = 2, 16, "BLENDER_WORKBENCH", str(tmp_path / "ds")
+
+
+def test_a_selected_object_renamed_before_its_turn_is_rendered_under_its_first_name(empty_scene, tmp_path):
+    """Render Dataset of the selected objects: renaming one not rendered yet stopped the render ("object 'B' no
+    longer exists") and the objects after it were not rendered. It is found by its Blender ID and rendered into the
+    folder named when the render began; one deleted is refused in one line, also when another took its name."""
+    import bpy
+
+    from blender_mrvm.operators.dataset import MRVM_OT_render_dataset
+
+    _two_selected_cubes(empty_scene, tmp_path)
+    op, ctx = _modal_driver(MRVM_OT_render_dataset)
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"} and op.modal(ctx, TIMER) == {"RUNNING_MODAL"}  # A's first view
+    bpy.data.objects["B"].name = "B renamed"
+    assert _run_out(op, ctx) == {"FINISHED"}, op.reports
+    ds = tmp_path / "ds" / "custom"
+    assert sorted(p.name for p in ds.iterdir()) == ["A", "B"]
+    assert len(list((ds / "B" / "rgb").glob("*.png"))) == 2
+    # deleted, and another object given its name: not rendered into its folder
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    _two_selected_cubes(scene, tmp_path / "2")
+    op, ctx = _modal_driver(MRVM_OT_render_dataset)
+    assert op.invoke(ctx, None) == {"RUNNING_MODAL"} and op.modal(ctx, TIMER) == {"RUNNING_MODAL"}
+    bpy.data.objects.remove(bpy.data.objects["B"])
+    bpy.data.objects["A"].copy().name = "B"
+    assert _run_out(op, ctx) == {"CANCELLED"}
+    assert op.reports[-1][0] == "ERROR" and "object 'B' was deleted while the render ran" in op.reports[-1][1]
+    assert not (tmp_path / "2" / "ds" / "custom" / "B" / "rgb").is_dir()

@@ -22,7 +22,7 @@ import functools
 import os
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import bpy
@@ -91,6 +91,8 @@ class ObjectSpec:
     """Generator parameters (kind 'procedural')."""
     member: str = ""
     """The mesh file inside the zip archive ``path`` (kind 'file'; empty for a file on disk)."""
+    uids: tuple[int, ...] = field(default=(), compare=False)
+    """``session_uid`` of each of ``names`` when chosen (kind 'selected'): :func:`with_current_names`."""
 
     @property
     def key(self) -> str:
@@ -230,7 +232,8 @@ def resolve_sources(sources: tuple[str, ...], category: str | None = None,
                                     if parts else ""))
             for o in sorted(objs, key=lambda o: o.name):
                 cat = category or str(o.get("mrvm_category", "custom"))
-                specs.append(ObjectSpec("selected", safe_id(cat), safe_id(o.name), names=(o.name,)))
+                specs.append(ObjectSpec("selected", safe_id(cat), safe_id(o.name), names=(o.name,),
+                                        uids=(o.session_uid,)))
         elif src.startswith("procedural:"):
             parts = src.split(":")
             if len(parts) != 3 or not parts[1]:
@@ -283,6 +286,22 @@ def _check_procedural(category: str, seed: int, src: str) -> None:
         procedural.sample_parameters(category, seed)
     except InputError as e:
         raise InputError(f"{e} (in {src!r})") from None
+
+
+def with_current_names(spec: ObjectSpec) -> ObjectSpec:
+    """``spec`` with its selected objects under the names they have now: the artist goes on working while the panel's
+    Render Dataset runs, and an object renamed before its turn stopped the render ("object 'Table' no longer
+    exists", the objects after it not rendered). Found by the ``session_uid`` recorded when it was chosen; its
+    object folder stays the one named at the start. One deleted since is an InputError, also when another object
+    has taken its name (which would be rendered into its folder); a spec without uids is looked up by name."""
+    if spec.kind != "selected" or not spec.uids:
+        return spec
+    by_uid = {o.session_uid: o.name for o in bpy.data.objects}
+    gone = [name for name, uid in zip(spec.names, spec.uids) if uid not in by_uid]
+    if gone:
+        raise InputError(f"object {gone[0]!r} was deleted while the render ran")
+    names = tuple(by_uid[uid] for uid in spec.uids)
+    return spec if names == spec.names else replace(spec, names=names)
 
 
 def _distinct(specs: list[ObjectSpec]) -> list[ObjectSpec]:

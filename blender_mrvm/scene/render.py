@@ -809,6 +809,7 @@ def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Pa
     go on side by side (a lock of the whole dataset would refuse them). What a killed run was writing there is
     removed first (its temporary names; the folder is held: no one else's)."""
     obj_dir = Path(cfg.out) / spec.category / spec.object_id
+    spec = O.with_current_names(spec)  # (a selected object renamed since the run began)
     with output_lock(obj_dir, "object folder"):
         for d in F.VIEW_DIRS:  # _replace_into's names: hidden, the view's number first (not a user's .DS_Store)
             sweep_partials(obj_dir / d, ".[0-9]*")
