@@ -210,9 +210,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wheels", default="auto", metavar="auto|none|DIR",
                    help="bundle what the extension runs inside Blender and Blender's Python lacks (openexr, "
                         "pillow, trimesh, assimp-py) for Windows, macOS and Linux, Python 3.11 and 3.13: auto "
-                        f"(default) downloads the wheels into {WHEEL_CACHE} once and builds without them, with a "
-                        "warning, when the package index cannot be reached; none (for a Blender whose Python has "
-                        "them); or a folder of .whl files")
+                        f"(default) downloads the wheels into {WHEEL_CACHE} once (and stops, building nothing, when "
+                        "the package index cannot be reached); none (for a Blender whose Python has them); or a "
+                        "folder of .whl files")
     p.add_argument("--split-platforms", action="store_true",
                    help="one zip a platform (Windows x64, macOS arm64, Linux x64 and arm64), each with its own "
                         "wheels only: about a quarter of the one zip's size; a Blender installs only its own")
@@ -226,10 +226,11 @@ def run(args) -> int:
     if args.wheels == "auto":
         try:
             wheels = fetch_wheels(WHEEL_CACHE)
-        except MRVMError as e:
-            print(f"warning: {e}; the extension is built without its wheels, so inside a Blender whose Python "
-                  "lacks openexr and pillow (every installed Blender) Render Dataset and the image planes stop with "
-                  "'no module': build again where the index can be reached", file=sys.stderr)
+        except MRVMError as e:  # (it built without them, with a warning and exit 0: a release job shipped a zip
+            # whose Render Dataset and image planes stop with 'no module' in every installed Blender)
+            raise MRVMError(f"{e}; nothing was built: build where the package index can be reached, give a folder "
+                            "of wheels (--wheels DIR), or --wheels none for a Blender whose Python has openexr and "
+                            "pillow") from None
     elif args.wheels != "none":
         folder = Path(args.wheels)
         # the wheel cache keeps a subfolder a Python and platform (fetch_wheels): those, else the folder's own
