@@ -146,16 +146,20 @@ def _summary(capsys) -> tuple[str, str]:
 
 
 @pytest.mark.slow
-def test_a_shard_says_how_much_of_the_plan_is_finished_and_which_shards_remain(bpy_empty, tmp_path, capsys):
+def test_a_shard_says_how_much_of_the_plan_is_finished_and_which_shards_remain(bpy_empty, tmp_path, capsys,
+                                                                                 monkeypatch):
     """After --shard 0/2 alone the summary said '13 train, 0 val, 0 test objects' while the lists held 7; shards of
-    another count (1/3, 2/3) ended with 11 of 13 listed and no word."""
+    another count (1/3, 2/3) ended with 11 of 13 listed and no word. The summary names the folder by its absolute
+    path (it printed --out as given, as render-dataset did)."""
     from blender_mrvm.cli import main
     from blender_mrvm.datasets.format import read_split
 
     out = tmp_path / "sn"
-    argv = TINY + ["--objects-per-category", "1", "--out", str(out)]
+    monkeypatch.chdir(tmp_path)
+    argv = TINY + ["--objects-per-category", "1", "--out", "sn"]
     assert main(argv + ["--shard", "0/2"]) == 0
     line, err = _summary(capsys)
+    assert line.startswith(f"wrote {out.resolve()} (")
     assert "7 of 13 planned objects finished" in line and line.endswith("run the other shards: --shard 1/2")
     assert "the split lists hold the 7 finished objects only" in err
     assert len(read_split(out, "train")) == 7

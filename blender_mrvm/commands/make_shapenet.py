@@ -356,13 +356,13 @@ def run(args) -> int:
     F.atomic_write_text(splits_dir / "test_views.lst", "\n".join(lines) + ("\n" if lines else ""))
     n_planned = len(split_of)
     if not remaining:
-        print(f"wrote {out} ({args.setting}: {len(lists['train'])} train, {len(lists['val'])} val, "
+        print(f"wrote {Path(out).resolve()} ({args.setting}: {len(lists['train'])} train, {len(lists['val'])} val, "
               f"{len(lists['test'])} test objects; {total_views} views rendered in this shard)")
     else:
         parts = ", ".join(f"{len(lists[s])} of {len(objects[s])} {s}" for s in F.SPLITS if objects[s])
         todo = ("run the other shards: " + " ".join(f"--shard {i}/{shard[1]}" for i in remaining)
                 if shard[1] > 1 else "run again to finish them")
-        print(f"wrote {out} ({args.setting}: {len(finished)} of {n_planned} planned objects finished ({parts}); "
+        print(f"wrote {Path(out).resolve()} ({args.setting}: {len(finished)} of {n_planned} planned objects finished ({parts}); "
               f"{total_views} views rendered in this shard); {todo}")
         print(f"note: the split lists hold the {len(finished)} finished objects only: train and eval refuse the set "
               "until the shards named have run (or those still running have finished)", file=sys.stderr)
