@@ -15,7 +15,13 @@ Layouts read::
              also <root>/<split>/<object>, a folder of objects, or one object)
     nmr      <root>/<category>/<object>/{image/*.png|jpg, mask/*.png, cameras.npz},
              <root>/<category>/softras_<split>.lst (pixelNeRF's NMR benchmark; preferred) or <split>.lst (DVR's)
-    nerf     <root>/<scene>/transforms_{train,val,test}.json + image files (RGBA: alpha is the mask)
+    nerf     <root>/<scene>/transforms_{train,val,test}.json + image files (RGBA: alpha is the mask); nerfstudio's
+             and instant-ngp's keys too (per-frame fl_x fl_y cx cy, w h of resized images, camera_angle_y,
+             instant-ngp's scale and offset, nerfstudio's unnormalised poses); lens distortion, fisheyes and EXR
+             images are refused by name
+
+A camera that sees none of its format's box (SRN, NeRF-synthetic) is refused: poses of the other axis convention
+turn every camera away from the object and loaded silently.
 """
 
 from __future__ import annotations
@@ -23,6 +29,8 @@ from __future__ import annotations
 import json
 import math
 import sys
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -221,7 +229,6 @@ def load_srn(obj_dir: Path) -> ObjectScene:
     if not (obj_dir / "intrinsics.txt").is_file():
         raise InputError(f"{obj_dir}: SRN object without intrinsics.txt (its camera: 'f cx cy 0' / ... / 'H W'); "
                          "restore it from the data set, or leave the object out")
-    intr = F.read_srn_intrinsics(obj_dir / "intrinsics.txt")
     images, poses, ids = [], [], []
     for p in rgbs:
         pose = obj_dir / "pose" / f"{p.stem}.txt"
@@ -232,10 +239,55 @@ def load_srn(obj_dir: Path) -> ObjectScene:
         ids.append(int(p.stem) if p.stem.isdigit() else len(ids))
     images = _stack(images, obj_dir)
     h, w = images.shape[1:3]
+    intr = srn_intrinsics(obj_dir / "intrinsics.txt", w, h)
+    box = (np.full(3, -SRN_BOX), np.full(3, SRN_BOX))
+    for c2w, p in zip(poses, rgbs):
+        check_faces_box(c2w, box, f"{obj_dir}/pose/{p.stem}.txt", "SRN poses are OpenCV camera-to-world (x right, "
+                        "y down, looking down +z) around the origin")
+    return ObjectScene(obj_dir.name, srn_category(obj_dir), images, np.stack(poses), [intr] * len(ids), box, ids)
+
+
+def srn_intrinsics(path: Path, w: int, h: int) -> cameras.Intrinsics:
+    """The camera of an SRN ``intrinsics.txt`` ('f cx cy 0' / '0. 0. 0.' / '1.' / 'H W', pixelNeRF's reading: the
+    first line and the last) for the object's ``w`` x ``h`` images: given at another resolution of the same aspect
+    (SRN's own sets), it is scaled to them. InputError for another layout (a one-line file read its 'f cx' as 'H W':
+    a camera 6 to 9 pixels off; a 3x3 or 4x4 K matrix divided by zero), a focal length that is not positive, or
+    another aspect ratio (the height was left as the file's, not the images')."""
+    layout = "'f cx cy 0' / '0. 0. 0.' / '1.' / 'H W', pixelNeRF's SRN layout"
+    try:
+        rows = [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip()]
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not an SRN intrinsics file ({layout}): {e}") from None
+    if len(rows) < 2 or len(rows[0]) < 3 or len(rows[-1]) != 2:
+        kind = ("a K matrix" if len(rows) in (3, 4) and all(len(r) == len(rows) for r in rows) else
+                f"{len(rows)} line(s), the last of {len(rows[-1]) if rows else 0} value(s)")
+        raise InputError(f"{path}: not an SRN intrinsics file: it holds {kind}, not {layout}")
+    intr = F.read_srn_intrinsics(path)
+    if not (math.isfinite(intr.fx) and intr.fx > 0 and math.isfinite(intr.cx) and math.isfinite(intr.cy)):
+        raise InputError(f"{path}: the focal length must be a positive number and cx, cy numbers, got "
+                         f"f={intr.fx} cx={intr.cx} cy={intr.cy}")
+    if intr.width < 1 or intr.height < 1:
+        raise InputError(f"{path}: the image size on its last line ('H W') must be positive, got {intr.height} "
+                         f"{intr.width}")
     if (intr.width, intr.height) != (w, h):  # SRN intrinsics may be given at another resolution
-        intr = intr.scaled(w / intr.width)
-    return ObjectScene(obj_dir.name, srn_category(obj_dir), images, np.stack(poses), [intr] * len(ids),
-                       (np.full(3, -SRN_BOX), np.full(3, SRN_BOX)), ids)
+        if abs(intr.width * h - intr.height * w) > max(intr.width, intr.height):
+            raise InputError(f"{path} is for {intr.width}x{intr.height} images ('H W' = '{intr.height} "
+                             f"{intr.width}'), the object's are {w}x{h}: another aspect ratio, not the same camera "
+                             "at another resolution")
+        intr = intr.resized(w, h)
+    return intr
+
+
+def check_faces_box(c2w: np.ndarray, box, where: str, convention: str) -> None:
+    """InputError when the camera ``c2w`` (OpenCV) sees none of ``box`` (every corner behind it): poses of the other
+    convention (OpenGL read as OpenCV or the reverse turns each camera around) load silently otherwise, every view
+    looking away from the object."""
+    lo, hi = (np.asarray(b, np.float64) for b in box)
+    corners = np.array([[(lo, hi)[(i >> a) & 1][a] for a in range(3)] for i in range(8)])
+    z = (corners - c2w[:3, 3]) @ c2w[:3, 2]
+    if (z <= 0).all():
+        raise InputError(f"{where}: the camera looks away from the scene box {lo.tolist()} to {hi.tolist()} (all of "
+                         f"it is behind the camera): {convention}; are these poses in the other convention?")
 
 
 # --------------------------------------------------------------------------------------------- NMR/DVR
@@ -335,8 +387,8 @@ def load_nmr(obj_dir: Path, split: str | None = None) -> ObjectScene:
         raise InputError(f"{obj_dir}: need image/*.png and cameras.npz (NMR/DVR layout)")
     try:
         cams = dict(np.load(cam_file))
-    except (OSError, ValueError) as e:
-        raise InputError(f"cannot read {cam_file}: {e}") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # (a truncated or empty file)
+        raise InputError(f"cannot read {cam_file}: {e or type(e).__name__}") from None
     masks_by_stem = {p.stem: p for p in _files(obj_dir / "mask", (".png",))}
     images, poses, intrs, ids, masks = [], [], [], [], []
     for k, p in enumerate(imgs):
@@ -346,7 +398,7 @@ def load_nmr(obj_dir: Path, split: str | None = None) -> ObjectScene:
             raise InputError(f"{cam_file}: missing {wm} (for {p.name})")
         im = read_colour(p)
         h, w = im.shape[:2]
-        c2w, intr = dvr_camera(cams[wm], cams.get(cm), cams.get(sm), w, h, f"{cam_file} view {i}")
+        c2w, intr = dvr_camera(*(_numbers(cams, key, cam_file) for key in (wm, cm, sm)), w, h, f"{cam_file} view {i}")
         images.append(im)
         poses.append(c2w)
         intrs.append(intr)
@@ -372,6 +424,16 @@ def load_nmr(obj_dir: Path, split: str | None = None) -> ObjectScene:
         listed = f"{obj_dir.parent.name}/{lst.name}"
     return ObjectScene(obj_dir.name, obj_dir.parent.name, images, np.stack(poses), intrs,
                        (np.full(3, -NMR_BOX), np.full(3, NMR_BOX)), ids, mask_arr, split_list=listed)
+
+
+def _numbers(cams: dict, key: str, cam_file: Path) -> np.ndarray | None:
+    """``cams[key]`` as float64 (None when absent); InputError when it is not numbers (a traceback before)."""
+    if key not in cams:
+        return None
+    try:
+        return np.asarray(cams[key], np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{cam_file}: {key} is not a matrix of numbers (it holds {cams[key].dtype} values)") from None
 
 
 NMR_LIST_PREFIXES = ("softras_", "")
@@ -419,14 +481,28 @@ def list_nmr(root: Path, split: str) -> list[Path]:
 
 # --------------------------------------------------------------------------------------------- NeRF-synthetic
 
+UNREAD_IMAGE_SUFFIXES = (".exr", ".hdr")
+"""Linear, high-dynamic-range images (instant-ngp reads them): refused by name, not read as sRGB pixels."""
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
+"""Lens distortion coefficients of a transforms.json (nerfstudio's OPENCV, instant-ngp's colmap2nerf): a non-zero one
+is refused, as every reader here casts pinhole rays (the images read as pinhole ones bend every ray off the pixel
+it lit); our own transforms.json writes them as 0."""
+PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "FULL_OPENCV")
+"""``camera_model`` values that are pinhole cameras once their distortion is 0 (nerfstudio's, COLMAP's names);
+another (OPENCV_FISHEYE, EQUIRECTANGULAR) is refused whatever its coefficients."""
+NGP_SCALE, NGP_OFFSET = 0.33, 0.5
+"""instant-ngp's defaults for a transforms.json's ``scale`` and ``offset``: it maps a position p of the file to
+p * scale + offset, where the scene's unit cube is [0, 1]^3."""
+
+
 def _frame_image(scene_dir: Path, file_path: str) -> Path:
     """A NeRF-synthetic frame's image: ``file_path`` as written, else with .png (the release leaves the suffix
-    out) or another image suffix, in any case."""
+    out) or another image suffix, in any case (an EXR too, so that it is refused by name)."""
     p = Path(scene_dir) / file_path
-    if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file():
+    if p.suffix.lower() in IMAGE_SUFFIXES + UNREAD_IMAGE_SUFFIXES and p.is_file():
         return p
     stem = p if p.suffix.lower() not in IMAGE_SUFFIXES else p.with_suffix("")
-    for ext in IMAGE_SUFFIXES:
+    for ext in IMAGE_SUFFIXES + UNREAD_IMAGE_SUFFIXES:
         for e in (ext, ext.upper()):
             q = stem.with_name(stem.name + e)
             if q.is_file():
@@ -434,44 +510,158 @@ def _frame_image(scene_dir: Path, file_path: str) -> Path:
     return p if p.suffix else p.with_suffix(".png")  # missing: read_png names it
 
 
+def _number(g: dict, key: str, where: str, positive: bool = False) -> float:
+    """``g[key]`` as a finite float (and > 0 if ``positive``); InputError naming it otherwise (a string, null or NaN
+    went through float() into a traceback or NaN rays)."""
+    v = g[key]
+    try:
+        x = float(v) if not isinstance(v, bool) else float("nan")
+    except (TypeError, ValueError):
+        x = float("nan")
+    if not math.isfinite(x) or (positive and x <= 0):
+        raise InputError(f"{where}: {key} must be a {'positive ' if positive else ''}number, got {v!r}")
+    return x
+
+
+def transforms_intrinsics(g: dict, w: int, h: int, where: str) -> tuple[cameras.Intrinsics, bool]:
+    """(intrinsics, whether they were scaled) of a transforms.json frame (``g``: the file's keys updated by the
+    frame's) whose image is ``w`` x ``h``, read as instant-ngp reads them: fx from ``fl_x`` or ``camera_angle_x``,
+    fy from ``fl_y`` or ``camera_angle_y`` (either missing: the other, square pixels), ``cx``/``cy`` (default: the
+    centre); in pixels of the file's ``w`` x ``h`` where given, scaled to the image when it was resized (same aspect).
+
+    InputError for lens distortion or a camera that is not a pinhole (:data:`DISTORTION_KEYS`,
+    :data:`PINHOLE_MODELS`), a missing or unusable focal length, or a size of another aspect ratio."""
+    model = g.get("camera_model")
+    if (model is not None and str(model).upper() not in PINHOLE_MODELS) or g.get("is_fisheye"):
+        raise InputError(f"{where}: {'camera_model ' + str(model) if model is not None else 'is_fisheye'}: not a "
+                         "pinhole camera (this tool casts pinhole rays); undistort the images to a pinhole camera "
+                         "first")
+    bent = [f"{k}={g[k]}" for k in DISTORTION_KEYS if k in g and _number(g, k, where) != 0.0]
+    if bent:
+        raise InputError(f"{where}: lens distortion {', '.join(bent)}: this tool reads pinhole cameras and would "
+                         "cast every ray off the pixel it lit; undistort the images first (COLMAP's image_undistorter, "
+                         "or OpenCV's undistort) and write their pinhole camera with the coefficients 0")
+    fw = _number(g, "w", where, True) if "w" in g else None
+    fh = _number(g, "h", where, True) if "h" in g else None
+    fw, fh = fw or (fh * w / h if fh else w), fh or (fw * h / w if fw else h)  # the size the numbers are for
+    if abs(fw * h - fh * w) > max(fw, fh):
+        raise InputError(f"{where}: its camera is for {fw:g}x{fh:g} images (w, h), the image is {w}x{h}: another "
+                         "aspect ratio, not the same camera at another resolution")
+
+    def focal(fl: str, angle: str, size: float) -> float | None:
+        if fl in g:
+            return _number(g, fl, where, True)
+        if angle in g:
+            a = _number(g, angle, where, True)
+            if a >= math.pi:
+                raise InputError(f"{where}: {angle} is a field of view in radians, below pi, got {a!r}")
+            return 0.5 * size / math.tan(0.5 * a)
+        return None
+
+    fx, fy = focal("fl_x", "camera_angle_x", fw), focal("fl_y", "camera_angle_y", fh)
+    if fx is None and fy is None:
+        raise InputError(f"{where}: no focal length (camera_angle_x, NeRF-synthetic's, or fl_x, nerfstudio's)")
+    fx, fy = fx or fy, fy or fx
+    cx = _number(g, "cx", where) if "cx" in g else fw / 2.0
+    cy = _number(g, "cy", where) if "cy" in g else fh / 2.0
+    scaled = (fw, fh) != (w, h)
+    sx, sy = w / fw, h / fh
+    return cameras.Intrinsics(fx * sx, fy * sy, cx * sx, cy * sy, w, h), scaled
+
+
+def transforms_box(d: dict, positions: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The scene box of a transforms.json whose cameras sit at ``positions`` (N, 3): where instant-ngp's ``scale``
+    and ``offset`` put its unit cube (p * scale + offset in [0, 1]^3; ``aabb_scale`` grows it for the background
+    only, and colmap2nerf writes 32 for every scene); for a nerfstudio file (``camera_model`` or
+    ``applied_transform``: its poses are not normalised, nerfstudio's loader centres and scales the cameras into its
+    box at load) the cameras' region; else NeRF-synthetic's [-1.5, 1.5]^3. The fixed box was used for all three:
+    a scene scaled or moved for instant-ngp, or in COLMAP's units, was sampled where it is not."""
+    if "scale" in d or "offset" in d:
+        scale = _number(d, "scale", where, True) if "scale" in d else NGP_SCALE
+        off = d.get("offset", NGP_OFFSET)
+        off = off if isinstance(off, list) else [off] * 3
+        if len(off) != 3:
+            raise InputError(f"{where}: offset must be three numbers (or one), got {d['offset']!r}")
+        off = np.array([_number({"offset": v}, "offset", where) for v in off])
+        return (0.0 - off) / scale, (1.0 - off) / scale
+    if "camera_model" in d or "applied_transform" in d:
+        centre = positions.mean(0)
+        r = max(float(np.linalg.norm(positions - centre, axis=1).max()), 1e-6)
+        _note(f"{where}: a nerfstudio file (poses not normalised): the scene box is the cameras' region, as "
+              f"nerfstudio's loader takes it: {np.round(centre - r, 4).tolist()} to {np.round(centre + r, 4).tolist()}")
+        return centre - r, centre + r
+    return np.full(3, -NERF_SYNTHETIC_BOX), np.full(3, NERF_SYNTHETIC_BOX)
+
+
+def _lone_transforms(folder: Path) -> str:
+    """A hint for a folder (or a folder of scenes) that holds a transforms.json (nerfstudio, instant-ngp) but no
+    transforms_<split>.json ('' when it has none)."""
+    folder = Path(folder)
+    if not (folder / "transforms.json").is_file() and not any(folder.glob("*/transforms.json")):
+        return ""
+    return ("; it holds a transforms.json (nerfstudio / instant-ngp: every frame, no split), which is read once it "
+            "is named for a split: copy it to transforms_test.json to evaluate on the scene, or to "
+            "transforms_train.json to train on it")
+
+
 def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
     """NeRF-synthetic: transforms_<split>.json (OpenGL c2w, camera_angle_x) + RGBA PNGs (on white); the alpha
-    (> 0.5) is the object mask where every frame has one. The category is the scene's name."""
+    (> 0.5) is the object mask where every frame has one. The category is the scene's name. nerfstudio's and
+    instant-ngp's keys are read too (:func:`transforms_intrinsics`, :func:`transforms_box`); nerfstudio's
+    ``applied_transform`` is informative (the poses already hold it). Frames naming one image twice are refused (a
+    view that is both a reference and a target scores itself), as is a camera that sees none of the scene box."""
     scene_dir = Path(scene_dir)
     tf = scene_dir / f"transforms_{split}.json"
     if not tf.is_file():
-        raise InputError(f"{scene_dir}: no transforms_{split}.json")
+        raise InputError(f"{scene_dir}: no transforms_{split}.json" + _lone_transforms(scene_dir))
     try:
         d = json.loads(tf.read_text())
     except (ValueError, UnicodeDecodeError) as e:
         raise InputError(f"{tf} is not valid JSON ({e})") from None
-    images, poses, intrs, masks = [], [], [], []
-    for k, fr in enumerate(d.get("frames", [])):
+    if not isinstance(d, dict) or not isinstance(d.get("frames"), list):
+        raise InputError(f"{tf}: not a transforms file (a JSON object with a 'frames' list)")
+    images, poses, intrs, masks, seen, scaled = [], [], [], [], {}, set()
+    for k, fr in enumerate(d["frames"]):
+        if not isinstance(fr, dict) or not isinstance(fr.get("file_path"), str) or "transform_matrix" not in fr:
+            raise InputError(f"{tf}: frame {k} is not an object with a 'file_path' (text) and a 'transform_matrix'")
+        where = f"{tf}: frame {k} ({fr['file_path']})"
         p = _frame_image(scene_dir, fr["file_path"])
+        if p.resolve() in seen:
+            raise InputError(f"{tf}: frames {seen[p.resolve()]} and {k} are both {p.name}: one view twice (as a "
+                             "reference and a target it scores itself); remove one")
+        seen[p.resolve()] = k
+        if p.suffix.lower() in UNREAD_IMAGE_SUFFIXES:
+            raise InputError(f"{where}: {p.name} is a linear high-dynamic-range image; this tool reads 8- or 16-bit "
+                             "sRGB PNG and JPEG images: convert it (the colours as displayed) to PNG")
         raw = F.read_png(p, colour=True)
         im = to_float_rgb(raw, linear_alpha=False)
         h, w = im.shape[:2]
-        if "fl_x" in d or "fl_x" in fr:  # nerfstudio-style intrinsics
-            g = {**d, **fr}
-            intr = cameras.Intrinsics(float(g["fl_x"]), float(g.get("fl_y", g["fl_x"])), float(g.get("cx", w / 2)),
-                                      float(g.get("cy", h / 2)), w, h)
-        else:
-            intr = cameras.intrinsics_from_fov(float(d["camera_angle_x"]), w, h)
+        intr, resized = transforms_intrinsics({**d, **fr}, w, h, where)
+        if resized:
+            scaled.add((w, h))
         try:
             c2w = cameras.opencv_from_opengl(cameras.as_pose(np.asarray(fr["transform_matrix"], np.float64)))
         except (ValueError, TypeError, cameras.CameraConventionError) as e:
-            raise InputError(f"{tf}: frame {k} ({fr['file_path']}): transform_matrix is not a 4x4 matrix ({e})") from None
-        F.check_pose(c2w, f"{tf}: frame {k} ({fr['file_path']}) transform_matrix")
+            raise InputError(f"{where}: transform_matrix is not a 4x4 matrix ({e})") from None
+        F.check_pose(c2w, f"{where} transform_matrix")
         images.append(im)
         poses.append(c2w)
         intrs.append(intr)
         masks.append(F.unit_pixels(raw[..., -1]) > 0.5 if raw.ndim == 3 and raw.shape[-1] in (2, 4) else None)
     if not images:
         raise InputError(f"{tf}: no frames")
+    box = transforms_box(d, np.stack(poses)[:, :3, 3], str(tf))
+    for k, c2w in enumerate(poses):
+        check_faces_box(c2w, box, f"{tf}: frame {k} ({d['frames'][k]['file_path']}) transform_matrix",
+                        "transforms.json poses are OpenGL camera-to-world (x right, y up, looking down -z), as NeRF, "
+                        "nerfstudio and instant-ngp write them, and the box is NeRF-synthetic's unless the file has "
+                        "instant-ngp's scale and offset")
+    if scaled:
+        _note(f"{tf}: its cameras are for images of another size (w, h), the images are "
+              f"{', '.join(f'{w}x{h}' for w, h in sorted(scaled))}: the cameras are scaled to them")
     images = _stack(images, scene_dir)
     mask_arr = np.stack(masks) if all(m is not None for m in masks) else None
-    return ObjectScene(scene_dir.name, scene_dir.name, images, np.stack(poses), intrs,
-                       (np.full(3, -NERF_SYNTHETIC_BOX), np.full(3, NERF_SYNTHETIC_BOX)), list(range(len(images))),
+    return ObjectScene(scene_dir.name, scene_dir.name, images, np.stack(poses), intrs, box, list(range(len(images))),
                        mask_arr)
 
 
@@ -502,7 +692,8 @@ def detect_format(root: Path) -> str:
         return "nmr"
     if (root / "intrinsics.txt").is_file() or any(root.glob("*/intrinsics.txt")) or any(root.glob("*/*/intrinsics.txt")):
         return "srn"
-    raise InputError(f"{root}: not a dataset this tool reads (ours, SRN, NMR/DVR or NeRF-synthetic)")
+    raise InputError(f"{root}: not a dataset this tool reads (ours, SRN, NMR/DVR or NeRF-synthetic)"
+                     + _lone_transforms(root))
 
 
 def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> list[tuple[str, Path]]:
@@ -540,7 +731,8 @@ def list_objects(root: Path, fmt: str | None = None, split: str = "train") -> li
         if not scenes:
             have = sorted({p.stem.split("_", 1)[1] for p in root.glob("*/transforms_*.json")})
             raise InputError(f"{root}: no NeRF-synthetic scene has transforms_{split}.json"
-                             + (f" (the scenes have split(s) {', '.join(have)})" if have else ""))
+                             + (f" (the scenes have split(s) {', '.join(have)})" if have else "")
+                             + _lone_transforms(root))
         return [("nerf", p) for p in scenes]
     raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
 
