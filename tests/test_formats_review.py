@@ -242,3 +242,32 @@ def test_nmr_cameras_that_cannot_be_read_are_one_line_errors(tmp_path, spoil, ma
     spoil(obj / "cameras.npz")
     with pytest.raises(InputError, match=match):
         L.load_object("nmr", obj)
+
+
+def test_our_own_transforms_json_reads_its_camera_and_refuses_what_it_cannot(tmp_path, capsys):
+    """``format.read_transforms`` (our object folders, the panel's capture import): a truncated file was a
+    JSONDecodeError traceback from eval; nerfstudio's OPENCV camera with non-zero coefficients was placed as a
+    pinhole one; a frame without its matrix was a KeyError. Our own writer's file (zero coefficients) reads back."""
+    from blender_mrvm.datasets import format as F
+
+    good = tmp_path / "transforms.json"
+    good.write_text(json.dumps(F.transforms_dict(TRUE, [{"file_path": f"rgb/{k:06d}.png", "c2w_opencv": POSES[k]}
+                                                        for k in range(3)])))
+    frames = json.loads(good.read_text())["frames"]
+    got = F.read_transforms(good)
+    assert [f.intrinsics for f in got] == [TRUE] * 3
+    assert all(np.allclose(f.c2w_opencv, POSES[k]) for k, f in enumerate(got))
+    bad = tmp_path / "bad.json"
+    for text, needle in [
+        (good.read_text()[:40], "is not valid JSON"),
+        (json.dumps({**json.loads(good.read_text()), "k1": 0.12}), "lens distortion k1=0.12"),
+        (json.dumps({**json.loads(good.read_text()), "camera_model": "OPENCV_FISHEYE"}), "not a pinhole camera"),
+        (json.dumps({**json.loads(good.read_text()), "frames": [{"file_path": "rgb/0.png"}]}),
+         "needs file_path and transform_matrix"),
+        (json.dumps({**json.loads(good.read_text()), "frames": [{**frames[0], "transform_matrix": [[1, 0], [0, 1]]}]}),
+         "4x4 matrix"),
+        (json.dumps({"frames": {"a": 1}}), "not a transforms.json"),
+    ]:
+        bad.write_text(text)
+        with pytest.raises(InputError, match=needle):
+            F.read_transforms(bad)

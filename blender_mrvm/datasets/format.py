@@ -452,30 +452,108 @@ class TransformsFrame:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
+"""Lens distortion coefficients of a transforms.json (nerfstudio's OPENCV, instant-ngp's colmap2nerf): a non-zero one
+is refused, as every reader here casts pinhole rays (the images read as pinhole ones bend every ray off the pixel
+it lit); our own transforms.json writes them as 0."""
+PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "FULL_OPENCV")
+"""``camera_model`` values that are pinhole cameras once their distortion is 0 (nerfstudio's, COLMAP's names);
+another (OPENCV_FISHEYE, EQUIRECTANGULAR) is refused whatever its coefficients."""
+
+def json_number(g: dict, key: str, where: str, positive: bool = False) -> float:
+    """``g[key]`` as a finite float (and > 0 if ``positive``); InputError naming it otherwise (a string, null or NaN
+    went through float() into a traceback or NaN rays)."""
+    v = g[key]
+    try:
+        x = float(v) if not isinstance(v, bool) else float("nan")
+    except (TypeError, ValueError):
+        x = float("nan")
+    if not math.isfinite(x) or (positive and x <= 0):
+        raise InputError(f"{where}: {key} must be a {'positive ' if positive else ''}number, got {v!r}")
+    return x
+
+
+def transforms_intrinsics(g: dict, w: int, h: int, where: str) -> tuple[Intrinsics, bool]:
+    """(intrinsics, whether they were scaled) of a transforms.json frame (``g``: the file's keys updated by the
+    frame's) whose image is ``w`` x ``h``, read as instant-ngp reads them: fx from ``fl_x`` or ``camera_angle_x``,
+    fy from ``fl_y`` or ``camera_angle_y`` (either missing: the other, square pixels), ``cx``/``cy`` (default: the
+    centre); in pixels of the file's ``w`` x ``h`` where given, scaled to the image when it was resized (same aspect).
+
+    InputError for lens distortion or a camera that is not a pinhole (:data:`DISTORTION_KEYS`,
+    :data:`PINHOLE_MODELS`), a missing or unusable focal length, or a size of another aspect ratio."""
+    model = g.get("camera_model")
+    if (model is not None and str(model).upper() not in PINHOLE_MODELS) or g.get("is_fisheye"):
+        raise InputError(f"{where}: {'camera_model ' + str(model) if model is not None else 'is_fisheye'}: not a "
+                         "pinhole camera (this tool casts pinhole rays); undistort the images to a pinhole camera "
+                         "first")
+    bent = [f"{k}={g[k]}" for k in DISTORTION_KEYS if k in g and json_number(g, k, where) != 0.0]
+    if bent:
+        raise InputError(f"{where}: lens distortion {', '.join(bent)}: this tool reads pinhole cameras and would "
+                         "cast every ray off the pixel it lit; undistort the images first (COLMAP's image_undistorter, "
+                         "or OpenCV's undistort) and write their pinhole camera with the coefficients 0")
+    fw = json_number(g, "w", where, True) if "w" in g else None
+    fh = json_number(g, "h", where, True) if "h" in g else None
+    fw, fh = fw or (fh * w / h if fh else w), fh or (fw * h / w if fw else h)  # the size the numbers are for
+    if abs(fw * h - fh * w) > max(fw, fh):
+        raise InputError(f"{where}: its camera is for {fw:g}x{fh:g} images (w, h), the image is {w}x{h}: another "
+                         "aspect ratio, not the same camera at another resolution")
+
+    def focal(fl: str, angle: str, size: float) -> float | None:
+        if fl in g:
+            return json_number(g, fl, where, True)
+        if angle in g:
+            a = json_number(g, angle, where, True)
+            if a >= math.pi:
+                raise InputError(f"{where}: {angle} is a field of view in radians, below pi, got {a!r}")
+            return 0.5 * size / math.tan(0.5 * a)
+        return None
+
+    fx, fy = focal("fl_x", "camera_angle_x", fw), focal("fl_y", "camera_angle_y", fh)
+    if fx is None and fy is None:
+        raise InputError(f"{where}: no focal length (camera_angle_x, NeRF-synthetic's, or fl_x, nerfstudio's)")
+    fx, fy = fx or fy, fy or fx
+    cx = json_number(g, "cx", where) if "cx" in g else fw / 2.0
+    cy = json_number(g, "cy", where) if "cy" in g else fh / 2.0
+    scaled = (fw, fh) != (w, h)
+    sx, sy = w / fw, h / fh
+    return Intrinsics(fx * sx, fy * sy, cx * sx, cy * sy, w, h), scaled
+
+
 def read_transforms(path: Path) -> list[TransformsFrame]:
     """Read a nerfstudio / NeRF-synthetic ``transforms.json`` into OpenCV poses + intrinsics.
 
-    Per-frame intrinsics override global ones (nerfstudio); ``camera_angle_x`` alone (NeRF-synthetic)
-    gives a centred square-pixel camera once the image size is known from ``w``/``h``.
+    Per-frame intrinsics override global ones (nerfstudio); the camera of each frame is read as the loaders read a
+    transforms.json (:func:`transforms_intrinsics`: ``camera_angle_x``/``_y`` or ``fl_x``/``fl_y``, ``cx``/``cy``),
+    at the frame's ``w`` x ``h``. InputError, one line, for what cannot be read: not JSON (a truncated file was a
+    JSONDecodeError traceback from eval and the panel's capture import), a frame without ``file_path`` or a 4x4
+    finite ``transform_matrix``, lens distortion or a camera that is not a pinhole (nerfstudio's OPENCV with
+    non-zero coefficients: its cameras were placed as pinhole ones, every ray off the pixel it lit).
     """
-    d = json.loads(Path(path).read_text())
+    try:
+        d = json.loads(Path(path).read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise InputError(f"{path} is not valid JSON ({e})") from None
+    if not isinstance(d, dict) or not isinstance(d.get("frames", []), list):
+        raise InputError(f"{path}: not a transforms.json (an object with a list of frames)")
     frames = []
-    for fr in d.get("frames", []):
+    for i, fr in enumerate(d.get("frames", [])):
+        where = f"{path} frame {i}"
+        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
+            raise InputError(f"{where}: a frame needs file_path and transform_matrix")
         g = {**d, **fr}
-        w, h = g.get("w"), g.get("h")
-        if "fl_x" in g:
-            fx = float(g["fl_x"])
-            fy = float(g.get("fl_y", fx))
-        elif "camera_angle_x" in g and w:
-            fx = fy = 0.5 * float(w) / np.tan(0.5 * float(g["camera_angle_x"]))
-        else:
-            raise InputError(f"{path}: no focal length (fl_x or camera_angle_x with w)")
-        if not (w and h):
-            raise InputError(f"{path}: image size (w, h) missing")
-        intr = Intrinsics(fx, fy, float(g.get("cx", w / 2.0)), float(g.get("cy", h / 2.0)), int(w), int(h))
-        c2w = opencv_from_opengl(np.asarray(fr["transform_matrix"], dtype=np.float64))
+        if not ("w" in g and "h" in g):
+            raise InputError(f"{where}: image size (w, h) missing")
+        w, h = json_number(g, "w", where, True), json_number(g, "h", where, True)
+        intr, _ = transforms_intrinsics(g, int(w), int(h), where)
+        try:
+            m = np.asarray(fr["transform_matrix"], dtype=np.float64)
+        except (TypeError, ValueError):
+            m = np.full(1, np.nan)
+        if m.shape != (4, 4) or not np.isfinite(m).all():
+            raise InputError(f"{where}: transform_matrix must be a 4x4 matrix of finite numbers")
+        c2w = opencv_from_opengl(m)
         extra = {k: v for k, v in fr.items() if k not in ("file_path", "transform_matrix")}
-        frames.append(TransformsFrame(fr["file_path"], c2w, intr, extra))
+        frames.append(TransformsFrame(str(fr["file_path"]), c2w, intr, extra))
     return frames
 
 

@@ -40,6 +40,8 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import cameras
 from . import format as F
+from .format import DISTORTION_KEYS, PINHOLE_MODELS, transforms_intrinsics  # noqa: F401  (read here too)
+from .format import json_number as _number
 
 SRN_BOX = 0.5
 """SRN (ShapeNet, pixelNeRF): objects lie within a sphere of radius ~0.5 around the origin (near 0.8, far 1.8 at distance 1.3)."""
@@ -483,13 +485,6 @@ def list_nmr(root: Path, split: str) -> list[Path]:
 
 UNREAD_IMAGE_SUFFIXES = (".exr", ".hdr")
 """Linear, high-dynamic-range images (instant-ngp reads them): refused by name, not read as sRGB pixels."""
-DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
-"""Lens distortion coefficients of a transforms.json (nerfstudio's OPENCV, instant-ngp's colmap2nerf): a non-zero one
-is refused, as every reader here casts pinhole rays (the images read as pinhole ones bend every ray off the pixel
-it lit); our own transforms.json writes them as 0."""
-PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "FULL_OPENCV")
-"""``camera_model`` values that are pinhole cameras once their distortion is 0 (nerfstudio's, COLMAP's names);
-another (OPENCV_FISHEYE, EQUIRECTANGULAR) is refused whatever its coefficients."""
 NGP_SCALE, NGP_OFFSET = 0.33, 0.5
 """instant-ngp's defaults for a transforms.json's ``scale`` and ``offset``: it maps a position p of the file to
 p * scale + offset, where the scene's unit cube is [0, 1]^3."""
@@ -508,65 +503,6 @@ def _frame_image(scene_dir: Path, file_path: str) -> Path:
             if q.is_file():
                 return q
     return p if p.suffix else p.with_suffix(".png")  # missing: read_png names it
-
-
-def _number(g: dict, key: str, where: str, positive: bool = False) -> float:
-    """``g[key]`` as a finite float (and > 0 if ``positive``); InputError naming it otherwise (a string, null or NaN
-    went through float() into a traceback or NaN rays)."""
-    v = g[key]
-    try:
-        x = float(v) if not isinstance(v, bool) else float("nan")
-    except (TypeError, ValueError):
-        x = float("nan")
-    if not math.isfinite(x) or (positive and x <= 0):
-        raise InputError(f"{where}: {key} must be a {'positive ' if positive else ''}number, got {v!r}")
-    return x
-
-
-def transforms_intrinsics(g: dict, w: int, h: int, where: str) -> tuple[cameras.Intrinsics, bool]:
-    """(intrinsics, whether they were scaled) of a transforms.json frame (``g``: the file's keys updated by the
-    frame's) whose image is ``w`` x ``h``, read as instant-ngp reads them: fx from ``fl_x`` or ``camera_angle_x``,
-    fy from ``fl_y`` or ``camera_angle_y`` (either missing: the other, square pixels), ``cx``/``cy`` (default: the
-    centre); in pixels of the file's ``w`` x ``h`` where given, scaled to the image when it was resized (same aspect).
-
-    InputError for lens distortion or a camera that is not a pinhole (:data:`DISTORTION_KEYS`,
-    :data:`PINHOLE_MODELS`), a missing or unusable focal length, or a size of another aspect ratio."""
-    model = g.get("camera_model")
-    if (model is not None and str(model).upper() not in PINHOLE_MODELS) or g.get("is_fisheye"):
-        raise InputError(f"{where}: {'camera_model ' + str(model) if model is not None else 'is_fisheye'}: not a "
-                         "pinhole camera (this tool casts pinhole rays); undistort the images to a pinhole camera "
-                         "first")
-    bent = [f"{k}={g[k]}" for k in DISTORTION_KEYS if k in g and _number(g, k, where) != 0.0]
-    if bent:
-        raise InputError(f"{where}: lens distortion {', '.join(bent)}: this tool reads pinhole cameras and would "
-                         "cast every ray off the pixel it lit; undistort the images first (COLMAP's image_undistorter, "
-                         "or OpenCV's undistort) and write their pinhole camera with the coefficients 0")
-    fw = _number(g, "w", where, True) if "w" in g else None
-    fh = _number(g, "h", where, True) if "h" in g else None
-    fw, fh = fw or (fh * w / h if fh else w), fh or (fw * h / w if fw else h)  # the size the numbers are for
-    if abs(fw * h - fh * w) > max(fw, fh):
-        raise InputError(f"{where}: its camera is for {fw:g}x{fh:g} images (w, h), the image is {w}x{h}: another "
-                         "aspect ratio, not the same camera at another resolution")
-
-    def focal(fl: str, angle: str, size: float) -> float | None:
-        if fl in g:
-            return _number(g, fl, where, True)
-        if angle in g:
-            a = _number(g, angle, where, True)
-            if a >= math.pi:
-                raise InputError(f"{where}: {angle} is a field of view in radians, below pi, got {a!r}")
-            return 0.5 * size / math.tan(0.5 * a)
-        return None
-
-    fx, fy = focal("fl_x", "camera_angle_x", fw), focal("fl_y", "camera_angle_y", fh)
-    if fx is None and fy is None:
-        raise InputError(f"{where}: no focal length (camera_angle_x, NeRF-synthetic's, or fl_x, nerfstudio's)")
-    fx, fy = fx or fy, fy or fx
-    cx = _number(g, "cx", where) if "cx" in g else fw / 2.0
-    cy = _number(g, "cy", where) if "cy" in g else fh / 2.0
-    scaled = (fw, fh) != (w, h)
-    sx, sy = w / fw, h / fh
-    return cameras.Intrinsics(fx * sx, fy * sy, cx * sx, cy * sy, w, h), scaled
 
 
 def transforms_box(d: dict, positions: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
