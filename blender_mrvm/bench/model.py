@@ -205,7 +205,9 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
         "chunk_rays": chunk_rays, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
         "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
         "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),
-        "points_evaluated": res["evaluated"] * pts_ray,
+        # the points the render evaluated, as it counted them: the fine pass skips rays whose coarse opacity is under
+        # render.fine_min_acc (on by default), so evaluated rays x points per ray had overstated it (GPNR counts none)
+        "points_evaluated": res.get("samples") or res["evaluated"] * pts_ray,
         "points_fixed_near_far": res["rays"] * pts_ray,
         "rays_per_s": round(res["evaluated"] / sec, 1),
         "cpu": platform.processor() or platform.machine(), "gpu": gpu, "torch": torch.__version__,

@@ -298,8 +298,8 @@ def _print_table(report: dict, with_lpips: bool) -> None:
           f"over the better trivial baseline")
     a = o.get("alpha")
     if a:
-        print(f"alpha (opacity) vs object masks: {a['background']:.3f} mean on background, {a['object']:.3f} on the "
-              f"object, IoU {a['iou']:.3f}")
+        print(f"alpha (opacity) vs object masks: {f(a['background'], '.3f')} mean on background, {f(a['object'], '.3f')} "
+              f"on the object, IoU {f(a['iou'], '.3f')}")  # (None: no view has such pixels)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -80,7 +80,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="write into an output folder that holds other files")
     p.add_argument("--compare-to", type=Path, default=None, help="eval.json of another checkpoint on the same views: "
                    "also write <out>/compare.json (paired differences this - other, standard errors over objects); "
-                   "refused when it is of another data root, split or format, or a common view had other inputs")
+                   "refused when it is of another data root, split or format, or a common view had other inputs; a "
+                   "note names the views only one of them scored and the rendering settings they differ in")
 
 
 def check_args(args) -> None:
@@ -254,7 +255,15 @@ def _run(args) -> int:
                **compare_to(args, this, other)}
         atomic_write_json(args.out / "compare.json", cmp)
         result["compare"] = {"file": str(args.out / "compare.json"), "this": cmp["this"], "other": cmp["other"],
-                             "this_minus_other": cmp["overall"]}
+                             "this_minus_other": cmp["overall"], "unpaired": cmp["unpaired"],
+                             "settings_differ": cmp["settings_differ"]}
+        up = cmp["unpaired"]
+        if up["this"] or up["other"]:  # other objects or --max-targets: the figures are of the common views alone
+            print(f"note: --compare-to pairs the {cmp['overall']['views']} views both scored; left out: {up['this']} "
+                  f"scored only here, {up['other']} only in {args.compare_to}", file=sys.stderr)
+        if cmp["settings_differ"]:  # the difference is then the setting's as much as the checkpoint's
+            print("note: --compare-to: the two evaluations rendered with other settings: " + "; ".join(
+                f"{k} {x} against {y}" for k, (x, y) in cmp["settings_differ"].items()), file=sys.stderr)
     # one JSON line, last on stdout (as synthesize, train and sem2nerf): `json.load` or `tail -n1 | jq` reads it
     print(report_json(result, indent=None))
     return 0

@@ -3,7 +3,12 @@
 SSIM comes in two conventions. :func:`ssim` is pixelNeRF's (it calls scikit-image's
 ``structural_similarity`` with its defaults: 7x7 uniform window, sample covariance, data range 1), the
 headline figure in reports; :func:`ssim_gauss` is Wang et al.'s Gaussian 11x11 window (sigma 1.5,
-population covariance), reported as ``ssim_gauss``. They differ by about 0.02 on typical renders.
+population covariance), reported as ``ssim_gauss``. They differ by about 0.02 on typical renders. Both are
+computed in float64, as scikit-image computes float64 images: in float32 the variances (E[x^2] - E[x]^2) lost
+their digits on the flat backgrounds of renders (the shipped model on the demo's views: up to 2.7e-4 off scikit-image
+a view, 8.8e-4 for the flat mean-colour baseline; the means over 88 views moved by 1.6e-4 and 3.3e-4). An image
+smaller than the window has no SSIM in either convention (scikit-image refuses it): NaN, which reports write as
+null, not the figure of a smaller window.
 
 LPIPS uses the standard ImageNet VGG16 backbone and the LPIPS v0.1 linear layers, both loaded from
 the offline weight cache (``python -m blender_mrvm fetch-weights``); a missing cache raises an
@@ -33,7 +38,9 @@ def psnr(pred, gt) -> torch.Tensor:
 
 
 def _gauss(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
+    # float64: float32 weights sum to 1 only within 1e-8, which a flat background's variance E[x^2] - E[x]^2
+    # turns into -1e-8 against SSIM's c2 = 9e-4 (up to 6.6e-6 off scikit-image on pairs of the demo's images)
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     g = torch.exp(-x ** 2 / (2 * sigma ** 2))
     return g / g.sum()
 
@@ -42,35 +49,41 @@ def ssim(pred, gt, size: int = 7) -> torch.Tensor:
     """Per-image mean SSIM (N,) over RGB channels in scikit-image's default convention (pixelNeRF's):
     uniform ``size`` x ``size`` window, sample covariance (N / (N - 1)), data range 1, the mean over the
     valid region (scikit-image's crop of the padded border)."""
-    p = _nchw(pred)
-    size = min(size, p.shape[-1], p.shape[-2])
-    k = torch.full((size,), 1.0 / size)
-    return _ssim(p, _nchw(gt), k, size * size / max(size * size - 1, 1))
+    k = torch.full((size,), 1.0 / size, dtype=torch.float64)
+    return _ssim(_nchw(pred), _nchw(gt), k, size * size / (size * size - 1))
 
 
 def ssim_gauss(pred, gt, size: int = 11, sigma: float = 1.5) -> torch.Tensor:
     """Per-image mean SSIM (N,) with Wang et al.'s Gaussian window (11x11, sigma 1.5), population
-    covariance, valid region, data range 1."""
-    p = _nchw(pred)
-    size = min(size, p.shape[-1], p.shape[-2])
-    return _ssim(p, _nchw(gt), _gauss(size, sigma), 1.0)
+    covariance, valid region, data range 1 (scikit-image's ``gaussian_weights=True``)."""
+    return _ssim(_nchw(pred), _nchw(gt), _gauss(size, sigma), 1.0)
 
 
 def _ssim(p: torch.Tensor, g: torch.Tensor, k: torch.Tensor, cov_norm: float) -> torch.Tensor:
-    C = p.shape[1]
+    """Mean SSIM (N,) as float32, computed in float64; NaN for images smaller than the window."""
     size = k.numel()
-    win = (k[:, None] * k[None, :]).expand(C, 1, size, size).contiguous()
-
-    def filt(x):
-        return F.conv2d(x, win, groups=C)
-
+    if min(p.shape[-2:]) < size:
+        return torch.full((p.shape[0],), float("nan"))
+    p, g = p.double(), g.double()
+    C = p.shape[1]
+    # the five local moments filtered as one stack, the window applied along rows then columns (it is separable):
+    # float64 conv2d has no fast CPU kernel (both SSIMs of a 64 px image 2.3 -> 63 ms on one core, 0.19 -> 9 s at
+    # 512 px); shifted sums take 3.3 ms and 0.6 s
+    stats = _window_sums(torch.cat([p, g, p * p, g * g, p * g], 1), k)
+    mu_p, mu_g, e_pp, e_gg, e_pg = stats.split(C, 1)
     c1, c2 = 0.01 ** 2, 0.03 ** 2
-    mu_p, mu_g = filt(p), filt(g)
-    s_pp = cov_norm * (filt(p * p) - mu_p ** 2)
-    s_gg = cov_norm * (filt(g * g) - mu_g ** 2)
-    s_pg = cov_norm * (filt(p * g) - mu_p * mu_g)
+    s_pp = cov_norm * (e_pp - mu_p ** 2)
+    s_gg = cov_norm * (e_gg - mu_g ** 2)
+    s_pg = cov_norm * (e_pg - mu_p * mu_g)
     m = ((2 * mu_p * mu_g + c1) * (2 * s_pg + c2)) / ((mu_p ** 2 + mu_g ** 2 + c1) * (s_pp + s_gg + c2))
-    return m.flatten(1).mean(1)
+    return m.flatten(1).mean(1).float()
+
+
+def _window_sums(x: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """(N, M, H, W) ``x`` filtered by the separable window ``k`` (outer product of the 1-D taps), valid region."""
+    n, (h, w) = k.numel(), x.shape[-2:]
+    rows = sum(float(k[i]) * x[..., i:h - n + 1 + i, :] for i in range(n))
+    return sum(float(k[i]) * rows[..., i:w - n + 1 + i] for i in range(n))
 
 
 class LPIPS(nn.Module):
@@ -78,6 +91,9 @@ class LPIPS(nn.Module):
 
     SHIFT = (-0.030, -0.088, -0.188)
     SCALE = (0.458, 0.448, 0.450)
+    MIN_SIZE = 16
+    """Smallest image side VGG's four 2x2 poolings leave a pixel of for relu5_3 (the reference implementation fails
+    on smaller images too): below it :meth:`distance` is an InputError, not max_pool2d's RuntimeError."""
 
     def __init__(self):
         super().__init__()
@@ -117,6 +133,11 @@ class LPIPS(nn.Module):
         on small images are bound by reading their weights (9.4 MB a layer at 512 channels), so one batch of
         2N costs about what one image does (a 16 px patch pair forward and backward on one core: 22 ms against
         40 ms as two batches; 2 patch pairs 28 against 80 ms)."""
+        if min(pred.shape[-2:]) < self.MIN_SIZE:
+            from ..errors import InputError
+
+            raise InputError(f"LPIPS-VGG needs images of at least {self.MIN_SIZE} px a side, got "
+                             f"{pred.shape[-1]}x{pred.shape[-2]} (skip it: --no-lpips)")
         n = pred.shape[0]
         feats = self.features(torch.cat([pred, gt.to(pred.dtype)]))
         total = 0.0

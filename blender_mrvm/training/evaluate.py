@@ -197,14 +197,16 @@ def scores_against(gt, candidates: dict[str, Any], lpips) -> dict[str, dict[str,
     return out
 
 
-def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+def alpha_scores(acc: np.ndarray, mask: np.ndarray) -> dict[str, float | None]:
     """How well the accumulated opacity (the image planes' alpha) matches the object mask: mean opacity
-    on background and on object pixels, and the IoU of opacity > 0.5 with the mask."""
+    on background and on object pixels (None where the view has none: a view without the object in frame had
+    counted an opacity of 0 on its object pixels, pulling the mean over views down), and the IoU of opacity > 0.5
+    with the mask."""
     acc, mask = np.asarray(acc, np.float64), np.asarray(mask, bool)
     pred = acc > 0.5
     union = np.logical_or(pred, mask).sum()
-    return {"background": float(acc[~mask].mean()) if (~mask).any() else 0.0,
-            "object": float(acc[mask].mean()) if mask.any() else 0.0,
+    return {"background": float(acc[~mask].mean()) if (~mask).any() else None,
+            "object": float(acc[mask].mean()) if mask.any() else None,
             "iou": float(np.logical_and(pred, mask).sum() / union) if union else 1.0}
 
 
@@ -284,6 +286,11 @@ def evaluate(model, scenes: list[ObjectScene], input_views: Sequence[int], lpips
     if not total:  # every view an input (--input-views 0,1,2,3 of 4 views): an empty report is no evaluation
         raise InputError(f"nothing to score: every target view of the {len(scenes)} object(s) is one of the input "
                          f"views {list(input_views)}; leave some views out of the inputs")
+    small = [s for s, _, _ in jobs if min(s.images.shape[1:3]) < getattr(lpips, "MIN_SIZE", 0)]
+    if small:  # before anything renders (it had been max_pool2d's traceback after the first view)
+        s = small[0]
+        raise InputError(f"object {s.category}/{s.name} has {s.images.shape[2]}x{s.images.shape[1]} px views: "
+                         f"LPIPS-VGG needs at least {lpips.MIN_SIZE} px a side; pass --no-lpips")
     # grid: the first object of every category, then further objects, up to grid_objects rows
     firsts = {}
     seen_objects = set()
@@ -440,10 +447,24 @@ def _reprojected(s: ObjectScene, t: int, out: dict, source: str, cfg, refs, ref_
     return torch.from_numpy(pred), share
 
 
+def _values(recs, key, sub=None) -> list:
+    """The records' ``key`` (in their ``sub`` dict), where they have one (None: a score the view has not)."""
+    vals = [(r[sub] if sub else r).get(key) for r in recs if sub is None or sub in r]
+    return [v for v in vals if v is not None]
+
+
 def _mean(recs, key, sub=None):
-    vals = [(r[sub][key] if sub else r[key]) for r in recs if (sub is None or sub in r) and key in (r[sub] if sub else r)]
-    vals = [v for v in vals if np.isfinite(v)] if key == "psnr" else vals
+    """Mean of a per-view score; PSNR leaves out its +inf (an image equal to the truth, counted by
+    :func:`_identical`), while a NaN stays in and makes the mean NaN (null in the report), as for every other
+    score: a NaN view had been dropped from the PSNR mean alone, which then stood on fewer views than ``n``."""
+    vals = _values(recs, key, sub)
+    vals = [v for v in vals if v != float("inf")] if key == "psnr" else vals
     return float(np.mean(vals)) if vals else None
+
+
+def _identical(recs, sub=None) -> int:
+    """Views whose image equals the truth (PSNR +inf, left out of the PSNR mean)."""
+    return sum(v == float("inf") for v in _values(recs, "psnr", sub))
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -460,13 +481,19 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
             b["baseline_blend"] = {m: _mean(recs, m, "baseline_blend") for m in METRICS}
         alphas = [r["alpha"] for r in recs if "alpha" in r]
         if alphas:
-            b["alpha"] = {k: float(np.mean([a[k] for a in alphas])) for k in ("background", "object", "iou")}
+            b["alpha"] = {k: _mean(alphas, k) for k in ("background", "object", "iou")}  # over the views that have it
         for k in DEPTH_SCORES:
             if any(k in r for r in recs):
                 b[k] = _mean(recs, k)
         if any("model_only" in r for r in recs):
             b["model_only"] = {m: _mean(recs, m, "model_only") for m in METRICS}
             b["reference_share"] = _mean(recs, "reference_share")
+        # a view equal to the truth has PSNR +inf (null per view in eval.json); its mean leaves it out, said here
+        # (it had been left out without a word, and the model's and a baseline's means then stood on other views)
+        for sub in (None, "baseline_nearest", "baseline_mean", "baseline_blend", "model_only"):
+            k = _identical(recs, sub)
+            if k:
+                (b if sub is None else b[sub])["psnr_identical_views"] = k
         base = {k: b[k]["psnr"] for k in ("baseline_nearest", "baseline_mean") if b[k]["psnr"] is not None}
         if base and b["psnr"] is not None:
             best = max(base, key=base.get)
@@ -515,8 +542,8 @@ def _finite(v):
 
 def markdown_table(report: dict) -> str:
     """The report as a Markdown table: per category and overall, model vs. both trivial baselines."""
-    def f(v, nd):
-        return "-" if v is None else f"{v:.{nd}f}"
+    def f(v, nd):  # "-" as eval.json's null: a missing or non-finite mean (an SSIM of images under its window)
+        return "-" if v is None or not math.isfinite(v) else f"{v:.{nd}f}"
 
     head = ("| category | views | PSNR | SSIM | LPIPS | SSIM (Gaussian) | nearest-view PSNR / SSIM / LPIPS "
             "| mean-colour PSNR / SSIM / LPIPS | PSNR gain over better baseline |\n"
@@ -536,11 +563,18 @@ def markdown_table(report: dict) -> str:
                  f"{f(bb['ssim'], 3)}, LPIPS {f(bb['lpips'], 3)} (not counted in the gain over the better baseline).\n")
     text += ("\nSSIM: scikit-image's defaults (7x7 uniform window, sample covariance), as pixelNeRF reports it; "
              "SSIM (Gaussian): 11x11 Gaussian window, sigma 1.5.\n")
+    o = report["overall"]
+    same = {lab: b["psnr_identical_views"] for lab, b in (("model", o), ("nearest view", o["baseline_nearest"]),
+                                                          ("mean colour", o["baseline_mean"]))
+            if b.get("psnr_identical_views")}
+    if same:
+        text += ("\nPSNR leaves out the views whose image equals the truth (infinite PSNR): "
+                 + ", ".join(f"{k} {v} of {o['n']}" for k, v in same.items()) + ".\n")
     a = report["overall"].get("alpha")
     if a:
-        text += (f"\nOpacity (the image planes' alpha) against the object masks: mean {a['background']:.3f} on "
-                 f"background pixels, {a['object']:.3f} on object pixels; IoU of opacity > 0.5 with the mask "
-                 f"{a['iou']:.3f}.\n")
+        text += (f"\nOpacity (the image planes' alpha) against the object masks: mean {f(a['background'], 3)} on "
+                 f"background pixels, {f(a['object'], 3)} on object pixels; IoU of opacity > 0.5 with the mask "
+                 f"{f(a['iou'], 3)}.\n")
     dr = report["overall"].get("depth_abs_rel")
     if dr is not None:
         o = report["overall"]
@@ -563,6 +597,27 @@ a turntable and a sphere-rig render of the same library, another resolution)."""
 COMPARED_PROTOCOL = ("input_views", "nearest", "pool")
 """``eval.json``'s ``protocol`` entries compared when a report has no per-view ``inputs`` (written before they
 were recorded)."""
+
+
+COMPARED_SETTINGS = ("precision", "device", "protocol.empty_space_skipping", "protocol.reference_sizes",
+                     "protocol.adaptation", "protocol.reproject")
+"""Rendering settings ``compare_reports`` lists when two evaluations differ in them (``settings_differ``): a
+paired difference then measures the setting as much as the checkpoint, which ``compare.json`` had not said."""
+
+
+def setting_differences(a: dict, b: dict) -> dict[str, list]:
+    """{setting: [a's, b's]} of the :data:`COMPARED_SETTINGS` both reports record and differ in."""
+    out = {}
+    for key in COMPARED_SETTINGS:
+        va, vb, found = a, b, True
+        for part in key.split("."):
+            if not (isinstance(va, dict) and isinstance(vb, dict) and part in va and part in vb):
+                found = False
+                break
+            va, vb = va[part], vb[part]
+        if found and va != vb:
+            out[key] = [va, vb]
+    return out
 
 
 def _same_root(x, y) -> bool:
@@ -611,8 +666,11 @@ def compare_reports(a: dict, b: dict) -> dict:
     Per metric, overall and per category, the object is the unit (the views of one object are correlated):
     ``diff`` is the mean over objects of each object's mean difference over its common views (every object
     counts alike, however many views it has), ``se_objects`` its standard error over objects, ``wins`` the share
-    of objects on which a is better (higher PSNR/SSIM, lower LPIPS); ``diff_views`` is the mean difference over
-    the common views themselves (the two differ when objects have different numbers of views)."""
+    of objects on which a is better (higher PSNR/SSIM, lower LPIPS) and ``ties`` the share on which neither is (a
+    wins of 0 had read as "worse on every object" where the two were equal); ``diff_views`` is the mean difference
+    over the common views themselves (the two differ when objects have different numbers of views). ``unpaired``
+    counts the views only one of them scored (left out: the figures are of the common views alone);
+    ``settings_differ`` the rendering settings the two differ in (:func:`setting_differences`)."""
     check_comparable(a, b)
     key = lambda r: (r["category"], r["object"], r["view"])  # noqa: E731
     va, vb = {key(r): r for r in a["views"]}, {key(r): r for r in b["views"]}
@@ -634,8 +692,11 @@ def compare_reports(a: dict, b: dict) -> dict:
             se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else None
             better = d < 0 if m in LOWER_IS_BETTER else d > 0
             out[m] = {"diff": float(d.mean()), "se_objects": se, "objects": len(d), "wins": float(better.mean()),
+                      "ties": float((d == 0).mean()),
                       "diff_views": float(np.mean([x for v in per_obj.values() for x in v]))}
         return out
 
     cats = sorted({k[0] for k in common})
-    return {"overall": stats(common), "per_category": {c: stats([k for k in common if k[0] == c]) for c in cats}}
+    return {"overall": stats(common), "per_category": {c: stats([k for k in common if k[0] == c]) for c in cats},
+            "unpaired": {"this": len(set(va) - set(vb)), "other": len(set(vb) - set(va))},
+            "settings_differ": setting_differences(a, b)}
