@@ -95,6 +95,7 @@ def _pair_pose_estimator(db: Any, seed: int):
     def estimate(camera_a, camera_b, a: int, b: int, matches: np.ndarray):
         return pycolmap.estimate_relative_pose(camera_a, points(a)[matches[:, 0]], camera_b, points(b)[matches[:, 1]],
                                                ransac)
+    estimate.points = points  # (the keypoints, for how far the matches move: photo_spacing)
     return estimate
 
 
@@ -181,6 +182,13 @@ the camera of the model the mapping made: every arc 13.0-19.1 degrees, every rin
 240 such arcs whole and right, and 1 of 80 rings (A-D)."""
 
 
+STILL_SHIFT_PX = 1.0
+"""Photos whose matches move less than this (pixels; the median over the photos of their best pair's median match
+shift, :func:`photo_spacing`) show one view: copies of one photo (0.0 px) or a burst from a tripod (0.1 px with
+sensor noise), which the mapping cannot start from (no baseline). The error line said the photos were too far apart
+("take one every 10-15 degrees"); the slowest real motion tried, photos of noise 3 px apart, moved 3.0 px."""
+
+
 def spacing_camera(rec: Any) -> Any | None:
     """One pinhole camera for every photo, from a model that placed at least 3 (the median focal length of its
     cameras; its first camera's size and principal point), or None. A model's focal length is what makes
@@ -209,7 +217,7 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
     only true of a database as extraction and matching left it) or "database" (COLMAP's 1.2 x width guess)."""
     import pycolmap
 
-    best: dict[int, tuple[int, float]] = {}  # image id -> (inliers, turn in degrees) of its best-matched pair
+    best: dict[int, tuple[int, float, float]] = {}  # image id -> (inliers, turn in deg, shift in px) of its best pair
     db = pycolmap.Database.open(Path(db_path))
     try:
         cams = {c.camera_id: c for c in db.read_all_cameras()}
@@ -228,22 +236,33 @@ def photo_spacing(db_path: Path, camera: Any | None = None, min_inliers: int = M
             if est is None:
                 continue
             turn = rotation_angle_deg(est["cam2_from_cam1"].rotation.matrix())
+            moved = estimate.points(a)[matches[:, 0]] - estimate.points(b)[matches[:, 1]]
+            shift = float(np.median(np.linalg.norm(moved, axis=1)))
             for i in (a, b):
                 if len(matches) > best.get(i, (0,))[0]:
-                    best[i] = (len(matches), turn)
+                    best[i] = (len(matches), turn, shift)
     finally:
         db.close()
-    turns = [t for _, t in best.values()]
+    turns = [t for _, t, _ in best.values()]
+    shifts = [s for _, _, s in best.values()]
     return {"spacing_deg": round(float(np.median(turns)), 1) if turns else None,
             "focal_from": "model" if camera is not None else ("exif" if all_prior else "database"), "photos": len(images),
-            "unmatched": sorted((im.name for i, im in images.items() if i not in best), key=str.lower)}
+            "unmatched": sorted((im.name for i, im in images.items() if i not in best), key=str.lower),
+            "shift_px": round(float(np.median(shifts)), 2) if shifts else None}
 
 
 def spacing_named(spacing: dict) -> bool:
     """Whether :func:`photo_spacing` found the photos too far apart with a focal length to trust (the model's or the
-    photos' EXIF): what :func:`spacing_advice` names with a figure."""
+    photos' EXIF), or not moved at all (:func:`spacing_still`): what :func:`spacing_advice` names with a figure."""
     deg = spacing.get("spacing_deg")
-    return deg is not None and deg >= SPARSE_SPACING_DEG and spacing.get("focal_from") in ("model", "exif")
+    far = deg is not None and deg >= SPARSE_SPACING_DEG and spacing.get("focal_from") in ("model", "exif")
+    return far or spacing_still(spacing)
+
+
+def spacing_still(spacing: dict) -> bool:
+    """Whether :func:`photo_spacing` found photos that show one view (:data:`STILL_SHIFT_PX`); their turn is noise."""
+    shift = spacing.get("shift_px")
+    return shift is not None and shift < STILL_SHIFT_PX
 
 
 def spacing_advice(spacing: dict, rename: dict[str, str] | None = None) -> str:
@@ -251,7 +270,11 @@ def spacing_advice(spacing: dict, rename: dict[str, str] | None = None) -> str:
     a clause to end an error or warning line with. ``rename`` maps the database's names to the user's photos."""
     parts = []
     deg = spacing.get("spacing_deg")
-    if spacing_named(spacing):
+    if spacing_still(spacing):
+        parts.append(f"the photos show one view (matched points move a median of {spacing['shift_px']:.1f} px between "
+                     "neighbouring photos: copies of one photo, or taken from one place): move the camera between "
+                     "photos")
+    elif spacing_named(spacing):
         parts.append(f"neighbouring photos are about {deg:.0f} degrees apart (median over the photos of the turn to "
                      "the one each shares the most matches with), too far for mapping, which needs points seen in "
                      "three photos: take one every 10-15 degrees")

@@ -14,7 +14,8 @@ Stages and what they check (each failure is one line naming the problem):
 1. scan      fewer than ``required_images`` photos, an unreadable photo, photos of differing size,
              an output folder that already holds files (without ``force``)
 2. extract   SIFT, at most ``max_num_features`` per image on images of at most ``max_image_size``;
-             the image is upsampled 2x first (first octave -1) only below ``upsample_below`` px
+             the image is upsampled 2x first (first octave -1) only below ``upsample_below`` px; a focal
+             length from EXIF that mapping would refuse is dropped (:func:`_drop_bogus_focal_priors`)
 3. match     exhaustive, or sequential for numbered frames (``matcher="auto"``); no verified pair
              means the photos do not overlap
 4. map       (a shared camera first gets its focal length from the view graph, ``estimate_focal``)
@@ -54,6 +55,11 @@ from .export import OUTPUT_ENTRIES, RUN_MARKER, CaptureView, open_photo, photo_r
 
 POLL_S = 0.1
 FORMAT_VERSION = 1
+MIN_MODEL_POINTS = 20
+"""A kept model with fewer 3D points is an error: its photos were placed without depth to place them by. 8 photos of a
+panorama (one camera turned on the spot: an image warped by K R K^-1) came out as 4-5 placed photos with 0-10 points
+and exit 0, no warning (the pose check has no pair in general position to judge); every other set tried kept 40 or
+more (2 photos of 320x240; 100 photos of 96x72: 484)."""
 # Overall progress: percent reached at the end of each stage.
 _STAGE_END = {"scan": 2, "extract": 35, "match": 55, "map": 90, "undistort": 95, "export": 100}
 
@@ -490,6 +496,12 @@ sys.path[:0] = [p for p in pickle.load(sys.stdin.buffer) if p not in sys.path]
 import pycolmap
 call, args, kwargs, level = pickle.load(sys.stdin.buffer)
 pycolmap.logging.minloglevel = level
+if level:  # a crash here is reported in words: no core dump into the user's folder (--verbose: one may be)
+    try:
+        import resource
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    except Exception:
+        pass
 try:
     out = ("value", getattr(pycolmap, call)(*args, **kwargs))
 except Exception as e:
@@ -510,7 +522,9 @@ def _run_in_child(call: str, args: tuple, kwargs: dict, label: str, done: int, w
     (tests/test_capture.py). It is one line now, naming ``hint``. Closing this generator or a Ctrl-C kills the child
     and waits for it (so the focal-length step, which pycolmap gives no cancel token, is cancellable too); SQLite
     rolls a killed write back on the next open. The child's stderr goes to ``work/pycolmap_stage.log`` unless
-    ``verbose``. On Linux the child also ends with this process (a worker the panel had to kill)."""
+    ``verbose``, and only with ``verbose`` may it dump core: where core dumps were on (``ulimit -c unlimited``, a
+    core_pattern of ``core``), each such crash left a 230 MB ``core`` file in the folder recover-poses ran from. On
+    Linux the child also ends with this process (a worker the panel had to kill)."""
     import os
     import pickle
     import signal
@@ -567,6 +581,28 @@ def _run_in_child(call: str, args: tuple, kwargs: dict, label: str, done: int, w
     raise InputError(f"pycolmap crashed ({how}) while {label}{hint}; what was finished is kept in {work}{logged}")
 
 
+def _shared_camera_hint(cfg: CaptureConfig, video: bool, count: int) -> str:
+    """The clause a crash in matching ends with when the photos share one camera (pycolmap's shared-focal solver,
+    :func:`_run_in_child`): how to run with one camera per photo. Every way a run comes to share one is named, not
+    --single-camera alone: ``--camera-model PINHOLE`` and ``OPENCV`` share one whatever the flags, and ``--pair`` too,
+    so a run with ``--camera-model OPENCV`` that crashed so was told to drop a --single-camera it had not given (and
+    crashed again without it). '' when each photo has its own camera."""
+    if not cfg.shared_camera:
+        return ""
+    changes = []
+    if cfg.single_camera and not video:
+        changes.append("without --single-camera")
+    if cfg.allow_pair:
+        changes.append("without --pair" + (" (with a third photo: a pair always shares one camera)" if count < 3
+                                           else ""))
+    if cfg.camera_model in ("PINHOLE", "OPENCV"):  # (config.shared_camera: the two-focal models share one)
+        lens = "SIMPLE_RADIAL" if cfg.has_distortion else "SIMPLE_PINHOLE"
+        changes.append(f"with --camera-model {lens} ({cfg.camera_model} shares one camera between all photos)")
+    again = "extract the video's frames into a folder and run on them" if video else "run again"
+    return (f"; with one camera for all photos pycolmap was seen to crash so on photos of a flat subject taken "
+            f"moving sideways: {again}{' ' if changes else ''}{' and '.join(changes)}")
+
+
 def _wait_through_interrupts(finished: threading.Event, poll: float) -> None:
     """Wait for a cancelled stage to end, a Ctrl-C more included: the process cannot end safely while pycolmap's
     thread runs (a cancelled stage stops within its current image or pair)."""
@@ -576,6 +612,37 @@ def _wait_through_interrupts(finished: threading.Event, poll: float) -> None:
                 return
         except KeyboardInterrupt:
             continue
+
+
+def _drop_bogus_focal_priors(db_path: Path) -> list[int]:
+    """Forget a focal length from the photos' EXIF that the mapping would refuse; return the cameras changed.
+
+    The incremental mapper leaves out every photo whose camera's focal length is under 0.1 or over 10 times its longer
+    side (``min_focal_length_ratio``, ``max_focal_length_ratio``: a field of view over 157 or under 6 degrees). A
+    focal length from EXIF out there (a 35 mm equivalent of 1 mm, or of 65535 mm, as a damaged tag reads) left
+    photos that match well with no pair to start from, and the error line said they were 179 degrees apart. Such a
+    camera starts from COLMAP's guess for a photo without EXIF (1.2 x the longer side), not marked as a prior."""
+    import pycolmap
+
+    lo, hi = (getattr(pycolmap.IncrementalPipelineOptions().mapper, k) for k in ("min_focal_length_ratio",
+                                                                                 "max_focal_length_ratio"))
+    changed = []
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        for cam in db.read_all_cameras():
+            side = max(cam.width, cam.height)
+            idx = list(cam.focal_length_idxs())
+            params = np.array(cam.params, dtype=np.float64)
+            if not cam.has_prior_focal_length or all(lo * side <= params[i] <= hi * side for i in idx):
+                continue
+            params[idx] = 1.2 * side
+            cam.params = params
+            cam.has_prior_focal_length = False
+            db.update_camera(cam)
+            changed.append(cam.camera_id)
+    finally:
+        db.close()
+    return changed
 
 
 def _pair_stats(db_path: Path, min_inliers: int) -> tuple[int, int, set[int]]:
@@ -692,6 +759,7 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
         yield from _run_in_thread(lambda: pycolmap.extract_features(
             db_path, photo_dir, image_names=run_names, camera_mode=mode, reader_options=reader, extraction_options=ext,
             device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
+        _drop_bogus_focal_priors(db_path)
         stages.finish("extract")
     timings["extract"], cpu_timings["extract"] = time.perf_counter() - t, time.process_time() - c
 
@@ -709,9 +777,7 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
         pairing.loop_detection = False
         kwargs["pairing_options"] = pairing
     # one camera shared by all photos: the pairs' verification estimates its focal length with the solver that crashed
-    again = ("extract the video's frames into a folder and run on them" if video_info is not None else "run again")
-    shared = (f"; with one camera for all photos pycolmap was seen to crash so on photos of a flat subject taken "
-              f"moving sideways: {again} without --single-camera") if cfg.shared_camera else ""
+    shared = _shared_camera_hint(cfg, video_info is not None, len(names))
     if "match" not in stages.done:
         yield from _run_in_child(f"match_{matcher}", (db_path,), kwargs, f"{matcher} matching", _STAGE_END["extract"],
                                  work, verbose, hint=shared)
@@ -817,6 +883,11 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
                          f"{_diagnosis(db_path, rec, renamed, cfg.seed, match_db)[0]}; "
                          f"partial model kept in {model_dir}; "
                          f"not registered: {shown}")
+    if rec.num_points3D() < MIN_MODEL_POINTS:
+        raise InputError(f"mapping placed {len(reg_names)} of {len(names)} images but kept only {rec.num_points3D()} "
+                         f"3D points (need {MIN_MODEL_POINTS}): the photos show no depth, as when the camera turns on "
+                         "the spot (a panorama); move the camera round the subject between photos; model kept in "
+                         f"{model_dir}")
     yield Progress(_STAGE_END["map"], 100, f"registered {len(reg_names)}/{len(names)}")
 
     # 4b. check the model against its photo pairs (a model can place every photo and be wrong)
