@@ -12,13 +12,16 @@ train resumes the run in --out as it is (its objects, its --preset and --model, 
 
 render writes OUT/rgb, OUT/semantic (uint8 part ids), OUT/semantic_color, OUT/pose and sem2nerf.json;
 bad input (labels the checkpoint does not know, an empty mask, a mask of another size, a missing
-pose) is one line `error: ...` and nothing is written.
+pose, a camera from which under 90% of the mask lies over the model's object box about the origin) is one
+line `error: ...` and nothing is written. --force over an earlier render removes that render's files once the new
+one is complete; Ctrl-C writes nothing.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -72,19 +75,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--intrinsics", default="", help="SRN intrinsics.txt (default: the pose's object folder's)")
     r.add_argument("--fov", type=float, default=40.0, help="horizontal FOV in degrees when no intrinsics are found")
     r.add_argument("--out", required=True, help="output folder (must be empty or new unless --force)")
-    r.add_argument("--views", type=int, default=8, help="views on the orbit about world z (view 0 = input camera)")
+    r.add_argument("--views", type=int, default=None, help="views on the orbit about world z (view 0 = input camera; "
+                   "default 8; not with --targets)")
     r.add_argument("--edit", action="append", default=[], metavar="SRC:DST",
                    help="relabel part SRC as DST (ids or label names) before rendering; repeatable")
     r.add_argument("--style-seed", type=int, default=None, help="style of this random code (default: the mean style)")
     r.add_argument("--blend", type=int, default=None, metavar="SEED",
                    help="also render the input view along a linear blend to the style of SEED")
-    r.add_argument("--blend-steps", type=int, default=5, help="images along the blend, ends included (default 5)")
+    r.add_argument("--blend-steps", type=int, default=None, help="with --blend: images along the blend, ends included "
+                   "(default 5)")
     r.add_argument("--mix-seed", type=int, default=None, metavar="SEED",
                    help="render every view with the style blended toward the style of SEED ...")
-    r.add_argument("--mix", type=float, default=0.5, help="with --mix-seed: the blend factor in [0, 1] (default 0.5)")
+    r.add_argument("--mix", type=float, default=None, help="with --mix-seed: the blend factor in [0, 1] (default 0.5)")
     r.add_argument("--targets", default="",
                    help="targets.json (the add-on's format) of the cameras to render instead of the orbit")
-    r.add_argument("--force", action="store_true", help="write into a non-empty output folder")
+    r.add_argument("--force", action="store_true", help="write into a non-empty output folder (an earlier render's "
+                   "files there are removed once this one is complete)")
     r.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = every core but one)")
     r.add_argument("--device", default="cpu", help="auto (CUDA when available), cpu or cuda[:N] (default cpu)")
     r.add_argument("--quality", default="full", choices=("full", "preview"), help="full (as trained) or preview: half the samples per ray, about "
@@ -180,15 +186,32 @@ def run(args) -> int:
         print(json.dumps(summary))
         return 0
     if cmd == "render":
+        from ..errors import InputError
         from ..models.sem2nerf.render import RenderRequest, render_from_mask
 
+        # --mix without --mix-seed (or --blend-steps without --blend) was ignored: the images came out in the
+        # unblended style with no word
+        for flag, value, needs, given in (("--mix", args.mix, "--mix-seed", args.mix_seed),
+                                          ("--blend-steps", args.blend_steps, "--blend", args.blend)):
+            if value is not None and given is None:
+                raise InputError(f"{flag} needs {needs} SEED (the style to blend toward)")
+        if args.views is not None and args.targets:  # the targets' cameras were rendered, --views ignored
+            raise InputError("--views is the orbit's count; with --targets the targets' cameras are rendered: "
+                             "give one of them")
         req = RenderRequest(checkpoint=args.checkpoint, mask=args.mask, pose=args.pose, out=args.out,
-                            intrinsics=args.intrinsics, fov=args.fov, views=args.views, edits=tuple(args.edit),
-                            style_seed=args.style_seed, blend=args.blend, blend_steps=args.blend_steps,
+                            intrinsics=args.intrinsics, fov=args.fov, views=8 if args.views is None else args.views,
+                            edits=tuple(args.edit),
+                            style_seed=args.style_seed, blend=args.blend,
+                            blend_steps=5 if args.blend_steps is None else args.blend_steps,
                             force=args.force, threads=args.threads, device=args.device, targets=args.targets,
-                            mix_seed=args.mix_seed, mix=args.mix if args.mix_seed is not None else 0.0,
+                            mix_seed=args.mix_seed,
+                            mix=(0.5 if args.mix is None else args.mix) if args.mix_seed is not None else 0.0,
                             quality=args.quality)
-        summary = run_with_tqdm(render_from_mask(req), desc="sem2nerf render", unit="img")
+        try:
+            summary = run_with_tqdm(render_from_mask(req), desc="sem2nerf render", unit="img")
+        except KeyboardInterrupt:  # the CLI's own line says "finished work is kept": a render keeps nothing
+            print(f"error: interrupted; nothing was written ({args.out} is as it was)", file=sys.stderr)
+            return 130
         print(json.dumps({"out": args.out, "views": summary["views"], "edits": summary["edits"]}))
         return 0
     if cmd == "eval":

@@ -105,6 +105,15 @@ def plan_from_props(context) -> Sem2NeRFJob:
         raw, where = R.read_mask_png(path), f"mask {path}"
     else:
         img = p.mask_image
+        if img is not None and p.mask_encoding == "IDS" and img.is_float:
+            # a 16-bit PNG of part ids is loaded as floats id / 65535: its ids read as 0 or 1 (an id of 193 became
+            # part 1, 65 background) with no word; the CLI refuses such masks as well
+            raise InputError(f"image {img.name!r} holds 16-bit or float pixels; part ids are 8-bit grey values: "
+                             "save it as an 8-bit greyscale PNG")
+        if img is not None and tuple(img.size) != (info.size, info.size) and min(img.size) > 0:
+            # before its colours are read on the main thread (the blend check's cost grows with the pixels)
+            raise InputError(f"image {img.name!r} is {img.size[0]}x{img.size[1]}; this checkpoint takes "
+                             f"{info.size}x{info.size} masks")
         raw = R.mask_from_rgba(S.image_rgba(img), info.labels, p.mask_encoding,
                                f"image {img.name!r}" if img is not None else "image")
         where = f"image {img.name!r}"
@@ -118,6 +127,8 @@ def plan_from_props(context) -> Sem2NeRFJob:
         c2w, intr = R.mask_camera_files(pose, "", info.size)
     else:  # a painted mask is always seen from a scene camera
         intr, c2w = S.mask_camera(scene, p.camera, info.size)
+    seen_from = "its dataset pose" if p.viewpoint == "DATASET" and p.mask_source == "FILE" else repr(p.camera.name)
+    R.check_camera_sees_box(mask, intr, c2w, info.scene_box, f"{where} seen from {seen_from}")
     # The views to generate
     if p.target_source == "ORBIT":
         targets = S.orbit_targets(scene, intr, c2w, p.orbit_count)

@@ -15,8 +15,8 @@ written; then it renders into a temporary folder that is moved into place at the
 
 Views orbit the world z axis through the input camera (``views`` of them, evenly spaced), or are the
 cameras of a ``targets.json`` (the add-on's selected cameras or its own orbit); view k is written as
-``rgb/k``, ``semantic/k``, ... in both cases. The checks (:func:`checkpoint_info`,
-:func:`check_input_mask`, :func:`check_pose`, :func:`mask_from_rgba`) are shared with the add-on's
+``rgb/k``, ``semantic/k``, ... in both cases. The checks (:func:`checkpoint_info`, :func:`check_input_mask`,
+:func:`check_pose`, :func:`check_camera_sees_box`, :func:`mask_from_rgba`) are shared with the add-on's
 operator, which runs them on Blender's main thread before it starts the worker. bpy-free.
 """
 
@@ -62,8 +62,9 @@ class RenderRequest:
     blend_steps: int = 5
     """Images along the blend (ends included)."""
     force: bool = False
-    """Write into a non-empty output folder (files of the same name are replaced); never into the folder of the
-    mask or pose, or the dataset object holding them (:func:`input_folders`)."""
+    """Write into a non-empty output folder (files of the same name are replaced, an earlier render's files removed:
+    :func:`remove_earlier_render`); never into the folder of the mask or pose, or the dataset object holding them
+    (:func:`input_folders`)."""
     threads: int = 0
     """torch CPU threads (0 = every core but one, ``threads.auto_threads``)."""
     device: str = "cpu"
@@ -145,6 +146,8 @@ def read_mask_png(path: Path) -> np.ndarray:
 
     from ...datasets import format as DF
 
+    if Path(path).is_dir():  # a folder "did not exist"
+        raise InputError(f"mask {path} is a folder, not a PNG file")
     if not Path(path).is_file():
         raise InputError(f"mask {path} does not exist")
     try:
@@ -184,6 +187,8 @@ class CheckpointInfo:
     """Their names."""
     size: int
     """Side of the square masks it takes."""
+    scene_box: float = 0.5
+    """Half-size of the world cube (about the origin) its objects live in: nothing outside it is rendered."""
 
 
 def checkpoint_info(path: Path) -> CheckpointInfo:
@@ -194,9 +199,10 @@ def checkpoint_info(path: Path) -> CheckpointInfo:
     try:
         cfg = json.loads(meta["model_config"])
         labels, names, size = tuple(int(v) for v in cfg["labels"]), tuple(cfg["label_names"]), int(cfg["image_size"])
-    except (KeyError, TypeError, ValueError):
+        box = float(cfg.get("scene_box", 0.5))
+    except (KeyError, TypeError, ValueError, AttributeError):
         raise InputError(f"{model_file}: its Sem2NeRF model config is unreadable") from None
-    return CheckpointInfo(model_file, meta, labels, names, size)
+    return CheckpointInfo(model_file, meta, labels, names, size, box)
 
 
 def check_input_mask(mask: np.ndarray, info: CheckpointInfo, where: str,
@@ -233,6 +239,37 @@ def check_pose(c2w, where: str) -> np.ndarray:
     if not np.allclose(r.T @ r, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
         raise InputError(f"{where} is not a rigid camera pose (its rotation is scaled, sheared or mirrored)")
     return m
+
+
+MIN_BOX_COVER = 0.9
+"""Least share of a mask's part pixels whose rays must cross the model's object box (:func:`check_camera_sees_box`).
+Every view of the datasets it trains on has all of them cross it (52 of 52 library views: 100 %)."""
+
+
+def check_camera_sees_box(mask: np.ndarray, intr, c2w: np.ndarray, scene_box: float, where: str) -> None:
+    """InputError when from the mask's camera fewer than :data:`MIN_BOX_COVER` of the mask's part pixels lie over the
+    model's object box (the cube of half-size ``scene_box`` about the world origin): the model renders nothing
+    outside it, so a camera far from the origin (Blender's default camera is 11 units away; a model's training
+    views about 1.5) or aimed elsewhere rendered a blank or cut-off object without a word. Torch-free."""
+    from ...geometry import cameras
+
+    fg = np.argwhere(np.asarray(mask) != 0)
+    if not len(fg):
+        return
+    o, d = cameras.rays_opencv(intr, c2w, fg[:, ::-1] + 0.5)
+    o = np.broadcast_to(o, d.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):  # slab test; a zero direction component gives +-inf or nan
+        t0, t1 = (-scene_box - o) / d, (scene_box - o) / d
+        near = np.where(d == 0, np.where(np.abs(o) <= scene_box, -np.inf, np.inf), np.minimum(t0, t1)).max(-1)
+        far = np.where(d == 0, np.where(np.abs(o) <= scene_box, np.inf, -np.inf), np.maximum(t0, t1)).min(-1)
+    share = float((far >= np.maximum(near, 0.0)).mean())
+    if share < MIN_BOX_COVER:
+        dist = float(np.linalg.norm(np.asarray(c2w)[:3, 3]))
+        raise InputError(f"{where}: from this camera ({dist:.3g} units from the origin) only {100 * share:.0f}% of the "
+                         f"mask's parts lie over the model's object box (a cube of half-size {scene_box:g} about the "
+                         "world origin; nothing outside it is rendered), so the object would be missing or cut off: "
+                         "its objects are centred at the origin and seen from about 1.5 units away (make-shapenet's "
+                         "views): aim the camera at the origin from nearer")
 
 
 MASK_ENCODINGS = ("COLORS", "IDS")
@@ -275,13 +312,79 @@ def mask_from_rgba(rgba: np.ndarray, labels: tuple[int, ...], encoding: str, whe
     dist2 = 2 * dist + ~np.isin(ref_ids, [0, *labels])[None]
     best = dist2.argmin(1)
     ids = np.where(dist[np.arange(len(uniq)), best] <= COLOR_TOLERANCE, ref_ids[best], -1)
-    out = ids[inv.reshape(packed.shape)]
-    bad = (out < 0) & ~clear
+    out = np.where(clear, 0, ids[inv.reshape(packed.shape)])
+    own = np.where(clear, 0, dist[np.arange(len(uniq)), best][inv.reshape(packed.shape)])
+    ref = np.where(clear[..., None], 255, refs[best][inv.reshape(packed.shape)])
+    edges = _blend_edges(rgb, out, own, ref, clear)  # (an edge pixel of two labels: the nearer of the two)
+    if edges is not None:
+        out = out.copy()
+        out[edges[0], edges[1]] = edges[2]
+    bad = out < 0
     if bad.any():
         y, x = np.argwhere(bad)[0]
         raise InputError(f"{where}: {int(bad.sum())} pixels have colours of no label, e.g. {tuple(img[y, x, :3])} at "
                          f"x={x}, y={y} (paint with the label colours and a hard brush)")
-    return np.where(clear, 0, out).astype(np.uint8)
+    return out.astype(np.uint8)
+
+
+EDGE_REACH = 3
+"""How far (pixels, in x and y) :func:`_blend_edges` looks for the labels an edge pixel blends (a 2x Lanczos
+downscale rings 3 pixels out from an edge)."""
+
+
+def _blend_edges(rgb: np.ndarray, ids: np.ndarray, own: np.ndarray, ref: np.ndarray, clear: np.ndarray):
+    """The edge pixels of a soft brush, anti-aliasing or a resized semantic map, and the labels to read them as.
+
+    An edge pixel holds no label's colour exactly, and its nearest label is none of the labels held exactly by
+    pixels near it (up to :data:`EDGE_REACH` away). The nearest colour read such pixels as some third label (the
+    palette is dense: 77 labels in the shipped model, so a car's edge read as 'telephone/button' with no word), or
+    as no label (refused: every resized map was). They are read as one of the labels near them: the nearer end of
+    the blend of two of them that fits the colour best (or the nearest one's colour), where two labels or more are
+    near (an edge between parts; a junction of three blends three colours) or that fit is within
+    :data:`COLOR_TOLERANCE`; a colour far from every blend inside one part is a painting mistake and stays refused.
+    Pixels of a label's exact colour are never edges (a hard-painted mask's one-pixel parts stay); a mask with no
+    exact colour (a JPEG) is read by nearest colour as before. ``ids`` (-1: no label), ``own`` (distance to the
+    nearest label's colour) and ``ref`` (that colour) per pixel. None, or (ys, xs, labels)."""
+    exact = (own == 0) & ~clear
+    cand = (own > 0) & ~clear
+    if not exact.any() or not cand.any():
+        return None
+    r, (h, w) = EDGE_REACH, ids.shape
+    ys, xs = np.nonzero(cand)
+    me = ids[ys, xs]
+    c = rgb[ys, xs].astype(np.float64)
+    ends, near_of = [], {}  # (label, its exact colour) as the mask holds them; where each label is near
+    for v in np.unique(ids[exact]):
+        held = exact & (ids == v)
+        pad = np.pad(held, r)
+        near = np.zeros((h, w), bool)
+        for dy in range(2 * r + 1):
+            for dx in range(2 * r + 1):
+                near |= pad[dy:dy + h, dx:dx + w]
+        near_of[int(v)] = near[ys, xs]
+        ends += [(int(v), col.astype(np.float64)) for col in np.unique(ref[held], axis=0)]
+    count = sum(near_of.values())
+    mine = np.array([near_of.get(int(m), np.zeros(len(ys), bool))[k] if m >= 0 else False for k, m in enumerate(me)]) \
+        if len(near_of) else np.zeros(len(ys), bool)
+    todo = (count >= 1) & ~mine
+    best, nearer = np.full(len(ys), np.inf), np.full(len(ys), -1)
+    for v, col in ends:
+        d = np.where(todo & near_of[v], np.abs(c - col).max(-1), np.inf)
+        better = d < best
+        best, nearer = np.where(better, d, best), np.where(better, v, nearer)
+    for i, (va, ca) in enumerate(ends):
+        for vb, cb in ends[i + 1:]:
+            ok = todo & near_of[va] & near_of[vb] & (va != vb)
+            if not ok.any():
+                continue
+            seg = cb - ca
+            t = np.clip(((c - ca) @ seg) / max(float(seg @ seg), 1e-9), 0.0, 1.0)
+            fit = np.where(ok, np.abs(c - (ca + t[:, None] * seg)).max(-1), np.inf)
+            better = fit < best
+            best = np.where(better, fit, best)
+            nearer = np.where(better, np.where(t < 0.5, va, vb), nearer)
+    edge = todo & ((best <= COLOR_TOLERANCE) | (count >= 2))
+    return (ys[edge], xs[edge], nearer[edge]) if edge.any() else None
 
 
 def label_colors(labels: tuple[int, ...], names: tuple[str, ...]) -> list[tuple[int, str, str]]:
@@ -313,10 +416,12 @@ def input_folders(mask: Path, pose: Path) -> dict[str, Path]:
 
 def prepare(req: RenderRequest) -> Prepared:
     """Every check that needs no torch; InputError / OutputError naming the first problem."""
-    from ...guards import check_not_input
+    from ...guards import check_folder_writable, check_not_input
 
     out = Path(req.out)
     check_not_input(out, input_folders(Path(req.mask), Path(req.pose)))  # whatever --force says
+    # an --out under a file was a FileExistsError traceback after the model loaded; a file as --out said "use --force"
+    check_folder_writable(out, "output")
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not req.force)):
         raise OutputError(f"output {out} exists and is not an empty folder (use --force to write into it)")
     if req.views < 1 or req.blend_steps < 2:
@@ -334,6 +439,7 @@ def prepare(req: RenderRequest) -> Prepared:
     size = info.size
     mask, edits = check_input_mask(read_mask_png(Path(req.mask)), info, f"mask {req.mask}", req.edits)
     c2w, intr = mask_camera_files(Path(req.pose), req.intrinsics, size, req.fov)
+    check_camera_sees_box(mask, intr, c2w, info.scene_box, f"pose {req.pose}")
     if req.targets:
         from ...datasets.novel_views import read_targets
 
@@ -351,6 +457,8 @@ def mask_camera_files(pose: Path, intrinsics: str, size: int, fov: float = 40.0)
     from ...geometry import cameras
 
     pose = Path(pose)
+    if pose.is_dir():  # a folder "did not exist"
+        raise InputError(f"pose {pose} is a folder, not a pose file (the mask's camera needs one)")
     if not pose.is_file():
         raise InputError(f"pose {pose} does not exist (the mask's camera needs a pose)")
     try:
@@ -372,6 +480,34 @@ def mask_camera_files(pose: Path, intrinsics: str, size: int, fov: float = 40.0)
             raise InputError("--fov must be in [1, 170] degrees")
         intr = cameras.intrinsics_from_fov(math.radians(fov), size, size)
     return c2w, intr
+
+
+RENDER_FOLDERS = ("rgb", "semantic", "semantic_color", "pose", "blend")
+"""The folders of per-view files a render writes (``NNNNNN.png`` / ``NNNNNN.txt``)."""
+
+
+def remove_earlier_render(out: Path) -> None:
+    """Remove the files of an earlier render in ``out`` (the views and blend images its ``sem2nerf.json`` counts):
+    with ``--force`` its views beyond this render's count and its ``blend/`` were left beside the new files, and
+    ``sem2nerf.json`` then described a folder holding two renders. Only the names it wrote go (other files in
+    ``out``, a dataset's views past its count among them, are the user's); called when the new render is complete,
+    so an interrupted one leaves the earlier render whole."""
+    out = Path(out)
+    try:
+        earlier = json.loads((out / "sem2nerf.json").read_text())
+        views, blends = int(earlier.get("views", 0)), int(earlier.get("blend_steps", 0) or 0)
+    except (OSError, ValueError, TypeError, AttributeError):
+        return  # none there (or not one of ours): nothing is removed
+    names = [(sub, f"{k:06d}.{'txt' if sub == 'pose' else 'png'}") for sub in RENDER_FOLDERS[:4] for k in range(views)]
+    names += [("blend", f"{j:06d}.png") for j in range(blends)]
+    for sub, name in names:
+        (out / sub / name).unlink(missing_ok=True)
+    for sub in RENDER_FOLDERS:
+        d = out / sub
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
+    for name in ("mask_input.png", "sem2nerf.json"):
+        (out / name).unlink(missing_ok=True)
 
 
 def mix_styles(a, b, t: float):
@@ -441,6 +577,7 @@ def render_from_mask(req: RenderRequest):
                    "quality": req.quality, "samples_per_ray": [model.cfg.n_coarse, model.cfg.n_fine],
                    "intrinsics": {"fx": p.intr.fx, "fy": p.intr.fy, "cx": p.intr.cx, "cy": p.intr.cy}}
         (tmp / "sem2nerf.json").write_text(json.dumps(summary, indent=2) + "\n")
+        remove_earlier_render(out)
         DF.move_into(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
