@@ -286,3 +286,22 @@ def test_a_resized_mask_reads_only_its_own_labels_and_a_wrong_colour_is_still_re
     img[12:20, 12:20] = (0, 255, 0)  # a colour of no label (65 from the nearest), painted inside one part
     with pytest.raises(InputError, match="64 pixels have colours of no label"):
         mask_from_rgba(img, info.labels, "COLORS", "img")
+
+
+def test_a_grey_mask_saved_as_rgb_reads_as_its_part_ids(tmp_path):
+    """An editor may save a greyscale part-id mask as RGB with three equal channels: the panel read it, the CLI
+    refused it ("3 channels"). It reads as the grey values; a coloured RGB image is still refused."""
+    from PIL import Image
+
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.models.sem2nerf.render import read_mask_png
+
+    ids = np.zeros((8, 8), np.uint8)
+    ids[2:6, 2:6] = 7
+    Image.fromarray(np.repeat(ids[..., None], 3, -1)).save(tmp_path / "grey_rgb.png")
+    assert np.array_equal(read_mask_png(tmp_path / "grey_rgb.png"), ids)
+    rgb = np.repeat(ids[..., None], 3, -1)
+    rgb[0, 0] = (1, 2, 3)
+    Image.fromarray(rgb).save(tmp_path / "colour.png")
+    with pytest.raises(InputError, match="has 3 channels"):
+        read_mask_png(tmp_path / "colour.png")

@@ -139,9 +139,10 @@ def orbit_poses(c2w: np.ndarray, n: int) -> list[np.ndarray]:
 
 
 def read_mask_png(path: Path) -> np.ndarray:
-    """A mask PNG's (H, W) uint8 part ids; InputError for a missing or unreadable file, several channels, more
-    than 8 bits, or a palette image whose colours are not grey (a palette image with grey entries, which an
-    editor may save a greyscale mask as, is read as those grey values, never as its palette indices)."""
+    """A mask PNG's (H, W) uint8 part ids; InputError for a missing or unreadable file, several channels (but an RGB
+    image whose three channels are equal: grey, as an editor may save it and as the panel reads it), more than 8
+    bits, or a palette image whose colours are not grey (a palette image with grey entries, which an editor may save
+    a greyscale mask as, is read as those grey values, never as its palette indices)."""
     from PIL import Image
 
     from ...datasets import format as DF
@@ -158,6 +159,8 @@ def read_mask_png(path: Path) -> np.ndarray:
         raise InputError(f"mask {path} is not a readable PNG: {type(e).__name__}") from None
     if mode == "P":  # np.asarray gives its palette indices; PA (indices + alpha) is refused below as 2 channels
         m = _palette_greys(m, pal, f"mask {path}")
+    if m.ndim == 3 and m.shape[-1] == 3 and (m == m[..., :1]).all():  # grey saved as RGB: the panel reads it so
+        m = m[..., 0]
     if m.ndim != 2:
         raise InputError(f"mask {path} has {m.shape[-1]} channels; expected a single-channel part-id image")
     if m.dtype != np.uint8:
