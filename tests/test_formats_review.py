@@ -271,3 +271,19 @@ def test_our_own_transforms_json_reads_its_camera_and_refuses_what_it_cannot(tmp
         bad.write_text(text)
         with pytest.raises(InputError, match=needle):
             F.read_transforms(bad)
+
+
+def test_our_own_and_sem2nerfs_intrinsics_txt_are_read_with_the_srn_checks(tmp_path):
+    """``format.read_srn_intrinsics`` (our object folders, sem2nerf --intrinsics) read a one-line file's 'f cx' as
+    its 'H W' and took a zero focal length; the SRN loader's layout and value checks are its own now."""
+    from blender_mrvm.datasets import format as F
+
+    p = tmp_path / "intrinsics.txt"
+    p.write_text("20.0 8.5 6.5 0.\n")
+    with pytest.raises(InputError, match="not an SRN intrinsics file: it holds 1 line"):
+        F.read_srn_intrinsics(p)
+    p.write_text("0.0 8.5 6.5 0.\n0. 0. 0.\n1.\n12 16\n")
+    with pytest.raises(InputError, match="focal length must be a positive number"):
+        F.read_srn_intrinsics(p)
+    p.write_text("20.0 8.5 6.5 0.\n0. 0. 0.\n1.\n12 16\n")
+    assert F.read_srn_intrinsics(p) == cameras.Intrinsics(20.0, 20.0, 8.5, 6.5, 16, 12)

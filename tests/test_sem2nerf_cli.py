@@ -146,7 +146,7 @@ def test_bad_input_one_line_error_nothing_written(tmp_path, trained, capsys, cas
         match = "pose"
     elif case == "rgb_mask":
         mask = tmp_path / "m.png"
-        DF.write_png(mask, np.zeros((16, 16, 3), np.uint8))
+        DF.write_png(mask, np.tile(np.array([0, 40, 80], np.uint8), (16, 16, 1)))  # coloured (grey RGB reads as ids)
         match = "single-channel"
     elif case == "bad_edit":
         edit = ["--edit", "1:250"]

@@ -413,14 +413,31 @@ def format_srn_intrinsics(intr: Intrinsics) -> str:
 
 
 def read_srn_intrinsics(path: Path) -> Intrinsics:
-    """SRN ``intrinsics.txt``: 'f cx cy 0', grid barycenter, scale, 'H W'."""
-    lines = [ln for ln in Path(path).read_text().splitlines() if ln.strip()]
+    """SRN ``intrinsics.txt``: 'f cx cy 0' / '0. 0. 0.' / '1.' / 'H W' (pixelNeRF's reading: the first line and the
+    last). InputError for another layout (a one-line file read its 'f cx' as 'H W': a camera 6 to 9 pixels off; a
+    3x3 or 4x4 K matrix divided by zero), a focal length that is not positive, or a size that is not: our own object
+    folders, the SRN loader and Sem2NeRF's --intrinsics read it here."""
+    layout = "'f cx cy 0' / '0. 0. 0.' / '1.' / 'H W', pixelNeRF's SRN layout"
     try:
-        f, cx, cy = map(float, lines[0].split()[:3])
-        h, w = (int(float(v)) for v in lines[-1].split()[:2])
-    except (ValueError, IndexError) as e:
-        raise InputError(f"{path}: not an SRN intrinsics file ({e})") from e
-    return Intrinsics(f, f, cx, cy, w, h)
+        rows = [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip()]
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not an SRN intrinsics file ({layout}): {e}") from None
+    if len(rows) < 2 or len(rows[0]) < 3 or len(rows[-1]) != 2:
+        kind = ("a K matrix" if len(rows) in (3, 4) and all(len(r) == len(rows) for r in rows) else
+                f"{len(rows)} line(s), the last of {len(rows[-1]) if rows else 0} value(s)")
+        raise InputError(f"{path}: not an SRN intrinsics file: it holds {kind}, not {layout}")
+    try:
+        f, cx, cy = map(float, rows[0][:3])
+        h, w = (float(v) for v in rows[-1])
+    except ValueError as e:
+        raise InputError(f"{path}: not an SRN intrinsics file ({e})") from None
+    if not (math.isfinite(f) and f > 0 and math.isfinite(cx) and math.isfinite(cy)):
+        raise InputError(f"{path}: the focal length must be a positive number and cx, cy numbers, got "
+                         f"f={f} cx={cx} cy={cy}")
+    if not (math.isfinite(h) and math.isfinite(w) and int(w) >= 1 and int(h) >= 1):
+        raise InputError(f"{path}: the image size on its last line ('H W') must be positive, got {rows[-1][0]} "
+                         f"{rows[-1][1]}")
+    return Intrinsics(f, f, cx, cy, int(w), int(h))
 
 
 def transforms_dict(intr: Intrinsics, frames: list[dict[str, Any]], extra: dict[str, Any] | None = None) -> dict:

@@ -255,22 +255,7 @@ def srn_intrinsics(path: Path, w: int, h: int) -> cameras.Intrinsics:
     (SRN's own sets), it is scaled to them. InputError for another layout (a one-line file read its 'f cx' as 'H W':
     a camera 6 to 9 pixels off; a 3x3 or 4x4 K matrix divided by zero), a focal length that is not positive, or
     another aspect ratio (the height was left as the file's, not the images')."""
-    layout = "'f cx cy 0' / '0. 0. 0.' / '1.' / 'H W', pixelNeRF's SRN layout"
-    try:
-        rows = [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip()]
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: not an SRN intrinsics file ({layout}): {e}") from None
-    if len(rows) < 2 or len(rows[0]) < 3 or len(rows[-1]) != 2:
-        kind = ("a K matrix" if len(rows) in (3, 4) and all(len(r) == len(rows) for r in rows) else
-                f"{len(rows)} line(s), the last of {len(rows[-1]) if rows else 0} value(s)")
-        raise InputError(f"{path}: not an SRN intrinsics file: it holds {kind}, not {layout}")
-    intr = F.read_srn_intrinsics(path)
-    if not (math.isfinite(intr.fx) and intr.fx > 0 and math.isfinite(intr.cx) and math.isfinite(intr.cy)):
-        raise InputError(f"{path}: the focal length must be a positive number and cx, cy numbers, got "
-                         f"f={intr.fx} cx={intr.cx} cy={intr.cy}")
-    if intr.width < 1 or intr.height < 1:
-        raise InputError(f"{path}: the image size on its last line ('H W') must be positive, got {intr.height} "
-                         f"{intr.width}")
+    intr = F.read_srn_intrinsics(path)  # (its layout and values checked there)
     if (intr.width, intr.height) != (w, h):  # SRN intrinsics may be given at another resolution
         if abs(intr.width * h - intr.height * w) > max(intr.width, intr.height):
             raise InputError(f"{path} is for {intr.width}x{intr.height} images ('H W' = '{intr.height} "
