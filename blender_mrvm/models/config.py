@@ -237,13 +237,19 @@ def merge(cfg: Any, overrides: dict[str, Any]) -> Any:
     """Return ``cfg`` with nested ``overrides`` (a partial dict) applied."""
     if not overrides:
         return cfg
+    if not isinstance(overrides, dict):  # (a run config's "overrides": 5 raised AttributeError)
+        raise InputError(f"{type(cfg).__name__}: overrides must be a mapping of its fields, got "
+                         f"{type(overrides).__name__}")
     hints = get_type_hints(type(cfg))
     kw = {}
     for k, v in overrides.items():
         if k not in hints:
             raise InputError(f"{type(cfg).__name__}: unknown config field {k!r}")
         cur = getattr(cfg, k)
-        if is_dataclass(cur) and isinstance(v, dict):
+        if is_dataclass(cur):  # a section takes a mapping of its fields ({"nerformer": 5} raised AttributeError)
+            if not isinstance(v, dict):
+                raise InputError(f"{type(cfg).__name__}.{k} is a section: override it with a mapping of its fields, "
+                                 f"got {v!r}")
             kw[k] = merge(cur, v)
         elif isinstance(cur, tuple) and isinstance(v, (list, tuple)):
             kw[k] = tuple(v)

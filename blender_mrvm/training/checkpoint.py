@@ -26,7 +26,8 @@ import torch
 from ..datasets.format import atomic_write_text, disk_full_error, ordinary_permissions
 from ..errors import InputError
 from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
-                                       find_checkpoint, model_file_of, read_header_meta)  # noqa: F401 (re-exported)
+                                       checkpoint_folders, find_checkpoint, model_file_of,
+                                       read_header_meta)  # noqa: F401 (re-exported)
 from ..models import registry
 from ..models.config import to_dict
 
@@ -62,7 +63,9 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     atomic_write_text(ck_root / "latest", name + "\n")
-    done = sorted(p for p in ck_root.glob("step_*") if p.is_dir())
+    # oldest first by step, as checkpoint_folders orders them: by name, step_10000000 sorted before step_9999000,
+    # so from the ten-millionth step on every new checkpoint but the current was pruned and the old ones kept
+    done = checkpoint_folders(ck_root)[::-1]
     for old in done[:-keep] if keep > 0 else []:
         if old.name != name:
             shutil.rmtree(old, ignore_errors=True)

@@ -125,7 +125,7 @@ class TrainConfig:
     ckpt_every: int = 1000
     """Checkpoint every this many steps (and at the end)."""
     keep_checkpoints: int = 2
-    """Checkpoints kept on disk (older ones are removed)."""
+    """Checkpoints kept on disk, the newest by step (older ones are removed); 0 keeps every one."""
     threads: int = 0
     """torch CPU threads per process (0 = torch's default)."""
     device: str = "cpu"
@@ -175,6 +175,7 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
     m = data.get("model", {})
     if not isinstance(m, dict) or not isinstance(data.get("train", {}), dict):
         raise InputError(f"{path}: 'model' and 'train' must be JSON objects")
+    check_model_section(m, path)
     if preset:
         full = m.get("config") if isinstance(m.get("config"), dict) else {}
         named = m.get("preset") or full.get("name")
@@ -210,8 +211,11 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
         raise InputError(f"--model {kind} conflicts with the config's own {named_kind} model; drop --model or the "
                          "config's model section")
     k = named_kind or kind
-    if "config" in m:  # a full config (as saved in a checkpoint)
+    if "config" in m:  # a full config (as saved in a checkpoint), with the section's overrides on top
         mcfg = registry.config_from_dict(k, m["config"])
+        if m.get("overrides"):  # (a copied run's config.json plus an override: it was dropped without a word)
+            mcfg = merge(mcfg, m["overrides"])
+            registry.validate(mcfg)
     elif set(m) <= {"kind", "overrides"} and tcfg.init_checkpoint:  # fine-tuning: the checkpoint's own model
         mcfg = init_model_config(tcfg.init_checkpoint)
         theirs, want = registry.kind_of(mcfg), named_kind or (registry.kind(kind).name if kind else None)
@@ -225,7 +229,46 @@ def load_run_config(path: Path | None, overrides: dict[str, Any] | None = None,
             registry.validate(mcfg)
     else:
         mcfg = registry.build_config(k, m.get("preset", preset), m.get("overrides"))
+    check_reference_range(mcfg, tcfg)
     return mcfg, tcfg
+
+
+MODEL_SECTION_KEYS = ("kind", "preset", "overrides", "config")
+"""What a run config's model section may hold."""
+
+
+def check_model_section(m: dict[str, Any], path: Path | None = None) -> None:
+    """InputError for a model section that would be read as something else than it says: an unknown key (a
+    misspelt ``overrides`` or ``preset`` was dropped, and the run trained the default model with exit 0), both a
+    ``preset`` and a full ``config`` (the preset was dropped), or ``overrides`` that are not a JSON object."""
+    where = f"{path}: " if path is not None else ""
+    unknown = sorted(set(m) - set(MODEL_SECTION_KEYS))
+    if unknown:
+        raise InputError(f"{where}unknown key(s) {unknown} in the model section (it takes "
+                         f"{', '.join(MODEL_SECTION_KEYS)})")
+    if "preset" in m and "config" in m:
+        raise InputError(f"{where}the model section names both a preset ({m['preset']!r}) and a full config: give "
+                         "one (a preset with overrides, or the config)")
+    if "overrides" in m and not isinstance(m["overrides"], dict):
+        raise InputError(f"{where}the model section's overrides must be a JSON object of fields, got "
+                         f"{type(m['overrides']).__name__}")
+
+
+def check_reference_range(mcfg: Any, tcfg: TrainConfig) -> None:
+    """InputError when the run would train with reference counts its model refuses afterwards: the model's
+    ``min_ref_views`` / ``max_ref_views`` (every kind has the latter; 10 for the presets) bound what ``eval`` and
+    ``synthesize`` give it, and a run drawing ``train.max_ref_views`` 14 from a model of 10 trained at 14 and then
+    refused ``--nearest 12`` ("must be between 0 and 10")."""
+    lo, hi = int(getattr(mcfg, "min_ref_views", 1)), int(getattr(mcfg, "max_ref_views", 10))
+    if tcfg.max_ref_views > hi:
+        raise InputError(f"train.max_ref_views ({tcfg.max_ref_views}) is above the model's max_ref_views ({hi}): the "
+                         f"trained model would refuse the reference counts it was trained with; lower "
+                         f"train.max_ref_views, or raise the model's (model.overrides {{\"max_ref_views\": "
+                         f"{tcfg.max_ref_views}}})")
+    if tcfg.min_ref_views < lo:
+        raise InputError(f"train.min_ref_views ({tcfg.min_ref_views}) is below the model's min_ref_views ({lo}): the "
+                         "trained model would refuse the reference counts it was trained with; raise "
+                         "train.min_ref_views, or lower the model's")
 
 
 FINETUNE = {"pretrain_frac": 0.0, "lr": 1e-4, "lr_warmup": 50, "bbox_sampling_frac": 0.0}
