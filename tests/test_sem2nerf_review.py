@@ -305,3 +305,21 @@ def test_a_grey_mask_saved_as_rgb_reads_as_its_part_ids(tmp_path):
     Image.fromarray(rgb).save(tmp_path / "colour.png")
     with pytest.raises(InputError, match="has 3 channels"):
         read_mask_png(tmp_path / "colour.png")
+
+
+@pytest.mark.parametrize("kw, needle", [
+    ({"checkpoint_every": 0}, "--checkpoint-every must be a whole number of 1 or more"),
+    ({"seed": -1}, "--seed must be a whole number of 0 or more"),
+    ({"ce_weight": -1.0}, "--ce-weight must be a number of 0 or more"),
+    ({"gan_weight": -1.0}, "--gan-weight must be a number of 0 or more"),
+    ({"input_weight": -1.0}, "--input-weight must be a number of 0 or more"),
+])
+def test_sem2nerf_train_settings_that_cannot_train_are_one_line(kw, needle):
+    """sem2nerf train --checkpoint-every 0 divided by zero after config.json and metrics.jsonl were written, --seed -1
+    was numpy's traceback, and negative loss weights trained away from the target (a loss of -0.53, exit 0) or
+    stopped at step 1 blaming the learning rate."""
+    from blender_mrvm.errors import InputError
+    from blender_mrvm.training.sem2nerf import train_config
+
+    with pytest.raises(InputError, match=needle):
+        train_config(**kw)

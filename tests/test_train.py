@@ -1079,3 +1079,20 @@ def test_a_rerun_of_a_finished_run_keeps_its_summary_and_reports_its_checkpoint(
     again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert again["checkpoint"] == first["checkpoint"] and again["checkpoint"].endswith("step_0000002")
     assert (tmp_path / "run" / "summary_rank0.json").read_text() == record
+
+
+def test_the_gradient_norm_is_logged_without_clipping_and_direct_calls_check_reference_counts(tmp_path, data):
+    """grad_clip 0 logged a grad_norm of 0.0 at every step (the norm was only measured by the clipping); it is the
+    gradient's norm now. A run started by train() itself (the panel, scripts: not through load_run_config) drawing
+    more references than its model takes is refused as the CLI refuses it."""
+    from blender_mrvm.errors import InputError
+
+    root, scenes = data
+    mcfg, tcfg = _cfgs(tmp_path / "run", root, grad_clip=0.0)
+    run_to_end(train(mcfg, tcfg, scenes=scenes))
+    lines = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert all(x["grad_norm"] > 0 and np.isfinite(x["grad_norm"]) for x in lines), lines
+    mcfg, tcfg = _cfgs(tmp_path / "run2", root, max_ref_views=mcfg.max_ref_views + 1)
+    with pytest.raises(InputError, match=r"train\.max_ref_views \(\d+\) is above the model's max_ref_views"):
+        run_to_end(train(mcfg, tcfg, scenes=scenes))
+    assert not (tmp_path / "run2").exists()

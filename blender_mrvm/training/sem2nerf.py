@@ -142,6 +142,18 @@ def train_config(**kw) -> Sem2NeRFTrainConfig:
     v = cfg.lr_end_factor
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and 0 < v <= 1):
         raise InputError(f"sem2nerf: --lr-end-factor must be a number above 0 and at most 1, got {v!r}")
+    # a negative weight trained away from its target (--ce-weight -1: a loss of -0.53, exit 0), or a NaN at step 1
+    # blamed on the learning rate (--input-weight -1)
+    for name in ("l2_weight", "lpips_weight", "ce_weight", "input_weight", "gan_weight", "grad_clip"):
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+            raise InputError(f"sem2nerf: --{name.replace('_', '-')} must be a number of 0 or more, got {v!r}")
+    # checkpoint_every 0 divided by zero after config.json and metrics.jsonl were written; a negative seed was
+    # numpy's traceback
+    for name, low in (("checkpoint_every", 1), ("log_every", 1), ("seed", 0), ("keep", 0)):
+        v = getattr(cfg, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise InputError(f"sem2nerf: --{name.replace('_', '-')} must be a whole number of {low} or more, got {v!r}")
     return cfg
 
 

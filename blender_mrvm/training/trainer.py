@@ -289,6 +289,9 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
 
     device = cfg.device
     run_folder.check_device(device)
+    from .config import check_reference_range
+
+    check_reference_range(model_cfg, cfg)  # (the panel and direct callers do not come through load_run_config)
     dd = init_distributed(device)
     if device.startswith("cuda") and dd.world > 1:
         device = f"cuda:{dd.local_rank}"
@@ -432,10 +435,11 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
                 _allreduce_grads(params, dd.world)
             if scaler:
                 scaler.unscale_(opt)
-            gnorm = torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip) if cfg.grad_clip > 0 else torch.tensor(0.0)
+            # the norm is measured without clipping too (grad_clip 0 logged a grad_norm of 0.0 every step)
+            gnorm = torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip if cfg.grad_clip > 0 else float("inf"))
             # before the update: a NaN never reaches the weights (under torchrun the all-reduced gradient
             # norm, the same on every rank, so all stop together; fp16's scaler skips inf steps itself)
-            by_norm = dd.world > 1 and scaler is None and cfg.grad_clip > 0
+            by_norm = dd.world > 1 and scaler is None
             run_folder.check_loss(float(gnorm) if by_norm else tot["loss"], step + 1, saved or found,
                                   "gradient norm" if by_norm else "loss")
             if scaler:
