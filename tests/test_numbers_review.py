@@ -103,23 +103,33 @@ def test_eval_refuses_lpips_on_images_under_16_px_before_rendering(checkpoint, t
     assert o["ssim_gauss"] is None and o["ssim"] is not None and o["psnr"] is not None  # 8 px: 7x7 fits, 11x11 not
 
 
+def _one_object(tmp_path):
+    """A dataset of one 6-view sphere (16 px) listed as the test split: (its root, its object folder)."""
+    root = tmp_path / "d"
+    make_sphere_dataset(root, n_objects=1, n_views=6, resolution=16, seed=1, category="red")
+    F.write_split(root, "test", ["red/obj000"])
+    return root, root / "red" / "obj000"
+
+
+def _eval(checkpoint, root, out) -> dict:
+    """eval.json of views 0 and 1 as references, the others targets (no LPIPS)."""
+    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(root), "--input-views", "0,1", "--threads", "1",
+                 "--no-lpips", "--out", str(out)]) == 0
+    return json.loads((out / "eval.json").read_text())
+
+
 def test_views_equal_to_the_truth_are_counted_where_psnr_leaves_them_out(checkpoint, tmp_path, capsys):
     """A target identical to a reference (a repeated pose) has PSNR +inf for the nearest-view baseline: the mean had
     left it out without a word (eval.md's "views 4" over a baseline mean of 3). Now counted in eval.json and said in
     eval.md; a NaN PSNR no longer drops out of the mean alone (its mean is null, as every other score's)."""
     from blender_mrvm.training.evaluate import summarize
 
-    root = tmp_path / "d"
-    make_sphere_dataset(root, n_objects=1, n_views=6, resolution=16, seed=1, category="red")
-    obj = root / "red" / "obj000"
+    root, obj = _one_object(tmp_path)
     for sub in (p for p in obj.iterdir() if p.is_dir()):  # view 5 := view 0 (pose, image, depth, mask)
         for f in [f for f in sub.iterdir() if f.stem == "000000"]:
             shutil.copy(f, sub / f"000005{f.suffix}")
-    F.write_split(root, "test", ["red/obj000"])
     out = tmp_path / "e"
-    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(root), "--input-views", "0,1", "--threads", "1",
-                 "--no-lpips", "--out", str(out)]) == 0
-    rep = json.loads((out / "eval.json").read_text())
+    rep = _eval(checkpoint, root, out)
     near = {v["view"]: v["baseline_nearest"]["psnr"] for v in rep["views"]}
     assert near[5] is None and all(near[v] is not None for v in (2, 3, 4))
     o = rep["overall"]
@@ -187,14 +197,9 @@ def test_opacity_on_object_pixels_leaves_out_views_without_any(checkpoint, tmp_p
 
     from blender_mrvm.training.evaluate import alpha_scores
 
-    root = tmp_path / "d"
-    make_sphere_dataset(root, n_objects=1, n_views=6, resolution=16, seed=1, category="red")
-    Image.fromarray(np.zeros((16, 16), np.uint8)).save(root / "red" / "obj000" / "mask" / "000003.png")
-    F.write_split(root, "test", ["red/obj000"])
-    out = tmp_path / "e"
-    assert main(["eval", "--checkpoint", str(checkpoint), "--data", str(root), "--input-views", "0,1", "--threads", "1",
-                 "--no-lpips", "--out", str(out)]) == 0
-    rep = json.loads((out / "eval.json").read_text())
+    root, obj_dir = _one_object(tmp_path)
+    Image.fromarray(np.zeros((16, 16), np.uint8)).save(obj_dir / "mask" / "000003.png")
+    rep = _eval(checkpoint, root, tmp_path / "e")
     obj = {v["view"]: v["alpha"]["object"] for v in rep["views"]}
     assert obj[3] is None and all(obj[v] > 0 for v in (2, 4, 5))
     assert rep["overall"]["alpha"]["object"] == pytest.approx(np.mean([obj[v] for v in (2, 4, 5)]))

@@ -173,17 +173,23 @@ def test_an_interrupt_sent_in_stops_the_child_without_blocking(tmp_path):
     assert 2 <= len(done) < 400
 
 
-def test_a_child_that_ignores_the_interrupt_is_terminated_after_the_grace(tmp_path, monkeypatch):
-    """A worker that does not wind down is terminated past the grace time, still without blocking the caller."""
+def _worker_ignoring_sigint(tmp_path, monkeypatch, grace_s: float):
+    """A worker run whose child ignores SIGINT (as one winding down does), started and past its handler's set-up:
+    (the generator, [its Popen])."""
     script = tmp_path / "stubborn.py"
     script.write_text("import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
                       "time.sleep(60)\n")
     monkeypatch.setattr(W, "worker_argv", lambda python, command, args: [python, str(script)])
     procs = []
-    gen = W.run_worker("x", [], sys.executable, env=ENV, on_start=procs.append, grace_s=0.5)
+    gen = W.run_worker("x", [], sys.executable, env=ENV, on_start=procs.append, grace_s=grace_s)
     next(gen)
     time.sleep(1.5)  # the child has set its signal handler
-    (proc,) = procs
+    return gen, procs
+
+
+def test_a_child_that_ignores_the_interrupt_is_terminated_after_the_grace(tmp_path, monkeypatch):
+    """A worker that does not wind down is terminated past the grace time, still without blocking the caller."""
+    gen, (proc,) = _worker_ignoring_sigint(tmp_path, monkeypatch, 0.5)
     t1 = time.monotonic()
     gen.send(W.INTERRUPT)
     assert time.monotonic() - t1 < 1.0
@@ -197,14 +203,7 @@ def test_esc_again_after_an_interrupt_stops_the_child_at_once(tmp_path, monkeypa
     """Esc again (the generator closed after INTERRUPT was sent in: 'Esc again stops at once') sent SIGINT a second
     time and waited the whole grace for it, which a winding-down child ignores (the CLI's sigint_flag), with
     Blender's UI frozen (up to 30 s for Train): it terminates the child at once."""
-    script = tmp_path / "winding_down.py"
-    script.write_text("import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
-                      "time.sleep(60)\n")
-    monkeypatch.setattr(W, "worker_argv", lambda python, command, args: [python, str(script)])
-    procs = []
-    gen = W.run_worker("x", [], sys.executable, env=ENV, on_start=procs.append, grace_s=20.0)
-    next(gen)
-    time.sleep(1.5)  # the child has set its signal handler
+    gen, procs = _worker_ignoring_sigint(tmp_path, monkeypatch, 20.0)
     gen.send(W.INTERRUPT)
     next(gen)
     t1 = time.monotonic()
