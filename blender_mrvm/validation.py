@@ -23,6 +23,10 @@ MAX_IMAGE_SIDE = 8192
 """Largest image side any command makes (render-dataset's limit too)."""
 MAX_REFERENCE_SIDE = 4096
 """Largest side references are resized to (the encoder's features of one 4096 px view take ~1 GB)."""
+MAX_REFERENCE_BYTES = 4 << 30
+"""Most memory a synthesis's references may take as float32 RGB pixels (views x width x height x 12 bytes), checked
+after the first is read, before the others: 50 photos of 4000x4000 kept at their size (``--ref-size -1``) need
+9.6 GB, and a 6 GiB cap failed at the 28th after 16 s with a message blaming that photo."""
 
 
 def _name(obj: Any, field: str) -> str:

@@ -377,22 +377,30 @@ def check_reference_folder(folder: Path, views: Sequence[int] = ()) -> tuple[Any
 
 
 def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None,
-                    max_size: int = 0) -> References:
+                    max_size: int = 0, side_limit: int = 0) -> References:
     """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong.
 
     All references take one size: the first view's, or ``ref_size`` pixels on the longer side when it is
-    given, or at most ``max_size`` pixels on the longer side (shrinking only)."""
+    given, or at most ``max_size`` pixels on the longer side (shrinking only). Each view is resized as it is
+    read: 50 photos of 4000x4000 held at full size before resizing took 9.6 GB of float32 pixels (a 6 GiB cap
+    failed at the 28th), to be shrunk to 64 px; now one full-size photo is held at a time. Once the first is read,
+    InputError when the references would be larger than ``side_limit`` pixels on the longer side (0 = no limit) or
+    take more than ``validation.MAX_REFERENCE_BYTES`` (:func:`check_reference_memory`)."""
     from ..datasets.loaders import to_float_rgb
 
     folder = Path(folder)
     ov, views = check_reference_folder(folder, views)
     pos = {v: k for k, v in enumerate(ov.indices)}
     imgs, intrs, poses = [], [], []
+    first = None  # (view, its intrinsics at its image's size, the common (w, h))
     for v in views:
         k = pos[v]
         path = F.view_paths(folder, v)["rgb"]
         try:
             img = to_float_rgb(ov.rgb(k))
+        except MemoryError:
+            raise InputError(f"reference image {path} does not fit in memory at its size; shrink the photos "
+                             "before synthesizing") from None
         except Exception as e:
             raise InputError(f"cannot read reference image {path}: {e}") from None
         intr = ov.intrinsics_per_view[k] if ov.intrinsics_per_view else ov.intrinsics
@@ -401,17 +409,20 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
                 raise InputError(f"reference view {v}: image is {img.shape[1]}x{img.shape[0]} but its camera is "
                                  f"{intr.width}x{intr.height} (different aspect ratio)")
             intr = intr.resized(img.shape[1], img.shape[0])
+        # One size for all references: the first view's, or the longer side ref_size.
+        if first is None:
+            first = (v, intr, reference_shape(intr, ref_size, max_size))
+            check_reference_memory(len(views), *first[2], side_limit)
+        w0, h0 = first[2]
+        if (intr.width, intr.height) != (w0, h0):
+            if abs(intr.height * w0 / intr.width - h0) > 1.0:
+                raise InputError(f"reference views {first[0]} and {v} have different aspect ratios "
+                                 f"({first[1].width}x{first[1].height} and {intr.width}x{intr.height})")
+            img, intr = resize_view(img, intr, w0, h0)
         imgs.append(img)
         intrs.append(intr)
         poses.append(C.as_pose(ov.c2w_opencv[k]))
-    # One size for all references: the first view's, or the longer side ref_size.
-    w0, h0 = reference_shape(intrs[0], ref_size, max_size)
-    for i, (img, intr) in enumerate(zip(imgs, intrs)):
-        if (intr.width, intr.height) != (w0, h0):
-            if abs(intr.height * w0 / intr.width - h0) > 1.0:
-                raise InputError(f"reference views {views[0]} and {views[i]} have different aspect ratios "
-                                 f"({intrs[0].width}x{intrs[0].height} and {intr.width}x{intr.height})")
-            imgs[i], intrs[i] = resize_view(img, intr, w0, h0)
+    w0, h0 = first[2]
     subject = None
     if bbox is not None:
         box, src = parse_bbox([*bbox[0], *bbox[1]]), "given"
@@ -427,6 +438,27 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
 
     return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src,
                       _reference_masks(folder, ov, [pos[v] for v in views], w0, h0), of_meta(ov.meta), subject)
+
+
+def check_reference_memory(count: int, w: int, h: int, side_limit: int = 0) -> None:
+    """InputError when references at ``w`` x ``h`` are larger than ``side_limit`` (0 = no limit) on the longer side,
+    or ``count`` of them would take more than ``validation.MAX_REFERENCE_BYTES`` as float pixels; the message names
+    the --ref-size that fits (and --views). Two 8000x8000 photos kept at their size (``--ref-size -1``) ran out of
+    an 8 GiB cap in the image encoder after 13 s."""
+    from .. import validation as V
+
+    if side_limit and max(w, h) > side_limit:
+        raise InputError(f"the reference views would be {w}x{h}, over the {side_limit} px limit for references "
+                         "(the image encoder's memory grows with their pixels); pass --ref-size "
+                         f"{side_limit} or smaller (their longer side in pixels; in the panel: Reference size Custom)")
+    need = count * w * h * 12
+    if need <= V.MAX_REFERENCE_BYTES:
+        return
+    fits = int(max(w, h) * (V.MAX_REFERENCE_BYTES / need) ** 0.5)
+    raise InputError(f"{count} reference views at {w}x{h} take {need / 2**30:.1f} GiB of memory, over the "
+                     f"{V.MAX_REFERENCE_BYTES / 2**30:.0f} GiB limit for references; pass --ref-size {fits} or "
+                     "smaller (their longer side in pixels; in the panel: Reference size Custom), or choose fewer "
+                     "with --views")
 
 
 def _reference_masks(folder: Path, ov, ks: Sequence[int], w: int, h: int) -> np.ndarray | None:
@@ -649,7 +681,9 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
 
     auto = cfg.checkpoint is None or is_auto(cfg.checkpoint)  # its candidates share the default's training size
     size, max_size = reference_sizes(cfg.ref_size, default_checkpoint() if auto else cfg.checkpoint)
-    refs = load_references(Path(cfg.references), tuple(cfg.views), size, cfg.bbox, max_size)
+    from .. import validation as V
+
+    refs = load_references(Path(cfg.references), tuple(cfg.views), size, cfg.bbox, max_size, V.MAX_REFERENCE_SIDE)
     side = max(refs.intrinsics[0].width, refs.intrinsics[0].height)
     if cfg.ref_size == 0 and max_size and side < max_size:
         raise InputError(f"the reference images are {refs.intrinsics[0].width}x{refs.intrinsics[0].height}, smaller than "
