@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {msg}", file=sys.stderr)
         return 2
     except (RuntimeError, MemoryError) as e:
-        msg = memory_error_message(e)
+        msg = memory_error_message(e, args.command)
         if msg is None:
             raise
         print(f"error: {msg}", file=sys.stderr)
@@ -136,7 +136,15 @@ def interrupted_import(e: BaseException) -> bool:
     return False
 
 
-def memory_error_message(e: BaseException) -> str | None:
+MEMORY_HINTS = {
+    "train": ("train holds every image of its objects in memory: render the dataset smaller (render-dataset "
+              "--resolution), or lower train.objects_per_step / train.rays_per_object (--config)"),
+    "sem2nerf": "lower --objects-per-step (train), or render with --quality preview (render)",
+}
+"""What lowers the memory of a command whose options differ from the generic hint's (train has no --chunk)."""
+
+
+def memory_error_message(e: BaseException, command: str | None = None) -> str | None:
     """One line for running out of memory (torch's CPU allocator, CUDA, numpy's MemoryError): the sizes a user
     can lower, not a traceback; None for other errors (bugs keep their traceback). Files are written atomically,
     so what was finished before is whole."""
@@ -147,8 +155,9 @@ def memory_error_message(e: BaseException) -> str | None:
         return None
     where = "the GPU" if cuda else "this machine"
     first = text.strip().splitlines()[0][:160] if text.strip() else type(e).__name__
-    return (f"out of memory on {where} ({first}): lower --chunk (rays per forward pass), the image or reference "
-            "size, or the batch; what was finished before is kept")
+    hint = MEMORY_HINTS.get(command or "", "lower --chunk (rays per forward pass), the image or reference size, or "
+                                            "the batch")
+    return f"out of memory on {where} ({first}): {hint}; what was finished before is kept"
 
 
 DISK_ERRNOS = ("ENOSPC", "EDQUOT", "EROFS", "EFBIG")

@@ -273,3 +273,19 @@ def test_torchrun_ranks_print_a_bad_input_once(monkeypatch, capsys):
         monkeypatch.setattr(contact_sheet, "run", raising(TrainingStopped("loss is NaN")))
         cli.main(argv)
         assert len(capsys.readouterr().err.strip().splitlines()) == 1  # (what one rank alone may meet)
+
+
+def test_out_of_memory_in_train_names_what_train_can_lower(monkeypatch, capsys, tmp_path):
+    """train ran out of memory holding an object's 24 views of 4000 px (session 55's review of large inputs) and the
+    line named --chunk and 'the reference size', which train does not have: it names what lowers train's memory."""
+    from blender_mrvm import cli
+    from blender_mrvm.commands import train
+
+    def boom(args):
+        raise MemoryError("Unable to allocate 4.29 GiB for an array")
+
+    monkeypatch.setattr(train, "run", boom)
+    assert cli.main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: out of memory on this machine") and "--chunk" not in line
+    assert "render-dataset --resolution" in line and "train.objects_per_step" in line
