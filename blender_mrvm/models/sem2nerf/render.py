@@ -367,8 +367,9 @@ def _blend_edges(rgb: np.ndarray, ids: np.ndarray, own: np.ndarray, ref: np.ndar
         near_of[int(v)] = near[ys, xs]
         ends += [(int(v), col.astype(np.float64)) for col in np.unique(ref[held], axis=0)]
     count = sum(near_of.values())
-    mine = np.array([near_of.get(int(m), np.zeros(len(ys), bool))[k] if m >= 0 else False for k, m in enumerate(me)]) \
-        if len(near_of) else np.zeros(len(ys), bool)
+    mine = np.zeros(len(ys), bool)  # its own label is held near it
+    for v, near in near_of.items():
+        mine |= near & (me == v)
     todo = (count >= 1) & ~mine
     best, nearer = np.full(len(ys), np.inf), np.full(len(ys), -1)
     for v, col in ends:
