@@ -17,6 +17,7 @@ import argparse
 import importlib
 import os
 import sys
+from pathlib import Path
 
 from .errors import InputError, MRVMError, OutputError
 from .threads import apply_omp_defaults
@@ -96,9 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         return e.exit_code
     except KeyboardInterrupt:
         if rank == 0:
-            print("error: interrupted; finished work is kept" if world <= 1 else
-                  "error: interrupted; the checkpoints saved so far are kept (under torchrun the steps since the "
-                  "last one are not)", file=sys.stderr)
+            kept = interrupted_keeps(args, world)
+            print(f"error: interrupted{'; ' + kept if kept else ''}", file=sys.stderr)
         return 130
     except OSError as e:
         msg = os_error_message(e)
@@ -112,6 +112,71 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {msg}", file=sys.stderr)
         return 2
+
+
+RESUMED = "the views finished so far are kept; the same command goes on from them"
+NOTHING_WRITTEN = "nothing was written"
+TRAIN_KEPT = ("the run's checkpoints are kept (the first Ctrl-C saves the step in progress); the same command goes on "
+              "from the newest")
+
+
+def _out_as_it_was(args) -> str:
+    return f"nothing was written ({args.out} is as it was)" if getattr(args, "out", None) else NOTHING_WRITTEN
+
+
+def _bench_kept(args) -> str:
+    """A bench that writes its rows as it measures (model, tradeoff, train, capture) keeps them; its files in --out
+    are this run's (earlier results are refused, or removed by --force when the measuring starts)."""
+    out = getattr(args, "out", None)
+    results = getattr(getattr(args, "_bench", None), "RESULTS", ()) if args.command == "bench" else ()
+    if args.command == "sem2nerf":
+        from .models.sem2nerf.inputs import BENCH_RESULTS as results
+    there = [n for n in results if out is not None and (Path(out) / n).is_file()]
+    return f"the figures measured so far are in {Path(out) / there[0]}" if there else NOTHING_WRITTEN
+
+
+def _recover_poses_kept(args) -> str:
+    again = "the same command without --force" if getattr(args, "force", False) else "the same command"
+    return f"the stages finished so far are kept in {Path(args.out) / 'colmap'}; {again} goes on from them"
+
+
+def _sem2nerf_kept(args) -> str:
+    action = getattr(args, "sem2nerf_command", None)
+    if action == "train":
+        return TRAIN_KEPT
+    if action == "bench":
+        return _bench_kept(args)
+    return _out_as_it_was(args)  # render and eval write when they finish
+
+
+INTERRUPTED = {
+    "render-dataset": RESUMED,
+    "make-shapenet": RESUMED,
+    "make-captures": RESUMED,
+    "demo": RESUMED,  # (its dataset; the scene, the sheet and metrics.json are written when it finishes)
+    "synthesize": _out_as_it_was,
+    "eval": _out_as_it_was,
+    "contact-sheet": NOTHING_WRITTEN,
+    "preview-library": NOTHING_WRITTEN,
+    "recover-poses": _recover_poses_kept,
+    "train": TRAIN_KEPT,
+    "sem2nerf": _sem2nerf_kept,
+    "bench": _bench_kept,
+}
+"""What the Ctrl-C line says a command kept (a string, or one made from its arguments). It had said "finished work is
+kept" for every command, also for those that write only when they finish (eval, synthesize: nothing was kept) and
+without saying that the same command resumes. A command not named gets the bare line."""
+
+
+def interrupted_keeps(args, world: int = 1) -> str:
+    """The clause after ``error: interrupted; `` for ``args``' command ('' for none)."""
+    if world > 1:
+        return "the checkpoints saved so far are kept (under torchrun the steps since the last one are not)"
+    kept = INTERRUPTED.get(args.command, "")
+    try:
+        return kept(args) if callable(kept) else kept
+    except Exception:  # noqa: BLE001  (the line after an interrupt must not become a traceback)
+        return ""
 
 
 def _torchrun_rank() -> tuple[int, int]:

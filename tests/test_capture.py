@@ -1048,7 +1048,8 @@ def test_recover_poses_ctrl_c_during_extraction_exits_130_with_one_line(tmp_path
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-2000:]
-    assert [line for line in err.splitlines() if line.strip()] == ["error: interrupted; finished work is kept"], err
+    assert [line for line in err.splitlines() if line.strip()] == [f"error: interrupted; the stages finished so far are kept in {out / 'colmap'}; the same command goes on "
+        "from them"], err
     assert (out / "colmap" / "database.db").is_file() and not (out / "transforms.json").exists()
 
 

@@ -257,7 +257,8 @@ def test_ctrl_c_while_a_library_loads_is_an_interrupt_not_a_broken_install(capsy
 
     monkeypatch.setattr(recover_poses, "run", interrupted_import)
     assert main(["recover-poses", "--images", str(tmp_path), "--out", str(tmp_path / "o")]) == 130
-    assert capsys.readouterr().err.strip().splitlines() == ["error: interrupted; finished work is kept"]
+    assert capsys.readouterr().err.strip().splitlines() == [f"error: interrupted; the stages finished so far are kept in {tmp_path / 'o' / 'colmap'}; the same "
+                                                             "command goes on from them"]
 
     def broken(args):
         raise RuntimeError("a bug")

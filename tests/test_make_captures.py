@@ -374,7 +374,8 @@ def test_ctrl_c_stops_after_the_view_in_flight_and_keeps_the_finished_ones(tmp_p
     out = tmp_path / "caps"
     before = signal.getsignal(signal.SIGINT)  # (Python's, or SIG_IGN under nohup or a background shell)
     assert main(["make-captures", *SMALL, "--out", str(out)]) == 130
-    assert capsys.readouterr().err.strip().splitlines() == ["error: interrupted; finished work is kept"]
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "error: interrupted; the views finished so far are kept; the same command goes on from them"]
     scene = out / SCENE
     assert sorted(p.name for p in (scene / "pose").iterdir()) == [f"{v:06d}.txt" for v in range(3)]
     assert all(view_intact(scene, v) for v in range(3))  # the view in flight (2) is written too

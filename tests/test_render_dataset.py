@@ -366,7 +366,7 @@ def test_ctrl_c_stops_between_views_and_keeps_finished_ones(tmp_path, bpy_empty)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err[-2000:]
     assert [line for line in err.splitlines() if line.startswith("error:")] == \
-        ["error: interrupted; finished work is kept"]
+        ["error: interrupted; the views finished so far are kept; the same command goes on from them"]
     obj = out / "custom" / "m"
     kept = sorted(p.name for p in poses.iterdir())
     assert 2 <= len(kept) < 30, kept

@@ -729,7 +729,9 @@ def test_ctrl_c_in_the_cli_saves_the_step_in_progress(tmp_path, data):
     assert step >= 2
     assert f"stopped after step {step} of 100000" in err and "the same command resumes" in err
     assert "Ctrl-C again to stop at once" in err
-    assert [l for l in err.splitlines() if l.startswith("error:")] == ["error: interrupted; finished work is kept"]
+    assert [l for l in err.splitlines() if l.startswith("error:")] == [
+        "error: interrupted; the run's checkpoints are kept (the first Ctrl-C saves the step in progress); the "
+        "same command goes on from the newest"]
     done = subprocess.run(cmd + ["--iterations", str(step + 1)], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout.splitlines()[-1])["resumed_from"] == step
