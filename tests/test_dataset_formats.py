@@ -377,3 +377,26 @@ def test_our_format_reads_as_before(tmp_path):
         if raw.shape[-1] == 4:
             raw = raw[..., :3] * raw[..., 3:] + (1 - raw[..., 3:])
         assert np.array_equal(sc.images[k], np.clip(raw[..., :3], 0, 1))
+
+
+@pytest.mark.parametrize("layout", ["srn", "nerf", "nmr", "none"])
+def test_an_object_folder_of_another_tool_is_named_not_called_broken(tmp_path, layout):
+    """synthesize (and the other readers of one object folder) given an SRN object or a NeRF-synthetic scene said only
+    "not an object folder (no meta.json)", as if the folder were damaged: the layout and who reads it are named."""
+    folder = tmp_path / layout
+    folder.mkdir()
+    if layout == "srn":
+        (folder / "intrinsics.txt").write_text("100 16 16 0\n0 0 0\n1\n32 32\n")
+        (folder / "rgb").mkdir()
+    elif layout == "nerf":
+        (folder / "transforms_train.json").write_text('{"camera_angle_x": 0.7, "frames": []}')
+    elif layout == "nmr":
+        np.savez(folder / "cameras.npz", world_mat_0=np.eye(4))
+    with pytest.raises(InputError) as e:
+        F.read_object(folder)
+    msg = str(e.value)
+    assert msg.startswith(f"{folder} is not an object folder (no meta.json)") and "\n" not in msg
+    if layout == "none":
+        assert msg == f"{folder} is not an object folder (no meta.json)"
+    else:
+        assert f"it holds {F.LAYOUT_NAMES[layout]}" in msg and f"--format {layout}" in msg

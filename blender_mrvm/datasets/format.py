@@ -620,6 +620,24 @@ class ObjectViews:
         return read_png(self._path("mask", i))
 
 
+LAYOUT_NAMES = {"srn": "an SRN object", "nmr": "an NMR/DVR object", "nerf": "a NeRF-synthetic scene"}
+
+
+def _other_layout(folder: Path) -> str:
+    """The clause naming another tool's layout that ``folder`` holds ('' for none): synthesize given a NeRF-synthetic
+    scene or an SRN object had said only "not an object folder (no meta.json)", as if the folder were broken."""
+    from .loaders import detect_format  # (loaders imports this module)
+
+    try:
+        fmt = detect_format(folder)
+    except InputError:
+        return ""
+    if fmt not in LAYOUT_NAMES or not folder.is_dir():
+        return ""
+    return (f": it holds {LAYOUT_NAMES[fmt]}, a layout eval and train read (eval --format {fmt}); the other commands "
+            f"and the panel read the object folders render-dataset and recover-poses write")
+
+
 def read_object(obj_dir: Path) -> ObjectViews:
     """Read an object folder written by ``render-dataset`` or ``recover-poses``.
 
@@ -630,7 +648,7 @@ def read_object(obj_dir: Path) -> ObjectViews:
     obj_dir = Path(obj_dir)
     meta_path = obj_dir / "meta.json"
     if not meta_path.is_file():
-        raise InputError(f"{obj_dir} is not an object folder (no meta.json)")
+        raise InputError(f"{obj_dir} is not an object folder (no meta.json){_other_layout(obj_dir)}")
     try:
         meta = json.loads(meta_path.read_text())
     except (ValueError, UnicodeDecodeError) as e:
