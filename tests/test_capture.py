@@ -697,7 +697,7 @@ def test_16_bit_photos_huge_photos_and_a_file_for_the_folder(ring, tmp_path):
         _write_png16(f, np.asarray(Image.open(f).convert("RGB")).astype(np.uint16) * 257)
     _run(rgb16, tmp_path / "out16")
     assert Image.open(tmp_path / "out16" / "rgb" / "000000.png").mode == "RGB"
-    from blender_mrvm.capture.export import png_bit_depth
+    from blender_mrvm.datasets.format import png_bit_depth
 
     assert png_bit_depth(tmp_path / "out16" / "rgb" / "000000.png") == 8
     big = _copy(ring[0], tmp_path / "big", [0, 1, 2])

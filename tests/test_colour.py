@@ -289,3 +289,18 @@ def test_a_working_space_that_cannot_be_converted_is_refused_in_one_line(monkeyp
     with pytest.raises(InputError) as e:
         R._rec709_exr(NoOverride())
     assert "'ACEScg'" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_contact_sheet_shows_rgba_views_as_the_loaders_read_them():
+    """The contact sheet mixed an --rgba dataset's soft edges over white in the sRGB numbers (up to 74/255 darker than
+    the views the model trains on) and cast 16-bit images to 8 bits; it shows what ``to_float_rgb`` reads now."""
+    from blender_mrvm.datasets.contact_sheet import _rgb
+    from blender_mrvm.datasets.format import to_uint8
+    from blender_mrvm.datasets.loaders import to_float_rgb
+
+    rgba = np.random.default_rng(1).integers(0, 256, (6, 7, 4), dtype=np.uint8)
+    assert np.array_equal(_rgb(rgba), to_uint8(to_float_rgb(rgba)))
+    rgb = rgba[..., :3]
+    assert np.array_equal(_rgb(rgb), rgb) and np.array_equal(_rgb(rgb[..., 0]), np.repeat(rgb[..., :1], 3, -1))
+    wide = rgb.astype(np.uint16) * 257
+    assert np.array_equal(_rgb(wide), rgb)

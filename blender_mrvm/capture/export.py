@@ -118,13 +118,6 @@ def photo_rgb8(im, where: Path | str | None = None) -> np.ndarray:
     return np.ascontiguousarray(np.repeat(x, 3, -1) if x.shape[-1] == 1 else x)
 
 
-def png_bit_depth(path: Path) -> int | None:
-    """A PNG file's bit depth per channel from its header (IHDR), or None when it is not a PNG."""
-    with open(path, "rb") as f:
-        head = f.read(25)
-    return head[24] if len(head) == 25 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR" else None
-
-
 @dataclass
 class CaptureView:
     """One registered photo, ready to write."""
@@ -187,7 +180,7 @@ def write_capture(out_dir: Path, views: list[CaptureView], xyz: np.ndarray, rgb:
             if im.size != (v.intrinsics.width, v.intrinsics.height):
                 raise InputError(f"{v.image_path}: image is {im.size[0]}x{im.size[1]}, its camera says "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
-            if im.format == "PNG" and im.mode == "RGB" and png_bit_depth(v.image_path) == 8 \
+            if im.format == "PNG" and im.mode == "RGB" and F.png_bit_depth(v.image_path) == 8 \
                     and srgb_photo(im) is None:  # what rgb/ holds
                 F.atomic_write(dst, lambda tmp, src=v.image_path: shutil.copyfile(src, tmp))
             else:  # (a 16-bit PNG opens as RGB too, but is not 8-bit on disk)

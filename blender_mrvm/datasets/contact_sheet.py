@@ -29,12 +29,12 @@ def colorize_depth(depth: np.ndarray) -> np.ndarray:
 
 
 def _rgb(img: np.ndarray) -> np.ndarray:
-    if img.ndim == 2:
-        return np.repeat(img[..., None], 3, -1)
-    if img.shape[-1] == 4:  # RGBA on white for display
-        a = img[..., 3:4] / 255.0
-        return (img[..., :3] * a + 255 * (1 - a)).astype(np.uint8)
-    return img
+    """An object folder's image as the 8-bit RGB a sheet shows: RGBA over white mixed in linear light, as the loaders
+    read it (``loaders.to_float_rgb``); it had mixed the sRGB numbers (soft edges up to 74/255 darker than the dataset
+    the model trains on) and cast 16-bit images to 8 bits (their high bits lost)."""
+    from .loaders import to_float_rgb
+
+    return F.to_uint8(to_float_rgb(img))
 
 
 def finished_objects(root: Path, limit: int | None = None,

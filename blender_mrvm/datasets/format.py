@@ -277,11 +277,15 @@ COLOUR_MODES_KEPT = ("RGB", "RGBA", "L", "LA")
 
 def colour_pixels(im, where: Path | str) -> np.ndarray:
     """An open PIL image's colours as a uint8 (H, W), (H, W, 2), (H, W, 3) or (H, W, 4) array, uint16 for
-    16-bit grey, float32 in [0, 1] for a float image: a palette image (P, PA: what pngquant and optipng write)
+    16-bit grey and for 16-bit RGB(A) PNGs (:func:`_png_16bit_colour`), float32 in [0, 1] for a float image: a palette image (P, PA: what pngquant and optipng write)
     decodes to RGB, or RGBA where its palette is transparent, never to its indices; CMYK, YCbCr, LAB and HSV to
     RGB; bilevel to grey. A 32-bit integer image (I) is 16-bit grey when its values fit, a float image (F)
     must hold values in [0, 1]: InputError otherwise."""
     mode = im.mode
+    if mode in ("RGB", "RGBA"):
+        wide = _png_16bit_colour(im)
+        if wide is not None:
+            return wide
     if mode in COLOUR_MODES_KEPT:
         return np.asarray(im).copy()
     if mode.startswith("I;16"):
@@ -306,6 +310,49 @@ def colour_pixels(im, where: Path | str) -> np.ndarray:
     if mode in ("1", "La"):
         return np.asarray(im.convert("L" if mode == "1" else "LA")).copy()
     return np.asarray(im.convert("RGB")).copy()  # CMYK, YCbCr, LAB, HSV
+
+
+PNG_16BIT_RAWMODES = {"RGB;16B": "RGB;16L", "RGBA;16B": "RGBA;16L"}
+
+
+def _png_16bit_colour(im) -> np.ndarray | None:
+    """A 16-bit RGB(A) PNG's colours at 16 bits (uint16), None for any other image.
+
+    Pillow has no 16-bit RGB mode: it decodes such a PNG to 8 bits by dropping each sample's low byte (up to 1/255
+    low, 0.5/255 on average, where 16-bit grey keeps its bits). Its unpacker for little-endian samples, given the
+    PNG's big-endian ones, takes the low bytes instead; the PNG's filters act on bytes before unpacking, so the same
+    decode gives them exactly. An image whose decode cannot be set up so (already loaded without a file name,
+    another Pillow) is read at 8 bits as before."""
+    if im.format != "PNG" or not getattr(im, "filename", ""):
+        return None
+    tiles = list(getattr(im, "tile", None) or [])
+    if not tiles:  # loaded already: its header says whether it is 16-bit
+        if png_bit_depth(Path(im.filename)) != 16:
+            return None
+    elif len(tiles) != 1 or tiles[0][3] not in PNG_16BIT_RAWMODES:
+        return None
+    from PIL import Image
+
+    try:
+        with Image.open(im.filename) as hi_im, Image.open(im.filename) as lo_im:
+            (tile,) = hi_im.tile
+            low = PNG_16BIT_RAWMODES.get(tile[3])
+            if low is None:
+                return None
+            lo_im.tile = [tile._replace(args=low) if hasattr(tile, "_replace") else (*tile[:3], low)]
+            hi, lo = np.asarray(hi_im), np.asarray(lo_im)
+    except (OSError, ValueError, TypeError):  # (a Pillow without that unpacker: 8 bits as before)
+        return None
+    if hi.shape != lo.shape or hi.dtype != np.uint8 or lo.dtype != np.uint8:
+        return None
+    return (hi.astype(np.uint16) << 8) | lo
+
+
+def png_bit_depth(path: Path) -> int | None:
+    """A PNG file's bit depth per channel from its header (IHDR), or None when it is not a PNG."""
+    with open(path, "rb") as f:
+        head = f.read(25)
+    return head[24] if len(head) == 25 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR" else None
 
 
 def exr_writer(channels: dict[str, np.ndarray]) -> Callable[[str], None]:
