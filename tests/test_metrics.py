@@ -250,3 +250,18 @@ def test_int8_carried_vgg_keeps_lpips_and_its_gradient(tmp_path, monkeypatch):
     save_file(sd, str(out / vgg.VGG_FILE))
     with pytest.raises(InputError, match="no 28.weight.scale"):
         LPIPS()
+
+
+def test_integer_images_are_scored_over_their_range_not_as_fractions():
+    """A uint8 pair given to psnr/ssim was scored as values in [0, 1] (-13.9 dB for a pair of 34.2 dB); uint8 and uint16
+    are fractions of their range now, other integer types are refused."""
+    from blender_mrvm.models.metrics import psnr, ssim, ssim_gauss
+
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 256, (16, 16, 3)).astype(np.uint8)
+    b = np.clip(a.astype(int) + rng.integers(-6, 7, a.shape), 0, 255).astype(np.uint8)
+    for f in (psnr, ssim, ssim_gauss):
+        assert torch.allclose(f(a, b), f(a / 255.0, b / 255.0))
+    assert torch.allclose(psnr(a.astype(np.uint16) * 257, b.astype(np.uint16) * 257), psnr(a / 255.0, b / 255.0))
+    with pytest.raises(TypeError, match="uint8 or uint16"):
+        psnr(a.astype(np.int32), b.astype(np.int32))

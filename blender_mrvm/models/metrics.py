@@ -23,8 +23,18 @@ import torch.nn.functional as F
 from torch import nn
 
 
-def _nchw(x: torch.Tensor) -> torch.Tensor:
-    x = torch.as_tensor(x, dtype=torch.float32)
+INTEGER_RANGES = {torch.uint8: 255.0, torch.uint16: 65535.0}
+"""Integer images are scored as fractions of their type's range: a uint8 pair given to :func:`psnr` had been scored
+as values in [0, 1] (-13.9 dB for a pair of 34.2)."""
+
+
+def _nchw(x) -> torch.Tensor:
+    """(H, W, C) or (N, H, W, C) images as float32 (N, C, H, W) in [0, 1]: uint8 and uint16 over their range, floats
+    as they are (they are in [0, 1])."""
+    x = torch.as_tensor(x)
+    if not (x.is_floating_point() or x.dtype in INTEGER_RANGES):
+        raise TypeError(f"images must be float in [0, 1], uint8 or uint16, got {x.dtype}")
+    x = x.to(torch.float32) / INTEGER_RANGES[x.dtype] if x.dtype in INTEGER_RANGES else x.to(torch.float32)
     if x.ndim == 3:
         x = x[None]
     return x.permute(0, 3, 1, 2)
