@@ -253,7 +253,7 @@ def test_init_checkpoint_grows_a_deeper_copy(tmp_path, data, arch, capsys):
 
 
 def test_lr_schedule_and_config_file(tmp_path):
-    c = TrainConfig(lr=1e-3, lr_warmup=10, iterations=110, lr_final_frac=0.1)
+    c = TrainConfig(lr=1e-3, lr_warmup=10, iterations=111, lr_final_frac=0.1)
     assert lr_at(0, c) == pytest.approx(1e-4) and lr_at(9, c) == pytest.approx(1e-3)
     assert lr_at(60, c) == pytest.approx(1e-3 * (0.1 + 0.9 * 0.5)) and lr_at(110, c) == pytest.approx(1e-4)
     p = tmp_path / "run.json"

@@ -202,6 +202,11 @@ def _run(args) -> int:
 
     check_precision("--precision", args.precision, device.type, auto=True)
     model, _, meta = load_model(args.checkpoint, str(device))
+    from ..models.checkpoint_files import model_file_of
+    from ..training.provenance import file_sha256
+
+    model_file = getattr(model, "checkpoint_file", None) or model_file_of(args.checkpoint)  # the file it loaded
+    model_sha = file_sha256(model_file)
     precision = resolve_precision(args.precision, device.type, model)
     if precision == "int8" and adapt_from_args(args).on:  # auto picked it: adapting needs the float weights
         precision = "fp32"
@@ -232,7 +237,16 @@ def _run(args) -> int:
     bg_note = bgrule.for_rendering(model, data_bg)  # the data decides; a mismatch is said, never silent
     if bg_note:
         print(f"note: {bg_note}", file=sys.stderr)
-    extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None},
+    from ..training.provenance import environment, scenes_digest
+
+    extra = {"checkpoint": {"path": str(args.checkpoint), "step": int(meta["step"]) if meta.get("step") else None,
+                            # which weights: a run folder's path names its newest checkpoint, which moves on
+                            "file": str(Path(model_file).resolve()), "sha256": model_sha},
+             # what repeating it needs (training/provenance.py): code, libraries, threads, the command, the data
+             "provenance": {**environment(device=str(device), when=False), "render_workers": workers,
+                            "data": scenes_digest(scenes),
+                            "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in sorted(vars(args).items())
+                                         if k not in ("func",) and isinstance(v, (str, int, float, bool, Path, type(None)))}},
              "device": str(device), "precision": precision,
              "background": {"data": data_bg, "white_background": model.white_background, "note": bg_note},
              "data": {**data_rec, "protocol_source": source, "max_objects_per_category": args.max_objects_per_category,

@@ -127,7 +127,8 @@ class TrainConfig:
     keep_checkpoints: int = 2
     """Checkpoints kept on disk, the newest by step (older ones are removed); 0 keeps every one."""
     threads: int = 0
-    """torch CPU threads per process (0 = torch's default)."""
+    """torch CPU threads per process (0 = every core but one, ``threads.auto_threads``: another count on another
+    machine, and torch's CPU results depend on it in their last bits; give it for numbers to be repeated)."""
     device: str = "cpu"
     """'cpu' or 'cuda' (under torchrun each rank takes cuda:LOCAL_RANK)."""
     init_checkpoint: str = ""

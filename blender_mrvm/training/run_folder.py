@@ -17,8 +17,9 @@ from ..datasets.format import atomic_write_text, remove_entries
 from ..errors import InputError
 from ..models.checkpoint_files import STATE_FILE, checkpoint_folders, checkpoint_problem, step_of
 
-RUN_FILES = ("checkpoints", "metrics.jsonl", "config.json")
-"""What training writes into a run folder (plus ``summary_rank*.json``)."""
+RUN_FILES = ("checkpoints", "metrics.jsonl", "config.json", "run_record.jsonl")
+"""What training writes into a run folder (plus ``summary_rank*.json``); ``run_record.jsonl``: one line a start
+(``training/provenance.py``)."""
 
 
 def holds_run(run_dir: Path) -> bool:

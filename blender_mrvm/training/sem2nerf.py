@@ -484,7 +484,7 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
     from ..models.sem2nerf.model import Sem2NeRF
     from ..threads import set_torch_threads
 
-    set_torch_threads(cfg.threads)
+    threads = set_torch_threads(cfg.threads)
     dev = torch.device(cfg.device)
     out = Path(cfg.out_dir)
     if objects is None:
@@ -507,9 +507,10 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
     if ck is not None:  # a resume continues the run as it is, or is refused before anything is written
         from . import run_folder
         from .config import recorded_train
-        from .trainer import _check_continues
+        from .trainer import _check_continues, _keep_recorded_seed
 
         _check_continues(out, ck, cfg, None)  # an --init it did not begin from would not be used
+        cfg = _keep_recorded_seed(out, Path(ck), cfg, True)  # (its generators resume from the checkpoint)
         began = (recorded_train(out) or {}).get("init_checkpoint") or ""
         if began and not cfg.init_checkpoint:  # config.json keeps what the run began from
             cfg = replace(cfg, init_checkpoint=str(began))
@@ -552,6 +553,12 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
             for i, c in enumerate(init_codes):
                 if c is not None and c.shape == codes[i].shape:
                     codes[i] = c.to(dev)
+    lp = None
+    if cfg.lpips_weight > 0:  # before the resumed RNG state is set: building its layers draws from torch's generator
+        # (built after it, a resumed run's draws differed from the uninterrupted run's from the first step on)
+        from ..models.metrics import LPIPS
+
+        lp = LPIPS().to(dev)
     if st is not None:
         with torch.no_grad():
             codes.copy_(st["codes"].to(dev))
@@ -564,11 +571,6 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
         start = int(st["step"])
         rng.bit_generator.state = json.loads(st["rng"])
         torch.set_rng_state(st["torch_rng"])
-    lp = None
-    if cfg.lpips_weight > 0:
-        from ..models.metrics import LPIPS
-
-        lp = LPIPS().to(dev)
     from . import run_folder
 
     if resume:  # the metrics a killed run wrote past its checkpoint are written again below
@@ -579,6 +581,15 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
     (out / "config.json").write_text(json.dumps({"train": {k: v for k, v in cfg.__dict__.items()},
                                                  "labels": list(labels), "label_names": list(names)},
                                                 indent=2, default=list) + "\n")
+    from .provenance import append_record, environment, init_record, scenes_digest
+
+    record = {"start_step": start, "resumed_from": str(ck) if ck else None, "init_checkpoint": init_record(cfg.init_checkpoint),
+              "seed": cfg.seed, "iterations": cfg.iterations,
+              "data": {"root": str(Path(cfg.data).expanduser().resolve()) if cfg.data else None, "split": cfg.split,
+                       "holdout": cfg.holdout, "max_objects": cfg.max_objects, **scenes_digest(objects)},
+              "train_config": dict(cfg.__dict__),  # this start's (config.json holds the latest start's only)
+              **environment(threads, str(dev))}
+    append_record(out, record)  # what repeating the run needs and config.json does not say (training/provenance.py)
     index_cache: dict[tuple[int, int], np.ndarray] = {}
     input_cache: dict[tuple[int, int], torch.Tensor] = {}
 
@@ -611,7 +622,8 @@ def _train(cfg: Sem2NeRFTrainConfig, resume: bool, objects: list[MaskedObject] |
         return save_checkpoint(out, done, model, h, state, keep=cfg.keep,
                                extra_meta={"train": {"data": cfg.data, "split": cfg.split,
                                                      "iterations": cfg.iterations, "gan_weight": cfg.gan_weight},
-                                           "train_config": json.dumps(dict(cfg.__dict__), default=list)})
+                                           "train_config": json.dumps(dict(cfg.__dict__), default=list),
+                                           "provenance": json.dumps(record, default=str)})
 
     P = cfg.patch_size
     last_ck = None
@@ -830,7 +842,7 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
         raise InputError("--views-every must be >= 1")
     from ..threads import set_torch_threads
 
-    set_torch_threads(threads)
+    n_threads = set_torch_threads(threads)
     model, cfg, meta = load_sem2nerf(checkpoint)
     if holdout > 0:
         evals = load_masked_dataset(Path(data), split, max_objects, holdout, held_out=True)
@@ -906,6 +918,11 @@ def evaluate(checkpoint: Path, data: Path, out: Path, split: str = "train", hold
                            "end_to_end_change": float(np.mean([r["from_start"][-1] for r in blend_rows]))
                            if blend_rows else None, "per_object": blend_rows},
            "per_view": per_view, "per_object_edits": edit_rows}
+    from .provenance import environment, file_sha256, scenes_digest
+
+    model_file = read_sem2nerf_header(checkpoint)[0]
+    res["provenance"] = {**environment(n_threads, "cpu", when=False), "data": scenes_digest(evals),
+                         "checkpoint": {"file": str(Path(model_file).resolve()), "sha256": file_sha256(model_file)}}
     Path(out).mkdir(parents=True, exist_ok=True)
     from ..datasets.format import atomic_write_text
     from .evaluate import report_json

@@ -109,11 +109,15 @@ def _mean_over_ranks(parts: dict[str, float], world: int) -> dict[str, float]:
 # ------------------------------------------------------------------------------------------- data
 
 def lr_at(step: int, cfg: TrainConfig) -> float:
-    """Linear warm-up to ``lr`` then cosine decay to ``lr * lr_final_frac``."""
+    """Linear warm-up to ``lr`` then cosine decay to ``lr * lr_final_frac``: the first step after the warm-up
+    runs at ``lr`` and the run's last step (``iterations - 1``) at ``lr * lr_final_frac`` exactly. (Until
+    2026-11-29 the cosine spanned ``iterations - lr_warmup`` steps and the last step ended one step short of
+    the floor; every step's rate has moved by up to ``lr * (1 - lr_final_frac) * pi / (2 (iterations -
+    lr_warmup))`` since, so a run resumed from a checkpoint of before is not bit for bit the uninterrupted one.)"""
     if step < cfg.lr_warmup:
         return cfg.lr * (step + 1) / cfg.lr_warmup
-    span = max(1, cfg.iterations - cfg.lr_warmup)
-    p = min(1.0, (step - cfg.lr_warmup) / span)
+    span = cfg.iterations - 1 - cfg.lr_warmup
+    p = 1.0 if span <= 0 else min(1.0, (step - cfg.lr_warmup) / span)
     return cfg.lr * (cfg.lr_final_frac + (1 - cfg.lr_final_frac) * 0.5 * (1 + math.cos(math.pi * p)))
 
 
@@ -298,7 +302,7 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
         torch.cuda.set_device(device)
     from ..threads import set_torch_threads
 
-    set_torch_threads(cfg.threads)
+    threads = set_torch_threads(cfg.threads)
     run_dir = Path(cfg.out_dir)
     weights = None
     if scenes is None:
@@ -352,6 +356,7 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
             raise InputError(f"checkpoint {found} was written by {state.get('world_size')} process(es); "
                              f"resume with the same number (got {dd.world}), or start over with --no-resume --force")
         start = int(state["step"])
+        cfg = _keep_recorded_seed(run_dir, found, cfg, dd.main)
         run_folder.check_not_past(run_dir, found, start, cfg.iterations, "train.iterations",
                                   " (--iterations, the panel's Iterations)")
         _note_a_longer_schedule(found, start, cfg, dd.main)
@@ -375,6 +380,12 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
         run_dir.mkdir(parents=True, exist_ok=True)
         # atomic: a torn config.json would lose what the run began with (training.config.recorded_train)
         atomic_write_text(run_dir / "config.json", json.dumps(run_config_dict(model_cfg, cfg), indent=2) + "\n")
+    record = None
+    if dd.main:  # what repeating the run needs and config.json does not say (training/provenance.py)
+        record = start_record(cfg, scenes, start, found, threads, device, dd.world)
+        from .provenance import append_record
+
+        append_record(run_dir, record)
     image_size = train_image_size(scenes)
     bbox_steps = int(round(cfg.bbox_sampling_frac * cfg.iterations))
     object_batch = cfg.object_batch if model.supports_object_batch else 1
@@ -464,7 +475,7 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
                 # the next step's loss check stops such a run; checking after every step added a few ops per
                 # weight tensor to every step)
                 run_folder.check_weights(model, done, saved or found)
-                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler)
+                saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler, record)
                 saved_at = done
             try:
                 yield Progress(done, cfg.iterations, f"loss {tot['loss']:.4f} psnr {last['psnr_fine']:.2f}")
@@ -474,7 +485,7 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
                 # only: the ranks of a torchrun job stop at different steps, and saving is collective.
                 if dd.world == 1 and saved_at != done:
                     run_folder.check_weights(model, done, saved or found)
-                    saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler)
+                    saved = _save(run_dir, done, model, model_cfg, cfg, opt, batcher, gen, dd, image_size, scaler, record)
                     print(f"train: stopped after step {done} of {cfg.iterations}; checkpoint {saved} "
                           "(the same command resumes from it)", file=sys.stderr, flush=True)
                 raise
@@ -851,6 +862,57 @@ def _check_continues(run_dir: Path, found: Path, cfg: TrainConfig, model_cfg) ->
                          "over here with --no-resume --force")
 
 
+def _keep_recorded_seed(run_dir: Path, found: Path, cfg: TrainConfig, main: bool) -> TrainConfig:
+    """``cfg`` with the seed the run in ``run_dir`` was started with, when a resume names another: a resume
+    restores every generator from its checkpoint, so the seed it names is not used, and config.json and the next
+    checkpoints had recorded it all the same (a run seeded 3 and resumed with --seed 5 recorded seed 5 while its
+    weights were seed 3's, bit for bit: repeating it with --seed 5 gave other numbers). Said on stderr."""
+    from ..models.checkpoint_files import read_header_meta
+    from .config import recorded_train
+
+    try:
+        rec = json.loads(read_header_meta(found / ckpt.MODEL_FILE).get("train_config") or "{}")
+    except (TypeError, ValueError, OSError, InputError):
+        rec = {}
+    if not isinstance(rec, dict) or "seed" not in rec:
+        rec = recorded_train(run_dir) or {}
+    seed = rec.get("seed")
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0 or seed == cfg.seed:
+        return cfg
+    if main:
+        print(f"note: the run in {run_dir} was started with seed {seed}; it resumes with the random state its checkpoint "
+              f"({found.name}) saved, so seed {cfg.seed} is not used: config.json keeps seed {seed} (a run with seed "
+              f"{cfg.seed} needs another --out, or --no-resume --force here)", file=sys.stderr)
+    return replace(cfg, seed=seed)
+
+
+def start_record(cfg: TrainConfig, scenes: list[ObjectScene], start: int, found: Path | None, threads: int,
+                 device: str, world: int) -> dict[str, Any]:
+    """One start's line of the run folder's ``run_record.jsonl`` (also every checkpoint's ``provenance``): where
+    it began (step, checkpoint), the seed, the data it trained on (roots, split and the digest of the objects as
+    loaded) and :func:`provenance.environment` (version, commit, libraries, threads, command line)."""
+    from .provenance import environment, init_record, scenes_digest
+
+    try:
+        roots = [str(Path(r).expanduser().resolve()) for r in data_roots(cfg)]
+    except InputError:
+        roots = []
+    return {"start_step": start, "resumed_from": str(found) if found is not None else None,
+            "init_checkpoint": init_record(cfg.init_checkpoint), "seed": cfg.seed, "iterations": cfg.iterations,
+            "world_size": world,
+            "data": {"roots": roots, "split": cfg.split, "format": cfg.data_format or "detected",
+                     "weights": list(cfg.data_weights) if cfg.data_weights else None, **scenes_digest(scenes)},
+            # this start's settings: config.json holds the latest start's only (a resume may change lr, iterations)
+            "train_config": _train_dict(cfg),
+            **environment(threads, device)}
+
+
+def _train_dict(cfg: TrainConfig) -> dict[str, Any]:
+    from ..models.config import to_dict
+
+    return to_dict(cfg)
+
+
 def _note_a_longer_schedule(found: Path, step: int, cfg: TrainConfig, main: bool) -> None:
     """Say so when a run is resumed with another length than it was started with: the learning rate and the
     masking phase follow the new length from the resume step on, so the resumed run is not the one a single
@@ -909,7 +971,8 @@ def _grad_scaler(cfg: TrainConfig, device: str):
     return torch.amp.GradScaler("cuda") if cfg.amp == "fp16" and device.startswith("cuda") else None
 
 
-def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, image_size: int = 0, scaler=None):
+def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, image_size: int = 0, scaler=None,
+          record: dict | None = None):
     my = _rng_state(batcher, gen)
     if dd.world > 1:
         import torch.distributed as dist
@@ -925,7 +988,8 @@ def _save(run_dir, step, model, model_cfg, cfg, opt, batcher, gen, dd: Dist, ima
                  **({"grad_scaler": scaler.state_dict()} if scaler is not None else {})}
         path = ckpt.save_checkpoint(run_dir, step, model, model_cfg, state,
                                     {"train_config": json.dumps(run_config_dict(model_cfg, cfg)["train"]),
-                                     "train_image_size": str(image_size)},
+                                     "train_image_size": str(image_size),
+                                     **({"provenance": json.dumps(record, default=str)} if record else {})},
                                     keep=cfg.keep_checkpoints)
     if dd.world > 1:
         import torch.distributed as dist
