@@ -22,7 +22,14 @@ from .errors import InputError
 MAX_IMAGE_SIDE = 8192
 """Largest image side any command makes (render-dataset's limit too)."""
 MAX_REFERENCE_SIDE = 4096
-"""Largest side references are resized to (the encoder's features of one 4096 px view take ~1 GB)."""
+"""Largest side references are resized to, or kept at (``--ref-size -1``). The image encoder runs one view at a time
+(``models.encoder.per_view``), so its peak is one view's plus the features kept of each, measured on the CPU in
+float32 at 4096 px (GiB): the shipped NeRFormer encoders (``shipped``, ``shipped:mrvm_anyview``) 2.0 for the first
+view and 0.94 for each more (0.75 features, 0.19 pixels); GPNR's 2.4 and 1.2; the quality model's VGG16 3.0 and 0.42
+at 2048 px, so about 12 and 1.7 at 4096 (every figure scales with the pixels: a quarter at 2048 px). Encoded all at
+once, one view took 5.5 and two 6.3 in the shipped encoder (``synthesize`` peaked at 12.1 GiB with two 8000 px photos
+at ``--ref-size 4096``, 4.2 now). Kept at 4096: the default models fit a 16 GB machine there with several
+references; no model gains from references larger than it was trained on (64-128 px; docs/guide/novel_views.md)."""
 MAX_REFERENCE_BYTES = 4 << 30
 """Most memory a synthesis's references may take as float32 RGB pixels (views x width x height x 12 bytes), checked
 after the first is read, before the others: 50 photos of 4000x4000 kept at their size (``--ref-size -1``) need
@@ -137,8 +144,13 @@ def check_image_side(label: str, value: int, low: int = 1, high: int = MAX_IMAGE
         raise InputError(f"{label} must be between {low} and {high} pixels, got {value}")
 
 
+# The references' size: one rule (their longer side at most MAX_REFERENCE_SIDE, all of them at most
+# MAX_REFERENCE_BYTES), checked when the size is known: up front for --ref-size N (check_ref_size), after the first
+# image is read when the references keep their own size (--ref-size -1: check_reference_memory).
+
 def check_ref_size(label: str, value: int) -> None:
-    """``--ref-size``: 0 (the model's training size), -1 (the first reference's own) or a longer side in pixels."""
+    """``--ref-size``: 0 (the model's training size), -1 (the first reference's own) or a longer side in pixels, at
+    most :data:`MAX_REFERENCE_SIDE` (for -1, :func:`check_reference_memory` checks the size read)."""
     if value in (0, -1) and not isinstance(value, bool):
         return
     try:
@@ -146,6 +158,26 @@ def check_ref_size(label: str, value: int) -> None:
     except InputError:  # (say that 0 and -1 are legal too)
         raise InputError(f"{label} must be 0 (the model's size), -1 (the first reference's size) or 1 to "
                          f"{MAX_REFERENCE_SIDE} pixels, got {value!r}") from None
+
+
+def check_reference_memory(count: int, w: int, h: int, side_limit: int = 0) -> None:
+    """InputError when references at ``w`` x ``h`` are larger than ``side_limit`` (0 = no limit; synthesis passes
+    :data:`MAX_REFERENCE_SIDE`) on the longer side, or ``count`` of them would take more than
+    :data:`MAX_REFERENCE_BYTES` as float pixels; the message names the --ref-size that fits (and --views). Two
+    8000x8000 photos kept at their size (``--ref-size -1``) ran out of an 8 GiB cap in the image encoder after
+    13 s."""
+    if side_limit and max(w, h) > side_limit:
+        raise InputError(f"the reference views would be {w}x{h}, over the {side_limit} px limit for references "
+                         "(the image encoder's memory grows with their pixels); pass --ref-size "
+                         f"{side_limit} or smaller (their longer side in pixels; in the panel: Reference size Custom)")
+    need = count * w * h * 12
+    if need <= MAX_REFERENCE_BYTES:
+        return
+    fits = int(max(w, h) * (MAX_REFERENCE_BYTES / need) ** 0.5)
+    raise InputError(f"{count} reference views at {w}x{h} take {need / 2**30:.1f} GiB of memory, over the "
+                     f"{MAX_REFERENCE_BYTES / 2**30:.0f} GiB limit for references; pass --ref-size {fits} or "
+                     "smaller (their longer side in pixels; in the panel: Reference size Custom), or choose fewer "
+                     "with --views")
 
 
 def check_count(label: str, value: int, low: int = 0, high: int | None = None) -> None:

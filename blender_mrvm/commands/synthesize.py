@@ -215,7 +215,7 @@ def _make_targets(args, views, bbox, tmp: Path) -> Path:
     """targets.json for --target-views or --orbit, written into ``tmp``."""
     from ..datasets.novel_views import write_targets
     from ..errors import InputError
-    from ..synthesis import load_references, orbit_targets, targets_from_views
+    from ..synthesis import orbit_targets, targets_from_views
 
     if args.target_views:
         targets = targets_from_views(args.references, _target_view_ids(args))
@@ -224,15 +224,12 @@ def _make_targets(args, views, bbox, tmp: Path) -> Path:
             raise InputError(f"--orbit needs at least one view, got {args.orbit}")
         # the orbit's size: the references' own (or --ref-size), not the model's auto size. Only the first view
         # is kept at that size (its camera is the orbit's); the others give their poses and are held small: all
-        # of them at their own size took 9.6 GB for 50 photos of 4000x4000 before a view was rendered.
-        from dataclasses import replace
-
-        from ..synthesis.views import check_reference_folder
+        # of them at their own size took 9.6 GB for 50 photos of 4000x4000 before a view was rendered. Each image
+        # is read once (the first had been read twice: at its size and at the pose size).
+        from ..synthesis.views import check_reference_folder, orbit_references
 
         chosen = check_reference_folder(args.references, views)[1]
-        first = load_references(args.references, chosen[:1], max(0, args.ref_size), bbox)
-        refs = load_references(args.references, chosen, ORBIT_POSE_SIZE, bbox)
-        refs = replace(refs, intrinsics=[first.intrinsics[0], *refs.intrinsics[1:]])
+        refs = orbit_references(args.references, chosen, args.ref_size, bbox, ORBIT_POSE_SIZE)
         targets = orbit_targets(refs, args.orbit, args.orbit_elevation, args.orbit_radius, args.orbit_size)
     return write_targets(tmp / "targets.json", targets)
 

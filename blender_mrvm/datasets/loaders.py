@@ -149,11 +149,41 @@ def _note(msg: str) -> None:
     print(f"note: {msg}", file=sys.stderr)
 
 
-def _stack(images: Sequence[np.ndarray], where: Path) -> np.ndarray:
-    shapes = {im.shape for im in images}
-    if len(shapes) != 1:
-        raise InputError(f"{where}: views have different image sizes {sorted(shapes)}")
-    return np.stack(images).astype(np.float32)
+class _Stack:
+    """The (N, H, W, 3) float32 images of an object, filled view by view as they are read: each view is copied into
+    one array allocated at the first (``N`` views), so an object's pixels are held once, plus the view being read.
+    ``np.stack(list).astype(np.float32)`` held them three times at its peak (the list, the stack and its copy): 24
+    views of 4000 px (4.6 GB as float) ran out of memory in ``train``. The values are those of the stack (float32
+    throughout). A view of another size is not kept; :meth:`result` then names every size, as before."""
+
+    def __init__(self, n: int, where: Path):
+        self.n, self.where, self.k = int(n), where, 0
+        self.out: np.ndarray | None = None
+        self.shapes: set = set()
+
+    def add(self, image: np.ndarray) -> None:
+        self.shapes.add(image.shape)
+        if self.out is None:
+            self.out = np.empty((self.n, *image.shape), np.float32)
+        if len(self.shapes) == 1:
+            self.out[self.k] = image
+        self.k += 1
+
+    def result(self) -> np.ndarray:
+        if len(self.shapes) > 1:
+            raise InputError(f"{self.where}: views have different image sizes {sorted(self.shapes)}")
+        if self.out is None or self.k != self.n:
+            raise ValueError(f"{self.where}: {self.k} views read of {self.n}")
+        return self.out
+
+
+def _stack(images, where: Path, n: int | None = None) -> np.ndarray:
+    """(N, H, W, 3) float32 of ``images`` (a sequence, or an iterator of ``n`` views read as it is consumed: only
+    one view is held outside the result at a time; :class:`_Stack`)."""
+    st = _Stack(len(images) if n is None else n, where)
+    for im in images:
+        st.add(im)
+    return st.result()
 
 
 # --------------------------------------------------------------------------------------------- ours
@@ -172,7 +202,7 @@ def load_ours(obj_dir: Path, depth: bool = False) -> ObjectScene:
         lo, hi = [-r] * 3, [r] * 3
     else:
         raise InputError(f"{obj_dir}/meta.json has no 'bbox' (object bounds)")
-    images = _stack([to_float_rgb(ov.rgb(i)) for i in range(len(ov.indices))], obj_dir)
+    images = _stack((to_float_rgb(ov.rgb(i)) for i in range(len(ov.indices))), obj_dir, len(ov.indices))
     h, w = images.shape[1:3]
     intrs = list(getattr(ov, "intrinsics_per_view", None) or []) or [ov.intrinsics] * len(ov.indices)
     for intr in intrs:
@@ -231,15 +261,15 @@ def load_srn(obj_dir: Path) -> ObjectScene:
     if not (obj_dir / "intrinsics.txt").is_file():
         raise InputError(f"{obj_dir}: SRN object without intrinsics.txt (its camera: 'f cx cy 0' / ... / 'H W'); "
                          "restore it from the data set, or leave the object out")
-    images, poses, ids = [], [], []
+    images, poses, ids = _Stack(len(rgbs), obj_dir), [], []
     for p in rgbs:
         pose = obj_dir / "pose" / f"{p.stem}.txt"
         if not pose.is_file():
             raise InputError(f"{obj_dir}: {p.name} has no pose/{pose.name}")
-        images.append(read_colour(p))
+        images.add(read_colour(p))
         poses.append(F.read_srn_pose(pose))
         ids.append(int(p.stem) if p.stem.isdigit() else len(ids))
-    images = _stack(images, obj_dir)
+    images = images.result()
     h, w = images.shape[1:3]
     intr = srn_intrinsics(obj_dir / "intrinsics.txt", w, h)
     box = (np.full(3, -SRN_BOX), np.full(3, SRN_BOX))
@@ -377,7 +407,7 @@ def load_nmr(obj_dir: Path, split: str | None = None) -> ObjectScene:
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # (a truncated or empty file)
         raise InputError(f"cannot read {cam_file}: {e or type(e).__name__}") from None
     masks_by_stem = {p.stem: p for p in _files(obj_dir / "mask", (".png",))}
-    images, poses, intrs, ids, masks = [], [], [], [], []
+    images, poses, intrs, ids, masks = _Stack(len(imgs), obj_dir), [], [], [], []
     for k, p in enumerate(imgs):
         i = int(p.stem) if p.stem.isdigit() else k
         wm, cm, sm = f"world_mat_{i}", f"camera_mat_{i}", f"scale_mat_{i}"
@@ -386,14 +416,15 @@ def load_nmr(obj_dir: Path, split: str | None = None) -> ObjectScene:
         im = read_colour(p)
         h, w = im.shape[:2]
         c2w, intr = dvr_camera(*(_numbers(cams, key, cam_file) for key in (wm, cm, sm)), w, h, f"{cam_file} view {i}")
-        images.append(im)
+        images.add(im)
+        del im
         poses.append(c2w)
         intrs.append(intr)
         ids.append(i)
         if masks_by_stem:
             mp = masks_by_stem.get(p.stem)
             masks.append(None if mp is None else read_binary_mask(mp))
-    images = _stack(images, obj_dir)
+    images = images.result()
     mask_arr = None
     if masks:
         lacking = [imgs[k].name for k, m in enumerate(masks) if m is None]
@@ -541,7 +572,7 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
         raise InputError(f"{tf} is not valid JSON ({e})") from None
     if not isinstance(d, dict) or not isinstance(d.get("frames"), list):
         raise InputError(f"{tf}: not a transforms file (a JSON object with a 'frames' list)")
-    images, poses, intrs, masks, seen, scaled = [], [], [], [], {}, set()
+    images, poses, intrs, masks, seen, scaled = _Stack(len(d["frames"]), scene_dir), [], [], [], {}, set()
     for k, fr in enumerate(d["frames"]):
         if not isinstance(fr, dict) or not isinstance(fr.get("file_path"), str) or "transform_matrix" not in fr:
             raise InputError(f"{tf}: frame {k} is not an object with a 'file_path' (text) and a 'transform_matrix'")
@@ -565,11 +596,12 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
         except (ValueError, TypeError, cameras.CameraConventionError) as e:
             raise InputError(f"{where}: transform_matrix is not a 4x4 matrix ({e})") from None
         F.check_pose(c2w, f"{where} transform_matrix")
-        images.append(im)
+        images.add(im)
+        del im
         poses.append(c2w)
         intrs.append(intr)
         masks.append(F.unit_pixels(raw[..., -1]) > 0.5 if raw.ndim == 3 and raw.shape[-1] in (2, 4) else None)
-    if not images:
+    if not poses:
         raise InputError(f"{tf}: no frames")
     box = transforms_box(d, np.stack(poses)[:, :3, 3], str(tf))
     for k, c2w in enumerate(poses):
@@ -580,7 +612,7 @@ def load_nerf_synthetic(scene_dir: Path, split: str = "train") -> ObjectScene:
     if scaled:
         _note(f"{tf}: its cameras are for images of another size (w, h), the images are "
               f"{', '.join(f'{w}x{h}' for w, h in sorted(scaled))}: the cameras are scaled to them")
-    images = _stack(images, scene_dir)
+    images = images.result()
     mask_arr = np.stack(masks) if all(m is not None for m in masks) else None
     return ObjectScene(scene_dir.name, scene_dir.name, images, np.stack(poses), intrs, box, list(range(len(images))),
                        mask_arr)

@@ -377,7 +377,7 @@ def check_reference_folder(folder: Path, views: Sequence[int] = ()) -> tuple[Any
 
 
 def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, bbox: tuple | None = None,
-                    max_size: int = 0, side_limit: int = 0) -> References:
+                    max_size: int = 0, side_limit: int = 0, first_camera_size: int | None = None) -> References:
     """Read the chosen views of an object folder (see :class:`References`); InputError naming what is wrong.
 
     All references take one size: the first view's, or ``ref_size`` pixels on the longer side when it is
@@ -385,7 +385,12 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
     read: 50 photos of 4000x4000 held at full size before resizing took 9.6 GB of float32 pixels (a 6 GiB cap
     failed at the 28th), to be shrunk to 64 px; now one full-size photo is held at a time. Once the first is read,
     InputError when the references would be larger than ``side_limit`` pixels on the longer side (0 = no limit) or
-    take more than ``validation.MAX_REFERENCE_BYTES`` (:func:`check_reference_memory`)."""
+    take more than ``validation.MAX_REFERENCE_BYTES`` (``validation.check_reference_memory``).
+
+    ``first_camera_size`` (None: off): the first view's camera is returned at that size (0 = its image's own,
+    ``reference_shape``), its pixels at the others' size: an orbit takes its camera from the first reference
+    and only the poses from the rest (:func:`orbit_references`), and each image is read once."""
+    from .. import validation as V
     from ..datasets.loaders import to_float_rgb
 
     folder = Path(folder)
@@ -412,7 +417,11 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
         # One size for all references: the first view's, or the longer side ref_size.
         if first is None:
             first = (v, intr, reference_shape(intr, ref_size, max_size))
-            check_reference_memory(len(views), *first[2], side_limit)
+            if first_camera_size is not None:  # the camera as a read at first_camera_size would give it
+                s0 = reference_shape(intr, first_camera_size)
+                V.check_reference_memory(1, *s0)
+                first_camera = intr if (intr.width, intr.height) == s0 else intr.resized(*s0)
+            V.check_reference_memory(len(views), *first[2], side_limit)
         w0, h0 = first[2]
         if (intr.width, intr.height) != (w0, h0):
             if abs(intr.height * w0 / intr.width - h0) > 1.0:
@@ -436,29 +445,14 @@ def load_references(folder: Path, views: Sequence[int] = (), ref_size: int = 0, 
                 subject = None
     from ..models.background import of_meta
 
-    return References(folder, views, np.stack(imgs).astype(np.float32), poses, intrs, box, src,
+    if first_camera_size is not None:
+        intrs[0] = first_camera
+    images = np.empty((len(imgs), h0, w0, 3), np.float32)  # (each view copied in: not stacked, then cast again)
+    for k in range(len(imgs)):
+        images[k] = imgs[k]
+        imgs[k] = None
+    return References(folder, views, images, poses, intrs, box, src,
                       _reference_masks(folder, ov, [pos[v] for v in views], w0, h0), of_meta(ov.meta), subject)
-
-
-def check_reference_memory(count: int, w: int, h: int, side_limit: int = 0) -> None:
-    """InputError when references at ``w`` x ``h`` are larger than ``side_limit`` (0 = no limit) on the longer side,
-    or ``count`` of them would take more than ``validation.MAX_REFERENCE_BYTES`` as float pixels; the message names
-    the --ref-size that fits (and --views). Two 8000x8000 photos kept at their size (``--ref-size -1``) ran out of
-    an 8 GiB cap in the image encoder after 13 s."""
-    from .. import validation as V
-
-    if side_limit and max(w, h) > side_limit:
-        raise InputError(f"the reference views would be {w}x{h}, over the {side_limit} px limit for references "
-                         "(the image encoder's memory grows with their pixels); pass --ref-size "
-                         f"{side_limit} or smaller (their longer side in pixels; in the panel: Reference size Custom)")
-    need = count * w * h * 12
-    if need <= V.MAX_REFERENCE_BYTES:
-        return
-    fits = int(max(w, h) * (V.MAX_REFERENCE_BYTES / need) ** 0.5)
-    raise InputError(f"{count} reference views at {w}x{h} take {need / 2**30:.1f} GiB of memory, over the "
-                     f"{V.MAX_REFERENCE_BYTES / 2**30:.0f} GiB limit for references; pass --ref-size {fits} or "
-                     "smaller (their longer side in pixels; in the panel: Reference size Custom), or choose fewer "
-                     "with --views")
 
 
 def _reference_masks(folder: Path, ov, ks: Sequence[int], w: int, h: int) -> np.ndarray | None:
@@ -478,6 +472,15 @@ def _reference_masks(folder: Path, ov, ks: Sequence[int], w: int, h: int) -> np.
             return None
         out.append(m)
     return np.stack(out)
+
+
+def orbit_references(folder: Path, views: Sequence[int], ref_size: int = 0, bbox: tuple | None = None,
+                     pose_size: int = 16) -> References:
+    """What an orbit (:func:`orbit_targets`) needs of the references, each image read once: every view at
+    ``pose_size`` pixels on the longer side (only the poses and the box count), but the first view's camera at
+    ``ref_size`` (0 or -1: its image's own size), whose field of view and size the orbit takes. Reading the first
+    view twice, at its size and at ``pose_size``, decoded the largest image twice."""
+    return load_references(folder, views, pose_size, bbox, first_camera_size=max(0, int(ref_size)))
 
 
 def resize_mask(mask: np.ndarray, w: int, h: int) -> np.ndarray:

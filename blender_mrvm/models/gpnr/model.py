@@ -39,7 +39,7 @@ from torch import nn
 
 from .. import samplers
 from ..base import RayModel
-from ..encoder import IMAGENET_MEAN, IMAGENET_STD
+from ..encoder import IMAGENET_MEAN, IMAGENET_STD, per_view
 from ..nerformer import Block, harmonic, harmonic_dim
 from ..projection import ObjectRefs, RefCameras, project_samples, rays_in_cameras, sample_maps
 from ..rays import RayBundle
@@ -143,8 +143,11 @@ class GPNR(RayModel):
         """images (V, 3, H, W) in [0, 1] -> :class:`GPNRContext` (the patch embedding of every pixel)."""
         if images.shape[-2:] != (cams.height, cams.width):
             raise ValueError(f"reference images {tuple(images.shape[-2:])} do not match cameras {(cams.height, cams.width)}")
-        x = (images - self.mean.to(images.dtype)) / self.std.to(images.dtype)
-        return GPNRContext(self.patch_embed(x), images, cams)
+        return GPNRContext(per_view(self._embed, images), images, cams)  # one view at a time without gradients
+
+    def _embed(self, images: torch.Tensor) -> torch.Tensor:
+        """(V, 3, H, W) in [0, 1] -> (V, patch_dim, H, W) patch embedding (each view on its own)."""
+        return self.patch_embed((images - self.mean.to(images.dtype)) / self.std.to(images.dtype))
 
     def sample_depths(self, rays: RayBundle, train: bool = False,
                       generator: torch.Generator | None = None) -> torch.Tensor:
