@@ -310,10 +310,8 @@ def render_views(model: Model, refs, target_c2w, target_K, width: int, height: i
 
     from .models.background import for_rendering
     from .models.hull import MODES
-    from .models.precision import autocast
     from .progress import run_to_end
-    from .synthesis.views import (encode_references, nearest_views, reference_hull, references_per_target,
-                                  render_target)
+    from .synthesis.views import TargetRenderer, references_per_target
 
     if model.kind == "sem2nerf":
         raise InputError("a Sem2NeRF model renders from a part mask, not from reference views: "
@@ -334,28 +332,13 @@ def render_views(model: Model, refs, target_c2w, target_K, width: int, height: i
                           refs.bbox_source in FRAMING_BOXES)  # a shipped model named for cameras it does not fit
     if note:
         warnings.warn(note, UserWarning, stacklevel=_stacklevel)
-    per_view = references_per_target(net, len(refs.views), int(nearest))
-    per_target = len(refs.views) > per_view
-    centre = 0.5 * (np.asarray(refs.bbox[0], np.float64) + np.asarray(refs.bbox[1], np.float64))
     chunk_n = net.inference_chunk(chunk if chunk and chunk > 0 else None)
-    pool_hull = (net.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
-                 if per_target and refs.masks is not None and skip_empty != "off" else None)
-    encoded: dict = {}
     out = []
     with torch.no_grad():
+        renderer = TargetRenderer(net, refs, references_per_target(net, len(refs.views), int(nearest)), skip_empty,
+                                  model.precision, chunk_n, dev, max(1, int(workers)))
         for c2w, intr in zip(tc, tk):
-            keep = nearest_views(refs.c2w, c2w, centre, per_view) if per_target else tuple(range(len(refs.views)))
-            if keep not in encoded:
-                encoded.clear()
-                sub = refs.subset(keep)
-                with autocast(model.precision, dev.type):
-                    ctx, ns = encode_references(net, sub)
-                    encoded[keep] = ctx, ns, (pool_hull if pool_hull is not None
-                                              else reference_hull(net, ctx, ns, sub, skip_empty))
-            ctx, ns, hull = encoded[keep]
-            with autocast(model.precision, dev.type):
-                res = run_to_end(render_target(net, ctx, ns, intr, c2w, chunk_n, dev, hull, skip_empty,
-                                               max(1, int(workers))))
+            res, keep, _ = run_to_end(renderer.render(intr, c2w))
             out.append(View(res["color"].astype(np.float32), res["acc"].astype(np.float32),
                             res["depth_z"].astype(np.float32), res["depth"].astype(np.float32), tuple(keep),
                             refs.background == "scene",

@@ -762,3 +762,16 @@ def test_force_replaces_an_earlier_synthesis_as_a_whole(setup, tmp_path):
     assert sorted(p.name for p in (out / "rgb").iterdir()) == ["000000.png", "000001.png"]
     assert not list((out / "depth").glob("*.exr")) and (out / "notes.txt").read_text() == "mine"
     assert len(json.loads((out / "targets.json").read_text())["targets"]) == 2
+
+
+def test_synthesis_gives_the_callers_thread_count_back(setup):
+    """synthesize_views sets torch's thread count to 1 while it renders (its chunk workers take the cores): a script
+    that called it kept 1 thread for everything after."""
+    root, obj, ck, tg = setup
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        assert main(_args(root, obj, ck, root / "threads_out", "--threads", "2")) == 0
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

@@ -662,12 +662,19 @@ def synthesize_views(cfg: SynthesisConfig, before_move: Callable[[Path, Synthesi
 
     ``out`` is held for the run (``guards.output_lock``; a second synthesis into it is refused, so its checks
     hold until the views are in); the temporary folder is built inside it (one file system, whatever ``out``
-    links to; a short name) and what a killed run left there is removed first."""
+    links to; a short name) and what a killed run left there is removed first. Torch's thread count is 1 while it
+    renders (``threads.render_workers``) and the caller's again when it ends (a script's had stayed at 1)."""
+    import torch
+
     from ..guards import output_lock, sweep_partials
 
-    with output_lock(Path(cfg.out)) as out:
-        sweep_partials(out)
-        return (yield from _synthesize_views(cfg, before_move))
+    threads = torch.get_num_threads()  # (render_workers sets 1: the caller's own count comes back at the end)
+    try:
+        with output_lock(Path(cfg.out)) as out:
+            sweep_partials(out)
+            return (yield from _synthesize_views(cfg, before_move))
+    finally:
+        torch.set_num_threads(threads)
 
 
 def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
@@ -694,7 +701,7 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
                          "or --ref-size -1 to use them as they are (in the panel: Reference size Custom "
                          f"{max_size}, or As they are)")
     device = resolve_device(cfg.device)
-    from ..models.precision import CPU_BF16_NOTE, autocast, check_precision, for_precision, resolve_precision
+    from ..models.precision import CPU_BF16_NOTE, check_precision, for_precision, resolve_precision
 
     check_precision("--precision", cfg.precision, device.type, auto=True)
     cams = ([*refs.c2w, *[t.c2w_opencv for t in targets]], [*refs.intrinsics, *[t.intrinsics for t in targets]],
@@ -716,7 +723,6 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
     bg_note = for_rendering(model, refs.background)  # the data decides; a mismatch is said, never silent
     if bg_note:
         print(f"note: {bg_note}", file=sys.stderr)
-    centre = 0.5 * (np.asarray(refs.bbox[0], np.float64) + np.asarray(refs.bbox[1], np.float64))
     view_note = "" if auto else viewpoint_note(ck_path, *cams)
     if view_note:
         print(f"note: {view_note}", file=sys.stderr)
@@ -737,7 +743,6 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
         from ..models.registry import compile_networks
 
         compile_networks(model)  # after adaptation (it trains a copy), before the first view compiles it
-    per_target = len(refs.views) > per_view  # more references than a view uses: its nearest, per target
     chunk = model.inference_chunk(cfg.chunk_rays if cfg.chunk_rays and cfg.chunk_rays > 0 else None)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
@@ -748,18 +753,17 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
                                adaptation=None if adapt_seconds is None else {
                                    **asdict(cfg.adapt), "seconds": round(adapt_seconds, 3), "note": adapt_note})
 
-    def refs_for(c2w) -> tuple[int, ...]:
-        return nearest_views(refs.c2w, c2w, centre, per_view) if per_target else tuple(range(len(refs.views)))
+    renderer = TargetRenderer(model, refs, per_view, cfg.skip_empty, cfg.precision, chunk, device, workers)
 
     def lenders(c2w) -> list[int]:
         """The references whose colours a view at ``c2w`` takes (:func:`colour_lenders` of those it uses)."""
-        used = refs_for(c2w)
-        return [used[i] for i in colour_lenders([refs.c2w[k] for k in used], c2w, centre, rp_cfg)]
+        used = renderer.refs_for(c2w)
+        return [used[i] for i in colour_lenders([refs.c2w[k] for k in used], c2w, renderer.centre, rp_cfg)]
 
     from ..models.background import blends_references
 
     rp_cfg = None
-    if cfg.reproject == "on" or (cfg.reproject == "auto" and per_target and not blends_references(model)
+    if cfg.reproject == "on" or (cfg.reproject == "auto" and renderer.per_target and not blends_references(model)
                                  and cfg.quality == "full"):
         from ..models.reproject import ReprojectConfig
 
@@ -768,34 +772,17 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
         total += sum(refs.intrinsics[k].width * refs.intrinsics[k].height for k in needed)
         summary.reference_colours = {"mode": cfg.reproject, **asdict(rp_cfg), "reference_renders": len(needed)}
     yield Progress(0, total, f"encoding {len(refs.views)} reference view{'s' if len(refs.views) != 1 else ''}")
-    encoded: dict[tuple[int, ...], Any] = {}
-    # Each view takes its nearest references, but every reference's mask carves the hull (only tighter).
-    pool_hull = (model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
-                 if per_target and refs.masks is not None and cfg.skip_empty != "off" else None)
-
-    def context_for(keep):
-        if keep not in encoded:
-            encoded.clear()
-            sub = refs.subset(keep)
-            with autocast(cfg.precision, device.type):
-                ctx, ns = encode_references(model, sub)
-                encoded[keep] = ctx, ns, (pool_hull if pool_hull is not None
-                                        else reference_hull(model, ctx, ns, sub, cfg.skip_empty))
-        return encoded[keep]
 
     def render(intr, c2w, msg):
-        """Progress generator over one view from its references: returns (render_target's dict, the references
-        used, the hull)."""
+        """Progress generator over one view (:meth:`TargetRenderer.render`): returns (render_target's dict, the
+        references used, the hull)."""
         nonlocal done
-        keep = refs_for(c2w)
-        ctx, ns, hull = context_for(keep)
-        gen = render_target(model, ctx, ns, intr, c2w, chunk, device, hull, cfg.skip_empty, workers)
+        gen = renderer.render(intr, c2w)
         while True:
             try:
-                with autocast(cfg.precision, device.type):  # each step (the caller runs between them)
-                    done += next(gen)
+                done += next(gen)
             except StopIteration as stop:
-                return stop.value, keep, hull
+                return stop.value
             yield Progress(done, total, msg)
 
     geometry: dict[int, tuple] = {}  # reference -> (distances along its rays, where it shows the object)
@@ -857,6 +844,60 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
         # failed or cancelled: output_lock removes the folder (and parents) it made when they stay empty
     yield Progress(total, total, f"{len(targets)} view{'s' if len(targets) != 1 else ''} written")
     return summary
+
+
+class TargetRenderer:
+    """Views of ``refs`` rendered one target camera at a time, each from the references it uses: all of them, or its
+    ``per_view`` nearest when there are more (:func:`nearest_views`); the encoded references of the last set used
+    are kept for the next view. The per-view loop of ``synthesize`` and of ``api.render_views`` (one owner: the API's
+    views are the CLI's, byte for byte)."""
+
+    def __init__(self, model, refs: References, per_view: int, skip_empty: str, precision: str, chunk: int, device,
+                 workers: int = 1):
+        self.model, self.refs, self.per_view, self.skip_empty = model, refs, int(per_view), skip_empty
+        self.precision, self.chunk, self.device, self.workers = precision, chunk, device, max(1, int(workers))
+        self.per_target = len(refs.views) > self.per_view  # more references than a view uses: its nearest
+        self.centre = 0.5 * (np.asarray(refs.bbox[0], np.float64) + np.asarray(refs.bbox[1], np.float64))
+        # Each view takes its nearest references, but every reference's mask carves the hull (only tighter).
+        self.pool_hull = (model.world_hull(refs.masks, refs.c2w, refs.intrinsics, refs.bbox)
+                          if self.per_target and refs.masks is not None and skip_empty != "off" else None)
+        self._encoded: dict[tuple[int, ...], Any] = {}
+
+    def refs_for(self, c2w) -> tuple[int, ...]:
+        """Positions of the references a view at ``c2w`` is rendered from."""
+        if self.per_target:
+            return nearest_views(self.refs.c2w, c2w, self.centre, self.per_view)
+        return tuple(range(len(self.refs.views)))
+
+    def context_for(self, keep: tuple[int, ...]):
+        """(encoded references, their count, the hull) of the references ``keep``."""
+        from ..models.precision import autocast
+
+        if keep not in self._encoded:
+            self._encoded.clear()
+            sub = self.refs.subset(keep)
+            with autocast(self.precision, self.device.type):
+                ctx, ns = encode_references(self.model, sub)
+                self._encoded[keep] = ctx, ns, (self.pool_hull if self.pool_hull is not None
+                                                else reference_hull(self.model, ctx, ns, sub, self.skip_empty))
+        return self._encoded[keep]
+
+    def render(self, intr: C.Intrinsics, c2w: np.ndarray):
+        """Generator over one view at ``c2w`` / ``intr``, yielding the rays each step finished (the caller runs
+        between steps); returns (:func:`render_target`'s dict, the references used, the hull)."""
+        from ..models.precision import autocast
+
+        keep = self.refs_for(c2w)
+        ctx, ns, hull = self.context_for(keep)
+        gen = render_target(self.model, ctx, ns, intr, c2w, self.chunk, self.device, hull, self.skip_empty,
+                            self.workers)
+        while True:
+            try:
+                with autocast(self.precision, self.device.type):  # each step
+                    n = next(gen)
+            except StopIteration as stop:
+                return stop.value, keep, hull
+            yield n
 
 
 DENSE_NEAREST = 5
