@@ -775,3 +775,22 @@ def test_synthesis_gives_the_callers_thread_count_back(setup):
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_synthesis_json_records_what_repeating_it_needs(setup):
+    """synthesis.json named the checkpoint by path only (a run folder's newest moves on) and recorded no code version,
+    libraries or command line; it carries the model file's sha256 and the provenance record eval.json has."""
+    import hashlib
+
+    from blender_mrvm import __version__
+
+    root, obj, ck, tg = setup
+    out = root / "prov_out"
+    assert main(_args(root, obj, ck, out)) == 0
+    rec = json.loads((out / "synthesis.json").read_text())
+    assert Path(rec["checkpoint_file"]).is_file() and Path(rec["checkpoint_file"]).parent.parent.parent == ck
+    assert rec["checkpoint_sha256"] == hashlib.sha256(Path(rec["checkpoint_file"]).read_bytes()).hexdigest()
+    prov = rec["provenance"]
+    assert prov["blender_mrvm"] == __version__ and prov["torch"] == torch.__version__
+    assert isinstance(prov["argv"], list) and "commit" in prov  # (argv is pytest's here; the CLI's in a real run)
+    assert "time_utc" not in prov  # reruns compare equal

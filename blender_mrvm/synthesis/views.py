@@ -585,6 +585,8 @@ class SynthesisSummary:
     seconds: float = 0.0
     device: str = "cpu"
     checkpoint: str = ""
+    checkpoint_file: str = ""
+    """The model file ``checkpoint`` (a run folder, a name) resolved to: the weights that rendered."""
     bbox: list = field(default_factory=list)
     bbox_source: str = ""
     references: list = field(default_factory=list)
@@ -745,6 +747,7 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
         compile_networks(model)  # after adaptation (it trains a copy), before the first view compiles it
     chunk = model.inference_chunk(cfg.chunk_rays if cfg.chunk_rays and cfg.chunk_rays > 0 else None)
     summary = SynthesisSummary(out, device=str(device), checkpoint=str(ck_path),
+                               checkpoint_file=str(getattr(model, "checkpoint_file", ck_path)),
                                bbox=[np.asarray(refs.bbox[0]).tolist(), np.asarray(refs.bbox[1]).tolist()],
                                bbox_source=refs.bbox_source, references=[str(refs.folder), list(refs.views)],
                                reference_size=[refs.intrinsics[0].width, refs.intrinsics[0].height],
@@ -946,6 +949,8 @@ def _kind(mcfg) -> str:
 
 
 def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -> dict[str, Any]:
+    from ..training.provenance import environment, file_sha256
+
     return {"format": "blender_mrvm.synthesis", "version": 1, "checkpoint": s.checkpoint,
             "checkpoint_step": int(meta["step"]) if str(meta.get("step", "")).isdigit() else None,
             "model": mcfg.name, "model_kind": _kind(mcfg), "device": s.device,
@@ -958,7 +963,10 @@ def _summary_json(s: SynthesisSummary, meta: dict, mcfg, cfg: SynthesisConfig) -
             "background": s.background, "viewpoint_note": s.viewpoint_note, "model_choice": s.model_choice,
             "rgb": ("RGBA PNG, opaque: the whole scene" if s.background.get("data") == "scene" else
                     "RGBA PNG, straight colour, alpha = accumulated opacity (over white = the model's output)"),
-            "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}"}
+            "depth": f"planar z-depth along the camera axis, scene units, channel Y; 0 where alpha < {ALPHA_DEPTH_THRESHOLD}",
+            # what repeating it needs: the code (version, commit), libraries, the command (training/provenance.py)
+            "checkpoint_file": s.checkpoint_file, "checkpoint_sha256": file_sha256(Path(s.checkpoint_file)),
+            "provenance": environment(device=s.device, when=False)}
 
 
 def targets_from_views(folder: Path, views: Sequence[int]) -> list[Target]:
