@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import statistics
@@ -188,11 +189,26 @@ SUMMARY_FIELDS = ["method", "images", "repeats", "width", "height", "subset", "m
 
 def _accurate(row: dict) -> bool:
     reg, n = (int(x) for x in row["registered"].split("/"))
-    return reg == n and row["median_rot_deg"] < 0.5 and row["median_centre_pct_radius"] < 1.0
+    rot, cen = row["median_rot_deg"], row["median_centre_pct_radius"]
+    return reg == n and rot != "" and cen != "" and rot < 0.5 and cen < 1.0
+
+
+def median_worst_last(values, digits: int) -> float | str:
+    """The median of per-run errors where a run that registered too few photos to be scored (NaN, or '') counts as
+    worse than any scored run; '' when the median falls on such a run. ``statistics.median`` over NaN had
+    depended on the runs' order (the same three runs gave NaN or 0.3)."""
+    v = sorted((float(x) if x not in ("", None) and math.isfinite(float(x)) else math.inf) for x in values)
+    m = statistics.median(v)
+    return round(m, digits) if math.isfinite(m) else ""
+
+
+def _num(v) -> str:
+    return "-" if v == "" else f"{v:.3f}"
 
 
 def summarize(runs: list[dict]) -> list[dict]:
-    """Medians per (method, images); ratios against pycolmap_default's medians of the same size."""
+    """Medians per (method, images) (the errors: :func:`median_worst_last`); ratios against pycolmap_default's
+    medians of the same size."""
     med = statistics.median
     out = []
     for key in dict.fromkeys((r["method"], r["images"]) for r in runs):
@@ -207,8 +223,8 @@ def summarize(runs: list[dict]) -> list[dict]:
         row["total_cpu_s"] = round(med(r["total_cpu_s"] for r in rs), 3)
         regs = sorted({r["registered"] for r in rs})
         row["registered"] = regs[0] if len(regs) == 1 else "|".join(regs)
-        row["median_rot_deg"] = round(med(r["median_rot_deg"] for r in rs), 4)
-        row["median_centre_pct_radius"] = round(med(r["median_centre_pct_radius"] for r in rs), 4)
+        row["median_rot_deg"] = median_worst_last([r["median_rot_deg"] for r in rs], 4)
+        row["median_centre_pct_radius"] = median_worst_last([r["median_centre_pct_radius"] for r in rs], 4)
         row["accurate"] = all(_accurate(r) for r in rs)
         row["load_1min"] = round(med(r["load_1min"] for r in rs), 2)
         out.append(row)
@@ -255,7 +271,9 @@ def run(args) -> int:
                        "total_s": round(r["total"], 3),
                        **{f"{s}_cpu_s": round(r["cpu"].get(s, 0.0), 3) for s in STAGES},
                        "total_cpu_s": round(r["total_cpu"], 3), "registered": f"{len(r['names'])}/{n}",
-                       "median_rot_deg": round(rot, 4), "median_centre_pct_radius": round(cen, 4),
+                       # '' where too few photos registered to align (registered and error say so), not NaN
+                       "median_rot_deg": round(rot, 4) if math.isfinite(rot) else "",
+                       "median_centre_pct_radius": round(cen, 4) if math.isfinite(cen) else "",
                        "load_1min": round(load, 2), "error": r["error"]}
                 runs.append(row)
                 print(f"{m} n={n} rep {rep}: total {row['total_s']:.1f}s (cpu {row['total_cpu_s']:.1f}s) "
@@ -269,7 +287,7 @@ def run(args) -> int:
         print(f"  {row['method']:17s} n={row['images']:3d}  total {row['total_s']:6.1f}s  "
               f"cpu {row['total_cpu_s']:6.1f}s  extract {row['extract_s']:5.1f}  match {row['match_s']:5.1f}  "
               f"map {row['map_s']:5.1f}  ratio {row['time_ratio']} (cpu {row['cpu_ratio']})  {row['registered']}  "
-              f"rot {row['median_rot_deg']:.3f}  centre {row['median_centre_pct_radius']:.3f}%  "
+              f"rot {_num(row['median_rot_deg'])}  centre {_num(row['median_centre_pct_radius'])}%  "
               f"accurate {row['accurate']}  load {row['load_1min']}")
     print(f"wrote {summary_path} and {runs_path}")
     return 0

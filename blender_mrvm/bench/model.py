@@ -6,8 +6,9 @@ f = 131.25 px at 128 px: pixelNeRF's SRN cars cameras) after one warm-up render;
 ``--repeats`` timed renders is reported with the rays evaluated (those that hit the object's box)
 against all rays, and the points evaluated against evaluating every ray with the same samples between a fixed near and
 far (what pixelNeRF does), with the process CPU seconds (steadier than wall time on a shared machine) and
-the peak extra resident memory of a render (``bench.PeakMemory``: bounded by ``render.chunk_rays``, not
-by the image size). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
+the peak extra resident memory of one more, untimed render (``bench.PeakMemory``, the allocator's freed memory
+handed back first; bounded by ``render.chunk_rays``, not by the image size; an empty cell where it cannot be
+measured). Figures go to ``<out>/bench_model.csv`` (one row per preset x views x size).
 The issue's target: ``balanced``, 128 x 128, 2 reference views, about 1 s on 2 CPU cores.
 
 ``--precisions`` compares fp32 with bf16 autocast and, on the CPU, int8 linear layers (``models/precision.py``).
@@ -27,7 +28,7 @@ import statistics
 import time
 from pathlib import Path
 
-from . import PeakMemory, write_csv
+from . import PeakMemory, mib_cell, write_csv
 
 RESULTS = ("bench_model.csv", "bench_model_profile.txt")
 """What the bench writes into ``--out`` (``bench.check_results``)."""
@@ -131,9 +132,10 @@ def run(args) -> int:
                         with open(out / "bench_model_profile.txt", "w" if len(rows) == 1 else "a") as f:
                             f.write(f"== {preset} {size}px {nv} ref(s) {prec} {device} compiled={args.compile_mode or bool(args.compile)}: "
                                     + ", ".join(f"{k} {v}" for k, v in counts.items()) + "\n" + table + "\n")
+                    peak = rows[-1]["peak_extra_mib"]  # '' where it cannot be measured
                     print(f"{preset:9s} {size}px {nv} ref(s) {prec} {device}: {rows[-1]['seconds_median']:.3f} s/view "
                           f"({rows[-1]['fps']:.1f} FPS), {res['evaluated']}/{res['rays']} rays evaluated, "
-                          f"peak +{max(peaks):.0f} MiB", flush=True)
+                          f"peak +{'?' if peak == '' else peak} MiB", flush=True)
                     write_csv(out / "bench_model.csv", rows, quiet=True)  # a run cut short keeps its rows
     if not rows:
         raise InputError("bench model: no configuration could run (out of memory for every one)")
@@ -142,25 +144,29 @@ def run(args) -> int:
 
 
 def _time_renders(args, model, refs, ref_poses, rintr, bbox, target, intr, prec, device, sync):
-    """One warm-up render, then ``args.repeats`` timed ones: (wall seconds, process CPU seconds, peak extra MiB,
-    the last render's result)."""
+    """One warm-up render, ``args.repeats`` timed ones, then one for the memory (``PeakMemory(release=True)``):
+    (wall seconds, process CPU seconds, [peak extra MiB], the last timed render's result)."""
     from ..models.precision import autocast
 
     with autocast(prec, device):
         model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None,
                          workers=args.workers)  # warm-up
         sync()
-        times, cpus, peaks = [], [], []
+        times, cpus = [], []
         for _ in range(args.repeats):
-            with PeakMemory(device) as pm:
-                t0, c0 = time.perf_counter(), time.process_time()
-                res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr,
-                                       chunk=args.chunk or None, workers=args.workers)
-                sync()
-                times.append(time.perf_counter() - t0)
-                cpus.append(time.process_time() - c0)
-            peaks.append(pm.mib)
-    return times, cpus, peaks, res
+            t0, c0 = time.perf_counter(), time.process_time()
+            res = model.synthesize(refs, ref_poses, rintr, bbox, target, intr,
+                                   chunk=args.chunk or None, workers=args.workers)
+            sync()
+            times.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
+        # the memory on one more, untimed render, the allocator's freed memory handed back first: inside the timed
+        # renders the peak had left out what the warm-up freed and the CLI's allocator keeps (up to 256 MiB)
+        with PeakMemory(device, release=True) as pm:
+            model.synthesize(refs, ref_poses, rintr, bbox, target, intr, chunk=args.chunk or None,
+                             workers=args.workers)
+            sync()
+    return times, cpus, [pm.mib], res
 
 
 def compile_mode(args) -> str:
@@ -201,7 +207,7 @@ def _row(args, cfg, name, size, rs, nv, n_params, prec, device, times, cpus, pea
         "threads": 1 if args.workers > 1 else args.threads, "workers": args.workers, "params": n_params,
         "device": device, "precision": prec, "compiled": bool(compile_mode(args)), "compile_mode": compile_mode(args),
         "seconds_median": round(sec, 4), "seconds_min": round(min(times), 4), "fps": round(1.0 / sec, 2),
-        "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1),
+        "cpu_seconds_median": round(statistics.median(cpus), 4), "peak_extra_mib": mib_cell(peaks),
         "chunk_rays": chunk_rays, "malloc": threads.malloc_policy, "load_1min": round(os.getloadavg()[0], 2),
         "rays_total": res["rays"], "rays_evaluated": res["evaluated"],
         "rays_skipped_pct": round(100 * (1 - res["evaluated"] / res["rays"]), 1),

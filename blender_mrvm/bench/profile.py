@@ -10,7 +10,7 @@ does not depend on them) with timers around each stage, after a warm-up render:
   ``stratified`` / ``sample_pdf`` (sampling), ``volume_render`` (compositing);
 - ``other``: the rest of the render (ray generation and box clipping, concatenations, Python).
 
-Writes ``<out>/bench_profile.csv`` (preset, stage, seconds, share of the view). Usage::
+Writes ``<out>/bench_profile.csv`` (preset, stage, seconds, share of the view, the load average). Usage::
 
     python -m blender_mrvm bench profile --presets balanced,gpnr:fast --out docs --threads 1
 """
@@ -18,6 +18,7 @@ Writes ``<out>/bench_profile.csv`` (preset, stage, seconds, share of the view). 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections import defaultdict
@@ -133,12 +134,14 @@ def run(args) -> int:
             model.synthesize(refs, poses, [intr] * args.views, bbox, target, intr)
 
         render()  # warm-up
+        load = round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else ""  # (a busy machine moves the shares)
         st = profile_view(model, render)
         total = st.pop("total")
         for stage, sec in sorted(st.items(), key=lambda kv: -kv[1]):
             rows.append({"kind": registry.kind_of(model.cfg), "preset": name, "size": size, "ref_views": args.views,
                          "threads": args.threads, "stage": stage, "seconds": round(sec, 4),
-                         "share_pct": round(100 * sec / total, 1), "view_seconds": round(total, 4)})
+                         "share_pct": round(100 * sec / total, 1), "view_seconds": round(total, 4),
+                         "load_1min": load})
             print(f"{preset:12s} {stage:28s} {sec:7.3f} s  {100 * sec / total:5.1f} %")
     write_csv(out / "bench_profile.csv", rows)
     return 0

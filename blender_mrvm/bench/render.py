@@ -142,5 +142,6 @@ def run(args) -> int:
                         if row["method"] == "render_dataset":
                             row["ratio_to_naive"] = round(ratio, 3)
                     print(f"{'':18s} {res:4d}px ratio render_dataset / naive_loop: {ratio:.2f}x", flush=True)
+                    write_csv(out / "bench_render.csv", rows, quiet=True)  # a run cut short keeps its pairs
     write_csv(out / "bench_render.csv", rows)
     return 0

@@ -29,8 +29,9 @@ preset) is a point of its own. For every point:
   first, ``--targets`` target views each): PSNR, SSIM (pixelNeRF's convention), LPIPS-VGG;
 - speed: median seconds per ``--size`` x ``--size`` view (wall and process CPU seconds; the CPU seconds
   are the steadier figure on a shared machine) over ``--repeats`` renders of a held-out object, rays per
-  second, and the peak extra resident memory of the render (Linux ``VmHWM`` reset through
-  ``/proc/self/clear_refs``; on CUDA ``torch.cuda.max_memory_allocated``).
+  second, and the peak extra resident memory of one more (untimed) render, the allocator's freed memory
+  handed back to the system first (Linux ``VmHWM`` reset through ``/proc/self/clear_refs``; on CUDA
+  ``torch.cuda.max_memory_allocated``; an empty cell where it cannot be measured).
 
 Writes ``<out>/bench_tradeoff.csv`` (one row per point, with the machine, threads and load) and
 ``<out>/bench_tradeoff.png`` (seconds per view against LPIPS and against PSNR, log time axis, the Pareto
@@ -55,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from ..models.precision import autocast, for_precision
-from . import PeakMemory, write_csv
+from . import PeakMemory, mib_cell, write_csv
 
 RESULTS = ("bench_tradeoff.csv", "bench_tradeoff.png", "bench_tradeoff_front.md")
 """What the bench writes into ``--out`` (``bench.check_results``)."""
@@ -173,23 +174,27 @@ def speed_refs(scene, pt: Point) -> list[int]:
 
 
 def _timed(render, precision: str, repeats: int, device: str) -> tuple[Any, dict]:
-    """(the last result, median wall / CPU seconds and peak extra MiB) of ``render()`` after one warm-up call."""
+    """(the last result, median wall / CPU seconds and peak extra MiB) of ``render()``: one warm-up call, then
+    ``repeats`` timed ones, then one more for the memory (``PeakMemory(release=True)``: the allocator's freed
+    memory handed back first, which the timed renders must not pay for; measured inside the timed renders, the
+    peak had left out what the warm-up freed and the allocator kept, up to 256 MiB)."""
     import torch
 
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     with autocast(precision, device):
         render()  # warm-up
-        walls, cpus, peaks = [], [], []
+        walls, cpus = [], []
         for _ in range(repeats):
-            with PeakMemory(device) as pm:
-                w0, c0 = time.perf_counter(), time.process_time()
-                res = render()
-                if device.startswith("cuda"):
-                    torch.cuda.synchronize()
-                walls.append(time.perf_counter() - w0)
-                cpus.append(time.process_time() - c0)
-            peaks.append(pm.mib)
+            sync()
+            w0, c0 = time.perf_counter(), time.process_time()
+            res = render()
+            sync()
+            walls.append(time.perf_counter() - w0)
+            cpus.append(time.process_time() - c0)
+        with PeakMemory(device, release=True) as pm:
+            render()
     return res, {"seconds_per_view": round(statistics.median(walls), 4),
-                 "cpu_seconds_per_view": round(statistics.median(cpus), 4), "peak_extra_mib": round(max(peaks), 1)}
+                 "cpu_seconds_per_view": round(statistics.median(cpus), 4), "peak_extra_mib": mib_cell([pm.mib])}
 
 
 def measure_speed(model, scene, refs: list[int], pt: Point, size: int, repeats: int, device: str,
@@ -314,15 +319,29 @@ def measure_sem2nerf_quality(model, objects, pt: Point, targets: int, lpips, dev
     return {k: round(float(np.mean([r[k] for r in rows])), 4) for k in rows[0]}
 
 
+def scored(r: dict, key: str) -> float | None:
+    """``r[key]`` as a finite number, None when it is missing, empty, NaN or infinite (a CSV's 'nan')."""
+    v = r.get(key)
+    if v is None or v == "":
+        return None
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return v if np.isfinite(v) else None
+
+
 def pareto(rows: list[dict], cost: str, loss: str) -> list[dict]:
-    """Rows not dominated (lower cost and lower loss) by another, sorted by cost."""
-    ok = [r for r in rows if r.get(loss) not in (None, "") and r.get(cost) not in (None, "")]
-    ok.sort(key=lambda r: (float(r[cost]), float(r[loss])))
-    front, best = [], float("inf")
-    for r in ok:
-        if float(r[loss]) < best:
+    """Rows that no other row dominates (as cheap or cheaper and as good or better, and strictly one of the two),
+    sorted by cost, then loss; points with the same cost and loss are all on it. Rows without a finite cost and
+    loss are on no front (a NaN cost had sorted anywhere and put itself on the front, hiding real points)."""
+    ok = [(c, l, r) for r in rows for c, l in [(scored(r, cost), scored(r, loss))] if c is not None and l is not None]
+    ok.sort(key=lambda t: (t[0], t[1]))
+    front, best, last = [], float("inf"), None
+    for c, l, r in ok:
+        if l < best or (c, l) == last:  # (c, l) == last: a tie with the point just kept, which does not dominate it
             front.append(r)
-            best = float(r[loss])
+            best, last = l, (c, l)
     return front
 
 
@@ -330,6 +349,17 @@ def fits(pt: Point, n_views: int) -> bool:
     """Whether objects of ``n_views`` views can make the point: its references leave a view to render (``refs``)
     and a view has that many others to take the nearest from (``nearest``)."""
     return pt.refs < n_views and pt.nearest <= n_views - 1
+
+
+def candidate_points(axes: list[str]) -> list[Point]:
+    """The references (``refs``, ``nearest``) the points of ``axes`` can have whatever the checkpoint: what
+    :func:`fits` needs to know before a model is loaded (the other knobs keep the base point's 2 references)."""
+    pts = [Point(a, a) for a in axes if a not in ("refs", "nearest")]
+    if "refs" in axes:
+        pts += [Point("refs", "", refs=r) for r in (1, 5)]
+    if "nearest" in axes:
+        pts += [Point("nearest", "", nearest=k) for k in (2, 3, 5, 10)]
+    return pts
 
 
 def run(args) -> int:
@@ -365,6 +395,27 @@ def run(args) -> int:
     if not scenes:
         raise InputError(f"{args.data}: no objects in split {args.split!r}")
     n_views = min(len(sc) for sc in scenes)
+    if all(f is None for f in s2n_files.values()) and not any(fits(pt, n_views) for pt in candidate_points(axes)):
+        # before --out is touched: it had made the folder (and with --force removed the earlier results), loaded
+        # every model, then said only "nothing was measured: no rows to write"
+        raise InputError(f"no point of --axes {','.join(axes)} can be measured: the objects of {args.data} "
+                         f"(split {args.split}) have {n_views} view(s), and every point needs a target view beside "
+                         "its references (2 references by default: 3 views; --axes refs has 1 reference: 2 views)")
+    # Sem2NeRF checkpoints loaded and their objects' masks checked before --out is touched: a set rendered at another
+    # size had been refused after --force removed the earlier results
+    s2n_models, masked = {}, None
+    for spec in specs:
+        if s2n_files[spec] is not None:
+            from ..training.sem2nerf import load_masked_object, load_sem2nerf
+
+            model, cfg0, _ = load_sem2nerf(s2n_files[spec], args.device)
+            s2n_models[spec] = (model, cfg0)
+            if masked is None:
+                masked = [load_masked_object(path) for _, path in order[:args.objects]]
+            for ob in masked:  # the encoder takes masks of its training size (as `sem2nerf eval` checks)
+                if ob.masks.shape[1:] != (cfg0.image_size, cfg0.image_size):
+                    raise InputError(f"{ob.category}/{ob.name}: masks are {ob.masks.shape[2]}x{ob.masks.shape[1]} px, "
+                                     f"{spec} takes {cfg0.image_size} px masks (render the set at that resolution)")
     out = start_results(Path(args.out), RESULTS, args.force)
     load0 = os.getloadavg()[0]
     rows = []
@@ -387,21 +438,12 @@ def run(args) -> int:
               f"[{time.perf_counter() - t0:.0f} s]", flush=True)
         write_csv(out / "bench_tradeoff.csv", rows, quiet=True)  # after every point: a stopped sweep keeps its rows
 
-    masked = None
     for spec in specs:
         s2n = s2n_files[spec]
         if s2n is not None:
             from dataclasses import replace
 
-            from ..training.sem2nerf import load_masked_object, load_sem2nerf
-
-            model, cfg0, _ = load_sem2nerf(s2n, args.device)
-            if masked is None:
-                masked = [load_masked_object(path) for _, path in order[:args.objects]]
-            for ob in masked:  # the encoder takes masks of its training size (as `sem2nerf eval` checks)
-                if ob.masks.shape[1:] != (cfg0.image_size, cfg0.image_size):
-                    raise InputError(f"{ob.category}/{ob.name}: masks are {ob.masks.shape[2]}x{ob.masks.shape[1]} px, "
-                                     f"{spec} takes {cfg0.image_size} px masks (render the set at that resolution)")
+            model, cfg0 = s2n_models.pop(spec)
             n_params = sum(p.numel() for p in model.parameters())
             for pt in sem2nerf_sweep(cfg0, axes, args.device):
                 model.cfg = replace(cfg0, **pt.overrides)
@@ -449,6 +491,13 @@ def point_name(r: dict, rows: list[dict]) -> str:
     return f"{model_name(r)}: {r['point']}" if several else r["point"]
 
 
+def unscored_points(rows: list[dict]) -> list[dict]:
+    """Measured points whose CPU seconds or a score they were given (PSNR, LPIPS) is not a finite number."""
+    return [r for r in rows if r.get("quality") == "measured"
+            and (scored(r, "cpu_seconds_per_view") is None or scored(r, "psnr") is None
+                 or (r.get("lpips") not in (None, "") and scored(r, "lpips") is None))]
+
+
 def write_front(rows: list[dict], out: Path, load0: float) -> None:
     """The Pareto fronts (markdown) and the plot (PNG)."""
     lines = ["# Pareto fronts (CPU seconds per view against LPIPS / PSNR)", "",
@@ -466,6 +515,13 @@ def write_front(rows: list[dict], out: Path, load0: float) -> None:
             lines.append("")
             for r in kr:
                 r.pop("neg_psnr", None)
+    unscored = unscored_points(rows)
+    if unscored:  # a NaN score is on no front and in no plot: say which, not leave them out silently
+        lines += ["## Left out (no finite CPU seconds, PSNR or LPIPS)", "",
+                  *[f"- {r['kind']} {model_name(r)}: {r['point']} (cpu s {r.get('cpu_seconds_per_view')}, PSNR "
+                    f"{r.get('psnr')}, LPIPS {r.get('lpips')})" for r in unscored], ""]
+        print(f"warning: {len(unscored)} point(s) have no finite CPU seconds, PSNR or LPIPS and are on no front: "
+              + "; ".join(f"{r['kind']} {r['point']}" for r in unscored), flush=True)
     (out / "bench_tradeoff_front.md").write_text("\n".join(lines))
     plot(rows, out / "bench_tradeoff.png")
     print(f"wrote {out / 'bench_tradeoff_front.md'} and {out / 'bench_tradeoff.png'}")
@@ -481,7 +537,8 @@ def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
     img = Image.new("RGB", (w, h), "white")
     d = ImageDraw.Draw(img)
     kinds = sorted({r["kind"] for r in rows})
-    meas = [r for r in rows if r["quality"] == "measured" and r["psnr"] != ""]
+    meas = [r for r in rows if r["quality"] == "measured" and scored(r, "psnr") is not None
+            and scored(r, "cpu_seconds_per_view") is not None and float(r["cpu_seconds_per_view"]) > 0]
     if not meas:
         img.save(path)
         return
@@ -490,13 +547,14 @@ def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
     panels = [("lpips", "LPIPS (lower is better)", True), ("psnr", "PSNR dB (higher is better)", False)]
     pw = (w - 60) // 2
     for pi, (key, title, lower) in enumerate(panels):
-        vals = [float(r[key]) for r in meas if r[key] != ""]
-        if not vals:
+        vals = [float(r[key]) for r in meas if scored(r, key) is not None]
+        ox, oy, pwid, phei = 60 + pi * (pw + 20), 40, pw - 70, h - 110
+        if not vals:  # (--no-lpips): say so, not leave half the image blank
+            d.text((ox, 12), f"{title}: not measured", fill="black")
             continue
         v0, v1 = min(vals), max(vals)
         pad = 0.08 * (v1 - v0 or 1.0)
         v0, v1 = v0 - pad, v1 + pad
-        ox, oy, pwid, phei = 60 + pi * (pw + 20), 40, pw - 70, h - 110
         d.rectangle([ox, oy, ox + pwid, oy + phei], outline="black")
         d.text((ox, 12), f"seconds per {rows[0]['size']}px view (CPU, log) vs {title}", fill="black")
 
@@ -512,6 +570,7 @@ def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
                     x = ox + (lv - lx0) / (lx1 - lx0) * pwid
                     d.line([x, oy + phei, x, oy + phei + 4], fill="black")
                     d.text((x - 10, oy + phei + 6), f"{10 ** lv:g}", fill="black")
+        d.text((ox + pwid - 190, oy + phei + 36), "CPU seconds per view (log scale)", fill="black")
         for k in range(5):
             v = v0 + (v1 - v0) * k / 4
             y = oy + (1 - k / 4) * phei
@@ -519,7 +578,7 @@ def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
             d.text((ox - 44, y - 6), f"{v:.3f}" if key == "lpips" else f"{v:.2f}", fill="black")
         for ki, kind in enumerate(kinds):
             col = COLOURS[ki % len(COLOURS)]
-            kr = [r for r in meas if r["kind"] == kind and r[key] != ""]
+            kr = [r for r in meas if r["kind"] == kind and scored(r, key) is not None]
             for r in kr:
                 r["_loss"] = float(r[key]) if lower else -float(r[key])
             front = pareto(kr, "cpu_seconds_per_view", "_loss")
@@ -534,6 +593,6 @@ def plot(rows: list[dict], path: Path, w: int = 1100, h: int = 460) -> None:
             for r in kr:
                 r.pop("_loss", None)
             d.text((ox + 8 + 170 * ki, oy + phei + 24), f"o {kind}", fill=col)
-    d.text((60, h - 22), "filled: on the kind's Pareto front (no other point of that kind is both faster and better)",
-           fill="black")
+    d.text((60, h - 22), "filled: on the kind's Pareto front (no other point of that kind is as fast and as good, "
+           "and faster or better)", fill="black")
     img.save(path)

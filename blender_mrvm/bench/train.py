@@ -2,15 +2,16 @@
 
 Each configuration runs the real trainer (``training.trainer.train``: the ray batcher, the model's losses
 with MRVM's masking where the preset has it, the backward pass, clipping and the AdamW step) for
-``--warmup`` + ``--steps`` + 1 steps and times the ``--steps`` after the warm-up (the last step, which
-writes the checkpoint, is not timed). A batch is ``OBJECTSxRAYS``: ``train.objects_per_step`` objects, each
-with its own 1-3 references, and ``train.rays_per_object`` target rays each. Data: ``--data`` (a dataset
-root, its train split), else a small analytic set made in a temporary folder (``training.synthetic``: 8
-objects x 12 views at ``--resolution``).
+``--warmup`` + ``--steps`` + 2 steps and times the ``--steps`` after the warm-up (the next step measures the
+memory; the last step, which writes the checkpoint, is not timed). A batch is ``OBJECTSxRAYS``:
+``train.objects_per_step`` objects, each with its own 1-3 references, and ``train.rays_per_object`` target rays
+each. Data: ``--data`` (a dataset root, its train split), else a small analytic set made in a temporary folder
+(``training.synthetic``: 8 objects x 12 views at ``--resolution``).
 
 Each row: steps and rays per second (wall), process CPU seconds per step, the share of the step spent drawing
 the batch on the CPU (``RayBatcher.draw``: picking views, making rays; the rest is the model, the loss, the
-backward pass and the update), the peak extra memory of the timed steps (``bench.PeakMemory``: on CUDA the allocator's peak), and on a GPU its mean utilisation over
+backward pass and the update), the peak extra memory of one step after the timed ones (``bench.PeakMemory`` with
+the allocator's freed memory handed back first; on CUDA the allocator's peak), and on a GPU its mean utilisation over
 the timed steps (``torch.cuda.utilization``, else ``nvidia-smi``, sampled every 0.2 s). Written to
 ``<out>/bench_train.csv``. Issue 11 asks a GPU session for exactly these (steps per second, GPU
 utilisation, bf16 against fp32)::
@@ -38,7 +39,7 @@ import threading
 import time
 from pathlib import Path
 
-from . import PeakMemory, write_csv
+from . import PeakMemory, mib_cell, write_csv
 
 RESULTS = ("bench_train.csv", "bench_train_profile.txt")
 """What the bench writes into ``--out`` (``bench.check_results``)."""
@@ -221,7 +222,7 @@ def parse_object_batches(text: str) -> list[int]:
 def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: str, steps: int, warmup: int,
             threads: int, run_dir: Path, profile: int = 0, compile: bool = False, lpips_weight: float = 0.0,
             object_batch: int = 1, ref_views_per: str = "object") -> dict:
-    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir`` at the bench's
+    """Train ``model_cfg`` on ``scenes`` for ``warmup + steps + 1 + profile + 1`` steps in ``run_dir`` at the bench's
     batch shape and precision (:func:`measure_config`)."""
     from ..training.config import TrainConfig
 
@@ -234,22 +235,25 @@ def measure(model_cfg, scenes, objects: int, rays: int, precision: str, device: 
 
 def measure_config(model_cfg, tcfg, scenes, steps: int, warmup: int, run_dir: Path, profile: int = 0) -> dict:
     """Train ``model_cfg`` with the run settings ``tcfg`` (any recipe; its length, logging, checkpoints and init
-    are the bench's) on ``scenes`` for ``warmup + steps + profile + 1`` steps in ``run_dir``; the timing of the
-    ``steps`` after the warm-up (wall, process CPU), their peak extra memory and the GPU's utilisation; with
-    ``profile`` > 0 the next ``profile`` steps under ``torch.profiler`` (:func:`profile_counts` and, as
-    ``profile_table``, :func:`profile_table`)."""
+    are the bench's) on ``scenes`` for ``warmup + steps + 1 + profile + 1`` steps in ``run_dir``; the timing of
+    the ``steps`` after the warm-up (wall, process CPU) and the GPU's utilisation over them, the peak extra memory
+    of the step after them (``PeakMemory(release=True)``); with ``profile`` > 0 the next ``profile`` steps under
+    ``torch.profiler`` (:func:`profile_counts` and, as ``profile_table``, :func:`profile_table`)."""
     import torch
 
     from ..progress import Progress
     from ..training.config import replace
     from ..training.trainer import RayBatcher, train
 
-    total = warmup + steps + profile + 1
+    total = warmup + steps + 1 + profile + 1  # (+1: the step whose memory is measured, after the timed ones)
     tcfg = replace(tcfg, out_dir=str(run_dir), iterations=total, log_every=total, ckpt_every=total,
                    keep_checkpoints=1, init_checkpoint="")
     device = tcfg.device
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
-    mem, util = PeakMemory(device), GpuUtilisation(device)
+    # the memory of one more step, the allocator's freed memory handed back first (which the timed steps must not
+    # pay for): measured over the timed steps, the peak had left out what the warm-up freed and the CLI's allocator
+    # keeps mapped (up to 256 MiB)
+    mem, util = PeakMemory(device, release=True), GpuUtilisation(device)
     t0 = c0 = None
     wall = cpu = 0.0
     drawing = [False, 0.0]  # timing on, seconds in RayBatcher.draw while on
@@ -273,7 +277,6 @@ def measure_config(model_cfg, tcfg, scenes, steps: int, warmup: int, run_dir: Pa
                 continue
             if ev.done == warmup:
                 sync()
-                mem.__enter__()
                 util.__enter__()
                 t0, c0 = time.perf_counter(), time.process_time()
                 drawing[0] = True
@@ -282,14 +285,17 @@ def measure_config(model_cfg, tcfg, scenes, steps: int, warmup: int, run_dir: Pa
                 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
                 drawing[0] = False
                 util.__exit__(None, None, None)
+                mem.__enter__()
+            elif ev.done == warmup + steps + 1:
+                sync()
                 mem.__exit__(None, None, None)
-            if profile and ev.done == warmup + steps:
+            if profile and ev.done == warmup + steps + 1:
                 acts = [torch.profiler.ProfilerActivity.CPU]
                 if device.startswith("cuda"):
                     acts.append(torch.profiler.ProfilerActivity.CUDA)
                 prof = torch.profiler.profile(activities=acts)
                 prof.__enter__()
-            elif prof is not None and ev.done == warmup + steps + profile:
+            elif prof is not None and ev.done == warmup + steps + 1 + profile:
                 sync()
                 prof.__exit__(None, None, None)
                 events = prof.key_averages()
@@ -380,8 +386,8 @@ def run(args) -> int:
                     "rays_per_step": objects * rays, "lpips_weight": args.lpips_weight, "steps": args.steps, "seconds": round(r["seconds"], 3),
                     "steps_per_s": round(sps, 3), "rays_per_s": round(sps * objects * rays, 1),
                     "cpu_seconds_per_step": round(r["cpu_seconds"] / args.steps, 4),
-                    "draw_share": round(r["draw_share"], 3),
-                    "peak_extra_mib": round(r["peak_extra_mib"], 1),
+                    "draw_share": round(r["draw_share"], 3) if r["draw_share"] == r["draw_share"] else "",
+                    "peak_extra_mib": mib_cell([r["peak_extra_mib"]]),
                     "gpu_util_pct": "" if r["gpu_util_pct"] is None else round(r["gpu_util_pct"], 1),
                     **{k: r.get(k, "") for k in PROFILE_COLUMNS if args.profile},
                     "threads": args.threads, "data": source, "load_1min": round(os.getloadavg()[0], 2),
@@ -392,8 +398,10 @@ def run(args) -> int:
                                 f"step: " + ", ".join(f"{k} {r.get(k, '')}" for k in PROFILE_COLUMNS) + "\n"
                                 + r.get("profile_table", "") + "\n")
                 util = f", GPU {rows[-1]['gpu_util_pct']}%" if device.startswith("cuda") else ""
+                peak = rows[-1]["peak_extra_mib"]  # '' where it cannot be measured
                 print(f"{name:9s} {tag} {device}: {sps:.2f} steps/s, "
-                      f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, peak +{r['peak_extra_mib']:.0f} MiB{util}", flush=True)
+                      f"{rows[-1]['rays_per_s']:.0f} rays/s, drawing the batch {100 * r['draw_share']:.0f} %, "
+                      f"peak +{'?' if peak == '' else peak} MiB{util}", flush=True)
                 write_csv(out / "bench_train.csv", rows, quiet=True)  # a run cut short keeps its rows
     if not rows:
         raise InputError("bench train: no configuration could run (out of memory for every one)")

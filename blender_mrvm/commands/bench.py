@@ -28,7 +28,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         mod.add_arguments(bp)
         bp.add_argument("--force", action="store_true",
                         help="replace this bench's earlier results in --out (removed when the measuring starts)")
-        bp.set_defaults(_bench=mod)
+        bp.set_defaults(_bench=mod, _bench_parser=bp)
+
+
+def command_line(args) -> str:
+    """``python -m blender_mrvm bench NAME`` with every option of that bench at the value it ran with (defaults
+    included, so the line repeats the run even after a default changes): what each CSV row records
+    (``bench.PROVENANCE_FIELDS``)."""
+    import shlex
+
+    words = ["python", "-m", "blender_mrvm", "bench", str(args.bench)]
+    parser = getattr(args, "_bench_parser", None)
+    for a in (parser._actions if parser is not None else []):
+        if not a.option_strings or a.dest in ("help", "force") or not hasattr(args, a.dest):
+            continue
+        v, flag = getattr(args, a.dest), max(a.option_strings, key=len)
+        if isinstance(a, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+            words += [flag] if v != a.default else []
+        elif v is not None:
+            words += [flag, str(v)]
+    return " ".join(shlex.quote(w) for w in words)
 
 
 def run(args) -> int:
@@ -42,4 +61,7 @@ def run(args) -> int:
         from ..bench import check_results
 
         check_results(Path(args.out), getattr(args._bench, "RESULTS", ()), args.force)
+    from ..bench import begin
+
+    begin(command_line(args))
     return int(args._bench.run(args) or 0)
