@@ -149,6 +149,9 @@ def test_bench_writes_csv(tmp_path):
     assert text[0].startswith("builder,size")
     assert {"one_hot", "contour_map", "distance_field", "build_inputs"} <= set(res)
     assert len(text) == 1 + len(res)
+    from blender_mrvm.bench import PROVENANCE_FIELDS  # (it wrote its own CSV without them)
+
+    assert text[0].endswith(",".join(PROVENANCE_FIELDS))
 
 
 def test_palette_mask_png_reads_as_grey_values_not_indices(tmp_path):
