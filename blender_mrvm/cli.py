@@ -80,10 +80,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _break_as_interrupt():
+    """Windows: the panel's Esc reaches a worker as Ctrl-Break (SIGBREAK: ``worker._signal``), which by default ends
+    the process at once; take it as Ctrl-C (whatever handles SIGINT now: ``progress.sigint_flag``'s flag, else
+    KeyboardInterrupt), so the step in progress is finished and kept. Returns what to restore (None: nothing done)."""
+    import signal
+    import threading
+
+    sigbreak = getattr(signal, "SIGBREAK", None)
+    if sigbreak is None or threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        h = signal.getsignal(signal.SIGINT)
+        if callable(h):
+            h(signal.SIGINT, frame)
+        elif h != signal.SIG_IGN:
+            raise KeyboardInterrupt
+
+    try:
+        return sigbreak, signal.signal(sigbreak, handler)
+    except (OSError, ValueError):
+        return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     rank, world = _torchrun_rank()
+    restore = _break_as_interrupt()
+    try:
+        return _main(args, rank, world)
+    finally:
+        if restore is not None:
+            import signal
+
+            signal.signal(*restore)
+
+
+def _main(args, rank: int, world: int) -> int:
     try:
         try:
             return int(args._module.run(args) or 0)

@@ -75,12 +75,22 @@ def check_folder_writable(path: Path, what: str = "output folder") -> Path:
     return path
 
 
+def same_path(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file or folder: as the file system sees it when both exist (macOS's and
+    Windows' ignore case, so ``Data`` is ``data``, which resolved paths compared as strings missed on macOS; a hard
+    link, a Windows 8.3 short name or mapped drive too), else as resolved paths."""
+    a, b = Path(a).expanduser(), Path(b).expanduser()
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return a.resolve() == b.resolve()
+
+
 def check_not_input(out: Path, inputs: dict[str, Path | None]) -> None:
     """An output folder must not be one of the inputs (writing there would replace them: a reference
     object's ground truth by predictions), whatever ``--force`` says."""
-    o = Path(out).expanduser().resolve()
     for what, p in inputs.items():
-        if p is not None and Path(p).expanduser().resolve() == o:
+        if p is not None and same_path(p, out):
             raise OutputError(f"the output folder {out} is the {what} folder; choose another folder")
 
 
@@ -90,10 +100,19 @@ def check_not_input(out: Path, inputs: dict[str, Path | None]) -> None:
 
 def _lock_holder(fd: int) -> str:
     try:
-        pid = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+        if hasattr(os, "pread"):
+            raw = os.pread(fd, 32, 0)
+        else:  # Windows
+            os.lseek(fd, 0, os.SEEK_SET)
+            raw = os.read(fd, 32)
+        pid = raw.decode("ascii", "replace").strip()
     except OSError:
         pid = ""
     return f" (pid {pid})" if pid.isdigit() else ""
+
+
+_WINDOWS_LOCK_AT = 1 << 20
+"""The byte of the lock file that ``msvcrt.locking`` locks on Windows (past the pid, which others read)."""
 
 
 @contextlib.contextmanager
@@ -102,7 +121,9 @@ def output_lock(folder: Path, what: str = "output folder"):
     time is refused with OutputError instead of mixing its files with this one's. A ``flock`` on
     ``<folder>/.lock`` (released by the system when the process dies, even by SIGKILL). On leaving, the lock file
     goes, and so does the folder with the parents this call created when they are empty (a refusal or a failure
-    leaves nothing behind). Without ``fcntl`` (Windows) there is no lock: the folder checks alone apply."""
+    leaves nothing behind). Windows has no ``fcntl``: there a ``msvcrt.locking`` of one byte far past the pid
+    (Windows' locks are mandatory: the pid stays readable), which the system also releases when the process dies;
+    the lock file is closed before it is removed (Windows removes no file a handle has open)."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise OutputError(f"{what} {folder} exists and is not a folder")
@@ -113,11 +134,31 @@ def output_lock(folder: Path, what: str = "output folder"):
     folder.mkdir(parents=True, exist_ok=True)
     try:
         import fcntl
-    except ImportError:  # Windows: no lock
+    except ImportError:  # Windows
         fcntl = None
+    msvcrt = None
+    if fcntl is None:
+        try:
+            import msvcrt
+        except ImportError:
+            msvcrt = None
     fd = None
     try:
-        if fcntl is not None:
+        if fcntl is None and msvcrt is not None:
+            fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT | getattr(os, "O_BINARY", 0), 0o644)
+            try:
+                os.lseek(fd, _WINDOWS_LOCK_AT, os.SEEK_SET)
+                msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+            except OSError:
+                holder = _lock_holder(fd)
+                os.close(fd)
+                fd = None
+                raise OutputError(f"{what} {folder} is in use by another process{holder}; wait for it or "
+                                  "choose another folder") from None
+            os.ftruncate(fd, 0)
+            os.lseek(fd, 0, os.SEEK_SET)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        elif fcntl is not None:
             path = folder / LOCK_FILE
             while True:
                 fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -141,7 +182,14 @@ def output_lock(folder: Path, what: str = "output folder"):
             os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield folder
     finally:
-        if fd is not None:
+        if fd is not None and fcntl is None:  # Windows: unlock and close, then remove (it fails, harmlessly, when
+            with contextlib.suppress(OSError):  # another process has opened it meanwhile)
+                os.lseek(fd, _WINDOWS_LOCK_AT, os.SEEK_SET)
+                msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(folder / LOCK_FILE)
+        elif fd is not None:
             with contextlib.suppress(OSError):
                 os.unlink(folder / LOCK_FILE)  # while still held: no one can lock the removed file meanwhile
             os.close(fd)

@@ -9,8 +9,8 @@ blender_mrvm <command> ...`` (DESIGN.md, "Where torch runs inside Blender"). bpy
 - :func:`run_worker` starts the child with ``MRVM_PROGRESS=json`` (so ``progress.run_with_tqdm``
   prints one JSON line per event on stdout) and is itself a progress generator: a modal operator
   calls ``next()`` once per timer tick (each call waits at most ``poll_s``), and cancels with
-  ``gen.close()``, which interrupts the child (SIGINT: the CLI closes its own generator, keeping
-  finished work) and escalates to terminate / kill when it does not exit in time. A child that
+  ``gen.close()``, which interrupts the child (SIGINT, Ctrl-Break on Windows: the CLI closes its own generator,
+  keeping finished work) and escalates to terminate / kill when it does not exit in time. A child that
   fails raises :class:`WorkerError` with its one ``error: ...`` line.
 """
 
@@ -329,7 +329,14 @@ def _signal(proc: subprocess.Popen, sig) -> None:
         if os.name == "posix":
             os.killpg(proc.pid, sig)  # the child leads its own process group (torchrun's ranks too)
         elif sig == signal.SIGINT:
-            proc.terminate()  # no console signal for a detached child on Windows
+            # Windows: the child leads its own process group (CREATE_NEW_PROCESS_GROUP), where Ctrl-C is off but
+            # Ctrl-Break reaches it; the CLI takes it as Ctrl-C (cli.main) and finishes and keeps its step in
+            # progress. A terminate here (as before) lost it: the first Esc in Train dropped the steps since the last
+            # checkpoint. Where the event cannot be sent (no console shared with the child) it is terminated.
+            try:
+                proc.send_signal(signal.CTRL_BREAK_EVENT)
+            except (AttributeError, ValueError, OSError):
+                proc.terminate()
         else:
             proc.kill() if sig == getattr(signal, "SIGKILL", None) else proc.terminate()
     except (ProcessLookupError, PermissionError, OSError):

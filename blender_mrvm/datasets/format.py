@@ -78,6 +78,31 @@ def ordinary_permissions(path: Path) -> None:
         os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~_UMASK)
 
 
+_WINDOWS = os.name == "nt"
+_REPLACE_WAITS_S = (0.05, 0.1, 0.2, 0.4, 0.8)
+"""Windows: the pauses between tries of :func:`replace_file` (about 1.5 s in all)."""
+
+
+def replace_file(src, dst) -> None:
+    """``os.replace(src, dst)``. Windows refuses it (PermissionError) while another program has ``dst`` open without
+    sharing its deletion: a virus scanner, the search indexer or a sync client (OneDrive, Dropbox) for a moment just
+    after the file was written, an image viewer for as long as it shows it. There it is tried again for about 1.5 s,
+    then refused naming ``dst`` (not the temporary file) and what to do."""
+    import time
+
+    for wait in (*(_REPLACE_WAITS_S if _WINDOWS else ()), None):
+        try:
+            os.replace(src, dst)
+            return
+        except PermissionError as e:
+            if not _WINDOWS:
+                raise
+            if wait is None:
+                raise PermissionError(e.errno, "cannot replace a file another program has open (an image viewer, a "
+                                      "sync client, a virus scanner): close it there and run again", str(dst)) from e
+            time.sleep(wait)
+
+
 def move_into(tmp: Path, out: Path) -> None:
     """Move a finished temporary folder into ``out`` (files replace files of the same name; ``out`` is
     created when missing) with the permissions of ordinary new files; ``tmp`` is removed."""
@@ -93,7 +118,7 @@ def move_into(tmp: Path, out: Path) -> None:
         if p.is_file():
             dst = out / p.relative_to(tmp)
             dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(p, dst)
+            replace_file(p, dst)
     shutil.rmtree(tmp, ignore_errors=True)
 
 
@@ -125,7 +150,7 @@ def atomic_write(path: Path, write: Callable[[str], None], suffix: str | None = 
     try:
         write(tmp)
         ordinary_permissions(Path(tmp))
-        os.replace(tmp, path)
+        replace_file(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

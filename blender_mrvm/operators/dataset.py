@@ -66,7 +66,9 @@ def rendering_into(out: Path) -> str | None:
 
 
 def _same_folder(a: Path, b: Path) -> bool:
-    return Path(a).resolve() == Path(b).resolve()
+    from ..guards import same_path
+
+    return same_path(a, b)  # (macOS: Data is data)
 
 
 def _data_uids() -> frozenset:
