@@ -608,12 +608,12 @@ class SynthesisSummary:
 
 
 def _check_out(out: Path, cfg: SynthesisConfig | None = None) -> None:
-    from ..guards import check_folder_writable, check_not_input, check_output_folder
+    from ..guards import check_folder_writable, check_not_input, check_output_folder, same_path
 
     ours: tuple[str, ...] = ()
     if cfg is not None:
         check_not_input(out, {"reference": Path(cfg.references)})
-        if Path(cfg.targets).resolve() == (out / "targets.json").resolve():
+        if same_path(Path(cfg.targets), out / "targets.json"):
             ours = ("targets.json",)  # the targets file the run reads may sit in the output folder
     check_output_folder(out, force=bool(cfg and cfg.force), ours=ours)
     check_folder_writable(out)
@@ -680,7 +680,7 @@ def synthesize_views(cfg: SynthesisConfig, before_move: Callable[[Path, Synthesi
 
 
 def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
-    from ..guards import PARTIAL_PREFIX
+    from ..guards import PARTIAL_PREFIX, same_path
     from ..threads import render_workers
 
     t0 = time.perf_counter()
@@ -832,7 +832,7 @@ def _synthesize_views(cfg: SynthesisConfig, before_move) -> ProgressGen:
                                     "reference_views": [int(refs.views[k]) for k in used], **extra})
         summary.seconds = time.perf_counter() - t0
         F.atomic_write_json(tmp / "synthesis.json", _summary_json(summary, meta, mcfg, cfg))
-        if Path(cfg.targets).resolve() != (out / "targets.json").resolve() or depth != depth_wanted:
+        if not same_path(Path(cfg.targets), out / "targets.json") or depth != depth_wanted:
             # the cameras beside their images, saying whether depth maps were written (--depth over the file's word)
             write_targets(tmp / "targets.json", targets, depth=depth)
         if before_move is not None:

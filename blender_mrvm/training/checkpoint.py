@@ -15,7 +15,6 @@ replaced atomically: an interrupted save never leaves a checkpoint that looks co
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 
 import torch
 
-from ..datasets.format import atomic_write_text, disk_full_error, ordinary_permissions
+from ..datasets.format import atomic_write_text, disk_full_error, ordinary_permissions, replace_file
 from ..errors import InputError
 from ..models.checkpoint_files import (FORMAT, FORMAT_VERSION, MODEL_FILE, STATE_FILE, checked_header,
                                        checkpoint_folders, find_checkpoint, model_file_of,
@@ -58,7 +57,7 @@ def save_checkpoint(run_dir: Path, step: int, model: torch.nn.Module, model_cfg:
         final = ck_root / name
         if final.exists():
             shutil.rmtree(final)
-        os.replace(tmp, final)
+        replace_file(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -252,7 +251,7 @@ def _write_tensors(tensors: dict[str, torch.Tensor], meta: dict[str, str], out: 
         for block in safetensors_bytes(tensors, meta):
             f.write(block)
     ordinary_permissions(tmp)
-    os.replace(tmp, out)
+    replace_file(tmp, out)
     return out
 
 
