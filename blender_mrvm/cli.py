@@ -160,8 +160,8 @@ def _out_as_it_was(args) -> str:
 
 
 def _bench_kept(args) -> str:
-    """A bench that writes its rows as it measures (model, tradeoff, train, capture, render) keeps them; its files in --out
-    are this run's (earlier results are refused, or removed by --force when the measuring starts)."""
+    """A bench that writes its rows as it measures (model, tradeoff, train, capture, render) keeps them; its files in
+    --out are this run's (earlier results are refused, or removed by --force when the measuring starts)."""
     out = getattr(args, "out", None)
     results = getattr(getattr(args, "_bench", None), "RESULTS", ()) if args.command == "bench" else ()
     if args.command == "sem2nerf":
