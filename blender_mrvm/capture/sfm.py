@@ -346,6 +346,12 @@ def _scaled(gen: ProgressGen, end: int):
         yield Progress(int(end * ev.fraction), 100, ev.message)
 
 
+_EXPORT_TEMPORARY = re.compile(r"\.(?:intrinsics\.txt|transforms\.json|meta\.json|points\.ply)\.[a-z0-9_]{8}"
+                               r"\.(?:txt|json|ply)")
+"""The temporary names of the capture folder's files while ``format.atomic_write`` writes them (``tempfile``'s 8
+characters): a run killed then left one, and its rerun was refused as a folder holding other files."""
+
+
 def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
     """Refuse an occupied output folder unless ``force``; with it, remove only what we write. A folder
     holding only an unfinished run of ours (no meta.json, which is written last) is continued without
@@ -357,6 +363,10 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise OutputError(f"output {out_dir} exists and is not a folder")
     if out.is_dir():
+        if (out / RUN_MARKER).is_file():  # ours, and held (recover_poses): what a killed export was writing is no one's
+            for p in out.iterdir():
+                if _EXPORT_TEMPORARY.fullmatch(p.name) and p.is_file() and not p.is_symlink():
+                    p.unlink(missing_ok=True)
         present = sorted(p.name for p in out.iterdir() if p.name != LOCK_FILE)
         # ours and stopped before meta.json (written last): its marker says so, not names alone (a folder of the
         # user's own frames/, colmap/ or points.ply was wiped as one)
@@ -761,6 +771,9 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
             device=pycolmap.Device.cpu, cancellation_token=token), token, "extracting features", _STAGE_END["scan"])
         _drop_bogus_focal_priors(db_path)
         stages.finish("extract")
+    else:  # resumed: the checks a fresh run makes of the cameras extraction wrote, made again (a run stopped after its
+        # features were extracted by a version without them, or stopped between them and its log, skipped them)
+        _drop_bogus_focal_priors(db_path)
     timings["extract"], cpu_timings["extract"] = time.perf_counter() - t, time.process_time() - c
 
     # 3. match

@@ -46,7 +46,7 @@ from . import compat
 from . import objects as O
 from . import raster
 from .camera import apply_intrinsics, apply_pose, set_clip
-from .render import (ENGINES, MAX_RESOLUTION, RenderSession, _sigint_between_views, _Writer, prepare_output,
+from .render import (ENGINES, MAX_RESOLUTION, RenderSession, _sigint_between_views, _Writer, dataset_run,
                      view_intact, write_view)
 
 CATEGORY = "captures"
@@ -303,8 +303,14 @@ def render_captures(cfg: CaptureConfig) -> ProgressGen:
     splits = scene_splits(cfg.scenes)
     i, n = cfg.shard
     mine = [k for k in range(cfg.scenes) if k % n == i]
-    prepare_output(cfg)
     summary = CaptureSummary(Path(cfg.out))
+    with dataset_run(cfg):  # (the root held for its check; this run registered until its lists are written)
+        yield from _render_scenes(cfg, mine, ids, splits, summary)
+        write_capture_splits(Path(cfg.out), cfg)
+    return summary
+
+
+def _render_scenes(cfg: CaptureConfig, mine: list[int], ids: list[str], splits: list[str], summary: CaptureSummary):
     total = len(mine) * cfg.views
     done = 0
     t0 = time.perf_counter()
@@ -324,19 +330,18 @@ def render_captures(cfg: CaptureConfig) -> ProgressGen:
             finally:
                 gen.close()
             summary.scenes.append(ids[k])
-    write_capture_splits(Path(cfg.out), cfg)
     summary.seconds = time.perf_counter() - t0
-    return summary
 
 
 def write_capture_splits(root: Path, cfg: CaptureConfig) -> dict[str, list[str]]:
-    """``splits/*.lst`` from the finished scenes on disk, and the protocol file."""
-    from .render import write_splits
+    """``splits/*.lst`` from the finished scenes on disk, and the protocol file (the root held meanwhile)."""
+    from .render import root_held, write_splits_held
 
     # scenes are <CATEGORY>/<scene id>, as objects are; only this run's: scenes a run with more --scenes left
     # behind are not listed (their split belongs to that run's count)
-    splits = write_splits(root, cfg.settings(), only={f"{CATEGORY}/{s}" for s in scene_ids(cfg)})
-    F.atomic_write_json(Path(root) / "splits" / "eval_views.json", protocol(cfg.views, cfg.holdout_every))
+    with root_held(root):
+        splits = write_splits_held(root, cfg.settings(), only={f"{CATEGORY}/{s}" for s in scene_ids(cfg)})
+        F.atomic_write_json(Path(root) / "splits" / "eval_views.json", protocol(cfg.views, cfg.holdout_every))
     return splits
 
 

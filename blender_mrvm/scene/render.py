@@ -21,17 +21,22 @@ counts only if its files are intact (a truncated PNG is rendered again).
 
 Runs: an object folder is held (``guards.output_lock``) while it is checked and rendered, so a second run reaching
 it is refused in one line (shards rendering into one folder hold different objects and go on side by side), and
-what a killed run was writing there (temporary names) is removed first.
+what a killed run was writing there (temporary names) is removed first. The dataset root is held only for a moment
+(:func:`root_held`: its manifest's check and write, the split lists, the sweep of what killed runs left there), and a
+run registers itself there until it ends (:func:`dataset_run`): a run with other settings, ``--force`` or not, is
+refused while one renders, since it would replace the manifest that run's objects are described by.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import itertools
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import tempfile
@@ -192,6 +197,8 @@ class RenderSummary:
     per_view_intrinsics: list[str] = field(default_factory=list)
     """Objects rendered in this run whose views differ in intrinsics (the SRN ``intrinsics.txt`` holds the first
     view's: one warning at the end names them)."""
+    started: float = 0.0
+    """``time.perf_counter()`` when the first object was started."""
     viewport_grey: list[str] = field(default_factory=list)
     """Materials a Workbench run drew in their default grey Viewport Display colour while their shaders are coloured
     (``objects.viewport_grey_materials``; one warning at the end names them)."""
@@ -221,14 +228,139 @@ def _settings_diff(a: dict, b: dict) -> str:
     return said
 
 
+RUN_PREFIX = ".mrvm-run-"
+"""A run's registration in a dataset root (``.mrvm-run-XXXXXXXX``, a hidden folder holding ``run.json``): held
+(``guards.output_lock``) from the run's check of the root until it ends, so that another run can tell it is live."""
+
+# What this code writes for a moment in a dataset root, by ``tempfile``'s names (8 of ``[a-z0-9_]``): the write
+# probe, the root manifest's and the split lists' atomic writes (``format.atomic_write``), capture sets' protocol file.
+_ROOT_TEMPORARY = re.compile(r"\.write-test-[a-z0-9_]{8}|\." + re.escape(F.ROOT_MANIFEST) + r"\.[a-z0-9_]{8}\.json")
+_SPLITS_TEMPORARY = re.compile(r"\.(?:train|val|test)\.lst\.[a-z0-9_]{8}\.lst|\.eval_views\.json\.[a-z0-9_]{8}\.json")
+_RUN_NAME = re.compile(re.escape(RUN_PREFIX) + r"[a-z0-9_]{8}")
+ROOT_WAIT_S = 600.0
+"""How long a run waits for another to let go of the dataset root (held for a moment: its manifest's check and
+write, the split lists) before it gives up, naming the holder."""
+
+
 def _own_temporary(name: str) -> bool:
-    """A file this code writes for a moment in a dataset root: the write probe, the manifest's atomic write (another
-    shard starting into the same new folder at the same time has them there)."""
-    return name.startswith((".write-test-", f".{F.ROOT_MANIFEST}."))
+    """A name this code has in a dataset root for a while: the root's lock, a live run's registration, the write probe,
+    the manifest's atomic write (another shard starting into the same new folder at the same time has them there)."""
+    return name == LOCK_FILE or name.startswith((".write-test-", f".{F.ROOT_MANIFEST}.", RUN_PREFIX))
+
+
+@contextlib.contextmanager
+def root_held(out: Path, wait_s: float | None = None):
+    """Hold the dataset root ``out`` (``guards.output_lock`` on ``<out>/.lock``; created when missing) for a moment:
+    the check and write of its manifest, the split lists, the sweep of what killed runs left there. Every write into
+    the root itself happens under it, so a sweep under it removes nothing a live run is about to rename. Shards wait
+    for each other here (up to ``wait_s``, default :data:`ROOT_WAIT_S`) instead of refusing."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output path {out} exists and is not a folder")
+    deadline = time.monotonic() + (ROOT_WAIT_S if wait_s is None else wait_s)
+    with contextlib.ExitStack() as stack:
+        for attempt in itertools.count():
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise OutputError(f"output folder {out} is not writable ({e.strerror or e})") from None
+            try:
+                stack.enter_context(output_lock(out, "dataset folder"))
+                break
+            except OutputError:  # another run holds it for a moment
+                if time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.05)
+            except FileNotFoundError as e:  # removed as we came (empty, by a run refused in the new folder): again
+                if attempt >= 20:
+                    raise OutputError(f"output folder {out} is not writable ({e.strerror or e})") from None
+            except OSError as e:
+                if e.errno == errno.ENOLCK:  # (an NFS mount without its lock service)
+                    raise OutputError(f"output folder {out}: its file system does not lock files ({e.strerror}), "
+                                      "which runs and shards sharing it need; mount it with locks or render into a "
+                                      "local folder") from None
+                raise OutputError(f"output folder {out} is not writable ({e.strerror or e})") from None
+        yield out
+
+
+def _run_record(reg: Path) -> str:
+    """How a live run's registration names it: pid, host and start time."""
+    try:
+        r = json.loads((reg / "run.json").read_text())
+        return f"pid {r['pid']} on {r['host']}, started {r['started']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "pid unknown"
+
+
+def live_runs(out: Path) -> list[tuple[str, dict | None]]:
+    """Under :func:`root_held`: the runs rendering into ``out`` now (each as its words and its settings); the
+    registrations no one holds (a killed run's) are removed on the way."""
+    found = []
+    for reg in sorted(Path(out).iterdir()):
+        if not (_RUN_NAME.fullmatch(reg.name) and reg.is_dir() and not reg.is_symlink()):
+            continue
+        try:
+            with output_lock(reg, "run"):  # no one holds it: the run that made it is gone
+                shutil.rmtree(reg, ignore_errors=True)
+        except OutputError:
+            try:
+                settings = json.loads((reg / "run.json").read_text()).get("settings")
+            except (OSError, ValueError, AttributeError):
+                settings = None
+            found.append((_run_record(reg), settings))
+    return found
+
+
+def sweep_root(out: Path) -> list[tuple[str, dict | None]]:
+    """Under :func:`root_held`: remove the temporary files killed runs left in the dataset root and its ``splits/``
+    (only this code's names; no live run can be writing them: it writes them under the same hold) and the
+    registrations of runs that are gone; return the live runs (:func:`live_runs`)."""
+    out = Path(out)
+    live = live_runs(out)
+    for folder, names in ((out, _ROOT_TEMPORARY), (out / "splits", _SPLITS_TEMPORARY)):
+        if not folder.is_dir() or folder.is_symlink():
+            continue
+        for p in folder.iterdir():
+            if names.fullmatch(p.name) and p.is_file() and not p.is_symlink():
+                with contextlib.suppress(OSError):
+                    p.unlink()
+    return live
+
+
+@contextlib.contextmanager
+def dataset_run(cfg):
+    """A run into the dataset root ``cfg.out`` (a :class:`RenderConfig`, or anything with ``out``, ``force`` and
+    ``settings()``): with the root held, sweep what killed runs left there, refuse when a live run renders into it
+    with other settings (``--force`` would replace the manifest its objects are described by; shards with the same
+    settings go on side by side), check and write the manifest (:func:`prepare_output`) and register this run, which
+    stays registered until the block ends."""
+    import datetime
+    import socket
+
+    out = Path(cfg.out)
+    settings = cfg.settings()
+    with contextlib.ExitStack() as run:
+        with root_held(out):
+            for words, theirs in sweep_root(out):
+                if not F.settings_match(theirs, settings):
+                    diff = _settings_diff(theirs, settings) if isinstance(theirs, dict) else "unknown settings"
+                    raise OutputError(f"{out} is being rendered by another run ({words}) with other settings "
+                                      f"({diff}); wait for it to end or stop it, or choose another folder "
+                                      "(--force replaces a dataset no run is rendering)")
+            prepare_output(cfg)
+            reg = Path(tempfile.mkdtemp(prefix=RUN_PREFIX, dir=out))  # (a full disk: the CLI's one line says so)
+            run.callback(shutil.rmtree, reg, True)  # (last: after the hold below is let go)
+            run.enter_context(output_lock(reg, "run"))
+            F.atomic_write_json(reg / "run.json", {
+                "pid": os.getpid(), "host": socket.gethostname(),
+                "started": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
+                "settings": settings})
+        yield out
 
 
 def prepare_output(cfg: RenderConfig) -> None:
-    """Create/check the dataset root; refuse to mix with another dataset unless ``force``."""
+    """Check the dataset root and write its manifest; refuse to mix with another dataset unless ``force``. Called
+    with the root held (:func:`dataset_run`)."""
     out = Path(cfg.out)
     if out.exists() and not out.is_dir():
         raise OutputError(f"output path {out} exists and is not a folder")
@@ -277,7 +409,15 @@ def write_splits(root: Path, settings: dict | None = None, only: set[str] | None
     Shards rendering into one folder each rewrite the lists when they finish; one that read the folder just before
     another's last object was finished, and wrote just after it, would leave that object out. So the lists are read
     again after writing, and written again until what was written is what is on disk: every object finished before
-    a shard's last write is then in the lists (each list is replaced whole, atomically, on any filesystem)."""
+    a shard's last write is then in the lists (each list is replaced whole, atomically, on any filesystem). The root is
+    held meanwhile (:func:`root_held`): shards write the lists one at a time, and a sweep of the root removes no
+    list's temporary file that a live run is about to rename."""
+    with root_held(root):
+        return write_splits_held(root, settings, only)
+
+
+def write_splits_held(root: Path, settings: dict | None = None, only: set[str] | None = None) -> dict[str, list[str]]:
+    """:func:`write_splits` with the root already held (:func:`root_held`, which is not re-entrant)."""
     root = Path(root)
     if settings is None:
         settings = json.loads((root / F.ROOT_MANIFEST).read_text()).get("settings")
@@ -742,52 +882,22 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
         if reframed:
             passed_over.append(reframed)
     fresh = not Path(cfg.out).exists() and cfg.shard[1] == 1  # (another shard may be starting into it too)
-    prepare_output(cfg)
-    n_views = len(scene_cams) if scene_cams else cfg.views
-    total = len(specs) * n_views
     summary = RenderSummary(Path(cfg.out))
     summary.warnings.extend(passed_over)
-    t0 = time.perf_counter()
-    done = 0
-    yield Progress(0, total, "starting")
+    state = {"done": 0}
     try:
-        with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
-            for spec in specs:
-                views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
-                started = done
-                try:
-                    for event in views:
-                        done += 1
-                        summary.seconds = time.perf_counter() - t0
-                        yield Progress(done, total, event, skipped=summary.views_skipped)
-                        if interrupted:
-                            raise KeyboardInterrupt  # between views: every reported view is on disk
-                except InputError as e:  # the mesh itself is unusable, before any of its views was written
-                    skippable = spec.kind == "file" and done == started
-                    if skippable and not cfg.skip_bad_meshes and len(specs) > 1:
-                        raise InputError(f"{e} (to render the other {len(specs) - 1} object(s) without it: "
-                                         "--skip-bad-meshes, in the panel Skip bad meshes)") from None
-                    if not (cfg.skip_bad_meshes and skippable):
-                        raise
-                    summary.warnings.append(f"{spec.key} skipped: {e}")
-                    summary.skipped.append(spec.key)
-                    done += n_views
-                    yield Progress(done, total, f"{spec.key}: skipped ({e})", skipped=summary.views_skipped)
-                    continue
-                finally:
-                    views.close()
-                summary.objects.append(spec.key)
+        with dataset_run(cfg):  # registered until the lists are written: --force of other settings waits for it
+            yield from _render_specs(cfg, specs, scene_cams, summary, state)
+            if summary.skipped and not summary.objects:  # (--skip-bad-meshes wrote an empty dataset with exit 0)
+                state["done"] = 0
+                raise InputError(f"every mesh was skipped as unusable ({len(summary.skipped)}: "
+                                 f"{', '.join(summary.skipped[:3])}{', ...' if len(summary.skipped) > 3 else ''}); "
+                                 "nothing was rendered")
+            write_splits(Path(cfg.out))
     except Exception:
-        if fresh and done == 0:  # e.g. the first mesh cannot be read: leave no empty dataset behind
+        if fresh and state["done"] == 0:  # e.g. the first mesh cannot be read: leave no empty dataset behind
             _remove_if_untouched(Path(cfg.out))
         raise
-    if summary.skipped and not summary.objects:  # (--skip-bad-meshes wrote an empty dataset with exit 0)
-        if fresh:
-            _remove_if_untouched(Path(cfg.out))
-        raise InputError(f"every mesh was skipped as unusable ({len(summary.skipped)}: "
-                         f"{', '.join(summary.skipped[:3])}{', ...' if len(summary.skipped) > 3 else ''}); nothing "
-                         "was rendered")
-    write_splits(Path(cfg.out))
     grey = O.viewport_grey_warning(summary.viewport_grey)
     if grey:
         summary.warnings.append(grey)
@@ -798,8 +908,42 @@ def render_dataset(cfg: RenderConfig) -> ProgressGen:
             "different intrinsics (focal length or principal point): each view's are in transforms.json (which this "
             "package reads), while the SRN intrinsics.txt can hold only one, the first view's; readers of the SRN "
             "layout alone (pixelNeRF's) would misplace the other views")
-    summary.seconds = time.perf_counter() - t0
+    summary.seconds = time.perf_counter() - summary.started
     return summary
+
+
+def _render_specs(cfg: RenderConfig, specs: list[O.ObjectSpec], scene_cams, summary: RenderSummary, state: dict):
+    """Render ``specs`` into the registered root; yields Progress (``state["done"]``: the views reported)."""
+    n_views = len(scene_cams) if scene_cams else cfg.views
+    total = len(specs) * n_views
+    t0 = summary.started = time.perf_counter()
+    yield Progress(0, total, "starting")
+    with tempfile.TemporaryDirectory(prefix="mrvm_render_") as tmp, _sigint_between_views() as interrupted:
+        for spec in specs:
+            views = _render_object(cfg, spec, scene_cams, Path(tmp), summary)
+            started = state["done"]
+            try:
+                for event in views:
+                    state["done"] += 1
+                    summary.seconds = time.perf_counter() - t0
+                    yield Progress(state["done"], total, event, skipped=summary.views_skipped)
+                    if interrupted:
+                        raise KeyboardInterrupt  # between views: every reported view is on disk
+            except InputError as e:  # the mesh itself is unusable, before any of its views was written
+                skippable = spec.kind == "file" and state["done"] == started
+                if skippable and not cfg.skip_bad_meshes and len(specs) > 1:
+                    raise InputError(f"{e} (to render the other {len(specs) - 1} object(s) without it: "
+                                     "--skip-bad-meshes, in the panel Skip bad meshes)") from None
+                if not (cfg.skip_bad_meshes and skippable):
+                    raise
+                summary.warnings.append(f"{spec.key} skipped: {e}")
+                summary.skipped.append(spec.key)
+                state["done"] += n_views
+                yield Progress(state["done"], total, f"{spec.key}: skipped ({e})", skipped=summary.views_skipped)
+                continue
+            finally:
+                views.close()
+            summary.objects.append(spec.key)
 
 
 def _render_object(cfg: RenderConfig, spec: O.ObjectSpec, scene_cams, tmpdir: Path, summary: RenderSummary):
