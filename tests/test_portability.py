@@ -305,3 +305,43 @@ def test_macos_two_render_dataset_jobs_into_one_folder_in_another_case(tmp_path,
     (tmp_path / "Dataset").mkdir()
     assert _same_folder(tmp_path / "Dataset", tmp_path / "dataset")
     assert not _same_folder(tmp_path / "Dataset", tmp_path / "other")
+
+
+def test_names_windows_reserves_get_an_underscore():
+    """An object or camera named ``aux`` or ``Com1`` (``nul.001`` too: what follows the dot does not matter) became a
+    folder or file a dataset copied to Windows cannot hold."""
+    from blender_mrvm.scene.objects import safe_id
+
+    assert [safe_id(n) for n in ("CON", "nul", "Com1", "aux.001", "LPT9.x")] == \
+        ["CON_", "nul_", "Com1_", "aux_.001", "LPT9_.x"]
+    assert [safe_id(n) for n in ("console", "com10", "chair", "auxiliary")] == ["console", "com10", "chair", "auxiliary"]
+
+
+def test_two_cameras_whose_names_differ_in_case_get_two_plane_files(tmp_path, monkeypatch):
+    """Cameras ``Cam`` and ``cam`` got plane images Cam.png and cam.png: one file on macOS and Windows, so the first
+    plane showed the second camera's view."""
+    pytest.importorskip("bpy")
+    from blender_mrvm.scene import image_planes as IP
+
+    monkeypatch.setattr(IP, "_image_paths", lambda: set())
+    stems = IP._unique_stems(["Cam", "cam", "CAM"], tmp_path, own_folder=False)
+    assert len({s.casefold() for s in stems}) == 3 and stems[0] == "Cam"
+
+
+def test_obj_material_libraries_are_read_as_utf8_whatever_the_locale(tmp_path, monkeypatch):
+    """Windows' default text encoding is a code page: ``mtllib café.mtl`` read back as ``cafÃ©.mtl`` and was reported
+    missing, the object losing its colours. The OBJ's lines are read as UTF-8 (so are MTL and other text meshes)."""
+    import builtins
+
+    from blender_mrvm.scene import objects as O
+
+    def windows_open(file, mode="r", *args, **kwargs):  # open() without encoding= on Windows
+        if "b" not in mode and "encoding" not in kwargs and len(args) < 2:
+            kwargs["encoding"] = "cp1252"
+        return builtins.open(file, mode, *args, **kwargs)
+
+    monkeypatch.setattr(O, "open", windows_open, raising=False)
+    obj = tmp_path / "m.obj"
+    obj.write_bytes("mtllib café.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".encode("utf-8"))
+    lines = O._mtllib_text_lines(str(obj), 12345, obj.stat().st_size)
+    assert [ln.strip() for ln in lines] == ["mtllib café.mtl"]

@@ -494,6 +494,8 @@ def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: 
 _CHILD_STAGE = """
 import os, pickle, signal, sys
 signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the parent's: it kills this process
+if hasattr(signal, "SIGBREAK"):  # Windows: the panel's Esc is a Ctrl-Break to the worker's group, this one included
+    signal.signal(signal.SIGBREAK, signal.SIG_IGN)
 if sys.platform.startswith("linux"):  # and so does the parent's end (a worker killed by the panel): no orphan writes
     try:
         import ctypes

@@ -367,10 +367,10 @@ def _unique_stems(cameras: list[str], folder: Path | None, own_folder: bool) -> 
             s = base if k == 0 else f"{base}_{k}"
             clash = folder is not None and any(taken(folder / f"{s}{ext}")
                                                for ext in (".png", "_depth.exr", "_semantic.png"))
-            if s not in used and not clash:
+            if s.casefold() not in used and not clash:
                 break
             k += 1
-        used.add(s)
+        used.add(s.casefold())  # (cameras Cam and cam: one file on macOS and Windows, which ignore case)
         out.append(s)
     return out
 

@@ -30,6 +30,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+from ..datasets.format import replace_file
 from ..datasets.novel_views import Target, blend_images_folder
 from ..guards import PARTIAL_PREFIX
 from ..errors import CameraConventionError, InputError
@@ -447,7 +448,7 @@ def write_blend(blend_path: Path, targets_json: Path, out_dir: Path, references:
             with quiet_stdout():
                 bpy.ops.wm.save_as_mainfile(filepath=str(partial), check_existing=False)
             stale = earlier - _images_shown(folder)
-            os.replace(partial, blend_path)
+            replace_file(partial, blend_path)  # (Windows: a moment held by an indexer or sync client)
     except BaseException:
         remove_partial()
         if not folder_existed:

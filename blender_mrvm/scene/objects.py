@@ -106,16 +106,25 @@ class ObjectSpec:
         return "selected:" + ",".join(self.names)
 
 
+_WINDOWS_RESERVED = re.compile(r"(?i)(con|prn|aux|nul|com[1-9]|lpt[1-9])")
+"""Names Windows gives no file or folder, whatever follows their first dot (``NUL.obj`` too): an object or camera
+so named (``aux``, ``Com1``) made a folder or file a dataset copied to Windows cannot hold; :func:`safe_id` adds
+an underscore."""
+
+
 def safe_id(name: str) -> str:
     """A folder-safe object id: ``name``'s letters, digits, dots, dashes and underscores, any other run of characters
     an underscore. A name with characters outside ASCII keeps its readable part (accents dropped: ``café`` reads
     ``cafe``) and ends in a short stable hash of the whole name (``椅子`` is ``object_`` and six hex digits), so
-    names in other scripts do not all become one id; an ASCII name's id is what it always was."""
+    names in other scripts do not all become one id; an ASCII name's id is what it always was, but for the names
+    Windows reserves (``CON``, ``nul.001``: ``CON_``, ``nul_.001``... see :data:`_WINDOWS_RESERVED`)."""
     import hashlib
     import unicodedata
 
     if name.isascii():
-        return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
+        out = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
+        head, dot, rest = out.partition(".")
+        return f"{head}_{dot}{rest}" if _WINDOWS_RESERVED.fullmatch(head) else out
     name = unicodedata.normalize("NFC", name)  # macOS lists names decomposed: one name, one id
     readable = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode()
     return f"{safe_id(readable)}_{hashlib.sha256(name.encode('utf-8', 'surrogateescape')).hexdigest()[:6]}"
@@ -1564,7 +1573,7 @@ def _ac3d_faces_only(path: Path, out: Path) -> None:
     """A copy of an AC3D file without its line and closed-line surfaces (``SURF`` types 1 and 2; FlightGear's models
     draw wires and edges with them), each object's ``numsurf`` counting the polygons kept, and without the vertices
     of an object left with none (assimp reads those as points)."""
-    src = path.read_text(errors="surrogateescape").splitlines()
+    src = path.read_text(encoding="utf-8", errors="surrogateescape").splitlines()
     dst: list[str] = []
     numvert = -1  # where the current object's numvert line is in dst
     i = 0
@@ -1607,7 +1616,7 @@ def _ac3d_faces_only(path: Path, out: Path) -> None:
             dst[numvert:] = ["numvert 0"]
         dst.append(f"numsurf {n_kept}")
         dst += kept
-    out.write_text("\n".join(dst) + "\n", errors="surrogateescape")
+    out.write_text("\n".join(dst) + "\n", encoding="utf-8", errors="surrogateescape")
 
 
 # Readers of a copy without the lines and points of a file that mixes them with faces: assimp-py cannot hand lines
@@ -2676,7 +2685,7 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
     if ext == ".obj":
         for mtl in _obj_material_libraries(path):
             try:
-                lines = mtl.read_text(errors="replace").splitlines()
+                lines = mtl.read_text(encoding="utf-8", errors="replace").splitlines()
             except OSError:
                 continue
             for line in lines:
@@ -2702,7 +2711,7 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
             out.append((name, f if f.is_file() else None))
     elif ext == ".usda":
         try:
-            text = path.read_text(errors="replace")
+            text = path.read_text(encoding="utf-8", errors="replace")
         except OSError:
             return out  # the importer reports it
         names = {m.group(1) or m.group(2) for m in _USDA_ASSET.finditer(text)}
@@ -2714,7 +2723,7 @@ def linked_files(path: Path) -> list[tuple[str, Path | None]]:
         from urllib.parse import unquote
 
         try:
-            doc = json.loads(path.read_text(errors="replace"))
+            doc = json.loads(path.read_text(encoding="utf-8", errors="replace"))
         except (OSError, ValueError):
             return out  # the importer reports it
         if not isinstance(doc, dict):
@@ -2884,7 +2893,7 @@ def _mtllib_lines(path: Path) -> list[tuple[str, list[Path], list[str]]]:
 def _mtllib_text_lines(path: str, _mtime_ns: int, _size: int) -> tuple[str, ...]:
     """An OBJ's ``mtllib`` lines that name something (cached by the file's path, modification time and size)."""
     try:
-        with open(path, "r", errors="replace") as f:
+        with open(path, "r", encoding="utf-8", errors="replace") as f:
             return tuple(ln for ln in f if ln.startswith("mtllib") and ln[6:7].isspace() and ln[6:].strip())
     except OSError:
         return ()
@@ -2910,8 +2919,8 @@ def _obj_for_blender(path: Path, tmp: Path) -> Path:
 
     fixes = {line: "".join(f"mtllib {named(f)}\n" for f in found) for line, found, _ in lines}
     out = tmp / path.name
-    with open(path, "r", errors="surrogateescape", newline="") as src, \
-            open(out, "w", errors="surrogateescape", newline="") as dst:
+    with open(path, "r", encoding="utf-8", errors="surrogateescape", newline="") as src, \
+            open(out, "w", encoding="utf-8", errors="surrogateescape", newline="") as dst:
         for line in src:
             dst.write(fixes.get(line.replace("\r\n", "\n"), line) if line.startswith("mtllib") else line)
     return out

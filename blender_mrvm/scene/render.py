@@ -663,7 +663,7 @@ def _replace_into(path: str, write) -> None:
     tmp = os.path.join(folder, f".{name[:40]}.{os.getpid()}.{next(_TMP_NAMES)}{os.path.splitext(name)[1][:16]}")
     try:
         write(tmp)
-        os.replace(tmp, path)
+        F.replace_file(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
