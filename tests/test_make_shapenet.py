@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -283,3 +284,25 @@ def test_plans_differ_by_the_parameter_named(tmp_path):
     M._record_plan(tmp_path, _plan(seed=1), force=True)
     assert json.loads((tmp_path / "splits" / M.PLAN_FILE).read_text())["seed"] == 1
     assert [p.name for p in (tmp_path / "splits").iterdir()] == [M.PLAN_FILE]  # no temporary left behind
+
+
+@pytest.mark.slow
+def test_the_protocol_files_are_written_with_the_dataset_root_held(bpy_empty, tmp_path, monkeypatch):
+    """A render shard starting sweeps the root's temporaries (a killed run's) under the root's hold; make-shapenet wrote
+    splits/eval_views.json outside it, so a shard of a cluster array starting at that moment could remove its
+    temporary file before the rename (a traceback, the protocol file missing)."""
+    from blender_mrvm.cli import main
+    from blender_mrvm.datasets import format as F
+
+    out = tmp_path / "sn"
+    held_while_writing = []
+    real = F.atomic_write_json
+
+    def write(path, obj, *a, **k):
+        if Path(path).name == "eval_views.json" and Path(path).parent.parent == out:
+            held_while_writing.append((out / ".lock").is_file())
+        return real(path, obj, *a, **k)
+
+    monkeypatch.setattr(F, "atomic_write_json", write)
+    assert main(TINY + ["--objects-per-category", "1", "--shard", "0/13", "--out", str(out)]) == 0
+    assert held_while_writing == [True]

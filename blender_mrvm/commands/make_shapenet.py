@@ -279,7 +279,7 @@ def run(args) -> int:
     from ..errors import OutputError
     from ..progress import run_with_tqdm
     from ..scene.objects import resolve_sources
-    from ..scene.render import prepare_output, render_dataset, write_splits
+    from ..scene.render import prepare_output, render_dataset, root_held, write_splits
     from .render_dataset import parse_shard
 
     cams = camera_settings(args)
@@ -350,10 +350,11 @@ def run(args) -> int:
                  train_categories=sorted({s.split(":")[1] for s in groups["train"]}),
                  test_categories=sorted({s.split(":")[1] for s in groups["test"]}),
                  **protocol_rig(cams))
-    F.atomic_write_json(splits_dir / "eval_views.json", proto)
     lines = [f"{t} {' '.join(map(str, protocol['input_views_1']))} | {' '.join(map(str, protocol['input_views_2']))}"
              for t in test_ids]
-    F.atomic_write_text(splits_dir / "test_views.lst", "\n".join(lines) + ("\n" if lines else ""))
+    with root_held(out):  # (a shard starting meanwhile sweeps the root's temporaries: only under this hold)
+        F.atomic_write_json(splits_dir / "eval_views.json", proto)
+        F.atomic_write_text(splits_dir / "test_views.lst", "\n".join(lines) + ("\n" if lines else ""))
     n_planned = len(split_of)
     if not remaining:
         print(f"wrote {Path(out).resolve()} ({args.setting}: {len(lists['train'])} train, {len(lists['val'])} val, "
