@@ -160,3 +160,27 @@ def test_a_recover_poses_run_killed_while_exporting_is_continued_without_force(t
     (out / ".transforms.json.mine").write_text("{")
     capsys.readouterr()
     assert main(argv) == 2 and ".transforms.json.mine" in error_line(capsys.readouterr().err)
+
+
+@pytest.mark.slow
+def test_make_shapenet_with_force_and_other_settings_while_a_run_renders_leaves_the_manifest(tmp_path, bpy_empty,
+                                                                                            capsys):
+    """make-shapenet checked and wrote the root manifest itself before its renders (prepare_output), outside the
+    check render-dataset makes: its --force with another seed replaced the manifest of a dataset a live run was
+    rendering into, and only its first render was refused, after its plan was recorded."""
+    out = tmp_path / "sn"
+    tiny = ["make-shapenet", "--views", "3", "--resolution", "8", "--engine", "BLENDER_WORKBENCH",
+            "--objects-per-category", "1", "--out", str(out)]
+    assert main(tiny + ["--shard", "0/13"]) == 0
+    manifest = (out / F.ROOT_MANIFEST).read_text()
+    plan = (out / "splits" / "plan.json").read_text()
+    live = out / ".mrvm-run-l1v3l1v3"
+    live.mkdir()
+    settings = json.loads(manifest)["settings"]
+    (live / "run.json").write_text(json.dumps({"pid": 4242, "host": "node7", "started": "now", "settings": settings}))
+    with held(live):
+        capsys.readouterr()
+        code = main(tiny + ["--shard", "1/13", "--seed", "7", "--force"])
+        line = error_line(capsys.readouterr().err)
+    assert code == 2 and "being rendered by another run (pid 4242 on node7" in line, line
+    assert (out / F.ROOT_MANIFEST).read_text() == manifest and (out / "splits" / "plan.json").read_text() == plan

@@ -279,7 +279,7 @@ def run(args) -> int:
     from ..errors import OutputError
     from ..progress import run_with_tqdm
     from ..scene.objects import resolve_sources
-    from ..scene.render import prepare_output, render_dataset, root_held, write_splits
+    from ..scene.render import prepare_root, render_dataset, root_held, write_splits
     from .render_dataset import parse_shard
 
     cams = camera_settings(args)
@@ -307,7 +307,8 @@ def run(args) -> int:
     total_views = 0
     try:
         if cfgs:
-            prepare_output(cfgs[0][1])  # the folder is this dataset's (or refused) before the plan goes into it
+            # the folder is this dataset's (or refused, also while a run of other settings renders into it)
+            prepare_root(cfgs[0][1])  # before the plan goes into it
         _record_plan(out, record, args.force)
         for split, cfg in cfgs:
             summary = run_with_tqdm(render_dataset(cfg), desc=f"{args.setting}/{split}", unit="view")

@@ -327,6 +327,26 @@ def sweep_root(out: Path) -> list[tuple[str, dict | None]]:
     return live
 
 
+def _refuse_other_runs(out: Path, settings: dict) -> None:
+    """Under :func:`root_held`: sweep the root (:func:`sweep_root`) and refuse when a live run renders into it with
+    other settings (``--force`` would replace the manifest its objects are described by)."""
+    for words, theirs in sweep_root(out):
+        if not F.settings_match(theirs, settings):
+            diff = _settings_diff(theirs, settings) if isinstance(theirs, dict) else "unknown settings"
+            raise OutputError(f"{out} is being rendered by another run ({words}) with other settings "
+                              f"({diff}); wait for it to end or stop it, or choose another folder "
+                              "(--force replaces a dataset no run is rendering)")
+
+
+def prepare_root(cfg) -> None:
+    """:func:`prepare_output` as :func:`dataset_run` does it, without registering a run: the root held, swept, and
+    refused while a run of other settings renders into it (``make-shapenet`` checks its folder so before recording
+    its plan)."""
+    with root_held(Path(cfg.out)):
+        _refuse_other_runs(Path(cfg.out), cfg.settings())
+        prepare_output(cfg)
+
+
 @contextlib.contextmanager
 def dataset_run(cfg):
     """A run into the dataset root ``cfg.out`` (a :class:`RenderConfig`, or anything with ``out``, ``force`` and
@@ -341,12 +361,7 @@ def dataset_run(cfg):
     settings = cfg.settings()
     with contextlib.ExitStack() as run:
         with root_held(out):
-            for words, theirs in sweep_root(out):
-                if not F.settings_match(theirs, settings):
-                    diff = _settings_diff(theirs, settings) if isinstance(theirs, dict) else "unknown settings"
-                    raise OutputError(f"{out} is being rendered by another run ({words}) with other settings "
-                                      f"({diff}); wait for it to end or stop it, or choose another folder "
-                                      "(--force replaces a dataset no run is rendering)")
+            _refuse_other_runs(out, settings)
             prepare_output(cfg)
             reg = Path(tempfile.mkdtemp(prefix=RUN_PREFIX, dir=out))  # (a full disk: the CLI's one line says so)
             run.callback(shutil.rmtree, reg, True)  # (last: after the hold below is let go)
