@@ -11,6 +11,7 @@ from bpy.app.handlers import persistent
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from .scene.procedural._registry import CATEGORIES
+from .validation import MAX_REFERENCE_SIDE
 
 MODEL_KINDS = [
     ("nerformer_mrvm", "NeRFormer + MRVM", "Radiance field from a transformer across views and along rays (few views, "
@@ -30,14 +31,24 @@ SHIPPED_MODELS = [
     ("gpnr_captures", "GPNR for rooms and captures", "GPNR trained on capture-like rooms: for scenes and photo "
                                                      "captures (Recover Poses), not objects on white"),
     ("mrvm_anyview", "NeRFormer + MRVM, any viewpoint", "The default model fine-tuned on sphere-rig renders too: "
-                     "for cameras above, below or nearer than the 30-degree turntable (slightly worse on it)"),
+                     "for cameras above, below or nearer than the 30-degree turntable (on it the default model is "
+                     "sharper)"),
     ("mrvm_quality", "NeRFormer + MRVM, quality", "The paper's NeRFormer with an ImageNet VGG16 encoder, partly "
                      "trained on a GPU: the best for cameras anywhere (on the turntable the default is sharper); "
                      "many times slower on a CPU"),
 ]
 """The shipped novel-view models the panel offers (``models.pretrained``: ``auto``'s choice by the cameras, one per
 kind, then named models)."""
-SHIPPED_MODELS = [(*item, number) for number, item in enumerate(SHIPPED_MODELS)]
+def _with_figures(items):
+    """Each shipped model's tooltip ends with its measured quality and seconds per view, read from the one place
+    that holds them (``models.pretrained.FIGURES``, which the panel's line under the choice shows too)."""
+    from .models.pretrained import FIGURES
+
+    return [(key, name, f"{text}. Measured: {FIGURES[key]}" if key in FIGURES else text, *rest)
+            for key, name, text, *rest in items]
+
+
+SHIPPED_MODELS = [(*item, number) for number, item in enumerate(_with_figures(SHIPPED_MODELS))]
 # A .blend stores an enum choice as its item's number, which without one is its position: inserting "auto" first
 # (8fb737e, 2026-11-27) made files saved before open on the next model up (gpnr -> nerformer_mrvm). The numbers are
 # now fixed: a new model is appended with a new number, never inserted (tests/test_addon.py pins them). Files saved
@@ -71,6 +82,9 @@ IMAGE_OUTPUTS = [
     ("PACK", "Pack into .blend", "Pack the images into the .blend file"),
 ]
 """Where image planes keep their images."""
+DEVICE_TIP = "Where the model runs: an NVIDIA GPU is many times faster than the CPU"
+QUALITY_TIP = "Full renders as the model was trained; Preview takes about half the time for slightly softer views"
+OUTPUT_TIP = "Where the image planes' images are kept: files in the output folder, or packed into the .blend"
 
 ENGINES = [
     ("CYCLES", "Cycles", "Path tracing on the CPU (default; all passes in one render)"),
@@ -102,21 +116,29 @@ class MRVM_PG_dataset(bpy.types.PropertyGroup):
         ("SELECTED", "Selected objects", "Each selected mesh object becomes one dataset object"),
         ("PATH", "Mesh files / ShapeNet", "A mesh file, a folder of mesh files, or a ShapeNetCore folder"),
         ("LIBRARY", "Procedural library", "Generated ShapeNet-13-style objects with part labels"),
-    ], default="SELECTED")
-    library_category: EnumProperty(name="Category", items=LIBRARY_ITEMS, default="ALL")
+    ], default="SELECTED", description="What to render: the selected mesh objects, mesh files, or objects of the "
+                                       "procedural library")
+    library_category: EnumProperty(name="Category", items=LIBRARY_ITEMS, default="ALL",
+                                   description="Which kind of procedural object to generate")
     library_count: IntProperty(name="Objects", default=4, min=1, soft_max=1000,
                                description="Objects (seeds) per category")
-    library_seed: IntProperty(name="First seed", default=0, min=0)
+    library_seed: IntProperty(name="First seed", default=0, min=0,
+                              description="Seed of the first generated object; each next object takes the next seed "
+                                          "(the same seed always makes the same object)")
     source_path: StringProperty(name="Path", subtype="FILE_PATH", options=PATH_OPTIONS,
                                 description="Mesh file (OBJ, PLY, STL, glTF/GLB, OFF, FBX, USD, Alembic; COLLADA, 3DS and "
                                             "others where assimp-py is installed), .blend or .zip archive of "
                                             "them, folder of them, or ShapeNetCore folder")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_dataset",
                                description="Dataset root folder (// is relative to the .blend)")
-    rig: EnumProperty(name="Rig", items=RIGS, default="sphere")
-    views: IntProperty(name="Views", default=24, min=1, soft_max=250, description="Views per object")
-    resolution: IntProperty(name="Resolution", default=128, min=1, max=8192, description="Image width and height, pixels (the Scene rig: the longer side, in the scene's frame shape)")
-    engine: EnumProperty(name="Engine", items=ENGINES, default="CYCLES")
+    rig: EnumProperty(name="Rig", items=RIGS, default="sphere", description="Where the cameras that render each "
+                                                                           "object stand")
+    views: IntProperty(name="Views", default=24, min=1, max=10000, soft_max=250,
+                       description="Views per object (images rendered of each object)")
+    resolution: IntProperty(name="Resolution", default=128, min=1, max=8192, subtype="PIXEL", description="Image width and height, pixels (the Scene rig: the longer side, in the scene's frame shape)")
+    engine: EnumProperty(name="Engine", items=ENGINES, default="CYCLES",
+                         description="Render engine of the colour images (depth, normals and masks are computed "
+                                     "exactly, whatever the engine)")
     samples: IntProperty(name="Samples", default=32, min=1, soft_max=1024, description="Cycles / EEVEE samples per pixel")
     rgba: BoolProperty(name="Transparent background", default=False,
                        description="Write RGBA images instead of compositing on white")
@@ -156,12 +178,14 @@ class MRVM_PG_capture(bpy.types.PropertyGroup):
                               description="Of a video: the sharpest frame of each of this many equal spans of it")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_capture",
                                description="Capture folder to write (// is relative to the .blend)")
-    camera_model: EnumProperty(name="Camera model", items=CAPTURE_MODELS, default="SIMPLE_PINHOLE")
+    camera_model: EnumProperty(name="Camera model", items=CAPTURE_MODELS, default="SIMPLE_PINHOLE",
+                               description="The lens model fitted to the photos: keep Simple pinhole for phone "
+                                           "photos; a distortion model for wide-angle lenses")
     matcher: EnumProperty(name="Matching", items=[
         ("auto", "Auto", "Sequential for many numbered frames, otherwise every pair"),
         ("exhaustive", "Exhaustive", "Match every pair of photos"),
         ("sequential", "Sequential", "Match each frame with its successors (video)"),
-    ], default="auto")
+    ], default="auto", description="Which photo pairs are compared to find common points")
     max_features: IntProperty(name="Features", default=2048, min=64, soft_max=16384,
                               description="SIFT features per image")
     upsample_below: IntProperty(name="Upsample below", default=640, min=0, soft_max=4096, subtype="PIXEL",
@@ -188,7 +212,7 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
         ("DATASET", "Dataset folder", "An object folder of a rendered dataset (rgb/ + pose/)"),
         ("SCENE", "Scene cameras", "Cameras in the scene with a background image (the reference photo)"),
         ("CAPTURE", "Recovered capture", "A capture folder written by Recover poses"),
-    ], default="DATASET")
+    ], default="DATASET", description="Where the reference images (the views the model sees) come from")
     dataset_dir: StringProperty(name="Object folder", subtype="DIR_PATH", options=PATH_OPTIONS,
                                 description="One object's folder of a rendered dataset (holds rgb/ and pose/)")
     capture_dir: StringProperty(name="Capture", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_capture",
@@ -204,12 +228,14 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
          "rendered from its nearest of many references (sharper; each reference is rendered once more for its depth)"),
         ("ON", "On", "Always lay the references' own colours over the views where they see the surface"),
         ("OFF", "Off", "The model's own colours only"),
-    ], default="AUTO")
+    ], default="AUTO", description="Lay the reference photos' own sharp colours over the novel views where they see "
+                                   "the same surface")
     target_source: EnumProperty(name="Targets", items=[
         ("SELECTED", "Selected cameras", "Synthesize the view of every selected camera"),
         ("ORBIT", "Orbit", "Generate cameras on a circle around the 3D cursor"),
-    ], default="ORBIT")
-    orbit_count: IntProperty(name="Cameras", default=8, min=1, soft_max=120, description="Cameras on the orbit")
+    ], default="ORBIT", description="Which cameras get a novel view")
+    orbit_count: IntProperty(name="Cameras", default=8, min=1, max=10000, soft_max=120,
+                             description="Cameras on the orbit")
     orbit_elevation: FloatProperty(name="Elevation", default=0.3490659, min=-1.5707963, max=1.5707963, subtype="ANGLE",
                                    description="Height of the orbit above the 3D cursor, as an angle")
     orbit_radius: FloatProperty(name="Radius", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
@@ -220,24 +246,29 @@ class MRVM_PG_novel_views(bpy.types.PropertyGroup):
                                description="Model checkpoint (model.safetensors or its folder); empty = the shipped model")
     shipped_model: EnumProperty(name="Shipped model", items=SHIPPED_MODELS, default="auto",
                                 description="Which shipped model synthesizes when no checkpoint is chosen")
-    device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
-    quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL")
-    precision: EnumProperty(name="Precision", items=PRECISION_CHOICES, default="AUTO")
+    device: EnumProperty(name="Device", items=DEVICES, default="AUTO", description=DEVICE_TIP)
+    quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL", description=QUALITY_TIP)
+    precision: EnumProperty(name="Precision", items=PRECISION_CHOICES, default="AUTO",
+                            description="Number format the model computes in: Auto is the fastest that keeps the "
+                                        "images")
     reference_sizing: EnumProperty(name="Reference size", items=[
         ("AUTO", "Auto", "Shrink references larger than the model's training images to that size (the model's "
                          "features are tuned to it; photos also encode much faster)"),
         ("NATIVE", "As they are", "Give the model the references at their own size"),
         ("CUSTOM", "Custom", "Resize the references to a chosen size"),
-    ], default="AUTO")
-    reference_size: IntProperty(name="Size", default=128, min=1, soft_max=2048, subtype="PIXEL",
+    ], default="AUTO", description="The size the reference images are given to the model at")
+    reference_size: IntProperty(name="Size", default=128, min=1, max=MAX_REFERENCE_SIDE, soft_max=2048,
+                                subtype="PIXEL",
                                 description="Longer side of the references, in pixels")
     adapt_steps: IntProperty(name="Adapt steps", default=0, min=0, max=100000, soft_max=500,
                              description="Before rendering, fine-tune a copy of the model on these references alone "
                              "(each step holds one reference out); pays with 5 or more references, costs with 2 "
                              "(0 = off)")
-    plane_distance: FloatProperty(name="Plane distance", default=2.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
-                                  description="Distance of each image plane from its camera along the view axis")
-    output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")
+    plane_distance: FloatProperty(name="Plane distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
+                                  description="Distance of each image plane from its camera along the view axis (the "
+                                              "default: half the default orbit's radius, so the planes float between "
+                                              "the cameras and the object, as the command line places them)")
+    output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES", description=OUTPUT_TIP)
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_novel_views",
                                description="Folder of the novel-view PNG/EXR files (// is relative to the .blend)")
     save_depth: BoolProperty(name="Depth (EXR)", default=False, description="Also save each view's depth map as EXR")
@@ -260,7 +291,7 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
                                      "lower learning rate): the quickest way to a model of your objects"),
         ("CHECKPOINT", "Checkpoint", "Fine-tune another trained checkpoint (a model file, checkpoint or run folder)"),
         ("NEW", "New model", "Train a model of the chosen size from a random start (MRVM pretraining, then finetuning)"),
-    ], default="SHIPPED")
+    ], default="SHIPPED", description="What training starts from")
     init_checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", options=PATH_OPTIONS, default="",
                                     description="The checkpoint to fine-tune: a model .safetensors file, a checkpoint "
                                                 "folder or a run folder")
@@ -276,7 +307,8 @@ class MRVM_PG_train(bpy.types.PropertyGroup):
         ("accurate", "Accurate", "Large model: slow on a CPU"),
         ("paper", "Paper", "The paper's size (NeRFormer: 4/5 layer pairs 128 wide, VGG16 encoder, 5.7M parameters; "
                            "GPNR: 8 blocks 256 wide): needs a GPU"),
-    ], default="balanced")
+    ], default="balanced", description="Size of the new model: larger models can be sharper but train and render "
+                                       "slower")
     iterations: IntProperty(name="Iterations", default=2000, min=1, soft_max=200000,
                             description="Optimizer steps in all; a continued run trains up to this step")
     checkpoint_every: IntProperty(name="Checkpoint every", default=200, min=1, soft_max=10000,
@@ -311,7 +343,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     mask_source: EnumProperty(name="Mask", items=[
         ("FILE", "Dataset mask", "A part-id mask PNG of a rendered dataset (mask/NNNNNN.png)"),
         ("IMAGE", "Blender image", "An image painted or opened in Blender's image editor"),
-    ], default="FILE")
+    ], default="FILE", description="Where the part mask (which part of the object each pixel shows) comes from")
     mask_path: StringProperty(name="Mask file", subtype="FILE_PATH", options=PATH_OPTIONS,
                               description="Part-id mask PNG (uint8, the checkpoint's image size)")
     mask_image: PointerProperty(name="Image", type=bpy.types.Image,
@@ -320,7 +352,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
         ("COLORS", "Label colours", "Each pixel has a label's colour (as the semantic maps show them); "
                                     "white, black and transparent are background"),
         ("IDS", "Part ids", "Grey value = part id (a dataset mask opened as an image)"),
-    ], default="COLORS")
+    ], default="COLORS", description="How the image's pixels say which part they show")
     edits: StringProperty(name="Relabel", default="",
                           description="Label edits applied to the mask first, e.g. '2:0' (part 2 becomes background) "
                                       "or 'chair/arm:chair/seat' (label names as the panel lists them); several "
@@ -328,7 +360,7 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     viewpoint: EnumProperty(name="Viewpoint", items=[
         ("DATASET", "Dataset pose", "The mask's own pose and intrinsics in its dataset (pose/NNNNNN.txt)"),
         ("CAMERA", "Scene camera", "A camera of the scene sees the mask"),
-    ], default="DATASET")
+    ], default="DATASET", description="Which camera the mask is seen from")
     camera: PointerProperty(name="Camera", type=bpy.types.Object, poll=_is_camera,
                             description="The camera the mask is seen from (its frame must be square)")
     checkpoint: StringProperty(name="Checkpoint", subtype="FILE_PATH", options=PATH_OPTIONS, default="",
@@ -337,21 +369,21 @@ class MRVM_PG_sem2nerf(bpy.types.PropertyGroup):
     target_source: EnumProperty(name="Views", items=[
         ("ORBIT", "Orbit", "New cameras on a circle about world z through the mask's camera"),
         ("SELECTED", "Selected cameras", "Generate the view of every selected camera"),
-    ], default="ORBIT")
+    ], default="ORBIT", description="Which cameras get a generated view")
     orbit_count: IntProperty(name="Cameras", default=8, min=1, soft_max=120, description="Cameras on the orbit")
     style: EnumProperty(name="Style", items=[
         ("MEAN", "Mean", "The average style (the default look)"),
         ("SEED", "Seed", "The style of a random code"),
-    ], default="MEAN")
+    ], default="MEAN", description="The object's look (colours, materials) the mask is rendered with")
     style_seed: IntProperty(name="Seed", default=0, min=0, description="Random code of the style")
     mix: FloatProperty(name="Blend", default=0.0, min=0.0, max=1.0, subtype="FACTOR",
                        description="Blend the style toward the style of another seed (0 = off)")
     mix_seed: IntProperty(name="Blend seed", default=1, min=0, description="Random code of the style blended in")
-    device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
-    quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL")
+    device: EnumProperty(name="Device", items=DEVICES, default="AUTO", description=DEVICE_TIP)
+    quality: EnumProperty(name="Quality", items=QUALITY_LEVELS, default="FULL", description=QUALITY_TIP)
     plane_distance: FloatProperty(name="Plane distance", default=1.0, min=1e-4, soft_max=100.0, subtype="DISTANCE",
                                   description="Distance of each image plane from its camera along the view axis")
-    output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES")
+    output: EnumProperty(name="Images", items=IMAGE_OUTPUTS, default="FILES", description=OUTPUT_TIP)
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_sem2nerf",
                                description="Folder of the generated images and semantic maps (// is relative to the .blend)")
     show_semantic: BoolProperty(name="Show semantic maps", default=False, update=_show_semantic_changed,

@@ -452,7 +452,8 @@ def test_operator_reports_errors_and_leaves_scene(empty_scene, tmp_path):
     props = empty_scene.mrvm_dataset
     props.output_dir = str(tmp_path / "ds")
     n = len(bpy.data.objects), len(bpy.data.scenes)
-    with pytest.raises(RuntimeError, match="no mesh, curve, surface, text or metaball objects are selected"):
+    with pytest.raises(RuntimeError, match=r"poll\(\) Select the objects to render \(meshes, curves, surfaces, texts "
+                                           r"or metaballs\)"):  # the button is greyed out, with the reason
         bpy.ops.mrvm.render_dataset()
     props.source, props.source_path = "PATH", str(tmp_path / "missing.obj")
     with pytest.raises(RuntimeError, match="mesh file or folder not found"):

@@ -17,6 +17,7 @@ is the job's), never to the scene shown then.
 
 from __future__ import annotations
 
+import re
 from types import SimpleNamespace
 
 from ..errors import Cancelled, MRVMError
@@ -27,6 +28,17 @@ _GONE = object()
 _live: list = []
 """The modal jobs running now (their operators), so that :func:`end_live_jobs` can end them when the add-on is
 unregistered."""
+
+
+def unsaved_relative(*paths: str) -> bool:
+    """Whether one of ``paths`` is relative to the .blend (``//``) while the .blend was never saved."""
+    import bpy
+
+    return not bpy.data.filepath and any(p.strip().startswith("//") for p in paths)
+
+
+SAVE_FIRST = "Save the .blend first: {what} is relative to it (//), or choose an absolute folder"
+"""The greyed-out button's reason when a ``//`` setting cannot be resolved (``what``: the setting's name)."""
 
 
 def live_sections() -> set[tuple[int | None, str]]:
@@ -71,7 +83,34 @@ def unexpected_error(e: Exception) -> str:
     return f"unexpected error, a bug ({type(e).__name__}: {e}); the traceback is in Blender's system console"
 
 
+_IN_THE_PANEL = re.compile(r"(?<![\w/.-])`?--[a-z][a-z0-9-]*`?(?: [^\s(;,]+)? \(in the panel: ([^)]+)\)")
+"""A flag the message already names the panel's control for: ``use --force (in the panel: Overwrite)``."""
+_COMMAND = re.compile(r"(`[^`]*\s[^`]*`)")
+_FLAG = re.compile(r"(?<![\w/.-])`?(--[a-z][a-z0-9-]*(?: --[a-z][a-z0-9-]*)*)`?")
+
+
+def in_panel_words(message: str, names: dict[str, str]) -> str:
+    """``message`` (most come from the CLI's code, run in the worker or in Blender) with the command-line flags it
+    names put in the panel's words: each flag of ``names`` (a flag, or several in a row such as ``--no-resume
+    --force``) becomes the name of the panel's control in quotes; a flag followed by ``(in the panel: X)`` becomes
+    X. Flags the panel has no control for stay as they are, and so does a command to run, in backquotes (such as
+    the weights' ``python -m blender_mrvm fetch-weights --out DIR``)."""
+
+    def word(m):
+        run = m.group(1)
+        if run in names:  # a run of flags the panel says in its own words (``--no-resume --force``)
+            return names[run] if " " in run else f"'{names[run]}'"
+        return " ".join(f"'{names[f]}'" if f in names else f for f in run.split())
+
+    parts = _COMMAND.split(message)  # a command to run in a shell (`python -m ... --out DIR`) stays as it is
+    return "".join(p if k % 2 else _FLAG.sub(word, _IN_THE_PANEL.sub(lambda m: m.group(1), p))
+                   for k, p in enumerate(parts))
+
+
 class ProgressOperator:
+    panel_names: dict = {}
+    """The command-line flags of the CLI code the job runs, by the names of this section's controls in the panel
+    (:func:`in_panel_words`): its messages name what the artist sees."""
     props_attr: str = ""
     """Scene attribute of the PropertyGroup with running / progress / status."""
     job_name: str = "Job"
@@ -102,6 +141,25 @@ class ProgressOperator:
     def on_result(self, context, result) -> str:
         """Apply the generator's result on the main thread; return the success message."""
         raise NotImplementedError
+
+    @classmethod
+    def blocked(cls, context) -> str:
+        """Why the job cannot start with these settings and this scene, in a line the panel shows on the greyed-out
+        button ('' when it can): only what is cheap to check on every redraw (no file is read)."""
+        return ""
+
+    @classmethod
+    def poll(cls, context):
+        props = getattr(getattr(context, "scene", None), cls.props_attr, None)
+        if props is None:
+            return False
+        why = "" if props.running else cls.blocked(context)  # running: the panel shows the progress bar instead
+        if why:
+            cls.poll_message_set(why)
+        return not why
+
+    def _say(self, message: str) -> str:
+        return in_panel_words(message, self.panel_names)
 
     # -- shared machinery ---------------------------------------------------------------
     def _job_scene(self, context):
@@ -141,9 +199,10 @@ class ProgressOperator:
             gen, _ = self._begin(context)
             message = self.on_result(context, run_to_end(gen))
         except (MRVMError, ModuleNotFoundError) as e:
-            props.status = str(e) if isinstance(e, MRVMError) else unexpected_error(e)
+            props.status = self._say(str(e)) if isinstance(e, MRVMError) else unexpected_error(e)
             self.report({"ERROR"}, props.status)
             return {"CANCELLED"}
+        message = self._say(message)
         props.status = message
         self.report({"INFO"}, message)
         return {"FINISHED"}
@@ -156,7 +215,7 @@ class ProgressOperator:
         try:
             self._gen, first = self._begin(context)
         except (MRVMError, ModuleNotFoundError) as e:
-            props.status = str(e) if isinstance(e, MRVMError) else unexpected_error(e)
+            props.status = self._say(str(e)) if isinstance(e, MRVMError) else unexpected_error(e)
             self.report({"ERROR"}, props.status)
             return {"CANCELLED"}
         props.running, props.progress, props.status = True, first.fraction, first.message
@@ -178,6 +237,7 @@ class ProgressOperator:
                                                           and job._scene_uid == uid) for job in _live)
 
     def _finish(self, context, cancelled: bool, message: str, level: str = "INFO"):
+        message = self._say(message)
         _live[:] = [job for job in _live if job is not self]
         wm = context.window_manager
         if self._timer is not None:

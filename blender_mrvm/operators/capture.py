@@ -82,9 +82,27 @@ class MRVM_OT_recover_poses(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_capture"
     job_name = "Pose recovery"
+    panel_names = {"--force": "Overwrite", "--frames": "Video frames", "--camera-model": "Camera model",
+                   "--matcher": "Matching", "--max-features": "Features", "--upsample-below": "Upsample below",
+                   "--single-camera": "Shared camera", "--no-focal-from-views": "Focal from views",
+                   "--pair": "Stereo pair", "--out": "Output", "--images": "Photos"}
     stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "finished stages are kept in the output's colmap/"
     timer_interval = 0.05
+
+    @classmethod
+    def blocked(cls, context) -> str:
+        from ._modal import SAVE_FIRST, unsaved_relative
+
+        p = context.scene.mrvm_capture
+        if not p.images_dir.strip():
+            return "Choose the Photos: a folder of photos or a video"
+        if not p.output_dir.strip():
+            return "Choose an Output folder"
+        for name, value in (("Photos", p.images_dir), ("Output", p.output_dir)):
+            if unsaved_relative(value):
+                return SAVE_FIRST.format(what=name)
+        return ""
 
     def start(self, context):
         images, out, cfg = config_from_props(context)

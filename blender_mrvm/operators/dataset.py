@@ -46,6 +46,14 @@ def config_from_props(context) -> "RenderConfig":  # noqa: F821
                         seed=p.seed, force=p.force, skip_bad_meshes=p.source == "PATH" and p.skip_bad_meshes)
 
 
+def selected_renderable(context) -> int:
+    """How many selected objects Render Dataset's "Selected objects" renders (meshes, curves, surfaces, texts,
+    metaballs: ``scene.objects``)."""
+    from ..scene.objects import _MESHLIKE
+
+    return sum(1 for o in context.selected_objects or () if o.type in _MESHLIKE)
+
+
 def _degrees(angle: float) -> float:
     """A float32 angle property in degrees as typed: 40 degrees, not 39.99999883637168 (the dataset's settings read
     the same from the panel and the CLI)."""
@@ -132,12 +140,34 @@ class MRVM_OT_render_dataset(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_dataset"
     job_name = "Dataset render"
+    panel_names = {"--force": "Overwrite", "--skip-bad-meshes": "Skip bad meshes", "--views": "Views",
+                   "--resolution": "Resolution", "--samples": "Samples", "--rig": "Rig", "--fov": "Field of view",
+                   "--elevation": "Elevation", "--seed": "Seed", "--out": "Output", "--source": "Objects",
+                   "--rgba": "Transparent background", "--engine": "Engine"}
     cancel_hint = "finished views are kept (render again to resume)"
 
     _out = None
     """The dataset folder this job renders into (:func:`rendering_into`)."""
     _before = frozenset()
     """``session_uid`` of every data-block when the job started (:func:`private_render_data`)."""
+
+    @classmethod
+    def blocked(cls, context) -> str:
+        from ._modal import SAVE_FIRST, unsaved_relative
+
+        p = context.scene.mrvm_dataset
+        if p.source == "SELECTED" and not selected_renderable(context):
+            return ("Select the objects to render (meshes, curves, surfaces, texts or metaballs), or choose another "
+                    "Objects source")
+        if p.source == "PATH" and not p.source_path.strip():
+            return "Choose the mesh file or folder to render (Path)"
+        if p.rig == "scene" and not any(o.type == "CAMERA" for o in context.scene.objects):
+            return "The Scene cameras rig renders from the scene's cameras: add a camera, or choose another Rig"
+        if not p.output_dir.strip():
+            return "Choose an Output folder"
+        if unsaved_relative(p.output_dir) or (p.source == "PATH" and unsaved_relative(p.source_path)):
+            return SAVE_FIRST.format(what="Output" if unsaved_relative(p.output_dir) else "Path")
+        return ""
 
     def start(self, context):
         from ..errors import OutputError

@@ -259,9 +259,33 @@ class MRVM_OT_sem2nerf(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_sem2nerf"
     job_name = "Sem2NeRF"
+    panel_names = {"--edit": "Relabel", "--style-seed": "Seed", "--mix-seed": "Blend seed", "--mix": "Blend",
+                   "--quality": "Quality", "--device": "Device", "--checkpoint": "Checkpoint", "--views": "Cameras",
+                   "--mask": "Mask file"}
     stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "nothing was added"
     timer_interval = 0.1
+
+    @classmethod
+    def blocked(cls, context) -> str:
+        from ._modal import SAVE_FIRST, unsaved_relative
+
+        p = context.scene.mrvm_sem2nerf
+        if p.mask_source == "FILE" and not p.mask_path.strip():
+            return "Choose the Mask file (a dataset's mask/NNNNNN.png) or a Blender image as the Mask"
+        if p.mask_source == "IMAGE" and p.mask_image is None:
+            return "Choose the mask image (painted or opened in the image editor)"
+        if (p.mask_source == "IMAGE" or p.viewpoint == "CAMERA") and p.camera is None:
+            return "Choose the camera the mask is seen from"
+        if p.target_source == "SELECTED" and not any(o.type == "CAMERA" for o in context.selected_objects or ()):
+            return "Select the cameras to generate views of (or choose Views: Orbit)"
+        if p.output == "FILES" and unsaved_relative(p.output_dir):
+            return SAVE_FIRST.format(what="Output") + ", or pack the images into the .blend (Images)"
+        for name, value in (("Mask file", p.mask_path if p.mask_source == "FILE" else ""),
+                            ("Checkpoint", p.checkpoint)):
+            if unsaved_relative(value):
+                return SAVE_FIRST.format(what=name)
+        return ""
 
     def start(self, context):
         job = plan_from_props(context)

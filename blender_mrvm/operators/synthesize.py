@@ -111,13 +111,13 @@ def _checkpoint(context, p) -> Path | str:
         return ck
     if p.shipped_model == "auto":  # the worker picks by the cameras (models.pretrained.auto_model)
         if default_checkpoint() is None:
-            raise InputError("no checkpoint chosen, and this copy ships no default model: pick a checkpoint "
-                             "(model.safetensors written by `python -m blender_mrvm train`)")
+            raise InputError("no checkpoint chosen, and this copy ships no default model: pick a Checkpoint "
+                             "(a model.safetensors or run folder that Train / Fine-tune wrote)")
         return "shipped:auto"
     ck = default_checkpoint(p.shipped_model)
     if ck is None:
-        raise InputError(f"no checkpoint chosen, and this copy ships no {p.shipped_model} model: pick a checkpoint "
-                         "(model.safetensors written by `python -m blender_mrvm train`) or another shipped model")
+        raise InputError(f"no checkpoint chosen, and this copy ships no {p.shipped_model} model: pick a Checkpoint "
+                         "(a model.safetensors or run folder that Train / Fine-tune wrote) or another Shipped model")
     return ck
 
 
@@ -265,10 +265,25 @@ def run_note(out: Path) -> str:
     joined; '' if none."""
     try:
         rep = json.loads((Path(out) / "synthesis.json").read_text())
-        notes = [rep.get("model_choice"), rep.get("viewpoint_note"), (rep.get("adaptation") or {}).get("note")]
+        notes = [_shipped_in_panel_words(rep.get("model_choice")), rep.get("viewpoint_note"),
+                 (rep.get("adaptation") or {}).get("note")]
     except (OSError, ValueError, AttributeError):
         return ""
     return "; ".join(str(n) for n in notes if n)
+
+
+def _shipped_in_panel_words(text):
+    """Auto's choice as the panel says it: ``shipped:<name>`` (the CLI's name of a shipped model) becomes the name
+    the panel's *Shipped model* gives it."""
+    import re
+
+    from ..props import SHIPPED_MODELS
+
+    if not isinstance(text, str):
+        return text
+    names = {key: name for key, name, *_ in SHIPPED_MODELS}
+    return re.sub(r"\bshipped:([a-z0-9_]+)\b", lambda m: f"'{names[m.group(1)]}'" if m.group(1) in names
+                  else m.group(0), text)
 
 
 def import_run(context, run: SynthesisRun) -> str:
@@ -300,9 +315,39 @@ class MRVM_OT_synthesize(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_novel_views"
     job_name = "Synthesis"
+    panel_names = {"--ref-size": "Reference size", "--views": "Views", "--nearest": "Per view",
+                   "--adapt-steps": "Adapt steps", "--reproject": "Photo colours", "--quality": "Quality",
+                   "--precision": "Precision", "--device": "Device", "--checkpoint": "Checkpoint",
+                   "--orbit": "Cameras", "--orbit-elevation": "Elevation", "--orbit-radius": "Radius",
+                   "--plane-distance": "Plane distance", "--depth": "Depth (EXR)", "--references": "References"}
     stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "nothing was added"
     timer_interval = 0.1
+
+    @classmethod
+    def blocked(cls, context) -> str:
+        from ..scene.novel_views import reference_cameras
+        from ._modal import SAVE_FIRST, unsaved_relative
+
+        p = context.scene.mrvm_novel_views
+        if p.reference_source == "SCENE":
+            if not reference_cameras(context.scene):
+                return ("No scene camera has a reference image: give cameras a background image, or choose "
+                        "another References source")
+        else:
+            raw, name = ((p.dataset_dir, "Object folder") if p.reference_source == "DATASET"
+                         else (p.capture_dir, "Capture"))
+            if not raw.strip():
+                return f"Choose the references' {name}"
+            if unsaved_relative(raw):
+                return SAVE_FIRST.format(what=name)
+        if p.target_source == "SELECTED" and not any(o.type == "CAMERA" for o in context.selected_objects or ()):
+            return "Select the target cameras (or choose Targets: Orbit)"
+        if p.output == "FILES" and unsaved_relative(p.output_dir):
+            return SAVE_FIRST.format(what="Output") + ", or pack the images into the .blend (Images)"
+        if unsaved_relative(p.checkpoint):
+            return SAVE_FIRST.format(what="Checkpoint")
+        return ""
 
     def start(self, context):
         job = plan_from_props(context)

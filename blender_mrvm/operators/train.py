@@ -321,9 +321,30 @@ class MRVM_OT_train(ProgressOperator, bpy.types.Operator):
 
     props_attr = "mrvm_train"
     job_name = "Training"
+    panel_names = {"--no-resume --force": "'Continue run' off and 'Replace the run' ticked",
+                   "--no-resume": "Continue run", "--force": "Replace the run", "--iterations": "Iterations",
+                   "--init": "Start from", "--keep-losses": "Keep its losses", "--out": "Run folder",
+                   "--data": "Dataset", "--preset": "Size", "--model": "Model"}
     stops_softly = True  # a worker job: Esc lets it save its step in progress without blocking the UI
     cancel_hint = "the step in progress finishes and is saved as a checkpoint (train again to continue)"
     timer_interval = 0.1
+
+    @classmethod
+    def blocked(cls, context) -> str:
+        from ._modal import SAVE_FIRST, unsaved_relative
+
+        p = context.scene.mrvm_train
+        if not p.data_dir.strip():
+            return "Choose the Dataset to train on (render one in the Dataset section)"
+        if not p.run_dir.strip():
+            return "Choose a Run folder"
+        if p.start_from == "CHECKPOINT" and not p.init_checkpoint.strip():
+            return "Start from Checkpoint: choose the checkpoint to fine-tune (or start from the Shipped model)"
+        for name, value in (("Dataset", p.data_dir), ("Run folder", p.run_dir),
+                            ("Checkpoint", p.init_checkpoint if p.start_from == "CHECKPOINT" else "")):
+            if unsaved_relative(value):
+                return SAVE_FIRST.format(what=name)
+        return ""
 
     def start(self, context):
         job = plan_from_props(context)

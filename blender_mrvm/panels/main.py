@@ -73,8 +73,11 @@ class MRVM_PT_dataset(MRVMPanel, bpy.types.Panel):
             col.prop(p, "library_count")
             col.prop(p, "library_seed")
         else:
-            n = sum(1 for o in context.selected_objects if o.type == "MESH")
-            col.label(text=f"{n} mesh object{'s' if n != 1 else ''} selected", icon="OBJECT_DATA")
+            from ..operators.dataset import selected_renderable
+
+            n = selected_renderable(context)
+            col.label(text=f"{n} object{'s' if n != 1 else ''} to render selected",
+                      icon="OBJECT_DATA" if n else "ERROR")
         col.prop(p, "rig")
         if p.rig == "scene":
             n = sum(1 for o in context.scene.objects if o.type == "CAMERA")

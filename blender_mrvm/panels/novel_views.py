@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import bpy
 
-from .main import MRVMPanel, draw_job
+from .main import MRVMPanel, draw_job, wrap_text
 
 
 def _count(n: int, word: str) -> str:
@@ -130,10 +130,12 @@ class MRVM_PT_novel_views(MRVMPanel, bpy.types.Panel):
 
                 col.prop(p, "shipped_model")
                 ck = shipped_or_none(None if p.shipped_model == "auto" else p.shipped_model)
-                if ck is not None and p.shipped_model == "auto":
-                    col.label(text=FIGURES["auto"], icon="INFO")
-                elif ck is not None:
-                    col.label(text=f"{ck.stem}: {FIGURES.get(p.shipped_model, 'not measured')}", icon="INFO")
+                if ck is not None:  # the measured figures, over as many lines as the sidebar needs (a label is
+                    # cut off at the sidebar's edge, never wrapped)
+                    text = FIGURES.get(p.shipped_model, "not measured")
+                    for k, line in enumerate(wrap_text(text if p.shipped_model == "auto" else
+                                                       f"Measured: {text}")):
+                        col.label(text=line, icon="INFO" if k == 0 else "BLANK1")
                 else:
                     col.label(text="Not in this copy: choose a checkpoint or the other model", icon="ERROR")
         col.prop(p, "device")
