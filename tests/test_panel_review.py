@@ -327,3 +327,14 @@ def test_the_default_planes_float_between_the_orbit_and_the_object(empty_scene):
     targets = NV.orbit_targets(empty_scene, nv.orbit_count, nv.orbit_radius, nv.orbit_elevation, nv.orbit_fov, c)
     box = (tuple(v - 0.5 for v in c), tuple(v + 0.5 for v in c))
     assert math.isclose(nv.plane_distance, NV.default_plane_distance(targets, box), rel_tol=1e-3)
+
+
+def test_the_turntable_figures_of_the_finish_note_are_the_dropdowns():
+    """viewpoint_note (the panel's finish message and synthesize's note) quoted the any-view model's turntable figure
+    of stage 3 (19.8 dB) while the dropdown said the shipped stage 5's 20.3: one figure, as FIGURES states it."""
+    from blender_mrvm.models.pretrained import FIGURES, TURNTABLE_HELD_OUT
+
+    default = TURNTABLE_HELD_OUT["nerformer_mrvm"][0]
+    for name in ("mrvm_anyview", "mrvm_quality"):
+        psnr = TURNTABLE_HELD_OUT[name][0]
+        assert f"{psnr:.1f}" in FIGURES[name] and f"{default:.1f}" in FIGURES[name], name
