@@ -175,7 +175,8 @@ class MRVM_PG_capture(bpy.types.PropertyGroup):
                                description="Folder of photos or video frames, all of one size (HEIC and WebP "
                                            "too), or a video file (mp4, mov, ...)")
     video_frames: IntProperty(name="Video frames", default=40, min=3, soft_max=400,
-                              description="Of a video: the sharpest frame of each of this many equal spans of it")
+                              description="Of a video: the sharpest frame of each of this many equal spans of it, "
+                                          "a paused camera's frames counted once")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", options=PATH_OPTIONS, default="//mrvm_capture",
                                description="Capture folder to write (// is relative to the .blend)")
     camera_model: EnumProperty(name="Camera model", items=CAPTURE_MODELS, default="SIMPLE_PINHOLE",

@@ -92,11 +92,15 @@ class CaptureResult:
     """Output (undistorted) intrinsics, one per registered photo."""
     pose_check: dict = field(default_factory=dict)
     """The kept model against its photo pairs (:func:`capture.check.pair_pose_check`; ``meta.json``'s)."""
+    video: dict = field(default_factory=dict)
+    """A video's frames: ``meta.json``'s ``video`` (empty for photos)."""
 
     @property
     def warnings(self) -> list[str]:
         """What the user should know about the result (one line each)."""
         w = check_warning(self.pose_check)
+        if w and self.video:
+            w += video_spacing_hint(self.video.get("frames_asked", self.video.get("frames_kept", 0)), w)
         return [w] if w else []
 
     def summary(self) -> str:
@@ -378,10 +382,30 @@ def prepare_output(out_dir: Path, images_dir: Path, force: bool) -> None:
                 shown = ", ".join(named[:3]) + (", ..." if len(named) > 3 else "")
                 raise OutputError(f"output folder {out_dir} already holds files ({shown}); pass --force (in the panel: "
                                   "Overwrite) to overwrite")
-            keep = {"colmap"} if unfinished and not force else set()  # a failed or killed run: resume its stages
+            # a failed or killed run: resume its stages (a video's: with the frames it extracted, _extracted_frames)
+            keep = ({"colmap", "frames"} if is_video(images_dir) else {"colmap"}) if unfinished and not force else set()
             remove_entries(out, [e for e in OUTPUT_ENTRIES if e not in keep])
     out.mkdir(parents=True, exist_ok=True)
     (out / RUN_MARKER).write_text("a recover-poses run's output folder\n")
+
+
+EXTRACTED_LOG = ".extracted.json"
+"""In ``frames/``: the video's stamp (:func:`run_stamp`), the frames extracted from it and its ``meta.json`` record.
+A resumed run of the same video and settings reads its frames from there: it decoded the whole video again (a
+minute or more for a phone's 4K orbit) before the stages it skipped."""
+
+
+def _extracted_frames(frames_dir: Path, stamp: dict) -> tuple[list[str], dict] | None:
+    """(names, video record) of the frames an unfinished run extracted from the video ``stamp`` describes; None when
+    there are none, or they came from another video (its size or time changed) or other settings."""
+    try:
+        log = json.loads((Path(frames_dir) / EXTRACTED_LOG).read_text())
+        names, video = log["names"], log["video"]
+        if log["stamp"] != stamp or not all((Path(frames_dir) / n).is_file() for n in names):
+            return None
+        return list(names), dict(video)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 RESUMABLE_STAGES = ("extract", "match")
@@ -485,7 +509,11 @@ def _run_in_thread(fn: Callable[[], Any], token, label: str, done: int, status: 
             _wait_through_interrupts(finished, poll)
         th.join()  # (finished: only the thread's last bytecodes are left)
     if "error" in out:
-        if token.is_cancelled():
+        # pycolmap 4.2.1's is_cancelled is a property, not a method: calling it turned every error a stage raised
+        # (a photo pycolmap could not read, a mapping option it refused) into "TypeError: 'bool' object is not
+        # callable", a traceback that named neither the stage nor its error
+        cancelled = token.is_cancelled
+        if cancelled() if callable(cancelled) else cancelled:
             raise Cancelled(f"{label} cancelled")
         raise out["error"]
     return out.get("value")
@@ -705,7 +733,23 @@ def recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig = CaptureC
     from ..guards import output_lock
 
     with output_lock(Path(out_dir), "capture folder"):
-        return (yield from _recover_poses(images_dir, out_dir, cfg, verbose))
+        try:
+            return (yield from _recover_poses(images_dir, out_dir, cfg, verbose))
+        except InputError as e:
+            hint = video_spacing_hint(cfg.video_frames, str(e)) if is_video(images_dir) else ""
+            if not hint:
+                raise
+            raise InputError(f"{e}{hint}") from None
+
+
+def video_spacing_hint(frames: int, message: str) -> str:
+    """The clause an error or warning that says the photos are too far apart (or show one view) ends with when they
+    are a video's frames: its advice ('take one every 10-15 degrees') is a photographer's; a video's frames are as
+    far apart as --frames spreads them. '' for other messages."""
+    if "10-15 degrees" in message:
+        return (f"; these are a video's frames: keep more of them (--frames {2 * frames}, now {frames}; in the panel: "
+                "Video frames), or film the orbit more slowly")
+    return ""
 
 
 def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose: bool) -> ProgressGen:
@@ -728,11 +772,18 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
         prepare_output(out_dir, images_dir, cfg.force)
         stamp = run_stamp(images_dir.parent, [images_dir.name], cfg)
         images_dir = out_dir / "frames"
-        if images_dir.exists():
-            shutil.rmtree(images_dir)
         try:
-            names, video_info = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
-                                                   _STAGE_END["scan"])
+            reused = _extracted_frames(images_dir, stamp)  # a resumed run: the frames it extracted (same video)
+            if reused is None:
+                if images_dir.exists():
+                    shutil.rmtree(images_dir)
+                names, video_info = yield from _scaled(extract_frames(source, images_dir, cfg.video_frames),
+                                                       _STAGE_END["scan"])
+                from ..datasets.format import atomic_write_json
+
+                atomic_write_json(images_dir / EXTRACTED_LOG, {"stamp": stamp, "names": names, "video": video_info})
+            else:
+                names, video_info = reused
             size, turned_photos = check_images(images_dir, names, cfg)
         except BaseException:
             if fresh:  # a video that cannot be read leaves no output folder behind (output_lock removes it empty)
@@ -1007,7 +1058,7 @@ def _recover_poses(images_dir: Path, out_dir: Path, cfg: CaptureConfig, verbose:
     timings["export"], cpu_timings["export"] = time.perf_counter() - t, time.process_time() - c
     yield Progress(_STAGE_END["export"], 100, f"registered {len(reg_names)}/{len(names)}")
     return CaptureResult(out_dir, reg_photos, len(names), unregistered, matcher, timings, int(len(xyz)), reproj,
-                         cpu_timings, c2ws, intrs, pose_check)
+                         cpu_timings, c2ws, intrs, pose_check, video_info or {})
 
 
 def undistort_options(cameras: list) -> Any:

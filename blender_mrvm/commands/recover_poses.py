@@ -23,8 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "WebP through JPEG copies; one size), or a video file (mp4, mov, ...: --frames of it, the "
                         "sharpest of each span, with one shared camera)")
     p.add_argument("--frames", type=int, default=d.video_frames,
-                   help=f"a video's frames to recover: the sharpest of each of this many equal spans of it "
-                        f"(default {d.video_frames})")
+                   help=f"a video's frames to recover: the sharpest of each of this many equal spans of it, a "
+                        f"paused camera's frames counted once (default {d.video_frames})")
     p.add_argument("--out", required=True, help="capture folder to write")
     p.add_argument("--camera-model", choices=CAMERA_MODELS, default=d.camera_model,
                    help=f"COLMAP camera model; distorted models are undistorted on export (default {d.camera_model})")
