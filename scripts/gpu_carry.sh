@@ -61,4 +61,19 @@ if [ "${DEPTH:-0}" = 1 ]; then
 fi
 mkdir -p gpu_pack && tar -C gpu_carry -cf - "${parts[@]}" | gzip -6 > gpu_pack/carry.tgz
 du -sb gpu_carry | awk '{printf "gpu_carry: %.1f MiB\n", $1 / 1048576}'
-du -sb gpu_pack/carry.tgz | awk '{printf "gpu_pack/carry.tgz: %.1f MiB (with the tracked tree, ~14 MB, a call carries 64 MiB; .git does not travel)\n", $1 / 1048576}'
+du -sb gpu_pack/carry.tgz | awk '{printf "gpu_pack/carry.tgz: %.1f MiB\n", $1 / 1048576}'
+# What a call carrying ["gpu_pack"] (and gpu_old/, when it is here: the runbook's fallback tree) takes of the 64 MiB:
+# the tracked tree and the untracked files git does not ignore travel too (.git does not). The tree was 13 MiB in
+# session 31 and 19.5 MiB on 2026-11-29, so a pack that fitted once may not fit now (session 32's 45.3 MiB does not).
+if [ "$(git rev-parse --show-toplevel 2>/dev/null)" = "$PWD" ]; then
+  tree=$( { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 -r du -cb 2>/dev/null \
+    | awk '$2 == "total" {s += $1} END {print s + 0}')
+  pack=$(du -sb gpu_pack | cut -f1); old=0
+  [ -d gpu_old ] && git check-ignore -q gpu_old && old=$(du -sb gpu_old | cut -f1)
+  total=$((tree + pack + old))
+  awk -v t="$tree" -v p="$pack" -v o="$old" -v a="$total" 'BEGIN {printf "a call carrying [\"gpu_pack\"%s]: %.1f MiB (tree %.1f, gpu_pack %.1f, gpu_old %.1f) of 64 MiB\n", (o > 0 ? ", \"gpu_old\"" : ""), a / 1048576, t / 1048576, p / 1048576, o / 1048576}'
+  if [ "$total" -gt $((64 * 1048576)) ]; then
+    echo "error: over the 64 MiB a call carries: the call would be refused; carry fewer objects (PER_CATEGORY) or sets" >&2
+    exit 3
+  fi
+fi
