@@ -302,7 +302,9 @@ def parse_progress(line: str) -> Progress | None:
 
 
 def error_message(returncode: int, stderr_lines: list[str], python: str) -> str:
-    """The one line a failed child's error is reported as."""
+    """The one line a failed child's error is reported as: its own ``error:`` line, a missing module's install line,
+    else what stopped it in an artist's words (it had been "worker failed (exit code 1): <the traceback's last line>",
+    and the traceback was nowhere: :func:`run_worker` now prints the child's last output to the system console)."""
     errs = [ln[len("error: "):].strip() for ln in stderr_lines if ln.startswith("error: ")]
     if errs:
         return errs[-1]
@@ -311,7 +313,16 @@ def error_message(returncode: int, stderr_lines: list[str], python: str) -> str:
             name = ln.split("No module named", 1)[1].strip().strip("'\"").split(".")[0]
             return f"{name} is missing in the worker Python {python}; install with: {install_hint(python, [name])}"
     tail = next((ln.strip() for ln in reversed(stderr_lines) if ln.strip()), "no message")
-    return f"worker failed (exit code {returncode}): {tail}"
+    if returncode < 0:  # a signal no one here sent (the job's own Esc is Cancelled): the system's, or another program's
+        try:
+            name = signal.Signals(-returncode).name
+        except ValueError:
+            name = f"signal {-returncode}"
+        why = " (the system may have run out of memory: lower the sizes, or close other programs)" \
+            if name == "SIGKILL" else ""
+        return f"the worker was stopped by {name}{why}; its last output is in the system console ({tail})"
+    return (f"unexpected error in the worker, a bug (exit code {returncode}: {tail}); its last output is in the "
+            "system console")
 
 
 def _reader(stream, name: str, q: queue.Queue) -> None:
@@ -461,6 +472,10 @@ def run_worker(command: str, args: list[str], python: str, *, cwd: str | Path | 
         return result
     if rc in (130, -signal.SIGINT) or (stopping and rc != 0):
         raise Cancelled("the worker was interrupted; finished work is kept")
+    if not any(ln.startswith("error: ") for ln in stderr_tail):  # a crash: its traceback for the bug report
+        print(f"blender_mrvm: the {command} worker ended with exit code {rc}; its last output:", file=sys.stderr)
+        for ln in stderr_tail:
+            print(f"  {ln}", file=sys.stderr)
     raise WorkerError(error_message(rc, list(stderr_tail), python), rc)
 
 

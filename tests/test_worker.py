@@ -95,8 +95,12 @@ def test_parse_progress_and_error_lines():
     assert W.error_message(2, ["Traceback", "error: first", "noise", "error: the real one"], py) == "the real one"
     msg = W.error_message(1, ["Traceback (most recent call last):", "  ...", "ModuleNotFoundError: No module named 'torch'"], py)
     assert msg == f'torch is missing in the worker Python {py}; install with: "{py}" -m pip install "torch==2.13.0"'
-    assert W.error_message(-9, ["", "Killed", ""], py) == "worker failed (exit code -9): Killed"
-    assert W.error_message(1, [], py) == "worker failed (exit code 1): no message"
+    # a crash (no error: line) had read "worker failed (exit code 1): <the traceback's last line>", its traceback lost
+    assert W.error_message(-9, ["", "Killed", ""], py) == (
+        "the worker was stopped by SIGKILL (the system may have run out of memory: lower the sizes, or close other "
+        "programs); its last output is in the system console (Killed)")
+    assert W.error_message(1, ["ValueError: x"], py) == (
+        "unexpected error in the worker, a bug (exit code 1: ValueError: x); its last output is in the system console")
 
 
 def test_child_streams_progress_and_finishes(tmp_path):
@@ -359,3 +363,19 @@ def test_the_worker_reads_the_weights_from_the_cache_folder(tmp_path, monkeypatc
                           "print(vgg.weights_dir(), vgg.VGG_FILE, vgg.LPIPS_FILE)"], capture_output=True, text=True,
                          env=W.worker_env(python=str(py)), timeout=120)
     assert out.stdout.split() == [str(tmp_path / "mine"), *W.WEIGHT_FILES], out.stderr
+
+
+def test_a_crashed_worker_leaves_its_traceback_in_the_console(tmp_path, capsys):
+    """A worker that crashed (no error: line) was reported as "worker failed (exit code 1): <last line>" and its
+    traceback was kept nowhere: the panel's message calls it a bug, and the last output goes to the system console."""
+    fake = tmp_path / "python"
+    fake.write_text("#!/bin/sh\necho 'Traceback (most recent call last):' >&2\necho '  File \"x.py\", line 1' >&2\n"
+                    "echo 'ValueError: broken' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    with pytest.raises(W.WorkerError) as ei:
+        for _ in W.run_worker("render-dataset", ["--out", tmp_path / "o"], str(fake), env=ENV):
+            pass
+    assert str(ei.value) == ("unexpected error in the worker, a bug (exit code 1: ValueError: broken); its last output "
+                             "is in the system console")
+    err = capsys.readouterr().err
+    assert "the render-dataset worker ended with exit code 1" in err and '  File "x.py", line 1' in err
