@@ -111,6 +111,14 @@ def _lock_holder(fd: int) -> str:
     return f" (pid {pid})" if pid.isdigit() else ""
 
 
+def _refuse_held(fd: int, what: str, folder: Path):
+    """Close ``fd`` (a lock file another process holds) and refuse, naming that process; the caller keeps no ``fd``
+    (its cleanup would remove the other process's lock file)."""
+    holder = _lock_holder(fd)
+    os.close(fd)
+    raise OutputError(f"{what} {folder} is in use by another process{holder}; wait for it or choose another folder")
+
+
 _WINDOWS_LOCK_AT = 1 << 20
 """The byte of the lock file that ``msvcrt.locking`` locks on Windows (past the pid, which others read)."""
 
@@ -150,11 +158,8 @@ def output_lock(folder: Path, what: str = "output folder"):
                 os.lseek(fd, _WINDOWS_LOCK_AT, os.SEEK_SET)
                 msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
             except OSError:
-                holder = _lock_holder(fd)
-                os.close(fd)
-                fd = None
-                raise OutputError(f"{what} {folder} is in use by another process{holder}; wait for it or "
-                                  "choose another folder") from None
+                held, fd = fd, None  # (none of ours to remove on the way out)
+                _refuse_held(held, what, folder)
             os.ftruncate(fd, 0)
             os.lseek(fd, 0, os.SEEK_SET)
             os.write(fd, f"{os.getpid()}\n".encode())
@@ -165,11 +170,8 @@ def output_lock(folder: Path, what: str = "output folder"):
                 try:
                     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except BlockingIOError:
-                    holder = _lock_holder(fd)
-                    os.close(fd)
-                    fd = None
-                    raise OutputError(f"{what} {folder} is in use by another process{holder}; wait for it or "
-                                      "choose another folder") from None
+                    held, fd = fd, None  # (none of ours to remove on the way out)
+                    _refuse_held(held, what, folder)
                 try:  # the file may have been removed by its last holder between our open and lock: lock anew
                     same = os.path.samestat(os.fstat(fd), os.stat(path))
                 except FileNotFoundError:

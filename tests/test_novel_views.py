@@ -25,7 +25,7 @@ class FakeLayout:
 
     def __init__(self, log=None):
         self.log = log if log is not None else []
-        self.enabled = True
+        self.enabled = self.active = True
         self.use_property_split = self.use_property_decorate = False
 
     def _child(self, *a, **k):

@@ -11,6 +11,7 @@ import types
 import pytest
 
 from blender_mrvm.errors import InputError
+from tests.test_novel_views import FakeLayout
 
 INTERNAL = {"rna_type", "name", "running", "progress", "status"}
 """A section's job state: never drawn as a setting."""
@@ -154,33 +155,6 @@ def test_buttons_are_greyed_out_with_a_reason_on_a_fresh_scene(empty_scene, tmp_
     assert _poll_reason(ops.train) == ""
     s.mrvm_train.start_from = "CHECKPOINT"
     assert "choose the checkpoint to fine-tune" in _poll_reason(ops.train)
-
-
-class FakeLayout:
-    def __init__(self, log=None):
-        self.log = log if log is not None else []
-        self.enabled = self.active = True
-        self.use_property_split = self.use_property_decorate = False
-
-    def _child(self, *a, **k):
-        return FakeLayout(self.log)
-
-    column = row = box = _child
-
-    def label(self, text="", icon="NONE"):
-        self.log.append(("label", text, icon))
-
-    def prop(self, data, name, **k):
-        self.log.append(("prop", name))
-
-    def operator(self, idname, **k):
-        self.log.append(("operator", idname))
-
-    def separator(self, **k):
-        pass
-
-    def progress(self, **k):
-        self.log.append(("progress", k.get("text")))
 
 
 def _draw(panel_cls):
