@@ -48,7 +48,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(as synthesize; default cull)")
     p.add_argument("--ref-size", type=int, default=0, help="references' longer side for the model, as in synthesize: "
                    "0 (default) shrinks references larger than the model's training images to that size, -1 keeps "
-                   "them, N pixels (baselines and ground truth stay at the dataset's size)")
+                   "them, N pixels (baselines and ground truth stay at the size the views are loaded at: --image-size)")
+    p.add_argument("--image-size", type=int, default=None, metavar="N",
+                   help="score at N pixels on each view's longer side: every view (references, targets, masks, depth "
+                   "maps) resized when loaded, as train --image-size does (0 = the dataset's size); default: the size "
+                   "a checkpoint trained with train.image_size trained at (larger views shrunk to it, not smaller "
+                   "ones grown), else the dataset's size")
     from ..training.adapt import add_arguments as add_adapt_arguments
 
     add_adapt_arguments(p)
@@ -99,6 +104,8 @@ def check_args(args) -> None:
 
     V.check_count("--nearest", args.nearest, 0, MAX_REFERENCES)
     V.check_ref_size("--ref-size", args.ref_size)
+    if getattr(args, "image_size", None) is not None:
+        V.check_count("--image-size", args.image_size, 0)
     from ..training.adapt import from_args as adapt_from_args
 
     from ..errors import InputError
@@ -227,7 +234,11 @@ def _run(args) -> int:
     objs = objs[:args.max_objects or None]
     if not objs:
         raise InputError(f"{args.data}: no objects for split {args.split!r}")
-    scenes = [load_object(f, p, args.split, depth=True) for f, p in objs]  # depth maps, where they exist, are scored
+    image_size, shrink_only = scoring_size(args.image_size, meta)
+    # depth maps, where they exist, are scored; every view at image_size px on its longer side (0: as rendered)
+    scenes = [load_object(f, p, args.split, depth=True, image_size=image_size, what="--image-size",
+                          shrink_only=shrink_only) for f, p in objs]
+    _note_larger_views(scenes, image_size, ref_size, max_ref_size)
     from ..models import background as bgrule
 
     reproject = args.reproject
@@ -249,6 +260,9 @@ def _run(args) -> int:
                                          if k not in ("func",) and isinstance(v, (str, int, float, bool, Path, type(None)))}},
              "device": str(device), "precision": precision,
              "background": {"data": data_bg, "white_background": model.white_background, "note": bg_note},
+             "image_size": {"asked": args.image_size, "used": image_size,
+                            "rule": "the dataset's size" if not image_size else
+                            "the checkpoint's train.image_size (shrinking only)" if shrink_only else "--image-size"},
              "data": {**data_rec, "protocol_source": source, "max_objects_per_category": args.max_objects_per_category,
                       "n_inputs": None if source == "--input-views" else args.n_inputs}}
     with autocast(precision, device.type):
@@ -281,6 +295,37 @@ def _run(args) -> int:
     # one JSON line, last on stdout (as synthesize, train and sem2nerf): `json.load` or `tail -n1 | jq` reads it
     print(report_json(result, indent=None))
     return 0
+
+
+def checkpoint_image_size(meta: dict) -> int:
+    """The ``train.image_size`` a checkpoint's run trained at (its ``train_config``; 0 when it trained at its
+    data's own size, or recorded none)."""
+    try:
+        n = json.loads(meta.get("train_config") or "{}").get("image_size", 0)
+    except (ValueError, TypeError, AttributeError):
+        return 0
+    return n if isinstance(n, int) and not isinstance(n, bool) and n > 0 else 0
+
+
+def scoring_size(asked: int | None, meta: dict) -> tuple[int, bool]:
+    """(the longer side every view is loaded at, 0 = as rendered; whether smaller views stay as they are) for
+    ``--image-size`` ``asked`` (None: the checkpoint's ``train.image_size``, shrinking only)."""
+    if asked is None:
+        return checkpoint_image_size(meta), True
+    return int(asked), False
+
+
+def _note_larger_views(scenes, image_size: int, ref_size: int, max_ref_size: int) -> None:
+    """Say so when the targets render at a larger size than the references the model sees (a dataset rendered
+    larger than the model trained at, scored at its own size: slow, and not what the model was trained for)."""
+    if image_size or ref_size or not max_ref_size:
+        return
+    big = [s for s in scenes if len(s) and max(s.images.shape[1:3]) > max_ref_size]
+    if big:
+        side = max(big[0].images.shape[1:3])
+        print(f"note: the views are {side} px on their longer side, the model trained at {max_ref_size}: the "
+              f"references are shrunk to {max_ref_size} and the targets rendered and scored at {side} px; "
+              f"--image-size {max_ref_size} scores at the training size", file=sys.stderr)
 
 
 def compare_to(args, this: dict, other: dict, check_only: bool = False) -> dict | None:

@@ -48,6 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="depth loss at this weight: each ray's light pulled onto the surface the training view's depth "
                         "map saw (overrides train.depth_weight; 0 = off, the default; needs depth maps, as our renders "
                         "have; NeRFormer+MRVM only; RECIPE.md)")
+    p.add_argument("--image-size", type=int, default=None, metavar="N",
+                   help="train at N pixels on each view's longer side, each view resized when loaded (overrides "
+                        "train.image_size; 0 = as rendered, the default): a 1024 px dataset trains at 128 px without "
+                        "re-rendering; larger than the views is refused; a resume must keep it")
     p.add_argument("--compile", action="store_true", default=None,
                    help="torch.compile the networks before training (sets train.compile; worth it on a GPU, where "
                         "small models wait on kernel launches; minutes of compilation on a CPU)")
@@ -69,7 +73,7 @@ def run(args) -> int:
                                                "init_checkpoint": args.init_checkpoint,
                                                "lpips_weight": args.lpips_weight, "depth_weight": args.depth_weight,
                                                "keep_init_losses": args.keep_init_losses,
-                                               "compile": args.compile},
+                                               "compile": args.compile, "image_size": args.image_size},
                                   kind=args.kind, preset=args.preset, resume=not args.no_resume)
     from ..training.config import data_roots
 

@@ -701,17 +701,23 @@ def object_category(fmt: str, path: Path) -> str:
     return path.parent.name
 
 
-def load_object(fmt: str, path: Path, split: str = "train", depth: bool = False) -> ObjectScene:
-    """One object; ``depth``: with its depth maps where the format has them (ours only)."""
+def load_object(fmt: str, path: Path, split: str = "train", depth: bool = False, image_size: int = 0,
+                what: str = "train.image_size", shrink_only: bool = False) -> ObjectScene:
+    """One object; ``depth``: with its depth maps where the format has them (ours only). ``image_size`` (0: as
+    rendered): every view at that many pixels on its longer side, whatever the format (:func:`resize_scene`;
+    ``what`` names the setting in its refusal of upsampling, ``shrink_only`` keeps smaller views instead). The
+    object is read at its own size first: one object's full-size pixels are held at a time."""
     if fmt == "ours":
-        return load_ours(path, depth)
-    if fmt == "srn":
-        return load_srn(path)
-    if fmt == "nmr":
-        return load_nmr(path, split)
-    if fmt == "nerf":
-        return load_nerf_synthetic(path, split)
-    raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
+        scene = load_ours(path, depth)
+    elif fmt == "srn":
+        scene = load_srn(path)
+    elif fmt == "nmr":
+        scene = load_nmr(path, split)
+    elif fmt == "nerf":
+        scene = load_nerf_synthetic(path, split)
+    else:
+        raise InputError(f"unknown dataset format {fmt!r}; choose one of {FORMATS}")
+    return resize_scene(scene, image_size, what, shrink_only)
 
 
 def _srn_objects(root: Path, pattern: str) -> list[Path]:
@@ -772,12 +778,13 @@ def unfinished_objects(root: Path, split: str) -> tuple[list[str], int]:
 
 
 def load_dataset(root: Path, split: str = "train", fmt: str | None = None, limit: int | None = None,
-                 depth: bool = False) -> list[ObjectScene]:
+                 depth: bool = False, image_size: int = 0) -> list[ObjectScene]:
     """The objects of ``split`` for training; InputError when the dataset is half-rendered (some objects of
-    the split missing or unfinished: training would quietly use the others). ``depth``: read depth maps too."""
+    the split missing or unfinished: training would quietly use the others). ``depth``: read depth maps too;
+    ``image_size``: each view's longer side in pixels (0 = as rendered; :func:`resize_scene`)."""
     objs = list_objects(root, fmt, split)
     check_finished(root, split, objs)
-    return [load_object(f, p, split, depth) for f, p in objs[:limit]]
+    return [load_object(f, p, split, depth, image_size) for f, p in objs[:limit]]
 
 
 def check_finished(root: Path, split: str, objs: list) -> None:
@@ -795,3 +802,125 @@ def check_finished(root: Path, split: str, objs: list) -> None:
             raise InputError(f"{root} is half-rendered: {len(left[0])} of {left[1]} objects make-shapenet planned for "
                              f"split {split!r} are not finished (e.g. {left[0][0]}); run its other shards (a rerun "
                              "of any shard names them)")
+
+
+# --------------------------------------------------------------------------------------------- resizing on loading
+
+def scaled_size(w: int, h: int, size: int) -> tuple[int, int]:
+    """(width, height) with the longer side ``size`` pixels and the shorter rounded to keep the aspect ratio (as
+    ``synthesis.reference_shape``)."""
+    s = size / max(w, h)
+    return max(1, round(w * s)), max(1, round(h * s))
+
+
+def _area_axis(x: np.ndarray, n_out: int, axis: int) -> np.ndarray:
+    """``x`` (float) averaged over each output pixel's footprint along ``axis`` (box filtering, exact areas: a
+    partly covered input pixel counts by its covered share). Through the running sum, linear between pixels."""
+    n_in = x.shape[axis]
+    x = np.moveaxis(np.asarray(x, np.float64), axis, 0)
+    c = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(x, 0)])
+    e = np.arange(n_out + 1, dtype=np.int64) * n_in
+    kk = np.minimum(e // n_out, n_in - 1)
+    frac = ((e - kk * n_out) / n_out).reshape(-1, *([1] * (x.ndim - 1)))  # (k, 0) or (n_in - 1, 1) at the end
+    at = c[kk] + frac * x[kk]
+    out = (at[1:] - at[:-1]) * (n_out / n_in)
+    return np.moveaxis(out, 0, axis)
+
+
+def resize_colour(image: np.ndarray, w: int, h: int) -> np.ndarray:
+    """An (H, W, C) float image at ``w`` x ``h`` by area (box) filtering: each pixel the mean of its footprint, a
+    partly covered source pixel weighted by its share (the sRGB values, as PIL's BOX and OpenCV's INTER_AREA)."""
+    if image.shape[:2] == (h, w):
+        return image
+    H, W = image.shape[:2]
+    if H % h == 0 and W % w == 0:  # whole footprints (1024 to 128 px): the same means, without the running sums
+        out = image.reshape(h, H // h, w, W // w, -1).mean((1, 3), dtype=np.float64)
+    else:
+        out = _area_axis(_area_axis(image, h, 0), w, 1)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def _overlap_ranges(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last + 1) input pixel each output pixel's footprint overlaps (by a positive length)."""
+    i = np.arange(n_out + 1, dtype=np.int64) * n_in
+    lo = i[:-1] // n_out
+    hi = -((-i[1:]) // n_out)  # ceil
+    return lo, hi
+
+
+def resize_object_mask(mask: np.ndarray, w: int, h: int) -> np.ndarray:
+    """A bool (H, W) object mask at ``w`` x ``h``, conservatively (``synthesis.views.resize_mask``'s rule, with
+    exact footprints at any scale): a pixel is object when any object pixel overlaps it."""
+    m = np.asarray(mask, bool)
+    if m.shape == (h, w):
+        return m
+    H, W = m.shape
+    c = np.zeros((H + 1, W + 1), np.int64)
+    c[1:, 1:] = np.cumsum(np.cumsum(m, 0, dtype=np.int64), 1)
+    y0, y1 = _overlap_ranges(H, h)
+    x0, x1 = _overlap_ranges(W, w)
+    count = c[y1][:, x1] - c[y0][:, x1] - c[y1][:, x0] + c[y0][:, x0]
+    return count > 0
+
+
+def resize_depth(depth: np.ndarray, w: int, h: int) -> np.ndarray:
+    """A (H, W) depth map (0 = no surface) at ``w`` x ``h``: each pixel takes the valid sample (> 0) nearest its
+    centre among the source pixels its footprint overlaps (the nearer surface among equally near ones), 0 when none
+    is valid. The depth loss pulls the light of the ray through the pixel's centre onto the surface it hits: the
+    nearest sample is that surface, to half a source pixel; a mean invents a surface between two that nothing lies
+    on, and a min-pool gives the front surface to rays that pass behind it at its outline. A pixel has a depth where
+    any overlapping source pixel has one, as the conservative masks (:func:`resize_object_mask`) mark it object."""
+    d = np.asarray(depth, np.float32)
+    if d.shape == (h, w):
+        return d
+    H, W = d.shape
+
+    def axis(n_in, n_out):
+        lo, hi = _overlap_ranges(n_in, n_out)
+        kmax = int((hi - lo).max())
+        idx = lo[:, None] + np.arange(kmax)[None]
+        pad = idx < hi[:, None]
+        idx = np.minimum(idx, n_in - 1)
+        dist = (idx + 0.5) - (np.arange(n_out)[:, None] + 0.5) * (n_in / n_out)
+        return idx, pad, dist ** 2
+
+    iy, py, dy = axis(H, h)
+    ix, px, dx = axis(W, w)
+    out = np.zeros((h, w), np.float32)
+    for i in range(h):
+        cand = d[iy[i]][:, ix]  # (Ky, w, Kx)
+        ok = (cand > 0) & py[i][:, None, None] & px[None]
+        d2 = np.where(ok, dy[i][:, None, None] + dx[None], np.inf)
+        d2 = d2.transpose(1, 0, 2).reshape(w, -1)
+        cand = cand.transpose(1, 0, 2).reshape(w, -1)
+        best = d2.min(1, keepdims=True)
+        pick = np.where(np.isfinite(best) & (d2 <= best + 1e-9), cand, np.inf).min(1)
+        out[i] = np.where(np.isfinite(pick), pick, 0.0)
+    return out
+
+
+def resize_scene(scene: ObjectScene, size: int, what: str = "train.image_size", shrink_only: bool = False) -> ObjectScene:
+    """``scene`` with every view's longer side ``size`` pixels (0: unchanged): colours by area, masks
+    conservatively, depth maps by the nearest valid sample, the cameras by ``Intrinsics.resized`` (a point projects
+    where it did, scaled). A ``size`` above the views' is refused (upsampling adds nothing), or with
+    ``shrink_only`` leaves them as they are."""
+    if not size or not len(scene):
+        return scene
+    n, H, W = scene.images.shape[:3]
+    if size > max(W, H):
+        if shrink_only:
+            return scene
+        raise InputError(f"{what} {size} is larger than the views of {scene.category}/{scene.name} ({W}x{H} px): "
+                         f"upsampling adds nothing; give at most {max(W, H)}, or 0 to use them as rendered")
+    w, h = scaled_size(W, H, size)
+    if (w, h) == (W, H):
+        return scene
+    images = np.empty((n, h, w, scene.images.shape[3]), np.float32)
+    for k in range(n):
+        images[k] = resize_colour(scene.images[k], w, h)
+    masks = None if scene.masks is None else np.stack([resize_object_mask(m, w, h) for m in scene.masks])
+    depths = None if scene.depths is None else np.stack([resize_depth(d, w, h) for d in scene.depths])
+    intrs = [intr.resized(w, h) for intr in scene.intrinsics]
+    from dataclasses import replace
+
+    return replace(scene, images=images, intrinsics=intrs, masks=masks, depths=depths)

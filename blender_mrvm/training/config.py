@@ -41,6 +41,12 @@ class TrainConfig:
     """Split to train on."""
     max_objects: int = 0
     """Use at most this many objects of each dataset (0 = all)."""
+    image_size: int = 0
+    """Train at this many pixels on each view's longer side (0 = as rendered): every view is resized when it is
+    loaded, whatever the format (``datasets.loaders.resize_scene``: colours by area, object masks conservatively,
+    depth maps by the nearest valid sample, the cameras scaled exactly), so a 1024 px dataset trains at 128 px
+    without re-rendering. Larger than the views is refused (upsampling adds nothing); the checkpoints'
+    ``train_image_size`` is this size; a resume must keep it."""
     out_dir: str = "runs/mrvm"
     """Run folder: metrics.jsonl, checkpoints/, config.json."""
     seed: int = 0
@@ -430,7 +436,7 @@ def validate(c: TrainConfig) -> None:
     V.check_types(c)
     for name in ("iterations", "log_every", "ckpt_every"):
         V.at_least(c, name, 1)
-    for name in ("max_objects", "seed", "lr_warmup", "keep_checkpoints", "threads"):
+    for name in ("max_objects", "image_size", "seed", "lr_warmup", "keep_checkpoints", "threads"):
         V.at_least(c, name, 0)
     # 0 is a frozen run (tests); NaN/inf are refused by check_types; above 1 a run only diverges (1e39 is not even
     # a float32: AdamW's step crashed on it, after the run folder was started)

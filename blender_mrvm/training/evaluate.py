@@ -600,7 +600,7 @@ were recorded)."""
 
 
 COMPARED_SETTINGS = ("precision", "device", "protocol.empty_space_skipping", "protocol.reference_sizes",
-                     "protocol.adaptation", "protocol.reproject")
+                     "protocol.adaptation", "protocol.reproject", "image_size.used")
 """Rendering settings ``compare_reports`` lists when two evaluations differ in them (``settings_differ``): a
 paired difference then measures the setting as much as the checkpoint, which ``compare.json`` had not said."""
 

@@ -309,6 +309,10 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
         sets = load_training_sets(cfg)
         scenes = [s for objs in sets for s in objs]
         weights = object_weights(cfg.data_weights, [len(objs) for objs in sets])
+    elif cfg.image_size:  # objects a caller loaded: at the size the run trains at, as loading would give them
+        from ..datasets.loaders import resize_scene
+
+        scenes = [resize_scene(s, cfg.image_size) for s in scenes]
     from ..models import background as bgrule
 
     data_bg = bgrule.of_scenes(scenes)
@@ -345,6 +349,7 @@ def _train(model_cfg: Any, cfg: TrainConfig, resume: bool, scenes: list[ObjectSc
     found, state = run_folder.resume_point(run_dir, resume, force, dd.main)
     if found is not None:
         _check_continues(run_dir, found, cfg, model_cfg)
+        _check_same_image_size(run_dir, found, cfg)
         try:
             ckpt.load_weights(model, found / ckpt.MODEL_FILE, device)
         except ckpt.WeightsMismatch:  # the checkpoint is fine: this start asked for another model
@@ -524,12 +529,13 @@ def object_groups(batcher: RayBatcher, bbox_phase: bool, n: int, size: int):
 def load_training_sets(cfg: TrainConfig) -> list[list[ObjectScene]]:
     """The training objects of each dataset ``train.data`` names, in the order given (each read with
     ``data_format`` and ``split``, at most ``max_objects`` from each); every root is loaded, and so
-    checked, before the run folder is touched; with their depth maps for ``depth_weight``)."""
+    checked, before the run folder is touched; with their depth maps for ``depth_weight``; every view at
+    ``image_size`` pixels on its longer side when it is not 0)."""
     roots = data_roots(cfg)
     if not roots:
         raise InputError("no dataset: give --data or train.data in the config")
-    return [load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None, cfg.depth_weight > 0)
-            for root in roots]
+    return [load_dataset(Path(root), cfg.split, cfg.data_format or None, cfg.max_objects or None, cfg.depth_weight > 0,
+                         cfg.image_size) for root in roots]
 
 
 def load_training_scenes(cfg: TrainConfig) -> list[ObjectScene]:
@@ -816,8 +822,8 @@ def init_weights(model: torch.nn.Module, model_cfg: Any, name: str, device: str)
 
 
 def train_image_size(scenes: list[ObjectScene]) -> int:
-    """Median longer image side of the training views (recorded in checkpoints: synthesis resizes larger
-    references to it)."""
+    """Median longer image side of the training views as loaded (``train.image_size`` when it is set: every view
+    is resized to it when loaded), recorded in checkpoints: synthesis and eval resize larger references to it."""
     sides = [max(s.intrinsics[0].width, s.intrinsics[0].height) for s in scenes if len(s)]
     return int(np.median(sides)) if sides else 0
 
@@ -859,6 +865,22 @@ def _check_continues(run_dir: Path, found: Path, cfg: TrainConfig, model_cfg) ->
         raise InputError(f"the run in {run_dir} (at {found.name}) began from "
                          f"{began if began else 'a random initialisation'}, not --init {cfg.init_checkpoint}, which "
                          "would not be used: continue the run without --init, fine-tune into another --out, or start "
+                         "over here with --no-resume --force")
+
+
+def _check_same_image_size(run_dir: Path, found: Path, cfg: TrainConfig) -> None:
+    """A start that continues the run in ``run_dir`` must train at the image size the run began with
+    (``train.image_size``; a run recorded before the field trained at 0, the data's own size): the model's weights,
+    its checkpoints' ``train_image_size`` and what the loss compares would change size midway."""
+    from .config import recorded_train
+
+    began = (recorded_train(run_dir) or {}).get("image_size", 0)
+    if isinstance(began, int) and not isinstance(began, bool) and began != cfg.image_size:
+        def words(n):
+            return f"--image-size {n}" if n else "the views as rendered (--image-size 0)"
+
+        raise InputError(f"the run in {run_dir} (at {found.name}) trains at {words(began)}, not {words(cfg.image_size)}: "
+                         f"continue it with --image-size {began}, train at another size into another --out, or start "
                          "over here with --no-resume --force")
 
 
