@@ -2,11 +2,11 @@
 
 What a script or a notebook calls instead of ``python -m blender_mrvm ...``; ``docs/guide/python_api.md`` states
 the conventions and shows each entry point. Every function here wraps the code the CLI runs (``synthesis.views``,
-``models.pretrained``, ``training.evaluate``, ``datasets.loaders``); none copies it. Importing this module
-imports neither bpy nor the CLI (which sets ``OMP_WAIT_POLICY`` on import), and no function here changes torch's
-thread count, default dtype, grad mode (outside its own ``no_grad``), the warnings filters, signal handlers, the
-working directory or the environment. Errors are exceptions (:class:`InputError` for bad input), never an exit;
-the CLI's stderr notes become :class:`UserWarning` s.
+``models.pretrained``, ``training.evaluate``, ``datasets.loaders``, ``models.sem2nerf.render``); none copies it.
+Importing this module imports neither bpy nor the CLI (which sets ``OMP_WAIT_POLICY`` on import), and no function
+here changes torch's thread count, default dtype, grad mode (outside its own ``no_grad``), the warnings filters,
+signal handlers, the working directory or the environment. Errors are exceptions (:class:`InputError` for bad
+input), never an exit; the CLI's stderr notes become :class:`UserWarning` s.
 
 Conventions (the dataset format's, ``datasets/format.py``, ``geometry/cameras.py``):
 
@@ -34,7 +34,7 @@ from .geometry.cameras import Intrinsics
 
 __all__ = ["Model", "View", "Intrinsics", "InputError", "load_model", "references", "load_references",
            "auto_model", "render_views", "render_view", "scores", "lpips_metric", "read_object", "SHIPPED_MODELS",
-           "CONVENTIONS"]
+           "CONVENTIONS", "MaskView", "MaskRender", "render_mask_views"]
 
 CONVENTIONS = ("opencv", "opengl", "blender")
 """Camera-axis conventions a pose may be given in (``geometry/cameras.py``)."""
@@ -107,8 +107,8 @@ def load_model(checkpoint: str | Path = "shipped", device: str = "cpu", precisio
     ``synthesize``: bf16 on a GPU; on the CPU int8 for models wide enough to gain, else fp32), fp32, bf16, fp16 or
     int8. ``quality``: full or preview. ``shipped:auto`` needs the cameras: see :func:`auto_model`.
 
-    A Sem2NeRF checkpoint loads too (``kind`` 'sem2nerf'); it renders from a part mask, not references
-    (``python -m blender_mrvm sem2nerf render``), so :func:`render_views` refuses it.
+    A Sem2NeRF checkpoint loads too (``kind`` 'sem2nerf', fp32, at ``quality``); it renders from a part mask, not
+    references: :func:`render_mask_views` (``sem2nerf render``), and :func:`render_views` refuses it.
 
     Torch's global random state is left as it was (building a module draws its initial weights from it before the
     checkpoint's replace them: a seeded experiment would otherwise depend on which models it loaded)."""
@@ -126,12 +126,16 @@ def _load_model(checkpoint, device: str, precision: str, quality: str) -> Model:
     dev = resolve_device(device)
     path = resolve_checkpoint(checkpoint)
     if model_kind(read_header_meta(model_file_of(path))) == "sem2nerf":
-        from .training.sem2nerf import load_sem2nerf
+        from .models.registry import QUALITY_LEVELS
+        from .models.sem2nerf.render import checkpoint_info, load_render_model
 
-        if quality != "full" or precision not in ("auto", "fp32"):
-            raise InputError("a Sem2NeRF model loads at quality full and fp32 here; its render command takes the rest")
-        module, cfg, meta = load_sem2nerf(path, str(dev))
-        return Model(module, "sem2nerf", cfg, meta, Path(module.checkpoint_file), dev)
+        if precision not in ("auto", "fp32"):
+            raise InputError("a Sem2NeRF model renders at fp32 (precision auto or fp32)")
+        if quality not in QUALITY_LEVELS:
+            raise InputError(f"quality must be one of {', '.join(QUALITY_LEVELS)}, got {quality!r}")
+        info = checkpoint_info(path)
+        module, cfg = load_render_model(info.model_file, str(dev), quality)
+        return Model(module, "sem2nerf", cfg, info.meta, Path(module.checkpoint_file), dev, "fp32", quality)
     from .models.config import merge
     from .models.precision import check_precision, for_precision, resolve_precision
     from .models.registry import QUALITY_LEVELS, quality_overrides
@@ -315,7 +319,7 @@ def render_views(model: Model, refs, target_c2w, target_K, width: int, height: i
 
     if model.kind == "sem2nerf":
         raise InputError("a Sem2NeRF model renders from a part mask, not from reference views: "
-                         "`python -m blender_mrvm sem2nerf render` (models/sem2nerf/render.py)")
+                         "api.render_mask_views (`python -m blender_mrvm sem2nerf render`)")
     if skip_empty not in MODES:
         raise InputError(f"skip_empty must be one of {', '.join(MODES)}, got {skip_empty!r}")
     net, dev = model.module, model.device
@@ -351,6 +355,96 @@ def render_view(model: Model, refs, target_c2w, target_K, width: int, height: in
     if np.asarray(target_c2w).ndim != 2:
         raise InputError("render_view takes one (4, 4) pose; render_views takes several")
     return render_views(model, refs, target_c2w, target_K, width, height, _stacklevel=3, **options)[0]
+
+
+# ------------------------------------------------------------------------------------------------ Sem2NeRF
+
+@dataclass
+class MaskView:
+    """One view of a Sem2NeRF model (:func:`render_mask_views`), HWC numpy arrays."""
+
+    rgb: np.ndarray
+    """(H, W, 3) float32 in [0, 1]: sRGB-encoded colour on the model's background (white for the shipped model)."""
+    alpha: np.ndarray
+    """(H, W) float32 in [0, 1]: the model's opacity."""
+    semantic: np.ndarray
+    """(H, W) uint8 part ids (argmax of the rendered semantic map): ``semantic/NNNNNN.png``."""
+    semantic_color: np.ndarray
+    """(H, W, 3) uint8: the ids in their label colours: ``semantic_color/NNNNNN.png``."""
+    c2w: np.ndarray
+    """(4, 4) OpenCV camera-to-world of the view (``pose/NNNNNN.txt``; whatever ``convention`` the call took)."""
+    intrinsics: Intrinsics
+    _rgba: np.ndarray = field(repr=False, default=None)
+
+    def rgba(self) -> np.ndarray:
+        """(H, W, 4) uint8 straight-alpha RGBA, the bytes ``sem2nerf render`` writes to ``rgb/NNNNNN.png``."""
+        return self._rgba.copy()
+
+
+@dataclass
+class MaskRender:
+    """What :func:`render_mask_views` returns."""
+
+    views: list
+    """A :class:`MaskView` per camera (the orbit's view 0 is the mask's camera)."""
+    mask: np.ndarray
+    """(H, W) uint8 part ids the model saw (after the edits): ``mask_input.png``."""
+    edits: list
+    """The edits as (source id, destination id)."""
+    blend: list = field(default_factory=list)
+    """With ``blend``: (H, W, 3) float32 images of the mask's view along the style blend (``blend/NNNNNN.png``)."""
+
+
+def render_mask_views(model: Model, mask, c2w, K, target_c2w=None, target_K=None, width: int = 0, height: int = 0,
+                      *, convention: str = "opencv", views: int = 8, edits: Sequence[str] = (),
+                      style_seed: int | None = None, mix_seed: int | None = None, mix: float = 0.5,
+                      blend: int | None = None, blend_steps: int = 5) -> MaskRender:
+    """Views of a Sem2NeRF model (``load_model("shipped:sem2nerf")``) from one part mask: what ``sem2nerf render``
+    writes, as arrays (``models.sem2nerf.render.render_prepared``, the render both share).
+
+    ``mask``: (H, W) integer part ids, or an (H, W, 3|4) uint8 image: grey = the ids (as the CLI reads a PNG), else
+    the label colours (``semantic_color``'s; alpha < 128 is background); the checkpoint's size, square
+    (``models.sem2nerf.render.mask_from_array``). ``c2w``: its camera, (4, 4) in ``convention``; ``K``: (3, 3) in
+    pixels of the mask, or :class:`Intrinsics`. Targets: ``target_c2w`` ((4, 4) or (N, 4, 4) in ``convention``)
+    with ``target_K`` (shared or one each, pixels of a ``width`` x ``height`` image; 0 = the mask's size); None =
+    ``views`` cameras orbiting the world z axis through the mask's camera (``--views``). ``edits``: 'SRC:DST'
+    (ids or label names, ``--edit``) applied in order. ``style_seed`` (None = the mean style), ``mix_seed`` with
+    ``mix`` (``--mix-seed``, ``--mix``: 0.5 as the CLI), ``blend`` with ``blend_steps`` (``--blend``). The quality
+    is the model's (``load_model(..., quality="preview")``). Torch's thread count and random state are left as
+    they were. InputError with the CLI's messages for a mask of unknown labels, an empty mask, bad edits, a camera
+    from which the mask does not lie over the model's box."""
+    import torch
+
+    from .models.sem2nerf import render as R
+
+    if model.kind != "sem2nerf":
+        raise InputError(f"render_mask_views renders a Sem2NeRF model (load_model('shipped:sem2nerf')), got a "
+                         f"{model.kind} model: render_views renders it from references")
+    if mix_seed is None:
+        mix = 0.0
+    R.check_render_options(int(views), int(blend_steps), float(mix),
+                           {"--style-seed": style_seed, "--mix-seed": mix_seed, "--blend": blend}, model.quality)
+    info = R.checkpoint_info(model.path)
+    ids = R.mask_from_array(mask, info.labels, "mask")
+    cam = _pose(c2w, convention)
+    intr = _intrinsics(K, info.size, info.size)
+    p = R.prepare_mask(info, ids, tuple(str(e) for e in edits), cam, intr, int(views), "mask", "the mask's camera")
+    if target_c2w is not None:
+        if target_K is None:
+            raise InputError("target_c2w needs target_K (the targets' intrinsics)")
+        tc = _poses(target_c2w, convention)
+        tk = _target_intrinsics(target_K, len(tc), int(width) or info.size, int(height) or info.size)
+        p.views = list(zip(tk, tc))
+    out = MaskRender([], p.mask.copy(), [tuple(e) for e in p.edits])
+    with torch.random.fork_rng(devices=[]):
+        for kind, _, res in R.render_prepared(model.module, p, style_seed, mix_seed, float(mix), blend,
+                                              int(blend_steps)):
+            if kind == "view":
+                out.views.append(MaskView(res.rgb, res.alpha, res.semantic, res.semantic_color, res.c2w,
+                                          res.intrinsics, res.rgba))
+            else:
+                out.blend.append(res)
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ metrics

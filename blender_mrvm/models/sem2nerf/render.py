@@ -18,6 +18,11 @@ cameras of a ``targets.json`` (the add-on's selected cameras or its own orbit); 
 ``rgb/k``, ``semantic/k``, ... in both cases. The checks (:func:`checkpoint_info`, :func:`check_input_mask`,
 :func:`check_pose`, :func:`check_camera_sees_box`, :func:`mask_from_rgba`) are shared with the add-on's
 operator, which runs them on Blender's main thread before it starts the worker. bpy-free.
+
+The files and the Python API (``api.render_mask_views``: masks and cameras as arrays, views as arrays) share the
+checks (:func:`check_render_options`, :func:`prepare_mask`; :func:`mask_from_array` reads an array as
+:func:`read_mask_png` reads a file), the loading (:func:`load_render_model`) and the render
+(:func:`render_prepared`); :func:`render_from_mask` adds the files, the thread count and the output folder.
 """
 
 from __future__ import annotations
@@ -159,13 +164,37 @@ def read_mask_png(path: Path) -> np.ndarray:
         raise InputError(f"mask {path} is not a readable PNG: {type(e).__name__}") from None
     if mode == "P":  # np.asarray gives its palette indices; PA (indices + alpha) is refused below as 2 channels
         m = _palette_greys(m, pal, f"mask {path}")
-    if m.ndim == 3 and m.shape[-1] == 3 and (m == m[..., :1]).all():  # grey saved as RGB: the panel reads it so
+    if m.ndim == 3 and m.shape[-1] == 3 and _is_grey(m):  # grey saved as RGB: the panel reads it so
         m = m[..., 0]
     if m.ndim != 2:
         raise InputError(f"mask {path} has {m.shape[-1]} channels; expected a single-channel part-id image")
     if m.dtype != np.uint8:
         raise InputError(f"mask {path} is {m.dtype}; expected 8-bit part ids")
     return m
+
+
+def _is_grey(img: np.ndarray) -> bool:
+    """Whether every pixel of an (H, W, 3|4) image has three equal colour channels (a part-id image saved as RGB)."""
+    return bool((img[..., :3] == img[..., :1]).all())
+
+
+def mask_from_array(mask, labels: tuple[int, ...], where: str) -> np.ndarray:
+    """A mask given as an array (the Python API) -> part ids for :func:`check_input_mask`: (H, W) integer ids as
+    they are; an (H, W, 3|4) uint8 image grey as the ids (as :func:`read_mask_png` reads a grey RGB PNG), a
+    coloured one as label colours (:func:`mask_from_rgba` ``COLORS``, what ``semantic_color`` shows and the
+    add-on's painted masks hold; alpha < 128 is background). InputError for anything else."""
+    a = np.asarray(mask)
+    if a.ndim == 3 and a.shape[-1] in (3, 4):
+        enc = "IDS" if a.dtype == np.uint8 and _is_grey(a) else "COLORS"
+        return mask_from_rgba(a, labels, enc, where)
+    if a.ndim == 3 and a.shape[-1] == 1:
+        a = a[..., 0]
+    if a.ndim != 2:
+        raise InputError(f"{where}: expected (H, W) part ids or an (H, W, 3|4) label-colour image, got shape "
+                         f"{a.shape}")
+    if a.dtype.kind not in "biu":
+        raise InputError(f"{where}: part ids must be integers in 0..255, got {a.dtype}")
+    return a
 
 
 def _palette_greys(index: np.ndarray, pal: list | None, where: str) -> np.ndarray:
@@ -418,6 +447,31 @@ def input_folders(mask: Path, pose: Path) -> dict[str, Path]:
     return folders
 
 
+def check_render_options(views: int, blend_steps: int, mix: float, seeds: dict, quality: str) -> None:
+    """The render options' checks (``seeds``: flag -> seed or None); InputError with the CLI's message."""
+    if views < 1 or blend_steps < 2:
+        raise InputError("--views must be >= 1 and --blend-steps >= 2")
+    if not 0.0 <= mix <= 1.0:
+        raise InputError("--mix must lie in [0, 1]")
+    for flag, seed in seeds.items():
+        if seed is not None and not 0 <= seed <= SEED_MAX:
+            raise InputError(f"{flag} {seed}: a seed must lie in 0 .. {SEED_MAX}")
+    from ..registry import QUALITY_LEVELS
+
+    if quality not in QUALITY_LEVELS:
+        raise InputError(f"--quality must be one of {', '.join(QUALITY_LEVELS)}, got {quality!r}")
+
+
+def prepare_mask(info: CheckpointInfo, mask, edits: tuple[str, ...], c2w: np.ndarray, intr, views: int,
+                 mask_where: str, pose_where: str) -> Prepared:
+    """The checks of a mask (part ids) and its camera (OpenCV camera-to-world, intrinsics at the mask's size),
+    shared by the files (:func:`prepare`) and the arrays (``api.render_mask_views``); the views are the orbit of
+    ``views`` about the world z axis (a caller with target cameras replaces them)."""
+    mask, parsed = check_input_mask(mask, info, mask_where, edits)
+    check_camera_sees_box(mask, intr, c2w, info.scene_box, pose_where)
+    return Prepared(info, mask, parsed, c2w, intr, [(intr, c) for c in orbit_poses(c2w, views)])
+
+
 def prepare(req: RenderRequest) -> Prepared:
     """Every check that needs no torch; InputError / OutputError naming the first problem."""
     from ...guards import check_folder_writable, check_not_input
@@ -428,30 +482,19 @@ def prepare(req: RenderRequest) -> Prepared:
     check_folder_writable(out, "output")
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not req.force)):
         raise OutputError(f"output {out} exists and is not an empty folder (use --force to write into it)")
-    if req.views < 1 or req.blend_steps < 2:
-        raise InputError("--views must be >= 1 and --blend-steps >= 2")
-    if not 0.0 <= req.mix <= 1.0:
-        raise InputError("--mix must lie in [0, 1]")
-    for flag, seed in (("--style-seed", req.style_seed), ("--mix-seed", req.mix_seed), ("--blend", req.blend)):
-        if seed is not None and not 0 <= seed <= SEED_MAX:
-            raise InputError(f"{flag} {seed}: a seed must lie in 0 .. {SEED_MAX}")
-    from ..registry import QUALITY_LEVELS
-
-    if req.quality not in QUALITY_LEVELS:
-        raise InputError(f"--quality must be one of {', '.join(QUALITY_LEVELS)}, got {req.quality!r}")
+    check_render_options(req.views, req.blend_steps, req.mix,
+                         {"--style-seed": req.style_seed, "--mix-seed": req.mix_seed, "--blend": req.blend},
+                         req.quality)
     info = checkpoint_info(Path(req.checkpoint))
-    size = info.size
-    mask, edits = check_input_mask(read_mask_png(Path(req.mask)), info, f"mask {req.mask}", req.edits)
-    c2w, intr = mask_camera_files(Path(req.pose), req.intrinsics, size, req.fov)
-    check_camera_sees_box(mask, intr, c2w, info.scene_box, f"pose {req.pose}")
+    mask = read_mask_png(Path(req.mask))
+    c2w, intr = mask_camera_files(Path(req.pose), req.intrinsics, info.size, req.fov)
+    p = prepare_mask(info, mask, req.edits, c2w, intr, req.views, f"mask {req.mask}", f"pose {req.pose}")
     if req.targets:
         from ...datasets.novel_views import read_targets
 
         targets, _ = read_targets(Path(req.targets))
-        views = [(t.intrinsics, check_pose(t.c2w_opencv, f"target {t.name!r}")) for t in targets]
-    else:
-        views = [(intr, c2w) for c2w in orbit_poses(c2w, req.views)]
-    return Prepared(info, mask, edits, c2w, intr, views)
+        p.views = [(t.intrinsics, check_pose(t.c2w_opencv, f"target {t.name!r}")) for t in targets]
+    return p
 
 
 def mask_camera_files(pose: Path, intrinsics: str, size: int, fov: float = 40.0):
@@ -519,59 +562,105 @@ def mix_styles(a, b, t: float):
     return (1 - t) * a + t * b
 
 
+def load_render_model(model_file: Path, device: str, quality: str = "full"):
+    """(model, its saved config) of a Sem2NeRF checkpoint, eval mode, its samples per ray set for ``quality``
+    (``models.registry.quality_overrides``): how ``sem2nerf render`` and ``api.load_model`` load one."""
+    from dataclasses import replace
+
+    from ...training.sem2nerf import load_sem2nerf
+    from ..registry import quality_overrides
+
+    model, cfg, _ = load_sem2nerf(Path(model_file), device)
+    model.cfg = replace(cfg, **quality_overrides(cfg, quality))
+    return model, cfg
+
+
+@dataclass
+class RenderedView:
+    """One view of :func:`render_prepared`: the arrays ``sem2nerf render`` writes for view k."""
+
+    rgb: np.ndarray
+    """(H, W, 3) float32 in [0, 1]: the model's colour on its background (white for a white-background model)."""
+    alpha: np.ndarray
+    """(H, W) float32 in [0, 1]: the model's opacity."""
+    rgba: np.ndarray
+    """(H, W, 4) uint8 straight RGBA: ``rgb/k.png``."""
+    semantic: np.ndarray
+    """(H, W) uint8 part ids (argmax of the semantic map): ``semantic/k.png``."""
+    semantic_color: np.ndarray
+    """(H, W, 3) uint8, the ids in their label colours (:func:`palette`): ``semantic_color/k.png``."""
+    c2w: np.ndarray
+    """OpenCV camera-to-world: ``pose/k.txt``."""
+    intrinsics: object
+
+
+def render_prepared(model, p: Prepared, style_seed: int | None = None, mix_seed: int | None = None,
+                    mix: float = 0.0, blend: int | None = None, blend_steps: int = 5):
+    """The render shared by :func:`render_from_mask` (files) and ``api.render_mask_views`` (arrays): a generator of
+    ``("view", k, RenderedView)`` for every view of ``p``, then with ``blend`` ``("blend", j, (H, W, 3) float32)``
+    for the input view along the style blend (``blend_steps`` images, ends included). Options as
+    :class:`RenderRequest`'s. Touches no global torch state (threads, RNG: the styles draw from their own
+    generators)."""
+    import torch
+
+    from .inputs import build_inputs
+
+    labels = tuple(int(v) for v in p.info.labels)
+    device = model.style_mean.device
+    labels_t = torch.as_tensor(labels)
+    white = bool(model.cfg.white_background)
+    with torch.no_grad():
+        code = model.encode(torch.from_numpy(build_inputs(p.mask, labels))[None].to(device), p.c2w[None], p.intr)
+        style = model.style_from_seed(style_seed) if style_seed is not None else model.default_style()
+        if mix_seed is not None and mix > 0:
+            style = mix_styles(style, model.style_from_seed(mix_seed), mix)
+    from ...datasets import format as DF
+
+    for k, (intr, c2w) in enumerate(p.views):
+        img = model.render_image(intr, c2w, code, style)
+        rgb, acc = img["rgb"].clamp(0, 1).cpu().numpy(), img["acc"].clamp(0, 1).cpu().numpy()
+        # straight colour (the model's is composited on its background), as synthesize writes it
+        rgba = DF.straight_rgba(rgb, acc, 1.0 if white else 0.0)
+        ids = labels_t[img["semantic"].argmax(-1).cpu()].numpy().astype(np.uint8)
+        yield "view", k, RenderedView(rgb.astype(np.float32), acc.astype(np.float32), rgba, ids, colorize(ids),
+                                      np.asarray(c2w), intr)
+    if blend is not None:
+        with torch.no_grad():
+            s1 = model.style_from_seed(blend)
+        for j, a in enumerate(np.linspace(0.0, 1.0, blend_steps)):
+            img = model.render_image(p.intr, p.c2w, code, mix_styles(style, s1, float(a)))
+            yield "blend", j, img["rgb"].clamp(0, 1).cpu().numpy().astype(np.float32)
+
+
 def render_from_mask(req: RenderRequest):
     """Progress generator (events in images); returns the summary dict written to sem2nerf.json."""
     p = prepare(req)
-    import torch
-
     from ...datasets import format as DF
-    from ...training.sem2nerf import load_sem2nerf
-    from .inputs import build_inputs
-
     from ...threads import set_torch_threads
 
     set_torch_threads(req.threads)
     from ...synthesis.views import resolve_device
 
     device = str(resolve_device(req.device))
-    model, cfg, meta = load_sem2nerf(p.info.model_file, device)
-    from dataclasses import replace
-
-    from ..registry import quality_overrides
-
-    model.cfg = replace(cfg, **quality_overrides(cfg, req.quality))
+    model, cfg = load_render_model(p.info.model_file, device, req.quality)
     out = Path(req.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        labels_t = torch.as_tensor(cfg.labels)
-        with torch.no_grad():
-            code = model.encode(torch.from_numpy(build_inputs(p.mask, cfg.labels))[None].to(device), p.c2w[None],
-                                p.intr)
-            style = model.style_from_seed(req.style_seed) if req.style_seed is not None else model.default_style()
-            if req.mix_seed is not None and req.mix > 0:
-                style = mix_styles(style, model.style_from_seed(req.mix_seed), req.mix)
         n = len(p.views)
         total = n + (req.blend_steps if req.blend is not None else 0)
         DF.write_png(tmp / "mask_input.png", p.mask)
-        for k, (intr, c2w) in enumerate(p.views):
-            img = model.render_image(intr, c2w, code, style)
-            # straight colour (the model's is composited on its background), as synthesize writes it
-            rgba = DF.straight_rgba(img["rgb"].clamp(0, 1).cpu().numpy(), img["acc"].clamp(0, 1).cpu().numpy(),
-                                    1.0 if cfg.white_background else 0.0)
-            ids = labels_t[img["semantic"].argmax(-1).cpu()].numpy().astype(np.uint8)
-            DF.write_png(tmp / "rgb" / f"{k:06d}.png", rgba)
-            DF.write_png(tmp / "semantic" / f"{k:06d}.png", ids)
-            DF.write_png(tmp / "semantic_color" / f"{k:06d}.png", colorize(ids))
-            DF.write_srn_pose(tmp / "pose" / f"{k:06d}.txt", c2w)
-            yield Progress(k + 1, total, f"view {k + 1}/{n}")
-        if req.blend is not None:
-            with torch.no_grad():
-                s1 = model.style_from_seed(req.blend)
-            for j, a in enumerate(np.linspace(0.0, 1.0, req.blend_steps)):
-                img = model.render_image(p.intr, p.c2w, code, mix_styles(style, s1, float(a)))
-                DF.write_png(tmp / "blend" / f"{j:06d}.png", DF.to_uint8(img["rgb"].clamp(0, 1).cpu().numpy()))
-                yield Progress(n + j + 1, total, f"blend {j + 1}/{req.blend_steps}")
+        for kind, k, res in render_prepared(model, p, req.style_seed, req.mix_seed, req.mix, req.blend,
+                                            req.blend_steps):
+            if kind == "view":
+                DF.write_png(tmp / "rgb" / f"{k:06d}.png", res.rgba)
+                DF.write_png(tmp / "semantic" / f"{k:06d}.png", res.semantic)
+                DF.write_png(tmp / "semantic_color" / f"{k:06d}.png", res.semantic_color)
+                DF.write_srn_pose(tmp / "pose" / f"{k:06d}.txt", res.c2w)
+                yield Progress(k + 1, total, f"view {k + 1}/{n}")
+            else:
+                DF.write_png(tmp / "blend" / f"{k:06d}.png", DF.to_uint8(res))
+                yield Progress(n + k + 1, total, f"blend {k + 1}/{req.blend_steps}")
         summary = {"checkpoint": str(p.info.model_file), "mask": str(req.mask), "pose": str(req.pose),
                    "views": n, "targets": str(req.targets), "image_size": cfg.image_size, "labels": list(cfg.labels),
                    "label_names": list(cfg.label_names), "edits": [list(e) for e in p.edits],
