@@ -359,13 +359,14 @@ def _png_16bit_colour(im) -> np.ndarray | None:
     from PIL import Image
 
     try:
-        with Image.open(im.filename) as hi_im, Image.open(im.filename) as lo_im:
-            (tile,) = hi_im.tile
+        with Image.open(im.filename) as lo_im:  # the high bytes are ``im``'s own decode: only the low ones are read again
+            (tile,) = lo_im.tile
             low = PNG_16BIT_RAWMODES.get(tile[3])
             if low is None:
                 return None
             lo_im.tile = [tile._replace(args=low) if hasattr(tile, "_replace") else (*tile[:3], low)]
-            hi, lo = np.asarray(hi_im), np.asarray(lo_im)
+            lo = np.asarray(lo_im)
+        hi = np.asarray(im)
     except (OSError, ValueError, TypeError):  # (a Pillow without that unpacker: 8 bits as before)
         return None
     if hi.shape != lo.shape or hi.dtype != np.uint8 or lo.dtype != np.uint8:
